@@ -1,0 +1,221 @@
+"""The linear 3D morphable model: S = S̄ + B_id·α + B_exp·δ and T = T̄ + B_tex·β (paper Eq. 1).
+
+Units and axes follow DESIGN.md: millimetres, right-handed, +Y up, +Z out of the face (towards a
+frontal camera). Coefficients are in standard-deviation units: each basis column is already scaled
+by its component's standard deviation, so α ~ N(0, I) samples the model's prior. For blendshape
+expression bases (ICT-FaceKit) δ is the blendshape weight, 1 = the full expression.
+
+Files are read by :mod:`facegeo.model_files`; this module only holds and evaluates the model.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+import torch
+
+from facegeo.errors import ModelFileError
+
+__all__ = ["MorphableModel", "N_LANDMARKS", "N_IBUG", "LIP_LANDMARKS_FROM_IBUG"]
+
+#: 68 iBUG points followed by 20 MediaPipe lip points (outer 12 + inner 8, iBUG order 48..67).
+N_IBUG = 68
+N_LANDMARKS = 88
+#: The lip points re-use the model correspondences of iBUG points 48..67 (same semantic points,
+#: detected by MediaPipe instead of dlib).
+LIP_LANDMARKS_FROM_IBUG = np.arange(48, 68)
+
+
+@dataclass(eq=False)
+class MorphableModel:
+    """A linear face model with face-varying UVs and an 88-point landmark correspondence.
+
+    Attributes (V vertices, F triangles, T UV coordinates):
+        mean_shape: (V, 3) float32, mm.
+        id_basis: (n_id, V, 3) float32, mm per standard deviation.
+        exp_basis: (n_exp, V, 3) float32, mm per unit coefficient.
+        mean_albedo: (V, 3) float32, linear RGB in [0, 1].
+        tex_basis: (n_tex, V, 3) float32, linear RGB per standard deviation (n_tex may be 0).
+        triangles: (F, 3) int64, counter-clockwise seen from outside (normals point outwards).
+        uv: (T, 2) float32 in [0, 1]², origin bottom-left.
+        uv_triangles: (F, 3) int64 indices into ``uv`` (face-varying: seams allowed).
+        landmark_indices: (88,) int64 vertex indices: the frontal correspondence of the
+            68 iBUG points followed by the 20 lip points.
+        contour_candidates: (2, C) int64 vertex lines along the right (row 0) and left (row 1)
+            jaw contour, ordered from the ear towards the chin; the 17 jaw landmarks slide along
+            them in fitting. Right/left are the subject's.
+        face_mask: (V,) bool, the facial region (used for the skin mask and for errors).
+        expression_names: names of the expression components (may be empty).
+        name: a short human-readable name; ``source``: the file it came from.
+    """
+
+    mean_shape: np.ndarray
+    id_basis: np.ndarray
+    exp_basis: np.ndarray
+    mean_albedo: np.ndarray
+    tex_basis: np.ndarray
+    triangles: np.ndarray
+    uv: np.ndarray
+    uv_triangles: np.ndarray
+    landmark_indices: np.ndarray
+    contour_candidates: np.ndarray
+    face_mask: np.ndarray
+    expression_names: list[str] = field(default_factory=list)
+    name: str = "model"
+    source: str = "<memory>"
+
+    def __post_init__(self) -> None:
+        self.mean_shape = np.asarray(self.mean_shape, dtype=np.float32)
+        self.id_basis = np.asarray(self.id_basis, dtype=np.float32)
+        self.exp_basis = np.asarray(self.exp_basis, dtype=np.float32)
+        self.mean_albedo = np.asarray(self.mean_albedo, dtype=np.float32)
+        self.tex_basis = np.asarray(self.tex_basis, dtype=np.float32)
+        self.triangles = np.asarray(self.triangles, dtype=np.int64)
+        self.uv = np.asarray(self.uv, dtype=np.float32)
+        self.uv_triangles = np.asarray(self.uv_triangles, dtype=np.int64)
+        self.landmark_indices = np.asarray(self.landmark_indices, dtype=np.int64)
+        self.contour_candidates = np.asarray(self.contour_candidates, dtype=np.int64)
+        self.face_mask = np.asarray(self.face_mask, dtype=bool)
+        self._validate()
+        self._torch: dict[tuple[str, torch.dtype], torch.Tensor] = {}
+
+    # ------------------------------------------------------------------ checks
+    def _fail(self, field_name: str, expected: str, found: str) -> None:
+        raise ModelFileError(self.source, field_name, expected, found)
+
+    def _validate(self) -> None:
+        V = self.mean_shape.shape[0] if self.mean_shape.ndim == 2 else -1
+        checks = [
+            ("mean_shape", self.mean_shape, (V, 3)),
+            ("id_basis", self.id_basis, (None, V, 3)),
+            ("exp_basis", self.exp_basis, (None, V, 3)),
+            ("mean_albedo", self.mean_albedo, (V, 3)),
+            ("tex_basis", self.tex_basis, (None, V, 3)),
+            ("triangles", self.triangles, (None, 3)),
+            ("uv", self.uv, (None, 2)),
+            ("uv_triangles", self.uv_triangles, (self.triangles.shape[0], 3)),
+            ("landmark_indices", self.landmark_indices, (N_LANDMARKS,)),
+            ("contour_candidates", self.contour_candidates, (2, None)),
+            ("face_mask", self.face_mask, (V,)),
+        ]
+        if V <= 0:
+            self._fail("mean_shape", "an array of shape (V, 3) with V > 0", str(self.mean_shape.shape))
+        for name, array, shape in checks:
+            ok = array.ndim == len(shape) and all(s is None or s == a for s, a in zip(shape, array.shape))
+            if not ok:
+                wanted = "(" + ", ".join("*" if s is None else str(s) for s in shape) + ")"
+                self._fail(name, f"shape {wanted}", str(tuple(array.shape)))
+            if array.dtype.kind == "f" and not np.all(np.isfinite(array)):
+                self._fail(name, "finite values", f"{int(np.sum(~np.isfinite(array)))} NaN/inf entries")
+        for name, array, bound in [
+            ("triangles", self.triangles, V),
+            ("uv_triangles", self.uv_triangles, self.uv.shape[0]),
+            ("landmark_indices", self.landmark_indices, V),
+            ("contour_candidates", self.contour_candidates, V),
+        ]:
+            if array.size and (array.min() < 0 or array.max() >= bound):
+                self._fail(name, f"indices in [0, {bound})", f"range [{array.min()}, {array.max()}]")
+        if self.triangles.shape[0] == 0:
+            self._fail("triangles", "at least one triangle", "none")
+        if self.expression_names and len(self.expression_names) != self.n_exp:
+            self._fail("expression_names", f"{self.n_exp} names", str(len(self.expression_names)))
+
+    # ------------------------------------------------------------------ sizes
+    @property
+    def n_vertices(self) -> int:
+        """V, the number of vertices."""
+        return int(self.mean_shape.shape[0])
+
+    @property
+    def n_id(self) -> int:
+        """Number of identity components (read from the file)."""
+        return int(self.id_basis.shape[0])
+
+    @property
+    def n_exp(self) -> int:
+        """Number of expression components (read from the file)."""
+        return int(self.exp_basis.shape[0])
+
+    @property
+    def n_tex(self) -> int:
+        """Number of texture components (0 when the model has a mean albedo only)."""
+        return int(self.tex_basis.shape[0])
+
+    # ------------------------------------------------------------------ evaluation
+    def tensor(self, name: str, dtype: torch.dtype = torch.float32) -> torch.Tensor:
+        """The array attribute ``name`` as a cached CPU torch tensor of ``dtype``."""
+        key = (name, dtype)
+        if key not in self._torch:
+            self._torch[key] = torch.from_numpy(np.ascontiguousarray(getattr(self, name))).to(dtype)
+        return self._torch[key]
+
+    def shape(
+        self,
+        alpha: torch.Tensor | np.ndarray | None = None,
+        delta: torch.Tensor | np.ndarray | None = None,
+        vertex_indices: torch.Tensor | np.ndarray | None = None,
+    ) -> torch.Tensor:
+        """S(α, δ) = S̄ + B_id·α + B_exp·δ, batched and differentiable.
+
+        Args:
+            alpha: (..., n_id) identity coefficients (σ units), or None for zeros.
+            delta: (..., n_exp) expression coefficients, or None for zeros.
+            vertex_indices: optional (K,) int64 subset of vertices to evaluate (cheap for
+                landmark fitting).
+        Returns:
+            (..., V, 3) or (..., K, 3) tensor in mm, dtype of the coefficients (float32 default).
+        """
+        dtype = _dtype_of(alpha, delta)
+        mean = self.tensor("mean_shape", dtype)
+        id_basis = self.tensor("id_basis", dtype)
+        exp_basis = self.tensor("exp_basis", dtype)
+        if vertex_indices is not None:
+            idx = torch.as_tensor(vertex_indices, dtype=torch.long)
+            mean, id_basis, exp_basis = mean[idx], id_basis[:, idx], exp_basis[:, idx]
+        out = mean
+        if alpha is not None:
+            alpha = _coefficients(alpha, self.n_id, "alpha", dtype)
+            out = out + torch.einsum("...k,kvc->...vc", alpha, id_basis)
+        if delta is not None:
+            delta = _coefficients(delta, self.n_exp, "delta", dtype)
+            out = out + torch.einsum("...k,kvc->...vc", delta, exp_basis)
+        return out
+
+    def albedo(self, beta: torch.Tensor | np.ndarray | None = None) -> torch.Tensor:
+        """T(β) = T̄ + B_tex·β: (..., V, 3) linear RGB, not clamped; β is (..., n_tex)."""
+        dtype = _dtype_of(beta)
+        out = self.tensor("mean_albedo", dtype)
+        if beta is not None and self.n_tex > 0:
+            beta = _coefficients(beta, self.n_tex, "beta", dtype)
+            out = out + torch.einsum("...k,kvc->...vc", beta, self.tensor("tex_basis", dtype))
+        elif beta is not None:
+            beta = torch.as_tensor(beta, dtype=dtype)
+            out = out.expand(*beta.shape[:-1], *out.shape)
+        return out
+
+    def vertex_normals(self, vertices: torch.Tensor) -> torch.Tensor:
+        """Area-weighted unit vertex normals of (..., V, 3) vertices -> (..., V, 3)."""
+        tri = self.tensor("triangles", torch.long)
+        a, b, c = vertices[..., tri[:, 0], :], vertices[..., tri[:, 1], :], vertices[..., tri[:, 2], :]
+        face_n = torch.cross(b - a, c - a, dim=-1)
+        normals = torch.zeros_like(vertices)
+        for k in range(3):
+            normals = normals.index_add(-2, tri[:, k], face_n)
+        return torch.nn.functional.normalize(normals, dim=-1, eps=1e-12)
+
+
+def _dtype_of(*tensors: object) -> torch.dtype:
+    for t in tensors:
+        if isinstance(t, torch.Tensor) and t.is_floating_point():
+            return t.dtype
+        if isinstance(t, np.ndarray) and t.dtype == np.float64:
+            return torch.float64
+    return torch.float32
+
+
+def _coefficients(value: torch.Tensor | np.ndarray, n: int, name: str, dtype: torch.dtype) -> torch.Tensor:
+    value = torch.as_tensor(value, dtype=dtype)
+    if value.shape[-1:] != (n,):
+        raise ValueError(f"{name}: expected shape (..., {n}), got {tuple(value.shape)}")
+    return value
