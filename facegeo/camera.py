@@ -1,0 +1,154 @@
+"""Perspective pinhole camera, rigid pose and projection (OpenGL axes, pixel rows downwards).
+
+Camera space follows DESIGN.md: X_c = R·X + t, +X right, +Y up, and the camera looks down −Z, so
+a visible point has z_c < 0. A pixel (u, v) has u growing to the right and v growing downwards:
+
+    u = cx + f · x_c / (−z_c),    v = cy − f · y_c / (−z_c).
+
+Pixel coordinates are continuous with the origin at the top-left corner of the image: pixel (i, j)
+(column i, row j) covers [i, i+1) × [j, j+1) and its centre is (i + 0.5, j + 0.5). Landmarks,
+projections and the principal point all use this convention (subtract 0.5 for OpenCV's
+integer-centred pixel grid).
+
+OpenCV's camera (looking down +Z, y down) differs by D = diag(1, −1, −1): R_cv = D·R, t_cv = D·t.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+
+__all__ = [
+    "Camera",
+    "project",
+    "rotation_from_axis_angle",
+    "rotation_from_euler",
+    "euler_from_rotation",
+    "OPENCV_FROM_OPENGL",
+]
+
+#: D = diag(1, −1, −1): maps OpenGL camera coordinates to OpenCV's (and back; D = D⁻¹).
+OPENCV_FROM_OPENGL = np.diag([1.0, -1.0, -1.0])
+
+#: Horizontal-or-vertical field of view (degrees) assumed for the longer image side when the
+#: focal length of a photo is unknown: a 50 mm lens on a full-frame camera sees about 40° along
+#: its long side; portrait photos are usually taken with 35–85 mm equivalents.
+DEFAULT_FOV_DEG = 40.0
+
+
+@dataclass(frozen=True)
+class Camera:
+    """Pinhole intrinsics in pixels: focal length ``focal``, principal point (``cx``, ``cy``),
+    image size ``width`` × ``height``. Square pixels, no skew, no distortion."""
+
+    focal: float
+    cx: float
+    cy: float
+    width: int
+    height: int
+
+    def __post_init__(self) -> None:
+        values = (self.focal, self.cx, self.cy)
+        if not all(math.isfinite(v) for v in values) or self.focal <= 0:
+            raise ValueError(f"Camera: expected a finite focal > 0 and principal point, got {values}")
+        if self.width <= 0 or self.height <= 0:
+            raise ValueError(f"Camera: expected a positive image size, got {self.width}x{self.height}")
+
+    @classmethod
+    def for_image(cls, width: int, height: int, fov_deg: float = DEFAULT_FOV_DEG) -> "Camera":
+        """A camera for a ``width`` × ``height`` photo with principal point at the centre and the
+        given field of view (degrees) along the longer side."""
+        focal = 0.5 * max(width, height) / math.tan(math.radians(fov_deg) / 2.0)
+        return cls(focal=focal, cx=width / 2.0, cy=height / 2.0, width=int(width), height=int(height))
+
+    def scaled(self, factor: float) -> "Camera":
+        """The same camera for the image resized by ``factor`` (continuous pixel coordinates with
+        the origin at the top-left image corner scale linearly)."""
+        return Camera(
+            focal=self.focal * factor,
+            cx=self.cx * factor,
+            cy=self.cy * factor,
+            width=max(1, round(self.width * factor)),
+            height=max(1, round(self.height * factor)),
+        )
+
+    def matrix(self) -> np.ndarray:
+        """(3, 3) float64 OpenCV intrinsic matrix K (for cv2.solvePnP and friends)."""
+        return np.array([[self.focal, 0.0, self.cx], [0.0, self.focal, self.cy], [0.0, 0.0, 1.0]])
+
+    def as_dict(self) -> dict[str, float | int]:
+        """JSON-ready fields."""
+        return {"focal": self.focal, "cx": self.cx, "cy": self.cy, "width": self.width, "height": self.height}
+
+
+def project(
+    points: torch.Tensor | np.ndarray,
+    rotation: torch.Tensor | np.ndarray,
+    translation: torch.Tensor | np.ndarray,
+    camera: Camera,
+) -> torch.Tensor | np.ndarray:
+    """Project model-space points to pixels.
+
+    Args:
+        points: (..., N, 3) mm, model space.
+        rotation: (..., 3, 3) rotation matrix R.
+        translation: (..., 3) mm, t.
+        camera: the intrinsics.
+    Returns:
+        (..., N, 2) pixel coordinates (u right, v down). A torch tensor (differentiable) when
+        ``points`` is a tensor, else a float64 NumPy array. Points at or behind the camera
+        plane (z_c ≥ −1e-6 mm) are projected with their depth clamped to 1e-6 mm, so results
+        stay finite.
+    """
+    as_numpy = not isinstance(points, torch.Tensor)
+    dtype = torch.float64 if as_numpy else points.dtype
+    p = torch.as_tensor(points, dtype=dtype)
+    r = torch.as_tensor(rotation, dtype=dtype)
+    t = torch.as_tensor(translation, dtype=dtype)
+    cam = torch.einsum("...ij,...nj->...ni", r, p) + t[..., None, :]
+    depth = (-cam[..., 2]).clamp_min(1e-6)
+    u = camera.cx + camera.focal * cam[..., 0] / depth
+    v = camera.cy - camera.focal * cam[..., 1] / depth
+    out = torch.stack([u, v], dim=-1)
+    return out.numpy() if as_numpy else out
+
+
+def rotation_from_axis_angle(axis_angle: torch.Tensor) -> torch.Tensor:
+    """Rodrigues' formula: (..., 3) axis·angle in radians -> (..., 3, 3) rotation matrices.
+
+    Written out rather than taken from kornia because the fit differentiates it with
+    ``torch.func`` transforms, which kornia's data-dependent branches do not support. Smooth and
+    exact at the zero rotation: θ² gets a 1e-12 guard that changes no result above 1e-6 rad.
+    """
+    theta2 = (axis_angle * axis_angle).sum(-1, keepdim=True)[..., None] + 1e-12
+    theta = theta2.sqrt()
+    x, y, z = axis_angle.unbind(-1)
+    zero = torch.zeros_like(x)
+    k = torch.stack([zero, -z, y, z, zero, -x, -y, x, zero], dim=-1).reshape(*axis_angle.shape[:-1], 3, 3)
+    eye = torch.eye(3, dtype=axis_angle.dtype).expand_as(k)
+    return eye + torch.sin(theta) / theta * k + (1 - torch.cos(theta)) / theta2 * (k @ k)
+
+
+def rotation_from_euler(yaw: float, pitch: float, roll: float) -> np.ndarray:
+    """(3, 3) float64 R = R_z(roll) · R_x(pitch) · R_y(yaw), angles in degrees.
+
+    Yaw turns the face about +Y (positive: the nose turns towards +X, the viewer's right, and the
+    subject's right ear comes into view), pitch about +X (positive: chin goes down), roll about +Z.
+    """
+    y, p, r = (math.radians(a) for a in (yaw, pitch, roll))
+    ry = np.array([[math.cos(y), 0, math.sin(y)], [0, 1, 0], [-math.sin(y), 0, math.cos(y)]])
+    rx = np.array([[1, 0, 0], [0, math.cos(p), -math.sin(p)], [0, math.sin(p), math.cos(p)]])
+    rz = np.array([[math.cos(r), -math.sin(r), 0], [math.sin(r), math.cos(r), 0], [0, 0, 1]])
+    return rz @ rx @ ry
+
+
+def euler_from_rotation(rotation: np.ndarray) -> tuple[float, float, float]:
+    """Inverse of :func:`rotation_from_euler`: (yaw, pitch, roll) in degrees."""
+    r = np.asarray(rotation, dtype=np.float64)
+    pitch = math.asin(max(-1.0, min(1.0, r[2, 1])))
+    yaw = math.atan2(-r[2, 0], r[2, 2])
+    roll = math.atan2(-r[0, 1], r[1, 1])
+    return math.degrees(yaw), math.degrees(pitch), math.degrees(roll)

@@ -1,0 +1,89 @@
+"""The 88-point hybrid landmark scheme: point order, mirror symmetry, weights and the loss.
+
+Order: points 0..67 are the 68-point iBUG-300W markup (0–16 jaw from the subject's right to left,
+17–21 right brow, 22–26 left brow, 27–30 nose bridge, 31–35 nostrils, 36–41 right eye, 42–47
+left eye, 48–59 outer lip, 60–67 inner lip); points 68..87 are the 20 lip points of MediaPipe's
+face mesh at the semantic positions of iBUG 48..67 (12 outer, 8 inner). The paper (Sec. 3.2)
+adds them because 68-point detectors are unstable around the mouth; the loss therefore weights
+them up and the dlib mouth points down. All weights live here, nowhere else.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import torch
+
+__all__ = [
+    "N_LANDMARKS",
+    "JAW",
+    "CHIN",
+    "LIP_POINTS",
+    "IBUG_MIRROR",
+    "HYBRID_MIRROR",
+    "LANDMARK_WEIGHTS",
+    "landmark_loss",
+    "inter_ocular_distance",
+]
+
+N_LANDMARKS = 88
+#: The 17 jaw-contour points (they slide along the silhouette in fitting, except the chin).
+JAW = np.arange(0, 17)
+CHIN = 8
+#: The 20 MediaPipe lip points in the 88-point order.
+LIP_POINTS = np.arange(68, 88)
+
+#: iBUG-68 index of the mirror-symmetric point (left/right swap), an involution.
+IBUG_MIRROR = np.array(
+    list(range(16, -1, -1))  # jaw
+    + list(range(26, 21, -1)) + list(range(21, 16, -1))  # brows
+    + [27, 28, 29, 30] + [35, 34, 33, 32, 31]  # nose
+    + [45, 44, 43, 42, 47, 46] + [39, 38, 37, 36, 41, 40]  # eyes
+    + [54, 53, 52, 51, 50, 49, 48, 59, 58, 57, 56, 55]  # outer lip
+    + [64, 63, 62, 61, 60, 67, 66, 65],  # inner lip
+    dtype=np.int64,
+)
+#: The same for the 88-point order (lip points mirror among themselves).
+HYBRID_MIRROR = np.concatenate([IBUG_MIRROR, IBUG_MIRROR[48:68] + 20])
+
+
+def _weights() -> np.ndarray:
+    w = np.ones(N_LANDMARKS, dtype=np.float32)
+    w[JAW] = 0.5  # the contour is ambiguous along its own direction
+    w[48:68] = 0.5  # dlib's mouth points: unstable (the paper's motivation)
+    w[LIP_POINTS] = 3.0  # MediaPipe's lip points: weighted up
+    return w
+
+
+#: (88,) float32 per-point weights of the landmark loss.
+LANDMARK_WEIGHTS = _weights()
+
+
+def inter_ocular_distance(points: np.ndarray | torch.Tensor) -> float:
+    """Distance between the outer eye corners (iBUG 36 and 45) of (≥68, 2) points, in pixels."""
+    p = torch.as_tensor(points, dtype=torch.float64)
+    return float(torch.linalg.norm(p[36] - p[45]))
+
+
+def landmark_loss(
+    predicted: torch.Tensor,
+    target: torch.Tensor,
+    weights: torch.Tensor | np.ndarray | None = None,
+    scale: float = 1.0,
+) -> torch.Tensor:
+    """Weighted mean squared landmark distance, normalised by ``scale``².
+
+    Args:
+        predicted: (..., 88, 2) projected model landmarks, pixels.
+        target: (88, 2) detected landmarks, pixels; NaN rows are ignored (weight 0).
+        weights: (88,) per-point weights (default :data:`LANDMARK_WEIGHTS`).
+        scale: a face size in pixels (e.g. the inter-ocular distance) so the loss is
+            resolution-independent.
+    Returns:
+        (...) tensor: Σ w_i ‖p_i − q_i‖² / (Σ w_i · scale²).
+    """
+    w = torch.as_tensor(LANDMARK_WEIGHTS if weights is None else weights, dtype=predicted.dtype)
+    valid = torch.isfinite(target).all(-1)
+    w = torch.where(valid, w, torch.zeros_like(w))
+    target = torch.where(valid[:, None], target, torch.zeros_like(target))
+    sq = ((predicted - target) ** 2).sum(-1)
+    return (sq * w).sum(-1) / (w.sum() * scale * scale)
