@@ -1,3 +1,48 @@
-"""facegeo: one photo of a face in, a measured 3D morphable-model fit out."""
+"""facegeo: one photo of a face in, a measured, relightable 3D face asset out.
+
+The geometry half: the morphable model, camera and SH lighting, the 88-point hybrid landmarks and
+the analysis-by-synthesis fit. Public names are imported lazily so ``facegeo --help`` starts fast.
+"""
+
+from __future__ import annotations
+
+from importlib import import_module
+from typing import TYPE_CHECKING, Any
 
 __version__ = "0.1.0"
+
+_EXPORTS = {
+    "MorphableModel": "facegeo.morphable_model",
+    "load_model": "facegeo.model_files",
+    "Camera": "facegeo.camera",
+    "project": "facegeo.camera",
+    "detect_landmarks": "facegeo.landmarks.detectors",
+    "FaceLandmarks": "facegeo.landmarks.detectors",
+    "LandmarkDetector": "facegeo.landmarks.detectors",
+    "Fit": "facegeo.fitting",
+    "fit": "facegeo.fitting",
+    "fit_landmarks": "facegeo.fitting",
+    "Photo": "facegeo.photo",
+    "load_photo": "facegeo.photo",
+    "FacegeoError": "facegeo.errors",
+    "InputError": "facegeo.errors",
+    "ModelFileError": "facegeo.errors",
+    "NoFaceError": "facegeo.errors",
+}
+
+__all__ = ["__version__", *_EXPORTS]
+
+if TYPE_CHECKING:
+    from facegeo.camera import Camera, project
+    from facegeo.errors import FacegeoError, InputError, ModelFileError, NoFaceError
+    from facegeo.fitting import Fit, fit, fit_landmarks
+    from facegeo.landmarks.detectors import FaceLandmarks, LandmarkDetector, detect_landmarks
+    from facegeo.model_files import load_model
+    from facegeo.morphable_model import MorphableModel
+    from facegeo.photo import Photo, load_photo
+
+
+def __getattr__(name: str) -> Any:
+    if name in _EXPORTS:
+        return getattr(import_module(_EXPORTS[name]), name)
+    raise AttributeError(f"module 'facegeo' has no attribute {name!r}")

@@ -1,0 +1,106 @@
+"""The ``facegeo`` command line.
+
+Every user-facing failure is a :class:`facegeo.errors.FacegeoError`: the command prints its one
+message (file, field, what was expected) to stderr without a traceback and exits with status 2.
+Outputs are staged in a hidden folder and moved into place only when the run succeeds.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+from facegeo import __version__
+from facegeo.errors import FacegeoError
+
+__all__ = ["main", "build_parser"]
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The argument parser with all subcommands."""
+    parser = argparse.ArgumentParser(prog="facegeo", description="One photo of a face in, a measured 3D face out.")
+    parser.add_argument("--version", action="version", version=f"facegeo {__version__}")
+    sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+
+    fit = sub.add_parser(
+        "fit",
+        help="fit the morphable model to a photo (fit.json, mesh.obj, overlay.png)",
+        description="Detect 88 landmarks, fit pose, identity, expression, albedo and SH lighting, "
+        "and write fit.json (parameters, camera, per-point landmark errors, timings), mesh.obj "
+        "(posed mesh in camera space, mm, with UVs) and overlay.png.",
+    )
+    fit.add_argument("photo", type=Path, help="the photo (PNG, JPEG, ...); EXIF orientation is honoured")
+    fit.add_argument("-o", "--output", type=Path, required=True, help="output folder (created)")
+    fit.add_argument("--model", type=Path, default=None, help="model file (.npz, HIFI3D++ .mat, AI-NExT .mat); default: $FACEGEO_MODEL or the bundled ICT-FaceKit model")
+    fit.add_argument("--landmarks", choices=["hybrid", "dlib", "mediapipe"], default="hybrid", help="landmark detector (default: hybrid = dlib 68 + MediaPipe 20 lip points; mediapipe is licence-clean for commercial use)")
+    fit.add_argument("--focal", type=float, default=None, help="focal length in pixels of the (possibly downscaled) photo; default: 40° field of view on the long side")
+    fit.add_argument("--max-side", type=int, default=2048, help="downscale photos whose longer side exceeds this (pixels)")
+    fit.add_argument("--no-photometric", action="store_true", help="skip the albedo and lighting stage")
+    fit.set_defaults(run=_run_fit)
+    return parser
+
+
+def _run_fit(args: argparse.Namespace) -> None:
+    import cv2
+
+    from facegeo.camera import Camera
+    from facegeo.fitting import fit
+    from facegeo.landmarks.scheme import inter_ocular_distance
+    from facegeo.mesh_io import obj_text
+    from facegeo.model_files import load_model
+    from facegeo.overlay import draw_overlay
+    from facegeo.photo import load_photo
+    from facegeo.staged_output import StagedOutput
+
+    start = time.perf_counter()
+    photo = load_photo(args.photo, max_side=args.max_side)
+    t_model = time.perf_counter()
+    model = load_model(args.model)
+    model_seconds = time.perf_counter() - t_model
+    height, width = photo.image.shape[:2]
+    camera = Camera.for_image(width, height)
+    if args.focal is not None:
+        camera = Camera(args.focal, width / 2.0, height / 2.0, width, height)
+    result = fit(photo, model=model, detector=args.landmarks, camera=camera, photometric=not args.no_photometric)
+    result.timings["load_model"] = model_seconds
+    result.timings["total"] = time.perf_counter() - start
+    iod = inter_ocular_distance(result.landmarks)
+    result.info["landmark_rms_percent_iod"] = 100.0 * result.landmark_rms_px / iod
+    with StagedOutput(args.output) as stage:
+        stage.path("fit.json").write_text(json.dumps(result.to_dict(), indent=1))
+        stage.path("mesh.obj").write_text(obj_text(result.vertices, model.triangles, model.uv, model.uv_triangles))
+        overlay = draw_overlay(photo.image, result, model)
+        ok, png = cv2.imencode(".png", np.ascontiguousarray(overlay[..., ::-1]))
+        stage.path("overlay.png").write_bytes(png.tobytes())
+    for note in result.info.get("notes", []):
+        print(f"note: {note}")
+    print(
+        f"fitted {args.photo} with {model.name} ({model.n_id} id, {model.n_exp} exp, {model.n_tex} tex): "
+        f"landmark RMS {result.landmark_rms_px:.2f} px = {result.info['landmark_rms_percent_iod']:.2f} % of the inter-ocular distance"
+    )
+    print("timings: " + ", ".join(f"{k} {v:.3f} s" for k, v in result.timings.items()))
+    print(f"wrote {args.output}/fit.json, mesh.obj, overlay.png")
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Entry point of the ``facegeo`` console command; returns the exit status."""
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    try:
+        args.run(args)
+    except FacegeoError as exc:
+        print(f"facegeo: error: {exc}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print("facegeo: interrupted", file=sys.stderr)
+        return 130
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

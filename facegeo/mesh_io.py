@@ -1,0 +1,40 @@
+"""Wavefront OBJ output of a model mesh with its face-varying UVs.
+
+Written by hand rather than through trimesh: trimesh splits vertices along UV seams on export,
+which would break the one-to-one vertex order that REALY keypoint files and the model's landmark
+indices rely on. Here ``v`` lines keep the model's vertex order, ``vt`` lines the UV list, and
+faces reference both (``f v/vt``), 1-based as the format requires.
+"""
+
+from __future__ import annotations
+
+import io
+from pathlib import Path
+
+import numpy as np
+
+from facegeo.staged_output import atomic_write_text
+
+__all__ = ["obj_text", "write_obj"]
+
+
+def obj_text(vertices: np.ndarray, triangles: np.ndarray, uv: np.ndarray | None = None, uv_triangles: np.ndarray | None = None) -> str:
+    """The OBJ text of (V, 3) mm vertices, (F, 3) triangles and optional (T, 2) UVs (origin
+    bottom-left, as OBJ) with (F, 3) UV triangles."""
+    vertices = np.asarray(vertices, dtype=np.float64)
+    triangles = np.asarray(triangles, dtype=np.int64)
+    out = io.StringIO()
+    out.write("# facegeo mesh: millimetres, +Y up, +Z out of the face\n")
+    np.savetxt(out, vertices, fmt="v %.5f %.5f %.5f")
+    if uv is not None and uv_triangles is not None:
+        np.savetxt(out, np.asarray(uv, dtype=np.float64), fmt="vt %.6f %.6f")
+        faces = np.stack([triangles + 1, np.asarray(uv_triangles, dtype=np.int64) + 1], axis=-1).reshape(-1, 6)
+        np.savetxt(out, faces, fmt="f %d/%d %d/%d %d/%d")
+    else:
+        np.savetxt(out, triangles + 1, fmt="f %d %d %d")
+    return out.getvalue()
+
+
+def write_obj(path: str | Path, vertices: np.ndarray, triangles: np.ndarray, uv: np.ndarray | None = None, uv_triangles: np.ndarray | None = None) -> None:
+    """Write :func:`obj_text` atomically to ``path``."""
+    atomic_write_text(Path(path), obj_text(vertices, triangles, uv, uv_triangles))

@@ -1,0 +1,142 @@
+"""Landmark fitting on synthetic instances of the bundled model (known answers)."""
+
+import numpy as np
+import pytest
+import torch
+
+from facegeo import Camera, fit_landmarks, load_model, project
+from facegeo.camera import euler_from_rotation, rotation_from_euler
+from facegeo.errors import InputError
+
+CAMERA = Camera.for_image(512, 512)
+
+
+def similarity_rms(a: np.ndarray, b: np.ndarray) -> float:
+    """RMS distance (mm) between b and a after the best similarity transform of a onto b."""
+    a = a.astype(np.float64) - a.mean(0)
+    mb = b.mean(0)
+    bb = b.astype(np.float64) - mb
+    u, s, vt = np.linalg.svd(bb.T @ a)
+    d = np.diag([1.0, 1.0, np.sign(np.linalg.det(u @ vt))])
+    r = u @ d @ vt
+    scale = (s * np.diag(d)).sum() / (a**2).sum()
+    return float(np.sqrt(((scale * a @ r.T - bb) ** 2).sum(1).mean()))
+
+
+def synthetic(model, rng, yaw, sigma=0.5, pitch=None, roll=None):
+    alpha = rng.normal(0, sigma, model.n_id).astype(np.float32)
+    delta = rng.normal(0, sigma, model.n_exp).astype(np.float32)
+    pitch = rng.uniform(-15, 15) if pitch is None else pitch
+    roll = rng.uniform(-10, 10) if roll is None else roll
+    rotation = rotation_from_euler(yaw, pitch, roll)
+    translation = np.array([rng.uniform(-20, 20), rng.uniform(-20, 20), -600.0])
+    shape = model.shape(torch.from_numpy(alpha), torch.from_numpy(delta)).numpy()
+    landmarks = project(shape[model.landmark_indices].astype(np.float64), rotation, translation, CAMERA)
+    return shape, rotation, landmarks
+
+
+@pytest.fixture(scope="module")
+def model():
+    return load_model()
+
+
+@pytest.mark.parametrize("seed,yaw", [(1, -60.0), (2, -25.0), (3, 0.0), (4, 35.0), (5, 60.0)])
+def test_noiseless_recovery(model, seed, yaw):
+    rng = np.random.default_rng(seed)
+    shape, rotation, landmarks = synthetic(model, rng, yaw)
+    fit = fit_landmarks(model, landmarks, CAMERA)
+    assert fit.landmark_rms_px <= 0.5
+    face = model.face_mask
+    error = similarity_rms(fit.shape_vertices[face], shape[face])
+    baseline = similarity_rms(model.mean_shape[face], shape[face])
+    assert error <= 0.6 * baseline, (error, baseline)
+    # the pose is recovered too
+    assert np.allclose(euler_from_rotation(fit.rotation), euler_from_rotation(rotation), atol=3.0)
+    # posed vertices are the model-space vertices moved by the returned pose
+    np.testing.assert_allclose(fit.vertices, fit.shape_vertices @ fit.rotation.T + fit.translation, atol=1e-3)
+
+
+def test_one_pixel_noise_stays_near_the_noise_floor(model):
+    rng = np.random.default_rng(7)
+    shape, _, landmarks = synthetic(model, rng, 20.0)
+    noisy = landmarks + rng.normal(0, 1.0, landmarks.shape)
+    fit = fit_landmarks(model, noisy, CAMERA)
+    assert fit.landmark_rms_px < 1.5
+    face = model.face_mask
+    assert similarity_rms(fit.shape_vertices[face], shape[face]) < similarity_rms(model.mean_shape[face], shape[face])
+
+
+def test_mirrored_landmarks_give_mirrored_fit(model):
+    """Left/right symmetry: the fit of the mirrored image has the opposite yaw and roll."""
+    from facegeo.landmarks.scheme import HYBRID_MIRROR
+
+    rng = np.random.default_rng(11)
+    _, _, landmarks = synthetic(model, rng, 30.0, sigma=0.0, pitch=5.0, roll=4.0)
+    mirrored = landmarks[HYBRID_MIRROR].copy()
+    mirrored[:, 0] = CAMERA.width - mirrored[:, 0]
+    a = euler_from_rotation(fit_landmarks(model, landmarks, CAMERA).rotation)
+    b = euler_from_rotation(fit_landmarks(model, mirrored, CAMERA).rotation)
+    assert b[0] == pytest.approx(-a[0], abs=2.0)
+    assert b[1] == pytest.approx(a[1], abs=2.0)
+    assert b[2] == pytest.approx(-a[2], abs=2.0)
+
+
+@pytest.mark.parametrize("yaw", [-90.0, 90.0])
+def test_profile_views_are_finite(model, yaw):
+    rng = np.random.default_rng(3)
+    _, _, landmarks = synthetic(model, rng, yaw)
+    fit = fit_landmarks(model, landmarks, CAMERA)
+    for array in (fit.alpha, fit.delta, fit.rotation, fit.translation, fit.vertices, fit.landmarks_fitted):
+        assert np.all(np.isfinite(array))
+    assert fit.translation[2] < 0  # in front of the camera
+
+
+@pytest.mark.parametrize("sign", [-1.0, 1.0])
+def test_extreme_coefficients_are_finite(model, sign):
+    alpha = np.full(model.n_id, 5.0 * sign, dtype=np.float32)
+    delta = np.full(model.n_exp, 5.0 * sign, dtype=np.float32)
+    shape = model.shape(torch.from_numpy(alpha), torch.from_numpy(delta)).numpy()
+    landmarks = project(shape[model.landmark_indices].astype(np.float64), np.eye(3), np.array([0, 0, -600.0]), CAMERA)
+    fit = fit_landmarks(model, landmarks, CAMERA)
+    assert np.all(np.isfinite(fit.vertices)) and np.isfinite(fit.landmark_rms_px)
+
+
+def test_nan_rows_are_ignored(model):
+    rng = np.random.default_rng(9)
+    _, _, landmarks = synthetic(model, rng, 10.0)
+    landmarks[[3, 40, 70]] = np.nan
+    fit = fit_landmarks(model, landmarks, CAMERA)
+    assert np.isfinite(fit.landmark_rms_px) and fit.landmark_rms_px < 0.5
+
+
+def test_bad_landmarks_raise(model):
+    with pytest.raises(InputError, match=r"shape \(88, 2\)"):
+        fit_landmarks(model, np.zeros((68, 2)), CAMERA)
+    with pytest.raises(InputError, match="non-jaw"):
+        fit_landmarks(model, np.full((88, 2), np.nan), CAMERA)
+
+
+def test_analytic_jacobian_matches_autodiff(model):
+    """The hand-written Levenberg–Marquardt Jacobian equals torch.func.jacfwd in float64."""
+    from facegeo.camera import rotation_from_axis_angle
+    from facegeo.fitting import LANDMARK_WEIGHTS, _LandmarkProblem
+
+    rng = np.random.default_rng(5)
+    _, rotation, landmarks = synthetic(model, rng, 25.0)
+    problem = _LandmarkProblem(model, landmarks, CAMERA, LANDMARK_WEIGHTS)
+    r0 = torch.tensor(rotation_from_euler(10, 5, -3))
+    t0 = torch.tensor([3.0, -4.0, -550.0], dtype=torch.float64)
+    a0 = torch.from_numpy(rng.normal(0, 0.3, model.n_id))
+    d0 = torch.from_numpy(rng.normal(0, 0.3, model.n_exp))
+    problem.slide_jaw(r0, t0, a0, d0)
+    n_id, n_exp, unit = 30, model.n_exp, 10.0
+
+    def residuals(x):
+        alpha = torch.cat([a0[:n_id] + x[6 : 6 + n_id], a0[n_id:]])
+        delta = d0 + x[6 + n_id :]
+        return problem.residuals(r0 @ rotation_from_axis_angle(x[:3]), t0 + unit * x[3:6], alpha, delta)
+
+    x0 = torch.zeros(6 + n_id + n_exp, dtype=torch.float64)
+    expected = torch.func.jacfwd(residuals)(x0)
+    actual = problem.jacobian(r0, t0, a0, d0, n_id, n_exp, unit)
+    torch.testing.assert_close(actual, expected, rtol=1e-9, atol=1e-12)
