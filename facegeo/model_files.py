@@ -51,9 +51,7 @@ Hifi3D++ face model for Deep3DFaceRecon):
   Each vertex takes the value at its UV pixel (the nearest defined pixel if its own is not),
   averaged over its UV corners; the result is converted to linear [0, 1] RGB, exactly for the
   mean and to first order (about the mean) for the basis.
-* ``face_mask`` is ``mask_face != 0`` when present, else all vertices. ``contour_candidates`` are
-  shortest mesh-edge paths through the jaw keypoints (iBUG 0..8 and 16..8), resampled to equal
-  length.
+* ``face_mask`` is ``mask_face != 0`` when present, else all vertices.
 
 Every failure raises :class:`~facegeo.errors.ModelFileError` naming the file, the field and what
 was expected.
@@ -99,10 +97,9 @@ _NPZ_REQUIRED = (
     "uv",
     "uv_triangles",
     "landmark_indices",
-    "contour_candidates",
     "face_mask",
 )
-_NPZ_INDEX_KEYS = ("triangles", "uv_triangles", "landmark_indices", "contour_candidates")
+_NPZ_INDEX_KEYS = ("triangles", "uv_triangles", "landmark_indices")
 _TENCENT_REQUIRED = ("mu_shape", "basis_shape", "tri", "keypoints")
 
 _cache_lock = threading.Lock()
@@ -457,7 +454,7 @@ def _load_tencent(
         triangles = triangles[:, [0, 2, 1]]
         uv_triangles = uv_triangles[:, [0, 2, 1]]
 
-    # ---- landmarks, contour, mask
+    # ---- landmarks, mask
     if keypoints.size == N_IBUG:
         ibug = keypoints
     elif keypoints.size == 86:
@@ -468,7 +465,6 @@ def _load_tencent(
         )
     _check_axes(path, mean, ibug)
     landmark_indices = np.concatenate([ibug, ibug[LIP_LANDMARKS_FROM_IBUG]])
-    contour = _contour_from_jaw(mean, triangles, ibug[:17])
 
     if "mask_face" in data:
         mask = _get(path, data, "mask_face", f"a (1, {n_vertices}) 0/1 array").reshape(-1)
@@ -509,7 +505,6 @@ def _load_tencent(
         uv=uv,
         uv_triangles=uv_triangles,
         landmark_indices=landmark_indices,
-        contour_candidates=contour,
         face_mask=face_mask,
         expression_names=[],
         name=name,
@@ -612,37 +607,6 @@ def _ibug68_from_tencent86(kp: np.ndarray, mean: np.ndarray) -> np.ndarray:
     )
     assert len(order) == N_IBUG
     return kp[np.array(order, dtype=np.int64)]
-
-
-def _contour_from_jaw(mean: np.ndarray, triangles: np.ndarray, jaw: np.ndarray) -> np.ndarray:
-    """(2, C): shortest mesh-edge paths ear→chin through jaw points 0..8 and 16..8."""
-    rows = [list(jaw[0:9]), list(jaw[16:7:-1])]
-    try:
-        from scipy.sparse import coo_matrix
-        from scipy.sparse.csgraph import dijkstra
-
-        edges = np.concatenate([triangles[:, [0, 1]], triangles[:, [1, 2]], triangles[:, [2, 0]]])
-        lengths = np.linalg.norm(mean[edges[:, 0]] - mean[edges[:, 1]], axis=1) + 1e-9
-        n = mean.shape[0]
-        graph = coo_matrix((lengths, (edges[:, 0], edges[:, 1])), shape=(n, n)).tocsr()
-        paths = []
-        for row in rows:
-            sources = np.array(row[:-1])
-            _, pred = dijkstra(graph, directed=False, indices=sources, return_predecessors=True)
-            path = [int(row[0])]
-            for k, (start, end) in enumerate(zip(row[:-1], row[1:], strict=True)):
-                segment = [int(end)]
-                while segment[-1] != start:
-                    prev = pred[k, segment[-1]]
-                    if prev < 0:
-                        raise ValueError("jaw keypoints not connected")
-                    segment.append(int(prev))
-                path.extend(segment[::-1][1:])
-            paths.append(path)
-        count = min(len(p) for p in paths)
-        return np.stack([np.array(p)[np.round(np.linspace(0, len(p) - 1, count)).astype(int)] for p in paths])
-    except (ValueError, IndexError):
-        return np.array(rows, dtype=np.int64)
 
 
 # ---------------------------------------------------------------------------------------- UVs

@@ -41,10 +41,9 @@ class MorphableModel:
         uv: (T, 2) float32 in [0, 1]², origin bottom-left.
         uv_triangles: (F, 3) int64 indices into ``uv`` (face-varying: seams allowed).
         landmark_indices: (88,) int64 vertex indices: the frontal correspondence of the
-            68 iBUG points followed by the 20 lip points.
-        contour_candidates: (2, C) int64 vertex lines along the right (row 0) and left (row 1)
-            jaw contour, ordered from the ear towards the chin; the 17 jaw landmarks slide along
-            them in fitting. Right/left are the subject's.
+            68 iBUG points followed by the 20 lip points. Points 0..16 (the jaw, subject's right
+            to left through the chin at 8) also define the contour polyline along which the
+            jaw landmarks slide in fitting.
         face_mask: (V,) bool, the facial region (used for the skin mask and for errors).
         expression_names: names of the expression components (may be empty).
         name: a short human-readable name; ``source``: the file it came from.
@@ -59,7 +58,6 @@ class MorphableModel:
     uv: np.ndarray
     uv_triangles: np.ndarray
     landmark_indices: np.ndarray
-    contour_candidates: np.ndarray
     face_mask: np.ndarray
     expression_names: list[str] = field(default_factory=list)
     name: str = "model"
@@ -75,7 +73,6 @@ class MorphableModel:
         self.uv = np.asarray(self.uv, dtype=np.float32)
         self.uv_triangles = np.asarray(self.uv_triangles, dtype=np.int64)
         self.landmark_indices = np.asarray(self.landmark_indices, dtype=np.int64)
-        self.contour_candidates = np.asarray(self.contour_candidates, dtype=np.int64)
         self.face_mask = np.asarray(self.face_mask, dtype=bool)
         self._validate()
         self._torch: dict[tuple[str, torch.dtype], torch.Tensor] = {}
@@ -96,7 +93,6 @@ class MorphableModel:
             ("uv", self.uv, (None, 2)),
             ("uv_triangles", self.uv_triangles, (self.triangles.shape[0], 3)),
             ("landmark_indices", self.landmark_indices, (N_LANDMARKS,)),
-            ("contour_candidates", self.contour_candidates, (2, None)),
             ("face_mask", self.face_mask, (V,)),
         ]
         if V <= 0:
@@ -112,7 +108,6 @@ class MorphableModel:
             ("triangles", self.triangles, V),
             ("uv_triangles", self.uv_triangles, self.uv.shape[0]),
             ("landmark_indices", self.landmark_indices, V),
-            ("contour_candidates", self.contour_candidates, V),
         ]:
             if array.size and (array.min() < 0 or array.max() >= bound):
                 self._fail(name, f"indices in [0, {bound})", f"range [{array.min()}, {array.max()}]")

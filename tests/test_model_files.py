@@ -40,7 +40,6 @@ def test_bundled_model_counts(ict):
     assert (ict.n_id, ict.n_exp, ict.n_tex) == (100, 53, 0)
     assert ict.landmark_indices.shape == (88,)
     np.testing.assert_array_equal(ict.landmark_indices[68:], ict.landmark_indices[48:68])
-    assert ict.contour_candidates.shape == (2, 17)
     assert len(ict.expression_names) == 53 and "jawOpen" in ict.expression_names
     assert ict.id_basis.dtype == np.float32 and ict.exp_basis.dtype == np.float32
     assert ict.triangles.shape == (22288, 3) and ict.uv_triangles.shape == (22288, 3)
@@ -60,13 +59,12 @@ def test_bundled_model_size_in_mm_and_axes(ict):
     assert 80.0 < np.linalg.norm(p[36] - p[45]) < 105.0  # outer eye corners (biocular width)
     assert 95.0 < np.linalg.norm(p[27] - p[8]) < 135.0  # nasion to chin
     assert p[36:48, 1].mean() > p[48:68, 1].mean() > p[8, 1]  # +Y up
-    ears = ict.mean_shape[ict.contour_candidates[:, 0]]
+    ears = p[[0, 16]]  # the top of the jaw contour, in front of the ears
     assert p[30, 2] > ears[:, 2].max() + 50.0  # +Z out of the face
     assert p[36, 0] < 0.0 < p[45, 0]  # +X towards the subject's left
-    # contours: right side (row 0) at -X, ordered from the ear down to the chin
-    c = ict.mean_shape[ict.contour_candidates]
-    assert np.all(c[0, :, 0] < 0) and np.all(c[1, :, 0] > 0)
-    assert np.all(np.diff(c[:, :, 1], axis=1).mean(axis=1) < 0)
+    # the jaw contour runs from the subject's right (-X) down to the chin and up to the left
+    assert np.all(p[0:8, 0] < 0) and np.all(p[9:17, 0] > 0)
+    assert np.all(np.diff(p[0:9, 1]) < 0) and np.all(np.diff(p[8:17, 1]) > 0)
 
 
 def test_bundled_normals_point_outwards(ict):
@@ -76,7 +74,7 @@ def test_bundled_normals_point_outwards(ict):
     assert n[tip, 2] > 0.9
     top = int(np.argmax(v[:, 1]))
     assert n[top, 1] > 0.9
-    ears = ict.contour_candidates[:, 0]
+    ears = ict.landmark_indices[[0, 16]]  # top of the jaw contour, beside the ears
     assert n[ears[0], 0] < -0.5 and n[ears[1], 0] > 0.5
     # most face-region normals point away from the head's centre (eye sockets, nostrils and
     # lip corners are concave)
@@ -199,9 +197,6 @@ def test_hifi3dpp_layout_round_trip(tmp_path, n, k_id, k_exp, base, seed):
     if k_exp:
         d = m.shape(delta=np.eye(k_exp)[-1]).numpy() - m.mean_shape
         np.testing.assert_allclose(d, f["basis_exp"][-1].reshape(n, 3) * 10.0, rtol=1e-4, atol=1e-4)
-    # contour rows: ear end (jaw 0 / 16) to the chin (jaw 8), equal length
-    c = m.contour_candidates
-    assert c.shape[0] == 2 and c[0, 0] == kp[0] and c[1, 0] == kp[16] and c[0, -1] == c[1, -1] == kp[8]
     assert m.uv.shape[1] == 2 and m.uv.min() >= 0 and m.uv.max() <= 1 and m.uv_triangles.max() < len(m.uv)
 
 
@@ -377,7 +372,6 @@ def _tiny_npz(path: Path, **override) -> Path:
         "uv": rng.random((v, 2)).astype(np.float32),
         "uv_triangles": tri,
         "landmark_indices": rng.integers(0, v, 88),
-        "contour_candidates": rng.integers(0, v, (2, 4)),
         "face_mask": np.ones(v, dtype=bool),
         "mean_albedo": np.full((v, 3), 0.5, dtype=np.float32),
         "tex_basis": np.zeros((0, v, 3), dtype=np.float32),

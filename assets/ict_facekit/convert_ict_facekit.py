@@ -134,45 +134,6 @@ MULTI_PIE_68 = [
     5517,
     5966,
 ]
-#: ICT README: right / left *extended* jawlines (17 vertices each), in the README's order.
-RIGHT_EXTENDED_JAWLINE = [
-    1280,
-    1278,
-    1275,
-    1272,
-    1248,
-    12,
-    820,
-    1834,
-    1902,
-    243,
-    844,
-    781,
-    1673,
-    2199,
-    801,
-    1447,
-    800,
-]
-LEFT_EXTENDED_JAWLINE = [
-    3041,
-    3661,
-    3042,
-    4390,
-    3880,
-    3022,
-    3085,
-    2484,
-    4102,
-    4036,
-    3061,
-    2253,
-    3466,
-    3490,
-    3493,
-    3496,
-    3498,
-]
 #: The 20 lip points of the 88-point set re-use iBUG 48..67.
 LIP_FROM_IBUG = list(range(48, 68))
 
@@ -320,7 +281,7 @@ def convert(ict_root: Path, output: Path, uv_layout: str = "packed", n_error_sam
     id32 = deltas(identity_names)
     exp32 = deltas(expression_names)
 
-    # ---- checks: units, axes, orientation, landmark and contour geometry
+    # ---- checks: units, axes, orientation, landmark geometry
     lm68 = np.array(MULTI_PIE_68, dtype=np.int64)
     sizes = measure(mean, lm68)
     assert 55.0 < sizes["eye_centres_mm"] < 75.0, sizes
@@ -337,17 +298,6 @@ def convert(ict_root: Path, output: Path, uv_layout: str = "packed", n_error_sam
     assert np.all(around_tip[:, 2] > 0), "triangles around the nose tip should face +Z"
     signed_volume = float(np.einsum("ij,ij->i", a, np.cross(b, c)).sum() / 6.0)
     assert signed_volume > 0, "triangles should be counter-clockwise seen from outside"
-
-    contour = []
-    chin = mean[lm68[8]]
-    for line in (RIGHT_EXTENDED_JAWLINE, LEFT_EXTENDED_JAWLINE):
-        line = np.array(line, dtype=np.int64)
-        # order from the ear end towards the chin: the ear end is farther from the chin
-        if np.linalg.norm(mean[line[0]] - chin) < np.linalg.norm(mean[line[-1]] - chin):
-            line = line[::-1]
-        contour.append(line)
-    contour_candidates = np.stack(contour)
-    assert mean[contour_candidates[0], 0].max() < 0 < mean[contour_candidates[1], 0].min()
 
     landmark_indices = np.concatenate([lm68, lm68[np.array(LIP_FROM_IBUG)]])
     face_mask = np.zeros(N_KEEP_VERTICES, dtype=bool)
@@ -376,7 +326,6 @@ def convert(ict_root: Path, output: Path, uv_layout: str = "packed", n_error_sam
         "uv_triangles": uv_triangles,
         "uv_layout": np.array(uv_layout),
         "landmark_indices": landmark_indices,
-        "contour_candidates": contour_candidates,
         "face_mask": face_mask,
         "narrow_face_mask": narrow_face_mask,
         "mean_albedo": np.full((N_KEEP_VERTICES, 3), 0.5, dtype=np.float32),
