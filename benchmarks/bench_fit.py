@@ -45,7 +45,7 @@ def synthetic_table(model, instances: int, noise_px: float) -> list[tuple]:
     face = model.face_mask
     rows = []
     default_fine = LANDMARK_SCHEDULE[-1].iterations
-    for fine in (0, 2, 4, 8, default_fine, 20, 40):
+    for fine in sorted({0, 2, 4, 8, 12, default_fine, 40}):
         schedule = LANDMARK_SCHEDULE[:-1] + (LandmarkStage("fine", fine, None, True),)
         rms, ratio, seconds = [], [], []
         for shape, lm in cases:

@@ -80,7 +80,7 @@ def _run_fit(args: argparse.Namespace) -> None:
     for note in result.info.get("notes", []):
         print(f"note: {note}")
     print(
-        f"fitted {args.photo} with {model.name} ({model.n_id} id, {model.n_exp} exp, {model.n_tex} tex): "
+        f"fitted {args.photo} with {model.name}: "
         f"landmark RMS {result.landmark_rms_px:.2f} px = {result.info['landmark_rms_percent_iod']:.2f} % of the inter-ocular distance"
     )
     print("timings: " + ", ".join(f"{k} {v:.3f} s" for k, v in result.timings.items()))
