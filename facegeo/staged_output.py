@@ -125,14 +125,14 @@ class StagedOutput:
         tmp, target = self._tmp, self._target
         files = sorted(p for p in tmp.rglob("*") if p.is_file() and not p.is_symlink())
         for f in files:
-            _fsync_file(f)
+            _fsync(f)
         if not target.exists():
             try:
                 os.rename(tmp, target)  # the whole folder at once
             except OSError:
                 pass  # appeared meanwhile (non-empty) or similar: fall back to per-file moves
             else:
-                _fsync_dir(target.parent)
+                _fsync(target.parent)
                 return
         if not target.is_dir():
             raise InputError(str(self.out_dir), "output folder", "a directory",
@@ -146,7 +146,7 @@ class StagedOutput:
             os.replace(f, dest)
             touched_dirs.add(dest.parent)
         for d in touched_dirs:
-            _fsync_dir(d)
+            _fsync(d)
         shutil.rmtree(tmp, ignore_errors=True)
 
     def _rollback(self) -> None:
@@ -208,7 +208,7 @@ def atomic_write_bytes(path: str | os.PathLike[str], data: bytes) -> Path:
                          f"cannot create files in {folder} (permission denied)") from None
     except IsADirectoryError:
         raise InputError(source, "output file", "a file path", "a directory") from None
-    _fsync_dir(folder)
+    _fsync(folder)
     return target
 
 
@@ -274,21 +274,9 @@ def _open_temp_file(folder: Path, name: str) -> tuple[int, Path]:
     raise FileExistsError(errno.EEXIST, "no free temporary file name", str(folder))  # pragma: no cover
 
 
-def _fsync_file(path: Path) -> None:
-    try:
-        fd = os.open(path, os.O_RDONLY)
-    except OSError:
-        return
-    try:
-        os.fsync(fd)
-    except OSError:
-        pass
-    finally:
-        os.close(fd)
-
-
-def _fsync_dir(path: Path) -> None:
-    """Make renames in ``path`` durable (best effort: not every OS can fsync a folder)."""
+def _fsync(path: Path) -> None:
+    """Flush a file's data, or make renames in a folder durable (best effort: not every OS can
+    fsync a folder)."""
     try:
         fd = os.open(path, os.O_RDONLY)
     except OSError:
