@@ -1,6 +1,6 @@
 """MediaPipe face mesh via LiteRT: anchors, detection, mesh, the 468 -> 68 table, errors.
 
-The reference for the 68-point table is dlib's 68-point shape predictor on scikit-image's
+The reference for the 68-point table is dlib's 68-point shape predictor on the bundled
 astronaut photo (public domain, NASA). Thresholds are the measured values with margin:
 mean 68-point distance to dlib 3.2 % of the inter-ocular distance on the photo (3.1-3.5 % on 13
 rotated / scaled / cropped / flipped versions), flip disagreement 1.1 px mean / 3.1 px max,
@@ -15,7 +15,9 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
+from PIL import Image
 
+from facegeo.assets import asset_path
 from facegeo.errors import InputError, ModelFileError
 from facegeo.landmarks.mediapipe_mesh import (
     IBUG68_MIRROR,
@@ -28,15 +30,12 @@ from facegeo.landmarks.mediapipe_mesh import (
     weighted_nms,
 )
 
-skimage_data = pytest.importorskip("skimage.data")
-
-
 # ----------------------------------------------------------------------------------- fixtures
 
 
 @pytest.fixture(scope="module")
 def astronaut() -> np.ndarray:
-    return skimage_data.astronaut()
+    return np.asarray(Image.open(asset_path("photos/astronaut.png")).convert("RGB"))
 
 
 @pytest.fixture(scope="module")

@@ -65,6 +65,7 @@ import cv2
 import numpy as np
 
 from facegeo.errors import InputError, ModelFileError
+from facegeo.landmarks.scheme import IBUG_MIRROR
 
 __all__ = [
     "BlazeFaceDetection",
@@ -115,20 +116,8 @@ SCORE_CLIPPING = 100.0
 # 468 -> iBUG 68 table
 # --------------------------------------------------------------------------------------------
 
-#: iBUG-68 left/right mirror permutation: point ``i`` of a horizontally flipped face is point
-#: ``IBUG68_MIRROR[i]`` of the original (jaw 0..16 reversed, brows 17..21 <-> 26..22, nose
-#: bridge 27..30 and 33 self-symmetric, eye corners 36 <-> 45 etc., mouth 48 <-> 54, ...).
-IBUG68_MIRROR = np.array(
-    [16, 15, 14, 13, 12, 11, 10, 9, 8, 7, 6, 5, 4, 3, 2, 1, 0,  # jaw
-     26, 25, 24, 23, 22, 21, 20, 19, 18, 17,  # brows
-     27, 28, 29, 30,  # nose bridge
-     35, 34, 33, 32, 31,  # nostrils
-     45, 44, 43, 42, 47, 46,  # right eye -> left eye
-     39, 38, 37, 36, 41, 40,  # left eye -> right eye
-     54, 53, 52, 51, 50, 49, 48, 59, 58, 57, 56, 55,  # outer lip
-     64, 63, 62, 61, 60, 67, 66, 65],  # inner lip
-    dtype=np.int64,
-)
+#: iBUG-68 left/right mirror permutation (defined once, in the landmark scheme).
+IBUG68_MIRROR = IBUG_MIRROR
 
 # How the table was made (``MEDIAPIPE_TO_IBUG68[i]`` = the mesh vertex standing for iBUG point
 # ``i``). dlib's 68-point predictor was run on scikit-image's astronaut photo and 13 rotated
