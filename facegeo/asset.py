@@ -1,0 +1,97 @@
+"""The Asset: a face mesh with face-varying UVs and its PBR maps in UV space.
+
+This is what the texture stage produces and what the exporters write. Conventions (DESIGN.md):
+millimetres, +Y up, +Z out of the face; UV [0, 1]² with the origin bottom-left; map arrays are
+stored image-style, row 0 = top (texel row i covers v = 1 − (i + 0.5)/H).
+
+Maps (all float32, H × W texels, any subset may be present):
+
+=============== =============== =========================================================
+name            shape           content
+=============== =============== =========================================================
+``albedo``      (H, W, 3)       base colour, **sRGB**-encoded values in [0, 1]
+``normal``      (H, W, 3)       tangent-space normal, decoded unit vectors in [−1, 1]³,
+                                OpenGL convention (+Y green up), MikkTSpace frame
+``roughness``   (H, W)          perceptual roughness in [0, 1] (α = roughness²), linear
+``specular``    (H, W)          specular level in [0, 1], F0 = 0.08·specular, linear
+``displacement`` (H, W)         signed displacement along the normal, **millimetres**
+=============== =============== =========================================================
+
+A map that is constant over the UV square is better given as a factor in ``constants`` (the
+exporters then write a material factor, not a texture).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from facegeo.errors import InputError
+
+__all__ = ["Asset", "MAP_NAMES", "MAP_CHANNELS"]
+
+#: The map names, in the order the exporters and the CLI list them.
+MAP_NAMES = ("albedo", "normal", "roughness", "specular", "displacement")
+#: Channels of each map (1 means a 2-D (H, W) array).
+MAP_CHANNELS = {"albedo": 3, "normal": 3, "roughness": 1, "specular": 1, "displacement": 1}
+
+
+@dataclass(eq=False)
+class Asset:
+    """A textured face.
+
+    vertices: (V, 3) float32 mm, model space (upright, unposed). triangles: (F, 3) int64,
+    counter-clockwise seen from outside. uv: (T, 2) float32; uv_triangles: (F, 3) int64.
+    maps: name -> array as in the module table. constants: name -> a float (1-channel maps)
+    or an RGB triple, for maps that are uniform. name: a short name used for files and prims.
+    metadata: JSON-ready provenance (fit parameters, timings, map encodings).
+    """
+
+    vertices: np.ndarray
+    triangles: np.ndarray
+    uv: np.ndarray
+    uv_triangles: np.ndarray
+    maps: dict[str, np.ndarray] = field(default_factory=dict)
+    constants: dict[str, Any] = field(default_factory=dict)
+    name: str = "face"
+    metadata: dict[str, Any] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        self.vertices = np.ascontiguousarray(self.vertices, dtype=np.float32)
+        self.triangles = np.ascontiguousarray(self.triangles, dtype=np.int64)
+        self.uv = np.ascontiguousarray(self.uv, dtype=np.float32)
+        self.uv_triangles = np.ascontiguousarray(self.uv_triangles, dtype=np.int64)
+        self.maps = {k: np.ascontiguousarray(v, dtype=np.float32) for k, v in self.maps.items()}
+        self.validate()
+
+    def validate(self, source: str = "<asset>") -> None:
+        """Raise :class:`InputError` naming the field for wrong shapes, indices or values."""
+        v, f = self.vertices, self.triangles
+        if v.ndim != 2 or v.shape[1] != 3 or len(v) == 0:
+            raise InputError(source, "vertices", "shape (V, 3) with V > 0", str(v.shape))
+        if not np.all(np.isfinite(v)):
+            raise InputError(source, "vertices", "finite values", f"{int((~np.isfinite(v)).sum())} NaN/inf")
+        if f.ndim != 2 or f.shape[1] != 3 or len(f) == 0 or f.min() < 0 or f.max() >= len(v):
+            raise InputError(source, "triangles", f"shape (F, 3) with indices in [0, {len(v)})", f"{f.shape}")
+        if self.uv.ndim != 2 or self.uv.shape[1] != 2 or not np.all(np.isfinite(self.uv)):
+            raise InputError(source, "uv", "finite (T, 2) coordinates", str(self.uv.shape))
+        ut = self.uv_triangles
+        if ut.shape != f.shape or ut.min() < 0 or ut.max() >= len(self.uv):
+            raise InputError(source, "uv_triangles", f"shape {f.shape} with indices in [0, {len(self.uv)})", str(ut.shape))
+        for name, array in self.maps.items():
+            if name not in MAP_CHANNELS:
+                raise InputError(source, f"maps[{name!r}]", f"one of {', '.join(MAP_NAMES)}", name)
+            channels = MAP_CHANNELS[name]
+            ok = array.ndim == 2 if channels == 1 else (array.ndim == 3 and array.shape[2] == channels)
+            if not ok or min(array.shape[:2]) < 1:
+                expected = "(H, W)" if channels == 1 else f"(H, W, {channels})"
+                raise InputError(source, f"maps[{name!r}]", expected, str(array.shape))
+            if not np.all(np.isfinite(array)):
+                raise InputError(source, f"maps[{name!r}]", "finite values", "NaN/inf texels")
+        for name in self.constants:
+            if name not in MAP_CHANNELS:
+                raise InputError(source, f"constants[{name!r}]", f"one of {', '.join(MAP_NAMES)}", name)
+            if name in self.maps:
+                raise InputError(source, f"constants[{name!r}]", "a map or a constant, not both", "both")
