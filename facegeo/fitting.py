@@ -36,6 +36,7 @@ import numpy as np
 import torch
 
 from facegeo.camera import OPENCV_FROM_OPENGL, Camera, euler_from_rotation, project, rotation_from_axis_angle
+from facegeo.colour import srgb_to_linear
 from facegeo.errors import InputError
 from facegeo.landmarks.detectors import FaceLandmarks, LandmarkDetector, get_detector
 from facegeo.landmarks.scheme import CHIN, LANDMARK_WEIGHTS, N_LANDMARKS, inter_ocular_distance
@@ -394,12 +395,6 @@ def _assemble(
 
 
 # ---------------------------------------------------------------------------------- photometric
-def srgb_to_linear(srgb: np.ndarray) -> np.ndarray:
-    """IEC 61966-2-1 decoding of sRGB values in [0, 1] (any shape) to linear RGB."""
-    srgb = np.asarray(srgb, dtype=np.float32)
-    return np.where(srgb <= 0.04045, srgb / 12.92, ((srgb + 0.055) / 1.055) ** 2.4).astype(np.float32)
-
-
 def skin_vertex_mask(model: MorphableModel) -> np.ndarray:
     """(V,) bool: the model's face region minus eyes (14 mm around iBUG 36–47), brows (9 mm
     around 17–26) and lips (8 mm around 48–67), measured on the mean shape."""

@@ -2,11 +2,13 @@
 
 import cv2
 import numpy as np
+import pytest
 import torch
 
 from facegeo import Camera, load_model, project
 from facegeo.camera import rotation_from_euler
-from facegeo.fitting import _fit_photometric, fit_landmarks, skin_vertex_mask, srgb_to_linear
+from facegeo.colour import linear_to_srgb, srgb_to_linear
+from facegeo.fitting import _fit_photometric, fit_landmarks, skin_vertex_mask
 from facegeo.lighting import sh_irradiance
 from facegeo.visibility import vertex_visibility
 
@@ -20,14 +22,15 @@ def render_flat(vertices_cam, triangles, colours_linear, camera):
         tri = triangles[f]
         poly = np.round((uv[tri] - 0.5) * 16).astype(np.int32)
         cv2.fillPoly(image, [poly], colours_linear[tri].mean(axis=0).tolist(), cv2.LINE_8, 4)
-    srgb = np.where(image <= 0.0031308, 12.92 * image, 1.055 * np.power(np.clip(image, 0, None), 1 / 2.4) - 0.055)
-    return np.clip(np.round(srgb * 255), 0, 255).astype(np.uint8)
+    return np.clip(np.round(linear_to_srgb(image) * 255), 0, 255).astype(np.uint8)
 
 
-def test_srgb_round_trip():
+def test_srgb_round_trip_and_known_values():
     x = np.linspace(0, 1, 101, dtype=np.float32)
-    enc = np.where(x <= 0.0031308, 12.92 * x, 1.055 * x ** (1 / 2.4) - 0.055)
-    np.testing.assert_allclose(srgb_to_linear(enc), x, atol=1e-6)
+    np.testing.assert_allclose(srgb_to_linear(linear_to_srgb(x)), x, atol=1e-6)
+    # sRGB 0.5 is linear 0.2140; linear 0.0031308 is the knee at sRGB 0.04045
+    assert float(srgb_to_linear(np.float32(0.5))) == pytest.approx(0.21404, abs=1e-5)
+    assert float(linear_to_srgb(np.float32(0.0031308))) == pytest.approx(0.04045, abs=1e-5)
 
 
 def test_recovers_sh_lighting_of_a_rendered_face():

@@ -1,0 +1,138 @@
+"""The default texture backend on a synthetic UV context: a hemisphere seen from the front."""
+
+import numpy as np
+import pytest
+import torch
+
+from facegeo.colour import linear_to_srgb, srgb_to_linear
+from facegeo.lighting import sh_irradiance
+from facegeo.texturing.backend import TextureBackend, TextureContext
+from facegeo.texturing.default_backend import DefaultBackend, masked_blur, multiband_blend, pad_outside
+
+
+def psnr(a, b, mask):
+    mse = float(np.mean((a[mask] - b[mask]) ** 2))
+    return 10 * np.log10(1.0 / max(mse, 1e-12))
+
+
+def hemisphere_context(size=128, gamma=None):
+    """UV square = orthographic view of a unit hemisphere (radius 80 mm) facing +Z; the mirror of
+    column c is column S−1−c; regions split it into a 'forehead' top and 'cheeks' bottom."""
+    r = (np.arange(size) + 0.5) / size * 2 - 1
+    x, y = np.meshgrid(r, -r)
+    inside = x**2 + y**2 < 0.95**2
+    z = np.sqrt(np.clip(1 - x**2 - y**2, 0, 1))
+    normals = np.where(inside[..., None], np.stack([x, y, z], -1), 0).astype(np.float32)
+    mirror = np.stack(np.meshgrid(np.arange(size), np.arange(size)[::-1], indexing="ij"), -1)[..., ::-1].copy()
+    mirror[..., 0] = np.arange(size)[:, None]
+    mirror[..., 1] = size - 1 - np.arange(size)[None, :]
+    mirror = np.where(inside[..., None], mirror, -1).astype(np.int32)
+    texel = np.full((size, size, 2), 160.0 / size, np.float32) / np.maximum(z, 0.2)[..., None]
+    gamma = np.zeros((3, 9), np.float32) if gamma is None else gamma
+    if gamma is None or not gamma.any():
+        gamma[:, 0] = 1.0
+    return TextureContext(
+        coverage=inside,
+        position=(80 * normals).astype(np.float32),
+        normal_camera=normals,
+        texel_size_mm=texel,
+        gamma=gamma,
+        mean_texture=np.full((size, size, 3), 0.5, np.float32),
+        mirror=mirror,
+        regions={"forehead": (y > 0.3).astype(np.float32) * inside, "cheeks": (y < -0.2).astype(np.float32) * inside},
+        skin=inside.astype(np.float32),
+    )
+
+
+def skin_albedo(size, seed=0):
+    """A left/right symmetric, skin-coloured albedo with mid-frequency blotches (sRGB)."""
+    rng = np.random.default_rng(seed)
+    noise = rng.normal(size=(size, size)).astype(np.float32)
+    noise = masked_blur(noise, np.ones((size, size)), 3.0)
+    noise = 0.5 * (noise + noise[:, ::-1])
+    base = np.array([0.78, 0.58, 0.48], np.float32)
+    return np.clip(base * (1 + 0.6 * noise[..., None]), 0, 1)
+
+
+def test_protocol_is_satisfied():
+    assert isinstance(DefaultBackend(), TextureBackend)
+
+
+def test_homogenise_removes_known_sh_shading():
+    gamma = np.zeros((3, 9), np.float32)
+    gamma[:, 0] = [0.9, 0.8, 0.75]
+    gamma[:, 2] = 0.35  # frontal light
+    gamma[:, 3] = -0.2  # from the side
+    gamma[:, 1] = 0.1
+    ctx = hemisphere_context(128, gamma)
+    albedo = skin_albedo(128)
+    e = sh_irradiance(torch.from_numpy(ctx.normal_camera), torch.from_numpy(gamma)).numpy()
+    shaded = linear_to_srgb(srgb_to_linear(albedo) * e)
+    backend = DefaultBackend()
+    out = backend.homogenise(shaded, ctx)
+    # compare up to the global scale the homogenised texture is defined to
+    lin_out, lin_ref = srgb_to_linear(out), srgb_to_linear(albedo)
+    m = ctx.coverage
+    scale = (lin_ref[m] * lin_out[m]).sum() / (lin_out[m] ** 2).sum()
+    assert psnr(linear_to_srgb(lin_out * scale), albedo, m) > 35.0
+    assert psnr(shaded, albedo, m) < 25.0  # the shading really was there
+    assert backend.report["homogenise"]["remaining_fraction"] < 0.05
+
+
+def test_inpaint_mirror_beats_mean_colour_fill():
+    ctx = hemisphere_context(128)
+    truth = skin_albedo(128, seed=1)
+    x = np.linspace(-1, 1, 128)[None, :].repeat(128, 0)
+    visible = np.clip((0.2 - x) / 0.2, 0, 1).astype(np.float32)  # right part of the face hidden
+    t_inc = truth * visible[..., None]
+    backend = DefaultBackend()
+    full = backend.inpaint(t_inc, visible, ctx)
+    hidden = ctx.coverage & (visible < 0.01)
+    mean_fill = np.where(visible[..., None] > 0.5, t_inc, truth[ctx.coverage & (visible > 0.99)].mean(0))
+    ours, trivial = psnr(full, truth, hidden), psnr(mean_fill, truth, hidden)
+    assert ours > trivial + 10.0, (ours, trivial)
+    assert np.all(np.isfinite(full)) and full.min() >= 0 and full.max() <= 1
+
+
+def test_inpaint_with_nothing_visible_falls_back_to_model_texture():
+    ctx = hemisphere_context(64)
+    full = DefaultBackend().inpaint(np.zeros((64, 64, 3), np.float32), np.zeros((64, 64), np.float32), ctx)
+    assert np.all(np.isfinite(full))
+
+
+def test_materials_only_what_is_asked_and_physically_sensible():
+    ctx = hemisphere_context(128)
+    albedo = np.full((128, 128, 3), 0.6, np.float32)
+    albedo[63:65, 63:65] = 0.2  # a dark pore-like pit in the middle
+    backend = DefaultBackend()
+    assert set(backend.materials(albedo, ctx, maps={"albedo"})) == {"albedo"}
+    maps = backend.materials(albedo, ctx)
+    assert set(maps) == {"albedo", "normal", "roughness", "specular", "displacement"}
+    d, n = maps["displacement"], maps["normal"]
+    assert d[64, 64] < -0.1 and abs(d[40, 40]) < 1e-3  # dark = deeper, flat elsewhere
+    np.testing.assert_allclose(np.linalg.norm(n, axis=-1), 1.0, atol=1e-5)
+    # left of the pit the surface goes down towards +u: the normal tilts towards +u (x > 0)
+    assert n[64, 62, 0] > 0.05 and n[64, 65, 0] < -0.05
+    assert 0 <= maps["roughness"].min() and maps["roughness"].max() <= 1
+    assert maps["specular"][20, 64] > maps["specular"][110, 64]  # forehead glossier than cheeks
+    with pytest.raises(ValueError):
+        backend.materials(albedo, ctx, maps={"sheen"})
+
+
+def test_pad_outside_and_blur_helpers():
+    inside = np.zeros((8, 8), bool)
+    inside[2:4, 2:4] = True
+    image = np.where(inside, 1.0, 0.0).astype(np.float32)
+    padded = pad_outside(image, inside)
+    assert padded.min() == 1.0
+    a, b = np.ones((32, 32, 3), np.float32), np.zeros((32, 32, 3), np.float32)
+    mask = np.zeros((32, 32), np.float32)
+    mask[:, :16] = 1
+    out = multiband_blend(a, b, mask, 3)
+    assert out[16, 2, 0] == pytest.approx(1, abs=0.02) and out[16, 29, 0] == pytest.approx(0, abs=0.02)
+
+
+def test_upscale_lanczos():
+    m = np.random.default_rng(0).random((16, 16, 3)).astype(np.float32)
+    assert DefaultBackend().upscale(m, 4).shape == (64, 64, 3)
+    assert DefaultBackend().upscale(m, 1) is m

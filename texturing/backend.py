@@ -1,0 +1,81 @@
+"""The texture-backend interface and the context the geometry stage hands to it.
+
+A backend turns the incomplete, shaded photo texture ``T_inc`` in UV space into PBR maps in four
+steps: ``inpaint`` → ``homogenise`` → ``materials`` → ``upscale``. The default backend is
+weight-free (:mod:`facegeo.texturing.default_backend`); the diffusion backend is an adapter over
+a DiT and plugs into the same protocol.
+
+Array conventions: UV maps are image-style (row 0 = top, v = 1 − (row + 0.5)/S), float32.
+Colour textures (``T_inc``, ``T_full``, ``T_hom``, the ``albedo`` map) are **sRGB-encoded** in
+[0, 1]; shading is computed in linear RGB.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Protocol, runtime_checkable
+
+import numpy as np
+
+__all__ = ["TextureContext", "TextureBackend"]
+
+
+@dataclass(eq=False)
+class TextureContext:
+    """What the geometry stage knows, in UV space at size S × S.
+
+    coverage: (S, S) bool, texels inside the UV layout.
+    position: (S, S, 3) float32 model-space position in mm (0 outside).
+    normal_camera: (S, S, 3) float32 unit geometric normals rotated into camera space (the frame
+        of the fitted SH lighting); 0 outside.
+    texel_size_mm: (S, S, 2) float32 length in mm of one texel step along +u (columns) and +v
+        (rows upwards) on the surface.
+    gamma: (3, 9) float32 fitted SH coefficients (Deep3D convention, :mod:`facegeo.lighting`).
+    mean_texture: (S, S, 3) float32 the model's mean (or fitted) albedo in UV, sRGB-encoded.
+    mirror: (S, S, 2) int32 (row, col) of each texel's left/right mirror texel on the face, or
+        (−1, −1) where it has none.
+    regions: name -> (S, S) float32 soft masks in [0, 1] (``forehead``, ``nose``, ``cheeks``,
+        ``lips``, ``brows``, ``chin``, ``eyes``); the priors of the material estimate.
+    skin: (S, S) float32 in [0, 1], where the texture is skin (no eyes, brows, lips, hair).
+    """
+
+    coverage: np.ndarray
+    position: np.ndarray
+    normal_camera: np.ndarray
+    texel_size_mm: np.ndarray
+    gamma: np.ndarray
+    mean_texture: np.ndarray
+    mirror: np.ndarray
+    regions: dict[str, np.ndarray] = field(default_factory=dict)
+    skin: np.ndarray | None = None
+
+    @property
+    def size(self) -> int:
+        """S, the texture size in texels."""
+        return int(self.coverage.shape[0])
+
+
+@runtime_checkable
+class TextureBackend(Protocol):
+    """The four texture stages. Shapes: S × S texels; colour maps sRGB in [0, 1], float32."""
+
+    name: str
+
+    def inpaint(self, T_inc: np.ndarray, M_vis: np.ndarray, ctx: TextureContext) -> np.ndarray:
+        """Complete the photo texture: ``T_inc`` (S, S, 3) sRGB, ``M_vis`` (S, S) visibility in
+        [0, 1] -> ``T_full`` (S, S, 3) sRGB with every covered texel filled."""
+        ...
+
+    def homogenise(self, T_full: np.ndarray, ctx: TextureContext) -> np.ndarray:
+        """Remove the photo's lighting: (S, S, 3) sRGB -> ``T_hom`` (S, S, 3) sRGB, the texture
+        under uniform white light (the diffuse albedo up to a global scale)."""
+        ...
+
+    def materials(self, T_hom: np.ndarray, ctx: TextureContext, maps: frozenset[str] | set[str] = ...) -> dict[str, np.ndarray]:
+        """PBR maps from the homogenised texture, only those named in ``maps`` (see
+        :mod:`facegeo.asset` for each map's shape, range and unit)."""
+        ...
+
+    def upscale(self, map_: np.ndarray, factor: int) -> np.ndarray:
+        """(S, S[, C]) -> (factor·S, factor·S[, C]), same dtype and encoding."""
+        ...
