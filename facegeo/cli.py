@@ -42,6 +42,32 @@ def build_parser() -> argparse.ArgumentParser:
     fit.add_argument("--max-side", type=int, default=2048, help="downscale photos whose longer side exceeds this (pixels)")
     fit.add_argument("--no-photometric", action="store_true", help="skip the albedo and lighting stage")
     fit.set_defaults(run=_run_fit)
+
+    rec = sub.add_parser(
+        "reconstruct",
+        help="photo -> fit -> UV maps -> USD/glTF asset (the whole pipeline)",
+        description="Fit the model, unwrap the photo into UV space, complete and de-light the texture, "
+        "estimate PBR maps (albedo, normal, roughness, specular, displacement) and write fit.json, "
+        "the maps (asset.json + PNGs, re-exportable with 'facegeo export'), the assets and preview.png "
+        "(the asset relit from three directions next to the photo).",
+    )
+    rec.add_argument("photo", type=Path, help="the photo")
+    rec.add_argument("-o", "--output", type=Path, required=True, help="output folder (created)")
+    rec.add_argument("--backend", choices=["default"], default="default", help="texture backend (default: weight-free, offline)")
+    rec.add_argument("--size", type=int, default=1024, help="UV map size in texels (default 1024)")
+    rec.add_argument("--upscale", type=int, choices=[1, 2, 4], default=1, help="upscale the maps by this factor (Lanczos)")
+    rec.add_argument("--subdiv", type=int, choices=[0, 1, 2, 3], default=0, help="Loop subdivision levels of the exported mesh (displacement baked)")
+    rec.add_argument("--maps", default="albedo,normal,roughness,specular,displacement", help="comma-separated maps to compute and export")
+    rec.add_argument("--format", default="usdz,glb", help="comma-separated formats among usdz, usdc, usda, glb (default usdz,glb)")
+    rec.add_argument("--model", type=Path, default=None, help="model file (see 'facegeo fit --help')")
+    rec.add_argument("--landmarks", choices=["hybrid", "dlib", "mediapipe"], default="hybrid", help="landmark detector")
+    rec.add_argument("--max-side", type=int, default=2048, help="downscale photos whose longer side exceeds this (pixels)")
+    rec.add_argument("--no-preview", action="store_true", help="do not render preview.png")
+    rec.set_defaults(run=_run_reconstruct)
+
+    from facegeo.export.cli import register as register_export
+
+    register_export(sub)
     return parser
 
 
@@ -85,6 +111,69 @@ def _run_fit(args: argparse.Namespace) -> None:
     )
     print("timings: " + ", ".join(f"{k} {v:.3f} s" for k, v in result.timings.items()))
     print(f"wrote {args.output}/fit.json, mesh.obj, overlay.png")
+
+
+def _run_reconstruct(args: argparse.Namespace) -> None:
+    import cv2
+    from tqdm import tqdm
+
+    from facegeo.asset import MAP_NAMES
+    from facegeo.errors import InputError
+    from facegeo.export.asset_io import write_asset_files
+    from facegeo.export.writers import FORMATS, export_asset
+    from facegeo.model_files import load_model
+    from facegeo.photo import load_photo
+    from facegeo.pipeline import STAGES, reconstruct, relit_preview
+    from facegeo.staged_output import StagedOutput
+
+    maps = [m.strip() for m in args.maps.split(",") if m.strip()]
+    formats = [f.strip().lower().lstrip(".") for f in args.format.split(",") if f.strip()]
+    for name in maps:
+        if name not in MAP_NAMES:
+            raise InputError("<command line>", "--maps", f"names among {', '.join(MAP_NAMES)}", repr(name))
+    for f in formats:
+        if f not in FORMATS:
+            raise InputError("<command line>", "--format", f"formats among {', '.join(FORMATS)}", repr(f))
+    start = time.perf_counter()
+    photo = load_photo(args.photo, max_side=args.max_side)
+    model = load_model(args.model)
+    bar = tqdm(total=len(STAGES) + 2, desc="reconstruct", unit="stage", disable=not sys.stderr.isatty(), leave=False)
+
+    def progress(stage: str) -> None:
+        bar.set_postfix_str(stage)
+        bar.update(1)
+
+    asset, result = reconstruct(photo, model, backend=args.backend, size=args.size, upscale=args.upscale,
+                                maps=maps, detector=args.landmarks, progress=progress)
+    timings = dict(asset.metadata["timings_s"])
+    with StagedOutput(args.output) as stage:
+        bar.set_postfix_str("export")
+        bar.update(1)
+        t = time.perf_counter()
+        write_asset_files(asset, stage.staging_dir)
+        for fmt in formats:
+            export_asset(asset, stage.path(f"face.{fmt}"), format=fmt, level=args.subdiv)
+        timings["export"] = time.perf_counter() - t
+        if not args.no_preview:
+            bar.set_postfix_str("preview")
+            bar.update(1)
+            t = time.perf_counter()
+            preview = relit_preview(photo.image, asset, result, model)
+            ok, png = cv2.imencode(".png", np.ascontiguousarray(preview[..., ::-1]))
+            stage.path("preview.png").write_bytes(png.tobytes())
+            timings["preview"] = time.perf_counter() - t
+        timings["total"] = time.perf_counter() - start
+        record = result.to_dict()
+        record["timings_s"] = {**record["timings_s"], "stages": timings}
+        record["texture_report"] = asset.metadata.get("texture_report", {})
+        stage.path("fit.json").write_text(json.dumps(record, indent=1))
+    bar.close()
+    for note in result.info.get("notes", []):
+        print(f"note: {note}")
+    print(f"reconstructed {args.photo}: landmark RMS {result.landmark_rms_px:.2f} px, maps {', '.join(asset.maps)} "
+          f"at {next(iter(asset.maps.values())).shape[0]}², formats {', '.join(formats)}")
+    print("timings: " + ", ".join(f"{k} {v:.2f} s" for k, v in timings.items()))
+    print(f"wrote {args.output}")
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -111,28 +111,45 @@ class DefaultBackend:
     displacement_gain_mm: float = 0.5  # mm of depth per unit of log-luminance detail (dark = deeper)
     report: dict[str, Any] = field(default_factory=dict)
 
+    # ---------------------------------------------------------------------------------- shading
+    @staticmethod
+    def shading(ctx: TextureContext) -> np.ndarray:
+        """(S, S, 3) the fitted SH irradiance of each texel's normal divided by its mean over the
+        skin, clipped to [0.25, 4] (grazing and back-facing normals get a bounded gain)."""
+        cover = ctx.coverage
+        skin = cover if ctx.skin is None else cover & (ctx.skin > 0.5)
+        normals = torch.from_numpy(ctx.normal_camera.astype(np.float32))
+        irradiance = sh_irradiance(normals, torch.from_numpy(ctx.gamma.astype(np.float32))).numpy()
+        mean_e = irradiance[skin].mean(axis=0) if skin.any() else np.ones(3, np.float32)
+        return np.clip(irradiance / np.maximum(mean_e, 1e-6), 0.25, 4.0).astype(np.float32)
+
     # ---------------------------------------------------------------------------------- inpaint
     def inpaint(self, T_inc: np.ndarray, M_vis: np.ndarray, ctx: TextureContext) -> np.ndarray:
-        """(S, S, 3) sRGB + (S, S) visibility -> (S, S, 3) sRGB, every texel filled."""
+        """(S, S, 3) sRGB + (S, S) visibility -> (S, S, 3) sRGB, every texel filled, under the
+        fitted lighting. The filling happens on the de-lit texture (each texel divided by the
+        shading of its own normal), so a mirror texel brings its colour, not its lighting."""
         cover = ctx.coverage
+        shading = self.shading(ctx)
+        delit = linear_to_srgb(srgb_to_linear(T_inc) / shading)
         w = np.clip(M_vis, 0.0, 1.0).astype(np.float32) * cover
         has = (ctx.mirror[..., 0] >= 0) & cover
         rows, cols = np.where(has, ctx.mirror[..., 0], 0), np.where(has, ctx.mirror[..., 1], 0)
         w_m = np.where(has, w[rows, cols], 0.0)
-        t_m = T_inc[rows, cols]
+        t_m = delit[rows, cols]
         confidence = w + (1 - w) * w_m  # seen directly, else through the mirror texel
-        fill = (w[..., None] * T_inc + ((1 - w) * w_m)[..., None] * t_m) / np.maximum(confidence, 1e-6)[..., None]
+        fill = (w[..., None] * delit + ((1 - w) * w_m)[..., None] * t_m) / np.maximum(confidence, 1e-6)[..., None]
         skin = cover if ctx.skin is None else cover * (ctx.skin > 0.5)
-        base = _lab_transfer(ctx.mean_texture, T_inc, w * skin)
+        base = _lab_transfer(ctx.mean_texture, delit, w * skin)
         fill = np.where(confidence[..., None] > 1e-6, fill, base)
         levels = self.levels or max(1, int(np.log2(ctx.size)) - 3)  # bands down to ~8 texels
-        out = multiband_blend(fill, base, confidence, levels)
+        out = np.clip(multiband_blend(fill, base, confidence, levels), 0.0, 1.0)
         self.report["inpaint"] = {
             "seen": float(w[cover].mean()),
             "seen_or_mirrored": float(confidence[cover].mean()),
             "levels": levels,
         }
-        return pad_outside(np.clip(out, 0.0, 1.0).astype(np.float32), cover)
+        relit = linear_to_srgb(srgb_to_linear(out) * shading)
+        return pad_outside(relit.astype(np.float32), cover)
 
     # ---------------------------------------------------------------------------------- homogenise
     def homogenise(self, T_full: np.ndarray, ctx: TextureContext) -> np.ndarray:
@@ -140,12 +157,9 @@ class DefaultBackend:
         cover = ctx.coverage
         skin = cover if ctx.skin is None else cover & (ctx.skin > 0.5)
         normals = torch.from_numpy(ctx.normal_camera.astype(np.float32))
-        irradiance = sh_irradiance(normals, torch.from_numpy(ctx.gamma.astype(np.float32))).numpy()
-        mean_e = irradiance[skin].mean(axis=0)
-        shading = np.clip(irradiance / np.maximum(mean_e, 1e-6), 0.2, 5.0)  # grazing/back normals: bounded gain
         linear = srgb_to_linear(T_full)
         before = self._shading_variance(linear, ctx.normal_camera, skin)
-        delit = linear / shading
+        delit = linear / self.shading(ctx)
         # residual: the low-frequency log-luminance that the SH basis of the normals still explains
         log_l = np.log(np.maximum(luminance(delit), 1e-4))
         low = masked_blur(log_l, skin, sigma=ctx.size / 64.0)  # shading is smooth at ≥ S/64 texels
@@ -153,7 +167,7 @@ class DefaultBackend:
         coeffs, *_ = np.linalg.lstsq(basis[skin], low[skin] - low[skin].mean(), rcond=None)
         residual = basis @ coeffs
         residual -= residual[skin].mean()
-        delit = delit * np.exp(-residual)[..., None]
+        delit = delit * np.exp(-np.clip(residual, -0.7, 0.7))[..., None]  # at most a factor 2 either way
         after = self._shading_variance(delit, ctx.normal_camera, skin)
         self.report["homogenise"] = {
             "shading_variance_before": before,

@@ -1,0 +1,75 @@
+"""The ``facegeo realy`` subcommand (wired into facegeo/cli.py with :func:`register`)."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from pathlib import Path
+
+__all__ = ["register", "run"]
+
+
+def register(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParser:
+    """Add ``realy`` to the ``facegeo`` subcommands; returns its parser."""
+    p = subparsers.add_parser(
+        "realy",
+        help="REALY benchmark: region-wise error (mm) of predicted meshes against the REALY scans",
+        description="Evaluate every PRED_DIR/<id>.obj (frontal track) or <id>_<view>.obj (multi-view "
+        "track) with the REALY protocol (ECCV 2022), numbers equal to the official code. Writes "
+        "REALY_error.txt (official format), REALY_summary.md, REALY_summary.csv and REALY_result.json.",
+    )
+    p.add_argument("pred_dir", type=Path, metavar="PRED_DIR", help="folder of predicted meshes (.obj)")
+    p.add_argument("--realy-root", type=Path, default=None,
+                   help="folder holding REALY's data/ (REALY_HIFI3D_keypoints/, REALY_scan_region/, "
+                   "metrical_scale.txt, <TOPOLOGY>.obj/.txt)")
+    which = p.add_mutually_exclusive_group()
+    which.add_argument("--topology", default=None, metavar="NAME",
+                       help="prediction topology: data/NAME.obj + data/NAME.txt (e.g. HIFI3D, BFM09, FLAME); "
+                       "default ICT-FaceKit (facegeo's model, keypoints bundled)")
+    which.add_argument("--keypoints", type=Path, default=None, metavar="FILE",
+                       help="REALY barycentric keypoint file (85 rows [triangle, w0, w1]) of the prediction "
+                       "topology; its triangles come from --template or FILE's .obj sibling, else each prediction")
+    p.add_argument("--template", type=Path, default=None, metavar="OBJ", help="template mesh of --keypoints")
+    p.add_argument("--template-mask", type=Path, default=None, metavar="FILE",
+                   help="official --template_mask: comma-separated 0/1 per vertex; only triangles whose "
+                   "vertices are all 1 are used in the error step")
+    p.add_argument("--keypoints-dir", type=Path, default=None, metavar="DIR",
+                   help="override data/REALY_HIFI3D_keypoints")
+    p.add_argument("--regions-dir", type=Path, default=None, metavar="DIR", help="override data/REALY_scan_region")
+    p.add_argument("--scale-path", type=Path, default=None, metavar="FILE", help="override data/metrical_scale.txt")
+    p.add_argument("--workers", type=int, default=1, metavar="N", help="subjects evaluated in parallel (processes)")
+    p.add_argument("-o", "--output", type=Path, default=None, metavar="OUT",
+                   help="output folder (default: PRED_DIR/realy_eval)")
+    p.set_defaults(run=run)
+    return p
+
+
+def run(args: argparse.Namespace) -> None:
+    from facegeo.errors import InputError
+    from facegeo.eval.realy import DEFAULT_TOPOLOGY, evaluate
+    from facegeo.eval.realy_report import OUTPUT_FILES, markdown_table, write_outputs
+
+    if args.workers < 1:
+        raise InputError("--workers", "value", "a positive number of processes", str(args.workers))
+    if args.template is not None and args.keypoints is None:
+        raise InputError(args.template, "--template", "to be used with --keypoints FILE")
+    start = time.perf_counter()
+    result = evaluate(
+        args.pred_dir,
+        args.realy_root,
+        topology=args.topology or DEFAULT_TOPOLOGY,
+        keypoints=args.keypoints,
+        workers=args.workers,
+        template=args.template,
+        keypoints_dir=args.keypoints_dir,
+        regions_dir=args.regions_dir,
+        scale_path=args.scale_path,
+        template_mask=args.template_mask,
+        progress=None if sys.stderr.isatty() else False,
+    )
+    out = args.output if args.output is not None else args.pred_dir / "realy_eval"
+    write_outputs(result, out)
+    print(markdown_table(result), end="")
+    print(f"evaluated {result.summary['n']} prediction(s) in {time.perf_counter() - start:.1f} s; "
+          f"wrote {out}/{{{','.join(OUTPUT_FILES)}}}")

@@ -1,0 +1,244 @@
+"""REALY's bidirectional error of one region: non-rigid ICP of the scan region, then distances.
+
+Written from the protocol of the official REALY code (``utils/eval.py``, ``utils/NICP.py``):
+
+1. the ground-truth region is cleaned as ``trimesh.Trimesh(process=True)`` does (unused
+   vertices dropped, duplicates merged; :func:`~facegeo.eval.realy_geometry.merge_vertices`);
+2. each of its vertices gets its closest point on the regionally aligned prediction;
+3. the region is deformed towards those points by an optimal-step non-rigid ICP (one affine
+   4x3 transform per vertex, stiffness on the mesh edges, nearest neighbours among the closest
+   points, a match counts when closer than ``max(2 * mean distance, 1)``): four stiffness stages
+   ``alpha = 150`` (keypoints only, stiffness weights ``diag(2, 2, 3, 2)``, one solve), then
+   ``50 * exp(-0.5 k)`` for k = 0, 1, 2, each until the solution changes by at most
+   ``0.5 ** k`` or after 11 solves; keypoint weight 50 in the first stage and
+   ``5 * exp(-0.9 * solves so far)`` afterwards. The cheek has no keypoints: three stages
+   ``50 * exp(-0.5 k)``, each until the change is at most ``0.5 ** k``;
+4. the deformed vertices get their closest points on the prediction again, and the error is the
+   mean distance between those and the *original* region vertices (scan units; the caller
+   multiplies by the subject's metrical scale).
+
+Each least-squares step solves the normal equations ``A^T A X = A^T B`` (the official code
+factors ``A^T A`` with CHOLMOD); here ``A^T A`` is assembled directly, block by block, and
+factored by scikit-sparse's CHOLMOD where it is installed, else by SciPy's SuperLU.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+import scipy.sparse as sp
+from scipy.spatial import cKDTree
+
+from facegeo.errors import FacegeoError
+from facegeo.eval.realy_geometry import SurfaceQuery, merge_vertices
+
+__all__ = ["region_error", "NonRigidICP", "MAX_STEPS_WITHOUT_KEYPOINTS"]
+
+#: The official loop for the cheek has no step limit; facegeo stops with an error after this many.
+MAX_STEPS_WITHOUT_KEYPOINTS = 1000
+
+_EPSILON = 1.0
+_ALPHA = 50.0
+_ALPHA_KEYPOINTS = 150.0
+_KEYPOINT_WEIGHT = 50.0
+_STIFFNESS = np.array([1.0, 1.0, 1.0, 1.0])  # diag(G)^2, gamma = 1
+_STIFFNESS_KEYPOINTS = np.array([2.0, 2.0, 3.0, 2.0]) ** 2  # diag(G_KP)^2
+
+
+class _Solver:
+    """Factor-and-solve for matrices with one fixed sparsity pattern (CHOLMOD or SuperLU)."""
+
+    def __init__(self) -> None:
+        self._symbolic = None
+        try:
+            from sksparse import cholmod  # noqa: F401
+
+            self._cholmod = cholmod
+        except Exception:  # not installed (it needs SuiteSparse): SciPy's SuperLU
+            self._cholmod = None
+
+    def solve(self, matrix: sp.csc_matrix, rhs: np.ndarray) -> np.ndarray:
+        if self._cholmod is not None:
+            if self._symbolic is None:
+                self._symbolic = self._cholmod.analyze(matrix)
+            factor = self._symbolic.cholesky(matrix)
+            return np.asarray(factor(rhs))
+        from scipy.sparse.linalg import splu
+
+        lu = splu(matrix, permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0,
+                  options={"SymmetricMode": True})
+        return lu.solve(rhs)
+
+
+@dataclass
+class _Pattern:
+    """Fixed sparsity pattern of A^T A: kron(L, diag) entries plus a dense 4x4 block per vertex."""
+
+    n: int
+    indptr: np.ndarray
+    indices: np.ndarray
+    lap_slot: np.ndarray  # (k,) data position of each kron(L, I4) entry
+    lap_value: np.ndarray  # (k,) L value
+    lap_comp: np.ndarray  # (k,) which of the 4 components
+    block_slot: np.ndarray  # (n, 16) data position of each vertex's 4x4 block entry
+    size: int
+
+
+def _pattern(n: int, triangles: np.ndarray) -> _Pattern:
+    # unique undirected edges, as a set of (min, max) pairs; (v, v) pairs (a face repeating a
+    # vertex) give a zero row in the official incidence matrix and are dropped here
+    e = np.concatenate([triangles[:, [0, 1]], triangles[:, [0, 2]], triangles[:, [1, 2]]])
+    e = np.sort(e, axis=1)
+    e = e[e[:, 0] != e[:, 1]]
+    e = np.unique(e, axis=0)
+    degree = np.bincount(e.ravel(), minlength=n).astype(np.float64)
+    lap_rows = np.concatenate([np.arange(n), e[:, 0], e[:, 1]])
+    lap_cols = np.concatenate([np.arange(n), e[:, 1], e[:, 0]])
+    lap_vals = np.concatenate([degree, -np.ones(len(e)), -np.ones(len(e))])
+    comp = np.arange(4)
+    k_rows = (lap_rows[:, None] * 4 + comp).ravel()
+    k_cols = (lap_cols[:, None] * 4 + comp).ravel()
+    b = np.arange(16)
+    b_rows = (np.arange(n)[:, None] * 4 + b // 4).ravel()
+    b_cols = (np.arange(n)[:, None] * 4 + b % 4).ravel()
+    rows = np.concatenate([k_rows, b_rows])
+    cols = np.concatenate([k_cols, b_cols])
+    size = 4 * n
+    key = cols.astype(np.int64) * size + rows  # column-major (CSC)
+    uniq, inverse = np.unique(key, return_inverse=True)
+    inverse = inverse.reshape(-1)
+    indices = (uniq % size).astype(np.int32)
+    col_of = uniq // size
+    indptr = np.searchsorted(col_of, np.arange(size + 1)).astype(np.int32)
+    k = len(k_rows)
+    return _Pattern(
+        n=n,
+        indptr=indptr,
+        indices=indices,
+        lap_slot=inverse[:k],
+        lap_value=np.repeat(lap_vals, 4),
+        lap_comp=np.tile(comp, len(lap_vals)),
+        block_slot=inverse[k:].reshape(n, 16),
+        size=len(uniq),
+    )
+
+
+class NonRigidICP:
+    """The official optimal-step non-rigid ICP of a region towards points on the prediction."""
+
+    def __init__(self, vertices: np.ndarray, triangles: np.ndarray, targets: np.ndarray,
+                 keypoint_index: np.ndarray | None = None, keypoint_targets: np.ndarray | None = None):
+        self.vertices = np.asarray(vertices, dtype=np.float64)
+        self.targets = np.asarray(targets, dtype=np.float64)
+        self.n = len(self.vertices)
+        self.pattern = _pattern(self.n, np.asarray(triangles, dtype=np.int64))
+        self.tree = cKDTree(self.targets, leafsize=100)
+        self.keypoint_index = None if keypoint_index is None else np.asarray(keypoint_index)
+        self.keypoint_targets = keypoint_targets
+        self.solver = _Solver()
+        self.solves = 0
+
+    def _system(self, cur: np.ndarray, alpha: float, stiffness: np.ndarray,
+                weight2: np.ndarray, rhs_parts: list[tuple[np.ndarray, np.ndarray]]):
+        p = self.pattern
+        d = np.empty((self.n, 4), dtype=np.float64)
+        d[:, :3] = cur.astype(np.float32)  # the official D matrix is float32
+        d[:, 3] = 1.0
+        data = np.zeros(p.size)
+        np.add.at(data, p.lap_slot, (alpha * alpha) * p.lap_value * stiffness[p.lap_comp])
+        block = (weight2[:, None, None] * d[:, :, None] * d[:, None, :]).reshape(self.n, 16)
+        data += np.bincount(p.block_slot.ravel(), weights=block.ravel(), minlength=p.size)
+        matrix = sp.csc_matrix((data, p.indices, p.indptr), shape=(4 * self.n, 4 * self.n))
+        rhs = np.zeros((self.n, 4, 3))
+        for w2, target in rhs_parts:
+            rhs += (w2[:, None, None] * d[:, :, None]) * target[:, None, :]
+        return d, matrix, rhs.reshape(4 * self.n, 3)
+
+    def _step(self, cur, alpha, stiffness, stage0, kp_weight):
+        dist, idx = self.tree.query(cur, 1)
+        dist32 = np.asarray(dist, dtype=np.float32)
+        nearest = self.targets[np.asarray(idx, dtype=np.int32)]
+        threshold = max(np.mean(dist32) * 2, 1)
+        w = (dist32 < threshold).astype(np.float64)
+        parts = []
+        weight2 = np.zeros(self.n)
+        if not stage0:
+            weight2 += w * w
+            parts.append((w * w, nearest))
+        if self.keypoint_index is not None:
+            kpw = np.zeros(self.n)
+            kpw[self.keypoint_index] = kp_weight
+            target = nearest.copy()
+            target[self.keypoint_index] = self.keypoint_targets
+            weight2 += kpw * kpw
+            parts.append((kpw * kpw, target))
+        d, matrix, rhs = self._system(cur, alpha, stiffness, weight2, parts)
+        x = self.solver.solve(matrix, rhs)
+        self.solves += 1
+        x4 = x.reshape(self.n, 4, 3)
+        new = ((d[:, 0:1] * x4[:, 0] + d[:, 1:2] * x4[:, 1]) + d[:, 2:3] * x4[:, 2]) + x4[:, 3]
+        return x, new
+
+    def run(self) -> np.ndarray:
+        """The deformed vertices (N, 3) float64."""
+        cur = self.vertices
+        x_prev = np.zeros((4 * self.n, 3))
+        x = np.ones((4 * self.n, 3))
+        with_kp = self.keypoint_index is not None
+        count = 0
+        for stage in range(4 if with_kp else 3):
+            if with_kp:
+                alpha = _ALPHA_KEYPOINTS if stage == 0 else _ALPHA * np.exp(-0.5 * (stage - 1))
+                epsilon = _EPSILON * pow(0.5, stage - 1)
+            else:
+                alpha = _ALPHA * np.exp(-0.5 * stage)
+                epsilon = _EPSILON * pow(0.5, stage)
+            stage0 = with_kp and stage == 0
+            stiffness = _STIFFNESS_KEYPOINTS if stage0 else _STIFFNESS
+            step = 0
+            while True:
+                delta = np.linalg.norm(x - x_prev)
+                if delta <= epsilon or (with_kp and step > 10):
+                    break
+                if not with_kp and step >= MAX_STEPS_WITHOUT_KEYPOINTS:
+                    raise FacegeoError(f"the non-rigid ICP did not converge in {step} steps")
+                x_prev = x
+                kp_weight = _KEYPOINT_WEIGHT if stage0 else _KEYPOINT_WEIGHT * np.exp(-0.9 * count) / 10.0
+                x, cur = self._step(cur, alpha, stiffness, stage0, kp_weight)
+                step += 1
+                count += 1
+                if stage0:
+                    break
+        return cur
+
+
+def region_error(
+    pred_vertices: np.ndarray,
+    surface: SurfaceQuery,
+    scan_vertices: np.ndarray,
+    scan_triangles: np.ndarray,
+    keypoints: np.ndarray | None,
+    scan_keypoints: np.ndarray | None,
+) -> tuple[float, dict]:
+    """REALY's error of one region in scan units, and details (solves, merged vertex count).
+
+    ``pred_vertices``: the regionally aligned prediction, ``surface`` the closest-point query of
+    its (error-step) triangles; ``scan_vertices`` / ``scan_triangles``:
+    the region as read (float32, unmerged); ``keypoints`` / ``scan_keypoints``: the region's
+    error-step keypoints on the prediction (float64) and the scan (float32), or None (cheek).
+    """
+    gt_vertices, gt_triangles = merge_vertices(scan_vertices, scan_triangles)
+    on_prediction = surface(pred_vertices, gt_vertices)
+    if keypoints is not None:
+        _, kp_index = cKDTree(gt_vertices).query(np.asarray(scan_keypoints, dtype=np.float64))
+        nicp = NonRigidICP(gt_vertices, gt_triangles, on_prediction, kp_index, keypoints)
+    else:
+        nicp = NonRigidICP(gt_vertices, gt_triangles, on_prediction)
+    deformed = nicp.run()
+    updated = surface(pred_vertices, deformed)
+    error = np.sqrt(np.sum((updated - gt_vertices) ** 2, axis=-1)).mean()
+    if not math.isfinite(float(error)):
+        raise FacegeoError("the error step produced a non-finite value")
+    return float(error), {"solves": nicp.solves, "vertices": len(gt_vertices)}

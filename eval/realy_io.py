@@ -1,0 +1,181 @@
+"""Files of the REALY protocol: OBJ meshes, barycentric keypoint files, the metrical scales.
+
+The readers follow what the official REALY code reads, because the numbers depend on it:
+vertex coordinates are parsed as float64 and stored as **float32**; a quad ``a b c d`` becomes
+the triangles ``(a, b, c), (a, c, d)`` in file order; ``f`` tokens may be ``v``, ``v/vt`` or
+``v/vt/vn`` (only ``v`` is used). Where the official reader would silently do something odd, these
+raise :class:`~facegeo.errors.InputError` instead: polygons with more than four corners (the
+official reader drops them), non-numeric or non-finite coordinates, and face indices that are
+zero, negative or past the last vertex.
+
+A keypoint file is a JSON list of ``[triangle, w0, w1]`` rows: the keypoint is
+``w0*a + w1*b + (1-w0-w1)*c`` for the corners ``(a, b, c)`` of that (0-based) triangle.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from facegeo.errors import InputError
+
+__all__ = [
+    "Mesh",
+    "read_obj",
+    "read_points_obj",
+    "read_keypoint_file",
+    "barycentric_points",
+    "read_metrical_scales",
+    "obj_text",
+]
+
+
+@dataclass(frozen=True)
+class Mesh:
+    """A triangle mesh as REALY reads it: float32 vertices, 0-based int64 triangles."""
+
+    vertices: np.ndarray  # (V, 3) float32
+    triangles: np.ndarray  # (F, 3) int64, 0-based
+
+
+def _lines(path: Path, what: str) -> list[str]:
+    try:
+        text = path.read_text(encoding="utf-8", errors="replace")
+    except FileNotFoundError:
+        raise InputError(path, what, "an existing OBJ file", "no such file") from None
+    except OSError as exc:
+        raise InputError(path, what, "a readable OBJ file", exc.strerror or str(exc)) from None
+    return text.splitlines()
+
+
+def read_obj(path: str | Path, what: str = "mesh", need_faces: bool = True) -> Mesh:
+    """Read an OBJ's ``v`` and ``f`` lines the way the official REALY reader does (see module doc)."""
+    path = Path(path)
+    verts: list[str] = []
+    faces: list[list[int]] = []
+    for number, raw in enumerate(_lines(path, what), 1):
+        if raw.startswith("v "):
+            verts.append(raw)
+        elif raw.startswith("f "):
+            tokens = raw.split()[1:]
+            try:
+                idx = [int(t.split("/", 1)[0]) for t in tokens]
+            except ValueError:
+                raise InputError(path, f"{what} face on line {number}", "integer vertex indices",
+                                 repr(raw.strip()[:60])) from None
+            if len(idx) == 3:
+                faces.append(idx)
+            elif len(idx) == 4:
+                faces.append([idx[0], idx[1], idx[2]])
+                faces.append([idx[0], idx[2], idx[3]])
+            else:
+                raise InputError(path, f"{what} face on line {number}", "a triangle or a quad",
+                                 f"a face with {len(idx)} corners")
+    vertices = _parse_vertices(path, what, verts)
+    if need_faces and not faces:
+        raise InputError(path, what, "a mesh with faces ('f' lines)", "no faces")
+    triangles = np.array(faces, dtype=np.int64).reshape(-1, 3) - 1
+    if triangles.size and (triangles.min() < 0 or triangles.max() >= len(vertices)):
+        bad = int(triangles.min() + 1 if triangles.min() < 0 else triangles.max() + 1)
+        raise InputError(path, f"{what} faces", f"1-based vertex indices in 1..{len(vertices)}",
+                         f"index {bad}")
+    return Mesh(vertices, triangles)
+
+
+def _parse_vertices(path: Path, what: str, lines: list[str]) -> np.ndarray:
+    if not lines:
+        raise InputError(path, what, "vertices ('v' lines)", "none")
+    try:
+        coords = [[float(t) for t in line.split()[1:4]] for line in lines]
+        arr = np.array(coords, dtype=np.float64)
+    except ValueError:
+        raise InputError(path, f"{what} vertices", "'v x y z' lines with numbers", "a malformed line") from None
+    if arr.ndim != 2 or arr.shape[1] != 3:
+        raise InputError(path, f"{what} vertices", "'v x y z' lines with three coordinates", "fewer")
+    vertices = arr.astype(np.float32)
+    finite = np.isfinite(vertices).all(axis=1)
+    if not finite.all():
+        first = int(np.argmin(finite))
+        raise InputError(path, f"{what} vertices", "finite coordinates",
+                         f"{int((~finite).sum())} vertices with NaN or infinity (first: vertex {first + 1})")
+    return vertices
+
+
+def read_points_obj(path: str | Path, what: str = "keypoints", count: int | None = None) -> np.ndarray:
+    """The ``v`` lines of an OBJ as (N, 3) float32 (REALY's per-subject keypoint files)."""
+    path = Path(path)
+    verts = [raw for raw in _lines(path, what) if raw.startswith("v ")]
+    points = _parse_vertices(path, what, verts)
+    if count is not None and len(points) != count:
+        raise InputError(path, what, f"{count} points", str(len(points)))
+    return points
+
+
+def read_keypoint_file(path: str | Path, n_triangles: int | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """(triangle indices (85,), corner weights (85, 3) float64) from a barycentric keypoint file."""
+    path = Path(path)
+    try:
+        rows = json.loads(path.read_text(encoding="utf-8"))
+        table = np.array(rows, dtype=np.float64)
+    except FileNotFoundError:
+        raise InputError(path, "keypoint file", "an existing barycentric keypoint file", "no such file") from None
+    except (OSError, ValueError, TypeError) as exc:
+        raise InputError(path, "keypoint file", "a JSON list of [triangle, w0, w1] rows",
+                         type(exc).__name__) from None
+    if table.ndim != 2 or table.shape != (85, 3):
+        raise InputError(path, "keypoint file", "85 rows of [triangle, w0, w1]", f"shape {table.shape}")
+    if not np.isfinite(table).all():
+        raise InputError(path, "keypoint file", "finite numbers", "NaN or infinity")
+    tri = table[:, 0]
+    if np.any(tri != np.round(tri)) or tri.min() < 0:
+        raise InputError(path, "keypoint file", "non-negative integer triangle indices", "other values")
+    tri = tri.astype(np.int64)
+    if n_triangles is not None and tri.max() >= n_triangles:
+        raise InputError(path, "keypoint file", f"triangle indices below {n_triangles} (the topology's triangles)",
+                         f"index {int(tri.max())}")
+    weights = np.stack([table[:, 1], table[:, 2], 1.0 - table[:, 1] - table[:, 2]]).T
+    return tri, weights
+
+
+def barycentric_points(vertices: np.ndarray, triangles: np.ndarray, tri: np.ndarray, weights: np.ndarray) -> np.ndarray:
+    """Keypoints of a mesh, computed exactly as the official code does (float64 result)."""
+    corners = vertices[triangles[tri]]  # (85, 3, 3) in the vertices' dtype
+    return np.sum(corners * weights.reshape(-1, 3, 1), axis=1)
+
+
+def read_metrical_scales(path: str | Path) -> np.ndarray:
+    """REALY's ``metrical_scale.txt``: one number per subject, subject ``k`` on line ``k``."""
+    path = Path(path)
+    try:
+        scales = np.loadtxt(path, dtype=np.float64, ndmin=1)
+    except FileNotFoundError:
+        raise InputError(path, "metrical scale file", "an existing file", "no such file") from None
+    except (OSError, ValueError) as exc:
+        raise InputError(path, "metrical scale file", "one number per line", type(exc).__name__) from None
+    if scales.ndim != 1 or not np.isfinite(scales).all() or np.any(scales <= 0):
+        raise InputError(path, "metrical scale file", "one positive number per line", "other values")
+    return scales
+
+
+def obj_text(vertices: np.ndarray, triangles: np.ndarray | None = None, quads: bool = False) -> str:
+    """A plain OBJ: ``v`` lines (6 decimals) and 1-based ``f`` lines.
+
+    With ``quads=True`` consecutive triangle pairs ``(a, b, c), (a, c, d)`` are written as the
+    quad ``a b c d`` (which reads back to the same two triangles); other triangles stay triangles.
+    """
+    lines = [f"v {x:.6f} {y:.6f} {z:.6f}" for x, y, z in np.asarray(vertices, dtype=np.float64)]
+    if triangles is not None:
+        t = np.asarray(triangles, dtype=np.int64) + 1
+        i = 0
+        while i < len(t):
+            a, b, c = t[i]
+            if quads and i + 1 < len(t) and t[i + 1][0] == a and t[i + 1][1] == c:
+                lines.append(f"f {a} {b} {c} {t[i + 1][2]}")
+                i += 2
+                continue
+            lines.append(f"f {a} {b} {c}")
+            i += 1
+    return "\n".join(lines) + "\n"

@@ -1,0 +1,198 @@
+"""Saving an :class:`~facegeo.asset.Asset` to a folder and loading it back (for ``facegeo export``).
+
+The folder::
+
+    asset.json        format, version, name, units, the mesh file, per map its file and encoding,
+                      constants, metadata
+    mesh.obj          v (mm, model vertex order), vt (origin bottom-left), f v/vt (face-varying UVs)
+    albedo.png        8-bit sRGB
+    normal.png        16-bit, n·0.5 + 0.5 (scale 2, offset −1)
+    roughness.png     16-bit
+    specular.png      16-bit
+    displacement.png  16-bit, value = offset + scale × texel/65535 (mm)
+
+Each map entry of ``asset.json`` is ``{"file", "bits", "colorspace", "scale", "offset",
+"shape"}`` (see :mod:`facegeo.export.textures`); the value of a texel is
+``offset + scale × texel / (2^bits − 1)``. A 16-bit PNG keeps linear data to 1/65535 of its
+range (a 2 mm displacement range: 0.03 µm steps); albedo, 8-bit sRGB, loses nothing a renderer
+would show.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from facegeo.asset import MAP_CHANNELS, MAP_NAMES, Asset
+from facegeo.errors import InputError
+from facegeo.export.textures import decode_map, encode_map, png_bytes, read_png
+from facegeo.mesh_io import obj_text
+from facegeo.staged_output import StagedOutput
+
+__all__ = ["save_asset", "write_asset_files", "load_asset", "read_obj", "ASSET_FILE", "ASSET_FORMAT", "ASSET_VERSION"]
+
+ASSET_FILE = "asset.json"
+ASSET_FORMAT = "facegeo-asset"
+ASSET_VERSION = 1
+_MESH_FILE = "mesh.obj"
+
+
+def save_asset(asset: Asset, folder: str | os.PathLike[str], *, linear_bits: int = 16) -> Path:
+    """Write ``asset`` into ``folder`` (created) atomically: on failure nothing is left. Files
+    already in the folder that the asset does not write are kept. Returns the folder."""
+    with StagedOutput(folder) as stage:
+        write_asset_files(asset, stage.staging_dir, linear_bits=linear_bits)
+    return Path(folder)
+
+
+def write_asset_files(asset: Asset, folder: str | os.PathLike[str], *, linear_bits: int = 16) -> dict[str, Any]:
+    """Write the asset's files into an existing ``folder`` (not atomic: for use inside a
+    :class:`~facegeo.staged_output.StagedOutput`). Returns the ``asset.json`` content."""
+    if not isinstance(asset, Asset):
+        raise InputError("<asset>", "asset", "a facegeo.asset.Asset", type(asset).__name__)
+    out = Path(folder)
+    maps: dict[str, Any] = {}
+    for name in MAP_NAMES:
+        if name not in asset.maps:
+            continue
+        bits = 8 if name == "albedo" else linear_bits
+        image, encoding = encode_map(name, asset.maps[name], bits)
+        file = f"{name}.png"
+        (out / file).write_bytes(png_bytes(image))
+        maps[name] = {"file": file, **encoding, "shape": list(asset.maps[name].shape)}
+    (out / _MESH_FILE).write_text(obj_text(asset.vertices, asset.triangles, asset.uv, asset.uv_triangles))
+    constants = {k: (list(map(float, v)) if np.ndim(v) else float(v)) for k, v in asset.constants.items()}
+    doc = {
+        "format": ASSET_FORMAT,
+        "version": ASSET_VERSION,
+        "name": asset.name,
+        "units": "mm",
+        "up_axis": "Y",
+        "uv_origin": "bottom-left",
+        "mesh": _MESH_FILE,
+        "maps": maps,
+        "constants": constants,
+        "metadata": asset.metadata,
+    }
+    try:
+        text = json.dumps(doc, indent=1, allow_nan=False)
+    except (TypeError, ValueError) as exc:
+        raise InputError("<asset>", "metadata", "JSON-ready values (numbers, strings, lists, dicts)", str(exc)) from None
+    (out / ASSET_FILE).write_text(text)
+    return doc
+
+
+def load_asset(folder: str | os.PathLike[str]) -> Asset:
+    """Read an asset folder written by :func:`save_asset`.
+
+    Raises:
+        InputError: naming the file and field for a missing folder or file, a malformed
+            ``asset.json``, an unreadable image or a map whose shape disagrees with the record.
+    """
+    root = Path(folder)
+    meta_path = root / ASSET_FILE
+    if not root.is_dir():
+        raise InputError(root, "asset folder", f"a folder with {ASSET_FILE}, mesh.obj and the maps", "no such folder")
+    if not meta_path.is_file():
+        raise InputError(meta_path, ASSET_FILE, "an asset description written by facegeo", "no such file")
+    try:
+        doc = json.loads(meta_path.read_text())
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise InputError(meta_path, ASSET_FILE, "valid JSON", str(exc)) from None
+    if not isinstance(doc, dict) or doc.get("format") != ASSET_FORMAT:
+        raise InputError(meta_path, "format", repr(ASSET_FORMAT), repr(doc.get("format") if isinstance(doc, dict) else doc))
+    if doc.get("version") != ASSET_VERSION:
+        raise InputError(meta_path, "version", str(ASSET_VERSION), repr(doc.get("version")))
+    mesh_file = root / str(doc.get("mesh", _MESH_FILE))
+    vertices, triangles, uv, uv_triangles = read_obj(mesh_file)
+    if uv is None:
+        raise InputError(mesh_file, "vt", "texture coordinates (f v/vt)", "none")
+    maps = {}
+    records = doc.get("maps", {})
+    if not isinstance(records, dict):
+        raise InputError(meta_path, "maps", "an object of map records")
+    for name, rec in records.items():
+        field = f"maps.{name}"
+        if name not in MAP_CHANNELS:
+            raise InputError(meta_path, field, f"one of {', '.join(MAP_NAMES)}", repr(name))
+        try:
+            file = root / str(rec["file"])
+            encoding = {"bits": int(rec["bits"]), "scale": float(rec["scale"]), "offset": float(rec["offset"])}
+        except (KeyError, TypeError, ValueError) as exc:
+            raise InputError(meta_path, field, "file, bits, scale and offset", str(exc)) from None
+        if encoding["bits"] not in (8, 16):
+            raise InputError(meta_path, f"{field}.bits", "8 or 16", str(encoding["bits"]))
+        if not file.is_file():
+            raise InputError(file, field, "an image file", "no such file")
+        image = read_png(str(file))
+        expected_dtype = np.uint8 if encoding["bits"] == 8 else np.uint16
+        if image.dtype != expected_dtype:
+            raise InputError(file, field, f"a {encoding['bits']}-bit image", f"{image.dtype}")
+        channels = MAP_CHANNELS[name]
+        if (channels == 1 and image.ndim != 2) or (channels > 1 and (image.ndim != 3 or image.shape[2] != channels)):
+            raise InputError(file, field, f"{channels} channel(s)", str(image.shape))
+        if "shape" in rec and list(image.shape) != list(rec["shape"]):
+            raise InputError(file, field, f"shape {rec['shape']} (as recorded)", str(list(image.shape)))
+        maps[name] = decode_map(name, image, encoding)
+    constants = doc.get("constants", {}) or {}
+    asset = Asset(vertices, triangles, uv, uv_triangles, maps=maps, constants=constants,
+                  name=str(doc.get("name", "face")), metadata=doc.get("metadata", {}) or {})
+    asset.validate(str(root))
+    return asset
+
+
+def read_obj(path: str | os.PathLike[str]) -> tuple[np.ndarray, np.ndarray, np.ndarray | None, np.ndarray | None]:
+    """Read a triangle OBJ: ``(vertices (V, 3) float64, triangles (F, 3), uv (T, 2) | None,
+    uv_triangles (F, 3) | None)``. Faces are ``f v``, ``f v/vt`` or ``f v/vt/vn`` (1-based or
+    negative indices); normals, groups and materials are ignored.
+
+    Raises:
+        InputError: a missing file, a polygon that is not a triangle, or malformed numbers.
+    """
+    p = Path(path)
+    try:
+        lines = p.read_text().splitlines()
+    except FileNotFoundError:
+        raise InputError(p, "mesh", "an OBJ file", "no such file") from None
+    except (OSError, UnicodeDecodeError) as exc:
+        raise InputError(p, "mesh", "a readable text OBJ file", str(exc)) from None
+    v_rows, vt_rows, f_rows = [], [], []
+    for line in lines:
+        if line.startswith("v "):
+            v_rows.append(line[2:])
+        elif line.startswith("vt "):
+            vt_rows.append(line[3:])
+        elif line.startswith("f "):
+            f_rows.append(line[2:])
+    try:
+        vertices = np.array([row.split()[:3] for row in v_rows], dtype=np.float64).reshape(-1, 3)
+        uv = np.array([row.split()[:2] for row in vt_rows], dtype=np.float64).reshape(-1, 2) if vt_rows else None
+    except ValueError as exc:
+        raise InputError(p, "v/vt", "numbers", str(exc)) from None
+    if len(vertices) == 0 or not f_rows:
+        raise InputError(p, "mesh", "vertices (v) and faces (f)", f"{len(vertices)} vertices, {len(f_rows)} faces")
+    corners = []
+    for k, row in enumerate(f_rows):
+        parts = row.split()
+        if len(parts) != 3:
+            raise InputError(p, f"face {k + 1}", "a triangle", f"{len(parts)} corners")
+        corners.append([c.split("/") for c in parts])
+    try:
+        vi = np.array([[int(c[0]) for c in face] for face in corners], dtype=np.int64)
+        has_vt = uv is not None and all(len(c) > 1 and c[1] for face in corners for c in face)
+        ti = np.array([[int(c[1]) for c in face] for face in corners], dtype=np.int64) if has_vt else None
+    except ValueError as exc:
+        raise InputError(p, "f", "integer indices", str(exc)) from None
+    triangles = np.where(vi < 0, vi + len(vertices), vi - 1)
+    if triangles.min() < 0 or triangles.max() >= len(vertices):
+        raise InputError(p, "f", f"vertex indices in [1, {len(vertices)}]")
+    if ti is None:
+        return vertices, triangles, None, None
+    uv_triangles = np.where(ti < 0, ti + len(uv), ti - 1)
+    if uv_triangles.min() < 0 or uv_triangles.max() >= len(uv):
+        raise InputError(p, "f", f"texture indices in [1, {len(uv)}]")
+    return vertices, triangles, uv, uv_triangles

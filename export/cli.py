@@ -1,0 +1,75 @@
+"""``facegeo export ASSET_DIR -o FILE``: re-export a saved asset folder to USD or glTF.
+
+Wired into ``facegeo.cli`` by ``register(subparsers)``; errors are :class:`FacegeoError` (one
+line, exit status 2, no output left behind), as for every facegeo command.
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+from pathlib import Path
+
+from facegeo.errors import InputError
+
+__all__ = ["register", "run_export"]
+
+
+def register(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParser:
+    """Add the ``export`` subcommand to ``facegeo``'s subparsers; returns its parser."""
+    from facegeo.export.writers import FORMATS
+
+    p = subparsers.add_parser(
+        "export",
+        help="re-export a saved asset folder (asset.json, mesh.obj, maps) to usdz/usdc/usda/glb",
+        description="Read an asset folder written by facegeo (asset.json, mesh.obj with UVs, the maps as "
+        "8/16-bit PNG) and write it as USD (usdz, usdc, usda; UsdPreviewSurface, Y-up, mm) or glTF 2.0 "
+        "binary (glb; metres, metallic-roughness PBR, KHR_materials_specular). Only the maps the "
+        "asset has (or --maps names) are written; constant maps become material factors.",
+    )
+    p.add_argument("asset_dir", type=Path, metavar="ASSET_DIR", help="folder with asset.json")
+    p.add_argument("-o", "--output", type=Path, required=True, metavar="FILE",
+                   help="output file; its suffix picks the format, or give --format (several formats: FILE is the stem)")
+    p.add_argument("--format", default=None, metavar="FMT[,FMT]",
+                   help=f"format(s), comma-separated, among {', '.join(FORMATS)} (default: the suffix of FILE)")
+    p.add_argument("--subdiv", type=int, default=0, metavar="N", help="Loop subdivision levels before baking the displacement (0-3; default 0)")
+    p.add_argument("--maps", default=None, metavar="NAME[,NAME]",
+                   help="maps to carry, among albedo, normal, roughness, specular, displacement (default: all the asset has)")
+    p.add_argument("--displacement", choices=["bake", "texture"], default="bake",
+                   help="bake the displacement into the geometry (default) or, USD only, write it as the material's displacement input")
+    p.set_defaults(run=run_export)
+    return p
+
+
+def run_export(args: argparse.Namespace) -> None:
+    """Run ``facegeo export`` with parsed arguments (raises FacegeoError on bad input)."""
+    from facegeo.export.asset_io import load_asset
+    from facegeo.export.writers import FORMATS, export_asset
+
+    start = time.perf_counter()
+    asset = load_asset(args.asset_dir)
+    maps = [m.strip() for m in args.maps.split(",") if m.strip()] if args.maps else None
+    out = Path(args.output)
+    if args.format:
+        formats = [f.strip().lower().lstrip(".") for f in args.format.split(",") if f.strip()]
+        for f in formats:
+            if f not in FORMATS:
+                raise InputError(out, "--format", f"formats among {', '.join(FORMATS)}", repr(f))
+        if len(formats) > 1:
+            if out.suffix.lower().lstrip(".") in FORMATS:
+                out = out.with_suffix("")
+            targets = [(out.with_name(out.name + "." + f), f) for f in formats]
+        else:
+            targets = [(out, formats[0])]
+    else:
+        targets = [(out, None)]
+    if args.displacement == "texture" and any((f or path.suffix.lower().lstrip(".")) == "glb" for path, f in targets):
+        raise InputError(out, "--displacement", "'bake' when writing glb (glTF has no displacement input)", "texture")
+    if not 0 <= args.subdiv <= 4:
+        raise InputError("--subdiv", "--subdiv", "a level in [0, 4]", str(args.subdiv))
+    written = []
+    for path, fmt in targets:
+        written.append(export_asset(asset, path, format=fmt, level=args.subdiv, displacement=args.displacement, maps=maps))
+    seconds = time.perf_counter() - start
+    print(f"wrote {', '.join(str(w) for w in written)} from {args.asset_dir} "
+          f"(subdivision level {args.subdiv}, {seconds:.2f} s)")

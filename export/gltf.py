@@ -1,0 +1,257 @@
+"""glTF 2.0 binary (``.glb``) export with metallic-roughness PBR and ``KHR_materials_specular``.
+
+Conventions: glTF is in metres (+Y up, the asset facing +Z), so points are scaled by 0.001; its
+texture origin is top-left, so ``TEXCOORD_0 = (u, 1 − v)``. Images keep their rows (row 0 = top,
+as glTF expects). glTF has no displacement: it is always baked into the geometry.
+
+One vertex per (vertex, UV) wedge; ``NORMAL`` is the smooth area-weighted normal of the geometry
+vertex (the same on both sides of a seam). The material:
+
+* ``pbrMetallicRoughness``: ``baseColorTexture`` (albedo, 8-bit sRGB PNG) or
+  ``baseColorFactor`` (the albedo constant, linearised); ``metallicFactor = 0``; roughness as a
+  ``metallicRoughnessTexture`` (G = roughness, B = metallic = 0, R = 1 so that engines reading
+  an occlusion-roughness-metallic texture see no occlusion) with ``roughnessFactor = 1``, or as
+  ``roughnessFactor`` (the constant, 0.5 when the asset has none; glTF's own default is 1);
+* ``normalTexture`` (8-bit linear, OpenGL +Y as glTF expects) with ``TANGENT`` attributes: the
+  MikkTSpace tangents of the written mesh and its written normals, computed by
+  :func:`facegeo.uv.tangents.mesh_tangents` (the implementation the texture stage bakes normal
+  maps with) in the Asset's UV space (v up): w = +1 where the UV winding is counter-clockwise, so
+  B = w·(N × T) points to +v = up in the image, which is what glTF and the normal map's green
+  channel mean. A vertex whose corners get different tangents is split;
+* specular (F0 = 0.08 × specular, F90 = 1): ``KHR_materials_specular`` as its specification's
+  "materials with reflectance parameter" conversion: ``specularColorFactor = [2, 2, 2]`` and
+  ``specularColorTexture`` = the specular map, sRGB-encoded (the extension reads that texture as
+  sRGB; its F0 is 0.04 × colour); a constant s is ``specularColorFactor = [2s, 2s, 2s]``.
+  Without a specular input the extension is not written (glTF's default F0 is 0.04 = 0.08 × 0.5).
+
+``TEXCOORD_0`` is written only when a texture uses it, ``TANGENT`` only with a normal texture.
+Textures are clamped to the edge and mip-mapped. :func:`validate_glb` runs the Khronos
+glTF-Validator (npm ``gltf-validator``) when node and the package are available.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+from typing import Any, Iterable
+
+import numpy as np
+
+from facegeo.asset import Asset
+from facegeo.colour import linear_to_srgb, srgb_to_linear
+from facegeo.errors import InputError
+from facegeo.export.facevarying import wedges
+from facegeo.export.scene import scene_contents
+from facegeo.export.textures import DEFAULT_ROUGHNESS, SPECULAR_F0_SCALE, encode_map, png_bytes, to_uint
+from facegeo.staged_output import atomic_write_bytes
+
+__all__ = ["write_glb", "glb_bytes", "validate_glb", "find_gltf_validator", "GltfValidatorMissing", "VALIDATOR_ENV_VAR"]
+
+#: Environment variable naming the ``gltf-validator`` npm package folder (the one holding
+#: ``package.json``) or a ``node_modules`` folder that contains it.
+VALIDATOR_ENV_VAR = "FACEGEO_GLTF_VALIDATOR"
+
+_ARRAY_BUFFER = 34962
+_ELEMENT_ARRAY_BUFFER = 34963
+_FLOAT = 5126
+_UNSIGNED_SHORT = 5123
+_UNSIGNED_INT = 5125
+
+
+def write_glb(asset: Asset, path: str | os.PathLike[str], *, level: int = 0, maps: Iterable[str] | None = None,
+              uv_interpolation: str = "surface") -> Path:
+    """Write ``asset`` as a ``.glb`` (atomically). ``level``: Loop subdivision levels before
+    baking the displacement; ``maps``: the map names to carry (default: all the asset has).
+    Returns the path.
+
+    Raises:
+        InputError: the suffix is not .glb, bad options, or a map asked for that the asset lacks.
+    """
+    target = Path(path)
+    if target.suffix.lower() != ".glb":
+        raise InputError(target, "file name", "a .glb suffix (glTF 2.0 binary)", target.suffix or "none")
+    data = glb_bytes(asset, level=level, maps=maps, uv_interpolation=uv_interpolation)
+    target.parent.mkdir(parents=True, exist_ok=True)
+    atomic_write_bytes(target, data)
+    return target
+
+
+def glb_bytes(asset: Asset, *, level: int = 0, maps: Iterable[str] | None = None, uv_interpolation: str = "surface") -> bytes:
+    """The ``.glb`` file of ``asset`` as bytes (see :func:`write_glb`)."""
+    import pygltflib as gl
+
+    contents = scene_contents(asset, level=level, displacement="bake", maps=maps, uv_interpolation=uv_interpolation)
+    mesh = contents.mesh
+    inputs = contents.inputs
+    textured = contents.textured
+    with_tangents = "normal" in inputs
+
+    vert, uvi, tris = wedges(mesh.triangles, mesh.uv_triangles if textured else None)
+    uv = mesh.uv[uvi] if textured else None
+    tangents = None
+    if with_tangents:
+        vert, uv, tris, tangents = _with_tangents(mesh, contents.normals, vert, uv, tris)
+    positions_mm = mesh.vertices[vert]
+    normals = contents.normals[vert]
+
+    blob = bytearray()
+    doc = gl.GLTF2(asset=gl.Asset(version="2.0", generator="facegeo"))
+    doc.scene = 0
+
+    def view(data: bytes, target: int | None = None) -> int:
+        while len(blob) % 4:
+            blob.append(0)
+        doc.bufferViews.append(gl.BufferView(buffer=0, byteOffset=len(blob), byteLength=len(data), target=target))
+        blob.extend(data)
+        return len(doc.bufferViews) - 1
+
+    def accessor(array: np.ndarray, kind: str, component: int, target: int, bounds: bool = False) -> int:
+        array = np.ascontiguousarray(array)
+        index = view(array.tobytes(), target)
+        acc = gl.Accessor(bufferView=index, componentType=component, count=len(array), type=kind)
+        if bounds:
+            flat = array.reshape(len(array), -1)
+            acc.min = [float(x) for x in flat.min(axis=0)]
+            acc.max = [float(x) for x in flat.max(axis=0)]
+        doc.accessors.append(acc)
+        return len(doc.accessors) - 1
+
+    attributes = gl.Attributes(
+        POSITION=accessor((positions_mm * 0.001).astype(np.float32), "VEC3", _FLOAT, _ARRAY_BUFFER, bounds=True),
+        NORMAL=accessor(normals.astype(np.float32), "VEC3", _FLOAT, _ARRAY_BUFFER),
+    )
+    if textured:
+        attributes.TEXCOORD_0 = accessor(np.stack([uv[:, 0], 1.0 - uv[:, 1]], axis=1).astype(np.float32), "VEC2", _FLOAT, _ARRAY_BUFFER)
+    if tangents is not None:
+        attributes.TANGENT = accessor(tangents, "VEC4", _FLOAT, _ARRAY_BUFFER)
+    if len(vert) <= 65535:
+        indices = accessor(tris.astype(np.uint16).ravel(), "SCALAR", _UNSIGNED_SHORT, _ELEMENT_ARRAY_BUFFER)
+    else:
+        indices = accessor(tris.astype(np.uint32).ravel(), "SCALAR", _UNSIGNED_INT, _ELEMENT_ARRAY_BUFFER)
+
+    def texture(name: str, image: np.ndarray) -> int:
+        if not doc.samplers:
+            doc.samplers.append(gl.Sampler(magFilter=9729, minFilter=9987, wrapS=33071, wrapT=33071))
+        doc.images.append(gl.Image(bufferView=view(png_bytes(image)), mimeType="image/png", name=name))
+        doc.textures.append(gl.Texture(sampler=0, source=len(doc.images) - 1, name=name))
+        return len(doc.textures) - 1
+
+    pbr = gl.PbrMetallicRoughness(metallicFactor=0.0)
+    material = gl.Material(name=f"{asset.name}_material", pbrMetallicRoughness=pbr, alphaCutoff=None, doubleSided=False)
+    if "albedo" in inputs:
+        item = inputs["albedo"]
+        if item.is_texture:
+            img, _ = encode_map("albedo", item.texture, 8)
+            pbr.baseColorTexture = gl.TextureInfo(index=texture("albedo", img))
+            pbr.baseColorFactor = [1.0, 1.0, 1.0, 1.0]
+        else:
+            pbr.baseColorFactor = [float(x) for x in srgb_to_linear(np.asarray(item.value, np.float32))] + [1.0]
+    else:
+        pbr.baseColorFactor = [1.0, 1.0, 1.0, 1.0]
+    if "roughness" in inputs and inputs["roughness"].is_texture:
+        r = to_uint(inputs["roughness"].texture, 8)
+        mr = np.stack([np.full_like(r, 255), r, np.zeros_like(r)], axis=-1)
+        pbr.metallicRoughnessTexture = gl.TextureInfo(index=texture("metallicRoughness", mr))
+        pbr.roughnessFactor = 1.0
+    else:
+        pbr.roughnessFactor = float(inputs["roughness"].value) if "roughness" in inputs else DEFAULT_ROUGHNESS
+    if with_tangents:
+        img, _ = encode_map("normal", inputs["normal"].texture, 8)
+        material.normalTexture = gl.NormalMaterialTexture(index=texture("normal", img), scale=1.0)
+    if "specular" in inputs:
+        item = inputs["specular"]
+        factor = SPECULAR_F0_SCALE / 0.04  # 2: glTF's F0 is 0.04 × specularColor
+        if item.is_texture:
+            srgb = to_uint(linear_to_srgb(np.clip(item.texture, 0.0, 1.0)), 8)
+            ext = {"specularColorFactor": [factor] * 3,
+                   "specularColorTexture": {"index": texture("specular", np.repeat(srgb[:, :, None], 3, axis=2))}}
+        else:
+            ext = {"specularColorFactor": [factor * float(item.value)] * 3}
+        material.extensions = {"KHR_materials_specular": ext}
+        doc.extensionsUsed = ["KHR_materials_specular"]
+
+    doc.materials.append(material)
+    doc.meshes.append(gl.Mesh(name=asset.name, primitives=[gl.Primitive(attributes=attributes, indices=indices, material=0, mode=4)]))
+    doc.nodes.append(gl.Node(name=asset.name, mesh=0))
+    doc.scenes.append(gl.Scene(nodes=[0]))
+    doc.buffers.append(gl.Buffer(byteLength=len(blob)))
+    doc.set_binary_blob(bytes(blob))
+    out = doc.save_to_bytes()
+    return b"".join(out) if isinstance(out, list) else bytes(out)
+
+
+def _with_tangents(mesh, normals, vert, uv, tris):
+    """MikkTSpace corner tangents (``facegeo.uv.tangents``, the frame the texture stage bakes
+    normal maps in) and the wedge vertices split wherever corners of one wedge got different
+    tangents (MikkTSpace may give a vertex one tangent per group of its triangles)."""
+    from facegeo.uv.tangents import mesh_tangents
+
+    corner = mesh_tangents(mesh.vertices, mesh.triangles, mesh.uv, mesh.uv_triangles, normals.astype(np.float32))
+    rows = np.empty(tris.size, dtype=[("w", np.int64), ("t", np.float32, 4)])
+    rows["w"] = tris.ravel()
+    rows["t"] = corner.reshape(-1, 4)
+    unique, first, inverse = np.unique(rows, return_index=True, return_inverse=True)
+    wedge = unique["w"]
+    return vert[wedge], uv[wedge], inverse.reshape(tris.shape), np.ascontiguousarray(unique["t"])
+
+
+# -- validation ----------------------------------------------------------------------------------
+
+
+class GltfValidatorMissing(RuntimeError):
+    """node or the ``gltf-validator`` npm package is not installed."""
+
+
+def find_gltf_validator() -> tuple[str, Path]:
+    """``(node executable, gltf-validator package folder)``.
+
+    Looks at ``$FACEGEO_GLTF_VALIDATOR``, then ``<sys.prefix>/node/node_modules/gltf-validator``
+    (``npm install --prefix .venv/node gltf-validator``), then ``./node_modules``.
+
+    Raises:
+        GltfValidatorMissing: with the install command in its message.
+    """
+    node = shutil.which("node")
+    if node is None:
+        raise GltfValidatorMissing("node is not installed (apt-get install nodejs npm)")
+    candidates = []
+    env = os.environ.get(VALIDATOR_ENV_VAR)
+    if env:
+        candidates += [Path(env), Path(env) / "gltf-validator", Path(env) / "node_modules" / "gltf-validator"]
+    candidates += [Path(sys.prefix) / "node" / "node_modules" / "gltf-validator", Path.cwd() / "node_modules" / "gltf-validator"]
+    for c in candidates:
+        if (c / "package.json").is_file() and (c / "index.js").is_file():
+            return node, c
+    raise GltfValidatorMissing(
+        f"the gltf-validator npm package was not found (npm install --prefix {Path(sys.prefix) / 'node'} gltf-validator, "
+        f"or set {VALIDATOR_ENV_VAR})")
+
+
+_RUNNER = r"""
+const fs = require('fs');
+const validator = require(process.argv[1]);
+const data = new Uint8Array(fs.readFileSync(process.argv[2]));
+validator.validateBytes(data, {uri: process.argv[2], maxIssues: 1000, writeTimestamp: false})
+  .then((report) => { process.stdout.write(JSON.stringify(report)); })
+  .catch((error) => { process.stderr.write(String(error)); process.exit(1); });
+"""
+
+
+def validate_glb(path: str | os.PathLike[str]) -> dict[str, Any]:
+    """The Khronos glTF-Validator report of a file (its JSON as a dict): ``report["issues"]``
+    has ``numErrors``, ``numWarnings``, ``numInfos``, ``numHints`` and ``messages``.
+
+    Raises:
+        GltfValidatorMissing: node or the package is absent.
+        RuntimeError: the validator itself failed.
+    """
+    node, package = find_gltf_validator()
+    result = subprocess.run([node, "-e", _RUNNER, str(package), str(Path(path).resolve())],
+                            capture_output=True, text=True, timeout=300)
+    if result.returncode != 0:
+        raise RuntimeError(f"gltf-validator failed on {path}: {result.stderr.strip()}")
+    return json.loads(result.stdout)

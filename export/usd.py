@@ -1,0 +1,317 @@
+"""USD export: ``.usda``, ``.usdc`` and ``.usdz`` with a ``UsdPreviewSurface`` material.
+
+The stage (DESIGN.md conventions): ``upAxis = "Y"``, ``metersPerUnit = 0.001`` (points in mm),
+a default prim ``/<name>`` (an Xform of kind ``component``) holding
+
+* ``/<name>/mesh``, a ``Mesh``: points, ``faceVertexCounts``/``faceVertexIndices`` (triangles,
+  counter-clockwise = ``rightHanded``), ``normals`` (vertex interpolation, smooth,
+  area-weighted), ``subdivisionScheme = "none"`` (the mesh is already subdivided to the level
+  asked for; USD's default, Catmull-Clark, would make renderers smooth it again and ignore the
+  normals), ``extent``, and - only when a texture is used - ``primvars:st`` (``texCoord2f[]``,
+  face-varying, indexed: the Asset's ``uv`` and ``uv_triangles``);
+* ``/<name>/mtl/material``, a ``Material`` bound to the mesh (``MaterialBindingAPI``) whose
+  surface is a ``UsdPreviewSurface``:
+
+  - albedo -> ``diffuseColor``: ``UsdUVTexture`` (``sourceColorSpace = "sRGB"``, 8-bit PNG), or
+    the constant converted to linear;
+  - normal -> ``normal``: ``UsdUVTexture`` ``raw`` with ``scale = (2, 2, 2, 1)`` and
+    ``bias = (−1, −1, −1, 0)`` (tangent space, OpenGL +Y, MikkTSpace);
+  - roughness -> ``roughness`` (texture ``r`` or value; 0.5 when the asset has none);
+  - specular: the Asset's F0 = 0.08 × specular is written with ``useSpecularWorkflow = 1`` and
+    ``specularColor`` = F0: the specular texture (``raw``) through ``UsdUVTexture`` with
+    ``scale = (0.08, 0.08, 0.08, 1)``, or the constant 0.08 × s. The preview surface's
+    specularColor is exactly "the colour at 0° incidence, edge colour white", the Asset's model
+    (F90 = 1); the metallic workflow's ``ior`` would need a per-texel IOR
+    (ior = (1 + √F0)/(1 − √F0)) that no texture input can carry linearly. Without a specular
+    input the metallic workflow with the default ``ior = 1.5`` gives F0 = 0.04 (= specular 0.5);
+  - ``metallic = 0`` always (skin);
+  - displacement: baked into the points (``displacement="bake"``, the default), or with
+    ``displacement="texture"`` the ``displacement`` input: a 16-bit ``raw`` texture whose
+    ``scale``/``bias`` turn texels into millimetres (stage units), connected to the material's
+    displacement output; the points are then the undisplaced (subdivided) surface.
+
+Only inputs the scene uses are authored: no texture for a constant map (a value is), no
+``primvars:st`` without textures. ``.usdz`` is made with ``UsdUtils.CreateNewUsdzPackage`` from a
+``.usdc`` root layer and its PNGs; ``.usda``/``.usdc`` write their textures next to the layer in
+``<stem>_textures/`` (relative paths). Files are written atomically (nothing partial on failure).
+
+:func:`validate_usd` runs every validator usd-core registers (``pxr.UsdValidation``) on a file;
+:func:`check_usd` checks that the stage opens, every texture path resolves (inside the package for
+usdz) and the material binds.
+"""
+
+from __future__ import annotations
+
+import os
+import tempfile
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Iterable
+
+import numpy as np
+
+from facegeo.asset import Asset
+from facegeo.colour import srgb_to_linear
+from facegeo.errors import InputError
+from facegeo.export.scene import SceneContents, scene_contents
+from facegeo.export.textures import DEFAULT_ROUGHNESS, SPECULAR_F0_SCALE, encode_map, png_bytes
+from facegeo.staged_output import StagedOutput, atomic_write_bytes
+
+__all__ = ["write_usd", "validate_usd", "check_usd", "UsdCheck", "USD_SUFFIXES"]
+
+USD_SUFFIXES = (".usda", ".usdc", ".usd", ".usdz")
+
+
+def write_usd(
+    asset: Asset,
+    path: str | os.PathLike[str],
+    *,
+    level: int = 0,
+    displacement: str = "bake",
+    maps: Iterable[str] | None = None,
+    linear_bits: int = 8,
+    uv_interpolation: str = "surface",
+) -> Path:
+    """Write ``asset`` as a USD file; the suffix of ``path`` picks the format (.usda, .usdc,
+    .usd = usdc, .usdz). ``level``: Loop subdivision levels; ``displacement``: "bake" or
+    "texture"; ``maps``: the map names to carry (default all the asset has); ``linear_bits``:
+    8 or 16 for the normal, roughness and specular textures (albedo is 8-bit sRGB, displacement
+    16-bit). Returns the path written.
+
+    Raises:
+        InputError: unknown suffix, bad options, or a map asked for that the asset lacks.
+    """
+    target = Path(path)
+    suffix = target.suffix.lower()
+    if suffix not in USD_SUFFIXES:
+        raise InputError(target, "file name", f"a USD suffix ({', '.join(USD_SUFFIXES)})", target.suffix or "none")
+    if linear_bits not in (8, 16):
+        raise InputError(target, "linear_bits", "8 or 16", repr(linear_bits))
+    contents = scene_contents(asset, level=level, displacement=displacement, maps=maps, uv_interpolation=uv_interpolation)
+    name = _prim_name(asset.name)
+    if suffix == ".usdz":
+        with tempfile.TemporaryDirectory(prefix="facegeo-usdz-") as tmp:
+            root = Path(tmp) / f"{name}.usdc"
+            _write_layer(contents, root, name, "textures", linear_bits)
+            package = Path(tmp) / f"{name}.usdz"
+            from pxr import Sdf, UsdUtils
+
+            if not UsdUtils.CreateNewUsdzPackage(Sdf.AssetPath(str(root)), str(package)):  # pragma: no cover
+                raise RuntimeError(f"UsdUtils.CreateNewUsdzPackage failed for {root}")
+            data = package.read_bytes()
+        target.parent.mkdir(parents=True, exist_ok=True)
+        atomic_write_bytes(target, data)
+        return target
+    with StagedOutput(target.parent) as stage:
+        layer = stage.path(target.name)
+        _write_layer(contents, layer, name, f"{target.stem}_textures", linear_bits)
+    return target
+
+
+# -- layer ---------------------------------------------------------------------------------------
+
+
+def _prim_name(name: str) -> str:
+    from pxr import Tf
+
+    ident = Tf.MakeValidIdentifier(name or "face")
+    return ident if ident else "face"
+
+
+def _write_layer(contents: SceneContents, layer_path: Path, name: str, texture_dir: str, linear_bits: int) -> None:
+    from pxr import Gf, Kind, Sdf, Usd, UsdGeom, UsdShade, Vt
+
+    stage = Usd.Stage.CreateNew(str(layer_path))
+    UsdGeom.SetStageUpAxis(stage, UsdGeom.Tokens.y)
+    UsdGeom.SetStageMetersPerUnit(stage, 0.001)
+    root = UsdGeom.Xform.Define(stage, f"/{name}")
+    stage.SetDefaultPrim(root.GetPrim())
+    Usd.ModelAPI(root.GetPrim()).SetKind(Kind.Tokens.component)
+
+    mesh_data = contents.mesh
+    points = mesh_data.vertices.astype(np.float32)
+    mesh = UsdGeom.Mesh.Define(stage, f"/{name}/mesh")
+    mesh.CreatePointsAttr(Vt.Vec3fArray.FromNumpy(points))
+    mesh.CreateFaceVertexCountsAttr(Vt.IntArray.FromNumpy(np.full(len(mesh_data.triangles), 3, dtype=np.int32)))
+    mesh.CreateFaceVertexIndicesAttr(Vt.IntArray.FromNumpy(mesh_data.triangles.ravel().astype(np.int32)))
+    mesh.CreateNormalsAttr(Vt.Vec3fArray.FromNumpy(contents.normals.astype(np.float32)))
+    mesh.SetNormalsInterpolation(UsdGeom.Tokens.vertex)
+    mesh.CreateSubdivisionSchemeAttr(UsdGeom.Tokens.none)
+    mesh.CreateOrientationAttr(UsdGeom.Tokens.rightHanded)
+    mesh.CreateExtentAttr(Vt.Vec3fArray([Gf.Vec3f(*map(float, points.min(axis=0))), Gf.Vec3f(*map(float, points.max(axis=0)))]))
+    if contents.textured:
+        st = UsdGeom.PrimvarsAPI(mesh.GetPrim()).CreatePrimvar("st", Sdf.ValueTypeNames.TexCoord2fArray, UsdGeom.Tokens.faceVarying)
+        st.Set(Vt.Vec2fArray.FromNumpy(mesh_data.uv.astype(np.float32)))
+        st.SetIndices(Vt.IntArray.FromNumpy(mesh_data.uv_triangles.ravel().astype(np.int32)))
+
+    UsdGeom.Scope.Define(stage, f"/{name}/mtl")
+    material = UsdShade.Material.Define(stage, f"/{name}/mtl/material")
+    mpath = material.GetPath()
+    surface = UsdShade.Shader.Define(stage, mpath.AppendChild("PreviewSurface"))
+    surface.CreateIdAttr("UsdPreviewSurface")
+    material.CreateSurfaceOutput().ConnectToSource(surface.ConnectableAPI(), "surface")
+    surface.CreateInput("metallic", Sdf.ValueTypeNames.Float).Set(0.0)
+
+    textures: dict[str, bytes] = {}
+    reader = None
+
+    def texture(map_name: str, image: np.ndarray, colorspace: str, scale: tuple, bias: tuple) -> Any:
+        nonlocal reader
+        if reader is None:
+            reader = UsdShade.Shader.Define(stage, mpath.AppendChild("stReader"))
+            reader.CreateIdAttr("UsdPrimvarReader_float2")
+            reader.CreateInput("varname", Sdf.ValueTypeNames.String).Set("st")
+            reader.CreateOutput("result", Sdf.ValueTypeNames.Float2)
+        rel = f"{texture_dir}/{map_name}.png"
+        textures[rel] = png_bytes(image)
+        tex = UsdShade.Shader.Define(stage, mpath.AppendChild(f"{map_name}Texture"))
+        tex.CreateIdAttr("UsdUVTexture")
+        tex.CreateInput("file", Sdf.ValueTypeNames.Asset).Set(Sdf.AssetPath(f"./{rel}"))
+        tex.CreateInput("st", Sdf.ValueTypeNames.Float2).ConnectToSource(reader.ConnectableAPI(), "result")
+        tex.CreateInput("sourceColorSpace", Sdf.ValueTypeNames.Token).Set(colorspace)
+        tex.CreateInput("wrapS", Sdf.ValueTypeNames.Token).Set("clamp")
+        tex.CreateInput("wrapT", Sdf.ValueTypeNames.Token).Set("clamp")
+        if scale != (1.0, 1.0, 1.0, 1.0):
+            tex.CreateInput("scale", Sdf.ValueTypeNames.Float4).Set(Gf.Vec4f(*scale))
+        if bias != (0.0, 0.0, 0.0, 0.0):
+            tex.CreateInput("bias", Sdf.ValueTypeNames.Float4).Set(Gf.Vec4f(*bias))
+        return tex
+
+    inputs = contents.inputs
+    if "albedo" in inputs:
+        item = inputs["albedo"]
+        diffuse = surface.CreateInput("diffuseColor", Sdf.ValueTypeNames.Color3f)
+        if item.is_texture:
+            img, _ = encode_map("albedo", item.texture, 8)
+            tex = texture("albedo", img, "sRGB", (1.0, 1.0, 1.0, 1.0), (0.0, 0.0, 0.0, 0.0))
+            diffuse.ConnectToSource(tex.CreateOutput("rgb", Sdf.ValueTypeNames.Float3))
+        else:
+            diffuse.Set(Gf.Vec3f(*map(float, srgb_to_linear(np.asarray(item.value, dtype=np.float32)))))
+    if "normal" in inputs:  # material_inputs only keeps a normal map that changes something
+        img, _ = encode_map("normal", inputs["normal"].texture, linear_bits)
+        tex = texture("normal", img, "raw", (2.0, 2.0, 2.0, 1.0), (-1.0, -1.0, -1.0, 0.0))
+        surface.CreateInput("normal", Sdf.ValueTypeNames.Normal3f).ConnectToSource(tex.CreateOutput("rgb", Sdf.ValueTypeNames.Float3))
+    rough = surface.CreateInput("roughness", Sdf.ValueTypeNames.Float)
+    if "roughness" in inputs and inputs["roughness"].is_texture:
+        img, _ = encode_map("roughness", inputs["roughness"].texture, linear_bits)
+        tex = texture("roughness", img, "raw", (1.0, 1.0, 1.0, 1.0), (0.0, 0.0, 0.0, 0.0))
+        rough.ConnectToSource(tex.CreateOutput("r", Sdf.ValueTypeNames.Float))
+    else:
+        rough.Set(float(inputs["roughness"].value) if "roughness" in inputs else DEFAULT_ROUGHNESS)
+    if "specular" in inputs:
+        item = inputs["specular"]
+        surface.CreateInput("useSpecularWorkflow", Sdf.ValueTypeNames.Int).Set(1)
+        spec = surface.CreateInput("specularColor", Sdf.ValueTypeNames.Color3f)
+        if item.is_texture:
+            img, _ = encode_map("specular", np.repeat(item.texture[:, :, None], 3, axis=2), linear_bits)
+            k = SPECULAR_F0_SCALE
+            tex = texture("specular", img, "raw", (k, k, k, 1.0), (0.0, 0.0, 0.0, 0.0))
+            spec.ConnectToSource(tex.CreateOutput("rgb", Sdf.ValueTypeNames.Float3))
+        else:
+            f0 = SPECULAR_F0_SCALE * float(item.value)
+            spec.Set(Gf.Vec3f(f0, f0, f0))
+    if "displacement" in inputs:  # only in displacement="texture" mode
+        item = inputs["displacement"]
+        disp = surface.CreateInput("displacement", Sdf.ValueTypeNames.Float)
+        if item.is_texture:
+            img, enc = encode_map("displacement", item.texture, 16)
+            s, o = float(enc["scale"]), float(enc["offset"])
+            tex = texture("displacement", img, "raw", (s, s, s, 1.0), (o, o, o, 0.0))
+            disp.ConnectToSource(tex.CreateOutput("r", Sdf.ValueTypeNames.Float))
+        else:
+            disp.Set(float(item.value))
+        material.CreateDisplacementOutput().ConnectToSource(surface.ConnectableAPI(), "displacement")
+
+    binding = UsdShade.MaterialBindingAPI.Apply(mesh.GetPrim())
+    binding.Bind(material)
+    for rel, data in textures.items():
+        out = layer_path.parent / rel
+        out.parent.mkdir(parents=True, exist_ok=True)
+        out.write_bytes(data)
+    stage.GetRootLayer().Save()
+
+
+# -- checks --------------------------------------------------------------------------------------
+
+
+def validate_usd(path: str | os.PathLike[str]) -> list[tuple[str, str, str]]:
+    """Run every validator usd-core registers on the stage at ``path``.
+
+    Returns ``[(type, validator name, message)]`` for every reported issue; ``type`` is
+    ``"Error"``, ``"Warn"`` or ``"Info"`` (so ``[e for e in result if e[0] == "Error"]`` are the
+    errors).
+    """
+    from pxr import Usd, UsdValidation
+
+    stage = Usd.Stage.Open(str(path))
+    if stage is None:  # pragma: no cover - Open raises for unreadable files
+        raise InputError(path, "stage", "a USD file that opens")
+    registry = UsdValidation.ValidationRegistry()
+    validators = registry.GetOrLoadAllValidators()
+    context = UsdValidation.ValidationContext(validators)
+    out = []
+    for error in context.Validate(stage):
+        if error.HasNoError():
+            continue
+        validator = error.GetValidator()
+        vname = validator.GetMetadata().name if validator is not None else ""
+        out.append((str(error.GetType()).rsplit(".", 1)[-1], str(vname), error.GetErrorAsString()))
+    return out
+
+
+@dataclass
+class UsdCheck:
+    """What :func:`check_usd` found."""
+
+    default_prim: str
+    up_axis: str
+    meters_per_unit: float
+    mesh_path: str
+    material_path: str
+    textures: dict[str, str] = field(default_factory=dict)  # input name -> resolved path
+    primvars: list[str] = field(default_factory=list)
+    n_points: int = 0
+
+
+def check_usd(path: str | os.PathLike[str]) -> UsdCheck:
+    """Open the stage, resolve every ``UsdUVTexture`` file (inside the package for ``.usdz``) and
+    read the mesh's bound material. Raises ``AssertionError`` naming what failed."""
+    from pxr import Ar, Usd, UsdGeom, UsdShade
+
+    stage = Usd.Stage.Open(str(path))
+    assert stage is not None, f"{path}: stage does not open"
+    prim = stage.GetDefaultPrim()
+    assert prim and prim.IsValid(), f"{path}: no default prim"
+    meshes = [p for p in stage.Traverse() if p.IsA(UsdGeom.Mesh)]
+    assert len(meshes) == 1, f"{path}: expected one mesh, found {len(meshes)}"
+    mesh = UsdGeom.Mesh(meshes[0])
+    material, _ = UsdShade.MaterialBindingAPI(mesh.GetPrim()).ComputeBoundMaterial()
+    assert material and material.GetPrim().IsValid(), f"{path}: the mesh has no bound material"
+    surface = material.ComputeSurfaceSource()[0]
+    assert surface and surface.GetIdAttr().Get() == "UsdPreviewSurface", f"{path}: surface is not a UsdPreviewSurface"
+    is_package = str(path).lower().endswith(".usdz")
+    textures = {}
+    resolver = Ar.GetResolver()
+    for shader_prim in Usd.PrimRange(material.GetPrim()):
+        shader = UsdShade.Shader(shader_prim)
+        if not shader or shader.GetIdAttr().Get() != "UsdUVTexture":
+            continue
+        asset_path = shader.GetInput("file").Get()
+        resolved = asset_path.resolvedPath if asset_path is not None else ""
+        assert resolved, f"{path}: {shader_prim.GetPath()} file {asset_path} does not resolve"
+        if is_package:
+            assert resolved.startswith(os.path.abspath(str(path)) + "[") or "[" in resolved, f"{path}: {asset_path} resolves outside the package: {resolved}"
+        data = resolver.OpenAsset(Ar.ResolvedPath(resolved))
+        assert data is not None and data.GetSize() > 0, f"{path}: {resolved} cannot be read"
+        textures[shader_prim.GetName()] = resolved
+    primvars = [pv.GetPrimvarName() for pv in UsdGeom.PrimvarsAPI(mesh.GetPrim()).GetAuthoredPrimvars()]
+    return UsdCheck(
+        default_prim=str(prim.GetPath()),
+        up_axis=str(UsdGeom.GetStageUpAxis(stage)),
+        meters_per_unit=float(UsdGeom.GetStageMetersPerUnit(stage)),
+        mesh_path=str(mesh.GetPath()),
+        material_path=str(material.GetPath()),
+        textures=textures,
+        primvars=[str(p) for p in primvars],
+        n_points=len(mesh.GetPointsAttr().Get()),
+    )

@@ -1,0 +1,62 @@
+"""One entry point for all formats: :func:`export_asset` picks the writer from the format or suffix."""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+from typing import Iterable
+
+from facegeo.asset import Asset
+from facegeo.errors import InputError
+
+__all__ = ["export_asset", "FORMATS", "DEFAULT_FORMATS"]
+
+#: Formats :func:`export_asset` writes (the file suffixes).
+FORMATS = ("usdz", "usdc", "usda", "glb")
+#: What ``facegeo reconstruct`` writes unless told otherwise (issue 8).
+DEFAULT_FORMATS = ("usdz", "glb")
+
+
+def export_asset(
+    asset: Asset,
+    path: str | os.PathLike[str],
+    *,
+    format: str | None = None,
+    level: int = 0,
+    displacement: str = "bake",
+    maps: Iterable[str] | None = None,
+    uv_interpolation: str = "surface",
+) -> Path:
+    """Write ``asset`` to ``path`` as USD (usdz, usdc, usda) or glTF binary (glb).
+
+    ``format``: one of FORMATS; default: the suffix of ``path``. A path without a suffix gets
+    ``.<format>`` appended. ``level``: Loop subdivision levels (0-3 are practical); ``displacement``:
+    "bake" (into the geometry) or "texture" (USD's displacement input; not possible in glTF);
+    ``maps``: the map names to carry (default: all the asset has). Returns the path written.
+
+    Raises:
+        InputError: unknown format, a suffix that contradicts ``format``, glb with
+            ``displacement="texture"``, or any writer's input error.
+    """
+    target = Path(path)
+    suffix = target.suffix.lower().lstrip(".")
+    if format is None:
+        if suffix not in FORMATS:
+            raise InputError(target, "file name", f"a suffix among {', '.join('.' + f for f in FORMATS)} (or pass format=)", target.suffix or "none")
+        format = suffix
+    format = format.lower().lstrip(".")
+    if format not in FORMATS:
+        raise InputError(target, "format", f"one of {', '.join(FORMATS)}", repr(format))
+    if not suffix:
+        target = target.with_name(target.name + "." + format)
+    elif suffix != format:
+        raise InputError(target, "file name", f"the .{format} suffix for format {format}", target.suffix)
+    if format == "glb":
+        if displacement != "bake":
+            raise InputError(target, "displacement", "'bake' for glTF (glTF has no displacement input)", repr(displacement))
+        from facegeo.export.gltf import write_glb
+
+        return write_glb(asset, target, level=level, maps=maps, uv_interpolation=uv_interpolation)
+    from facegeo.export.usd import write_usd
+
+    return write_usd(asset, target, level=level, displacement=displacement, maps=maps, uv_interpolation=uv_interpolation)

@@ -1,0 +1,39 @@
+"""UV space: the rasteriser, geometry maps (position, normal, MikkTSpace tangent), the
+occlusion-aware unwrap of a photo (T_inc, M_vis) and the z-buffer renderer that inverts it.
+
+Conventions (DESIGN.md): mm; camera space looks down −Z; UV [0, 1]² with the origin bottom-left,
+maps stored row 0 = top (texel (i, j) centre at u = (j + 0.5)/S, v = 1 − (i + 0.5)/S); image
+pixels continuous with the origin at the top-left corner (centres at +0.5).
+
+    raster = rasterize_uv(model, size=1024)              # cached per layout, size and padding
+    maps = geometry_maps(fit.shape_vertices, model, raster)   # position/normal/tangent/sign
+    T_inc, M_vis = unwrap(photo.image, fit, model, 1024)  # sRGB float32 texture, visibility
+    view = render(fit.vertices, model, fit.camera, texture=T_inc)
+"""
+
+from __future__ import annotations
+
+from facegeo.uv.maps import GeometryMaps, geometry_maps
+from facegeo.uv.raster import UVRaster, clear_raster_cache, default_padding, rasterize_uv
+from facegeo.uv.renderer import Rendering, rasterize_mesh, render
+from facegeo.uv.tangents import mesh_tangents, mikktspace_tangents, vertex_normals
+from facegeo.uv.unwrapping import FACING_RAMP, Unwrapped, unwrap, unwrap_details
+
+__all__ = [
+    "UVRaster",
+    "rasterize_uv",
+    "default_padding",
+    "clear_raster_cache",
+    "GeometryMaps",
+    "geometry_maps",
+    "vertex_normals",
+    "mikktspace_tangents",
+    "mesh_tangents",
+    "unwrap",
+    "unwrap_details",
+    "Unwrapped",
+    "FACING_RAMP",
+    "Rendering",
+    "render",
+    "rasterize_mesh",
+]

@@ -1,0 +1,172 @@
+"""``facegeo unwrap PHOTO -o OUT``: fit the model to a photo, then unwrap the photo into UV space.
+
+Writes (atomically, through :class:`facegeo.staged_output.StagedOutput`):
+
+| file | content |
+|---|---|
+| ``texture_incomplete.png`` | T_inc, 8-bit sRGB RGB (the photo's values; black where M_vis = 0) |
+| ``visibility.png`` | M_vis, 8-bit grey (255 = fully visible) |
+| ``position.exr`` | position map, float32 RGB = camera-space x, y, z in mm |
+| ``normal.exr`` | normal map, float32 RGB = unit camera-space normal (0 where no surface) |
+| ``tangent.exr`` | float32 RGBA = MikkTSpace tangent x, y, z and bitangent sign (±1) |
+| ``unwrap.json`` | size, padding, frame, pose, camera, coverage statistics, timings |
+
+The geometry maps are in the camera space of the fit (the frame of ``facegeo fit``'s
+``mesh.obj``); ``unwrap.json`` holds the rotation and translation back to model space.
+``register(subparsers)`` adds the subcommand to the ``facegeo`` parser.
+"""
+
+from __future__ import annotations
+
+import os
+
+# OpenCV reads this when it first encodes or decodes an EXR (checked lazily in OpenCV 4.x, so it
+# also works when cv2 was imported earlier); set before cv2 is imported to be safe.
+os.environ.setdefault("OPENCV_IO_ENABLE_OPENEXR", "1")
+
+import argparse  # noqa: E402
+import json  # noqa: E402
+import time  # noqa: E402
+from pathlib import Path  # noqa: E402
+
+import numpy as np  # noqa: E402
+
+from facegeo.errors import InputError  # noqa: E402
+
+__all__ = ["register", "run_unwrap", "encode_exr", "OUTPUT_FILES"]
+
+#: The files ``facegeo unwrap`` writes.
+OUTPUT_FILES = ("texture_incomplete.png", "visibility.png", "position.exr", "normal.exr", "tangent.exr", "unwrap.json")
+
+
+def register(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParser:
+    """Add the ``unwrap`` subcommand to the ``facegeo`` sub-parsers; returns its parser."""
+    p = subparsers.add_parser(
+        "unwrap",
+        help="fit, then unwrap the photo into UV space (texture_incomplete.png, visibility.png, geometry EXRs)",
+        description="Fit the morphable model to the photo, then write the incomplete texture T_inc "
+        "(texture_incomplete.png, sRGB), its visibility M_vis (visibility.png), and the position, normal and "
+        "MikkTSpace tangent maps of the fitted mesh as float32 EXR (camera space, mm), plus unwrap.json.",
+    )
+    p.add_argument("photo", type=Path, help="the photo (PNG, JPEG, ...); EXIF orientation is honoured")
+    p.add_argument("-o", "--output", type=Path, required=True, help="output folder (created)")
+    p.add_argument("--size", type=int, default=1024, help="UV map size in texels (default 1024)")
+    p.add_argument("--padding", type=int, default=None, help="seam padding in texels (default size/128, at least 2)")
+    p.add_argument("--model", type=Path, default=None, help="model file (.npz, HIFI3D++ .mat, AI-NExT .mat); default: $FACEGEO_MODEL or the bundled ICT-FaceKit model")
+    p.add_argument("--landmarks", choices=["hybrid", "dlib", "mediapipe"], default="hybrid", help="landmark detector (default: hybrid)")
+    p.add_argument("--focal", type=float, default=None, help="focal length in pixels of the (possibly downscaled) photo; default: 40° field of view on the long side")
+    p.add_argument("--max-side", type=int, default=2048, help="downscale photos whose longer side exceeds this (pixels)")
+    p.add_argument("--occlusion", type=Path, default=None, help="optional image-space mask, same size as the photo: white where hair, glasses or hands cover the face")
+    p.set_defaults(run=run_unwrap)
+    return p
+
+
+def run_unwrap(args: argparse.Namespace) -> None:
+    """Run ``facegeo unwrap`` for parsed ``args`` (raises :class:`facegeo.errors.FacegeoError`)."""
+    import cv2
+
+    from facegeo.camera import Camera, euler_from_rotation
+    from facegeo.fitting import fit
+    from facegeo.model_files import load_model
+    from facegeo.photo import load_photo
+    from facegeo.staged_output import StagedOutput
+    from facegeo.uv.maps import geometry_maps
+    from facegeo.uv.raster import MAX_SIZE, rasterize_uv
+    from facegeo.uv.unwrapping import FACING_RAMP, unwrap_details
+
+    if not 16 <= args.size <= MAX_SIZE:
+        raise InputError("--size", "map size", f"an integer in [16, {MAX_SIZE}]", str(args.size))
+    if args.padding is not None and args.padding < 0:
+        raise InputError("--padding", "seam padding", "a number of texels ≥ 0", str(args.padding))
+    start = time.perf_counter()
+    timings: dict[str, float] = {}
+    photo = load_photo(args.photo, max_side=args.max_side)
+    occlusion = None
+    if args.occlusion is not None:
+        mask = load_photo(args.occlusion, max_side=args.max_side).image
+        if mask.shape[:2] != photo.image.shape[:2]:
+            raise InputError(args.occlusion, "occlusion mask", f"an image of the photo's size {photo.image.shape[1]}x{photo.image.shape[0]}",
+                             f"{mask.shape[1]}x{mask.shape[0]}")
+        occlusion = mask.astype(np.float32).mean(axis=2) / 255.0
+    model = load_model(args.model)
+    height, width = photo.image.shape[:2]
+    camera = Camera.for_image(width, height)
+    if args.focal is not None:
+        camera = Camera(args.focal, width / 2.0, height / 2.0, width, height)
+    t = time.perf_counter()
+    result = fit(photo, model=model, detector=args.landmarks, camera=camera)
+    timings["fit"] = time.perf_counter() - t
+
+    t = time.perf_counter()
+    raster = rasterize_uv(model, size=args.size, padding=args.padding)
+    timings["rasterize_uv"] = time.perf_counter() - t
+    t = time.perf_counter()
+    maps = geometry_maps(result.vertices, model, raster)
+    timings["geometry_maps"] = time.perf_counter() - t
+    t = time.perf_counter()
+    unwrapped = unwrap_details(photo.image, result, model, maps=maps, occlusion=occlusion)
+    timings["unwrap"] = time.perf_counter() - t
+
+    texture, vis = unwrapped.texture, unwrapped.visibility
+    yaw, pitch, roll = euler_from_rotation(result.rotation)
+    inside = raster.inside
+    info = {
+        "size": raster.size,
+        "padding": raster.padding,
+        "photo": str(args.photo),
+        "model": model.name,
+        "colour_space": {"texture_incomplete.png": "sRGB (the photo's values)", "exr": "linear float32"},
+        "frame": "camera space of the fit, mm; model space X = R^T (X_c - t)",
+        "rotation": np.asarray(result.rotation).tolist(),
+        "translation_mm": np.asarray(result.translation).tolist(),
+        "euler_deg": {"yaw": yaw, "pitch": pitch, "roll": roll},
+        "camera": camera.as_dict(),
+        "facing_ramp": list(FACING_RAMP),
+        "texels_inside": int(inside.sum()),
+        "texels_visible": int((unwrapped.visible & inside).sum()),
+        "mean_visibility_inside": float(vis[inside].mean()) if inside.any() else 0.0,
+        "landmark_rms_px": float(result.landmark_rms_px),
+    }
+    t = time.perf_counter()
+    with StagedOutput(args.output) as stage:
+        rgb8 = np.clip(np.round(texture * 255.0), 0, 255).astype(np.uint8)
+        stage.path("texture_incomplete.png").write_bytes(_png(cv2, rgb8[..., ::-1]))
+        stage.path("visibility.png").write_bytes(_png(cv2, np.clip(np.round(vis * 255.0), 0, 255).astype(np.uint8)))
+        stage.path("position.exr").write_bytes(encode_exr(maps.position))
+        stage.path("normal.exr").write_bytes(encode_exr(maps.normal))
+        tangent = np.concatenate([maps.tangent, maps.bitangent_sign[..., None]], axis=-1)
+        stage.path("tangent.exr").write_bytes(encode_exr(tangent))
+        timings["write"] = time.perf_counter() - t
+        timings["total"] = time.perf_counter() - start
+        info["timings_s"] = timings
+        stage.path("unwrap.json").write_text(json.dumps(info, indent=1))
+    print(f"unwrapped {args.photo} at {raster.size}x{raster.size}: "
+          f"{info['texels_visible']} of {info['texels_inside']} texels visible, landmark RMS {result.landmark_rms_px:.2f} px")
+    print("timings: " + ", ".join(f"{k} {v:.3f} s" for k, v in timings.items()))
+    print(f"wrote {args.output}/" + ", ".join(OUTPUT_FILES))
+
+
+def encode_exr(image: np.ndarray) -> bytes:
+    """A float32 OpenEXR file (ZIP compression) of an (H, W), (H, W, 3) RGB or (H, W, 4) RGBA
+    array, channels in RGB(A) order."""
+    import cv2
+
+    a = np.ascontiguousarray(image, dtype=np.float32)
+    if a.ndim == 3 and a.shape[2] == 3:
+        a = a[..., ::-1]
+    elif a.ndim == 3 and a.shape[2] == 4:
+        a = a[..., [2, 1, 0, 3]]
+    params = [cv2.IMWRITE_EXR_TYPE, cv2.IMWRITE_EXR_TYPE_FLOAT]
+    if hasattr(cv2, "IMWRITE_EXR_COMPRESSION_ZIP"):
+        params += [cv2.IMWRITE_EXR_COMPRESSION, cv2.IMWRITE_EXR_COMPRESSION_ZIP]
+    ok, buf = cv2.imencode(".exr", np.ascontiguousarray(a), params)
+    if not ok:  # pragma: no cover - OpenCV built without OpenEXR
+        raise RuntimeError("OpenCV could not encode EXR (is OPENCV_IO_ENABLE_OPENEXR=1 set?)")
+    return buf.tobytes()
+
+
+def _png(cv2, image: np.ndarray) -> bytes:
+    ok, buf = cv2.imencode(".png", np.ascontiguousarray(image))
+    if not ok:  # pragma: no cover
+        raise RuntimeError("PNG encoding failed")
+    return buf.tobytes()

@@ -1,0 +1,186 @@
+"""A z-buffer rasteriser of a textured (or vertex-coloured) mesh into the image: the inverse of
+:func:`facegeo.uv.unwrap`, used by its depth test, for round-trip tests and for overlays.
+
+Camera and pixels as in :mod:`facegeo.camera`: camera space, mm, looking down −Z; the image
+samples the scene at pixel centres (i + 0.5, j + 0.5), one sample per pixel (no anti-aliasing).
+Both faces of every triangle are drawn (the nearest surface wins, whatever its orientation);
+triangles with a corner closer than ``near`` mm to the camera plane, or behind it, are skipped
+(there is no clipping). Barycentric coordinates are perspective-correct; ``depth`` is the
+distance along −Z in mm.
+
+Textures are sampled bilinearly at the interpolated UV (texel centres at ((j + 0.5)/S,
+1 − (i + 0.5)/S), row 0 = top, DESIGN.md), with edge texels repeated beyond the border; the
+values are used as given (pass sRGB to get sRGB pixels, linear to get linear ones).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from facegeo.camera import Camera
+from facegeo.errors import InputError
+from facegeo.uv._triangles import triangle_fragments
+
+__all__ = ["Rendering", "render", "rasterize_mesh"]
+
+#: Default near distance in mm: triangles with a corner closer to the camera plane are skipped.
+NEAR_MM = 1.0
+
+
+@dataclass(frozen=True, eq=False)
+class Rendering:
+    """A rendered view.
+
+    Attributes:
+        image: (H, W, C) float32 colours (``background`` where ``mask`` is False), or None when
+            neither a texture nor colours were given.
+        depth: (H, W) float32 distance along −Z in mm (inf on the background).
+        triangle: (H, W) int32 index of the visible triangle (−1 on the background).
+        barycentric: (H, W, 3) float32 perspective-correct barycentric coordinates.
+        uv: (H, W, 2) float32 interpolated UV coordinates (0 on the background), or None for a
+            mesh rendered without UVs.
+        mask: (H, W) bool, pixels covered by the mesh.
+    """
+
+    image: np.ndarray | None
+    depth: np.ndarray
+    triangle: np.ndarray
+    barycentric: np.ndarray
+    uv: np.ndarray | None
+    mask: np.ndarray
+
+
+def rasterize_mesh(vertices_cam: np.ndarray, triangles: np.ndarray, camera: Camera, near: float = NEAR_MM
+                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The z-buffer: per pixel the nearest triangle, its perspective-correct barycentrics and depth.
+
+    Args:
+        vertices_cam: (V, 3) camera-space positions, mm. triangles: (F, 3) int.
+        camera: intrinsics and image size.
+        near: triangles with a corner at depth < ``near`` mm are skipped.
+    Returns:
+        ``(triangle (H, W) int32, barycentric (H, W, 3) float32, depth (H, W) float32)``; −1,
+        zeros and inf on the background. Ties in depth go to the triangle drawn last.
+    """
+    v = np.asarray(vertices_cam, dtype=np.float64)
+    tri = np.asarray(triangles, dtype=np.int64)
+    W, H = camera.width, camera.height
+    depth_v = -v[:, 2]
+    safe = np.where(depth_v > 0, depth_v, 1.0)
+    px = camera.cx + camera.focal * v[:, 0] / safe
+    py = camera.cy - camera.focal * v[:, 1] / safe
+    ok = np.flatnonzero((depth_v[tri] >= near).all(axis=1) & np.isfinite(depth_v[tri]).all(axis=1))
+    pts = np.stack([px, py], axis=1)[tri[ok]]  # (F', 3, 2)
+    inv_d = 1.0 / safe[tri[ok]]  # (F', 3)
+    zbuf = np.full(H * W, np.inf)
+    tbuf = np.full(H * W, -1, dtype=np.int32)
+    bbuf = np.zeros((H * W, 3), dtype=np.float32)
+    for pix, t, lam in triangle_fragments(pts, W, H):
+        w = lam * inv_d[t]  # perspective-correct weights
+        s = w.sum(axis=1)
+        d = 1.0 / s
+        np.minimum.at(zbuf, pix, d)
+        win = d <= zbuf[pix]
+        pix, t, w, s = pix[win], t[win], w[win], s[win]
+        tbuf[pix] = ok[t]
+        bbuf[pix] = w / s[:, None]
+    return tbuf.reshape(H, W), bbuf.reshape(H, W, 3), zbuf.astype(np.float32).reshape(H, W)
+
+
+def render(vertices_cam: np.ndarray, model, camera: Camera, texture: np.ndarray | None = None,
+           colours: np.ndarray | None = None, *, background: float | tuple[float, ...] = 0.0,
+           near: float = NEAR_MM) -> Rendering:
+    """Render a mesh into the camera's image with a z-buffer.
+
+    Args:
+        vertices_cam: (V, 3) camera-space vertex positions, mm (e.g. ``fit.vertices``).
+        model: the :class:`facegeo.MorphableModel` (``triangles``, ``uv``, ``uv_triangles``).
+        camera: intrinsics and image size.
+        texture: (S, S, C) UV-space map (uint8 is scaled to [0, 1]), sampled bilinearly.
+        colours: (V, C) per-vertex colours, interpolated (used when no texture is given).
+        background: colour of uncovered pixels.
+        near: see :func:`rasterize_mesh`.
+    Returns:
+        :class:`Rendering` (image float32; None without texture and colours).
+    Raises:
+        InputError: arrays of the wrong shape.
+    """
+    v = np.asarray(vertices_cam)
+    triangles = np.asarray(model.triangles, dtype=np.int64)
+    if v.ndim != 2 or v.shape[1] != 3 or v.shape[0] <= int(triangles.max()):
+        raise InputError("<array>", "vertices_cam", f"a (V, 3) array with V = {int(triangles.max()) + 1}", f"shape {v.shape}")
+    tri_buf, bary, depth = rasterize_mesh(v, triangles, camera, near)
+    mask = tri_buf >= 0
+    H, W = mask.shape
+    idx = np.flatnonzero(mask.ravel())
+    t = tri_buf.ravel()[idx]
+    b = bary.reshape(-1, 3)[idx]
+    uv_img = None
+    uv = getattr(model, "uv", None)
+    uv_tris = getattr(model, "uv_triangles", None)
+    if uv is not None and uv_tris is not None:
+        corner_uv = np.asarray(uv, dtype=np.float64)[np.asarray(uv_tris, dtype=np.int64)]  # (F, 3, 2)
+        uvp = np.einsum("nk,nkc->nc", b.astype(np.float64), corner_uv[t])
+        uv_img = np.zeros((H * W, 2), dtype=np.float32)
+        uv_img[idx] = uvp
+        uv_img = uv_img.reshape(H, W, 2)
+    image = None
+    if texture is not None:
+        if uv_img is None:
+            raise InputError("<argument>", "texture", "a model with UVs", "none")
+        tex = _as_float_image(texture, "texture")
+        S_h, S_w = tex.shape[:2]
+        map_x = np.full((H, W), -1.0, dtype=np.float32)
+        map_y = np.full((H, W), -1.0, dtype=np.float32)
+        map_x[mask] = uv_img[..., 0][mask] * S_w - 0.5
+        map_y[mask] = (1.0 - uv_img[..., 1][mask]) * S_h - 0.5
+        image = _remap(tex, map_x, map_y)
+    elif colours is not None:
+        c = np.asarray(colours, dtype=np.float32)
+        if c.ndim != 2 or c.shape[0] != v.shape[0]:
+            raise InputError("<array>", "colours", f"a ({v.shape[0]}, C) array", f"shape {c.shape}")
+        vals = np.einsum("nk,nkc->nc", b, c[triangles[t]])
+        image = np.zeros((H * W, c.shape[1]), dtype=np.float32)
+        image[idx] = vals
+        image = image.reshape(H, W, c.shape[1])
+    if image is not None:
+        bg = np.broadcast_to(np.asarray(background, dtype=np.float32), (image.shape[-1],))
+        image = np.where(mask[..., None], image, bg).astype(np.float32)
+    return Rendering(image, depth, tri_buf, bary, uv_img, mask)
+
+
+def _as_float_image(a: np.ndarray, name: str) -> np.ndarray:
+    a = np.asarray(a)
+    if a.ndim not in (2, 3) or a.shape[0] < 1 or a.shape[1] < 1:
+        raise InputError("<array>", name, "an (H, W) or (H, W, C) image", f"shape {a.shape}")
+    if a.dtype == np.uint8:
+        return a.astype(np.float32) / 255.0
+    if a.dtype == np.uint16:
+        return a.astype(np.float32) / 65535.0
+    out = a.astype(np.float32)
+    if not np.all(np.isfinite(out)):
+        raise InputError("<array>", name, "finite values", "NaN/inf values")
+    return out
+
+
+def _remap(img: np.ndarray, map_x: np.ndarray, map_y: np.ndarray) -> np.ndarray:
+    """Bilinear lookup at integer-centred coordinates with edge pixels repeated; any number of
+    channels (OpenCV handles up to 4 at a time)."""
+    squeeze = img.ndim == 2
+    src = img[..., None] if squeeze else img
+    outs = []
+    for c0 in range(0, src.shape[2], 4):
+        part = np.ascontiguousarray(src[..., c0:c0 + 4])
+        if part.shape[2] == 2:  # OpenCV has no 2-channel float remap path issue, but keep it simple
+            r = np.stack([cv2.remap(part[..., k], map_x, map_y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+                          for k in range(2)], axis=-1)
+        else:
+            r = cv2.remap(part, map_x, map_y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+            if r.ndim == 2:
+                r = r[..., None]
+        outs.append(r)
+    out = np.concatenate(outs, axis=-1)
+    return out[..., 0] if squeeze else out

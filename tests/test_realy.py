@@ -1,0 +1,227 @@
+"""REALY evaluation: the official code's numbers on synthetic subjects, outputs and robustness.
+
+Reference values (REFERENCE_SMALL, REFERENCE_LARGE) were produced by running the official REALY
+code, github czh-98/REALY at commit 3f13e9a (``main.py``'s per-subject steps: ``utils.io_obj.read``,
+``global_rigid_align_7_kpt``, ``region_icp_one_region`` with max_iteration=100,
+``trimesh.Trimesh(..., process=True)`` for the region and ``bidirectional_evaluation_pipeline``),
+once, in a separate Python 3.11 virtual environment outside the repository with numpy 1.26.4,
+scipy 1.11.4, trimesh 3.12.7, rtree 1.4.1, scikit-sparse 0.4.16 (real CHOLMOD, Debian's
+SuiteSparse 5.12), opencv-python-headless 4.8.1.78, on the data sets that
+``facegeo.eval.realy_synthetic.make_dataset(root, 3, seed=0, subdivisions=0 | 1)`` writes
+(their SHA-256 digests are checked below), with ``data/ICT-FaceKit.{obj,txt}`` as topology.
+The values are ``error * metrical_scale`` at full precision; the official ``main.py`` run on the
+same folders wrote exactly the 9-character texts in OFFICIAL_TEXT_SMALL to REALY_error.txt.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import shutil
+
+import numpy as np
+import pytest
+
+from facegeo.errors import FacegeoError, InputError
+from facegeo.eval.realy import REGIONS, evaluate, format_value, summarize
+from facegeo.eval.realy_io import obj_text, read_obj
+from facegeo.eval.realy_report import OUTPUT_FILES, write_outputs
+from facegeo.eval.realy_synthetic import dataset_digest, make_dataset
+
+DIGEST_SMALL = "982555d768c3d4466507d6c6d294b45dde889891ebc9bb249d399cf2eed862e7"
+DIGEST_LARGE = "dfa3ac615830cd78411a1eb8f7387e1b9a82ea05c78eb280a6872476e940d9f7"
+
+# official code, subdivisions=0 (regions of 570-1560 vertices), mm
+REFERENCE_SMALL = {
+    "1": {"nose": 0.8506133606442968, "mouth": 1.5193866975451307, "forehead": 3.7678127269049253, "cheek": 1.9261925981726369},
+    "2": {"nose": 1.4819445182621394, "mouth": 2.4524369669665296, "forehead": 4.73775796912373, "cheek": 1.7291843627380403},
+    "3": {"nose": 1.5181164430207, "mouth": 2.3842545991852253, "forehead": 5.003919966886623, "cheek": 1.63577757552182},
+}
+# ... and the summary main.py printed for them (%.3f)
+OFFICIAL_SUMMARY_SMALL = {
+    "nose": (1.284, 1.482, 0.375), "mouth": (2.119, 2.384, 0.520),
+    "forehead": (4.503, 4.738, 0.651), "cheek": (1.764, 1.729, 0.148), "all": 2.417,
+}
+OFFICIAL_TEXT_SMALL = (
+    "1\t\t0.8506133\t1.5193866\t3.7678127\t1.9261925\n"
+    "2\t\t1.4819445\t2.4524369\t4.7377579\t1.7291843\n"
+    "3\t\t1.5181164\t2.3842545\t5.0039199\t1.6357775\n"
+)
+# official code, subdivisions=1 (regions of 2300-6200 vertices), mm
+REFERENCE_LARGE = {
+    "1": {"nose": 1.3168473776789502, "mouth": 1.689653018896964, "forehead": 5.149259206129889, "cheek": 1.9496374489196118},
+    "2": {"nose": 1.594836248022216, "mouth": 2.776825577017204, "forehead": 6.273797939734792, "cheek": 1.7596431508205186},
+    "3": {"nose": 1.724287694306464, "mouth": 2.711815336054559, "forehead": 5.879124413195116, "cheek": 1.683061839874828},
+}
+# rigid ICP updates per region in the official run (nose, mouth, forehead, cheek)
+OFFICIAL_ICP_UPDATES_SMALL = {"1": [6, 6, 8, 13], "2": [7, 7, 7, 14], "3": [6, 9, 10, 18]}
+
+REL = 1e-6
+
+
+def _close(ours: dict, ref: dict) -> None:
+    for region in REGIONS:
+        assert ours[region] == pytest.approx(ref[region], rel=REL), region
+
+
+@pytest.fixture(scope="module")
+def small(tmp_path_factory):
+    data = make_dataset(tmp_path_factory.mktemp("realy_small"), 3, seed=0, subdivisions=0)
+    if dataset_digest(data) != DIGEST_SMALL:
+        pytest.fail("the synthetic REALY data set differs from the one the reference values were made on")
+    return data
+
+
+def _only(data, tmp_path, names):
+    pred = tmp_path / "pred"
+    pred.mkdir()
+    for n in names:
+        shutil.copyfile(data.pred_dir / f"{n}.obj", pred / f"{n}.obj")
+    return pred
+
+
+# ------------------------------------------------------------------------------- equality
+def test_subject_with_duplicate_region_vertices_equals_the_official_numbers(small, tmp_path):
+    # subject 2: its nose region has a duplicated vertex and an unused one (merged / dropped in
+    # the error step only, as trimesh's process=True does in the official code)
+    result = evaluate(_only(small, tmp_path, ["2"]), small.realy_root)
+    _close(result.per_subject["2"], REFERENCE_SMALL["2"])
+    assert [result.details["2"][r]["icp_updates"] for r in REGIONS] == OFFICIAL_ICP_UPDATES_SMALL["2"]
+    assert result.details["2"]["nose"]["vertices"] == 1555  # 1557 in the file: one merged, one unused
+    assert all(v > 1e-4 for v in result.per_subject["2"].values())
+
+
+@pytest.mark.slow
+def test_all_small_subjects_equal_the_official_numbers_and_text(small, tmp_path):
+    result = evaluate(small.pred_dir, small.realy_root, workers=2)
+    assert list(result.per_subject) == ["1", "2", "3"]
+    for name, ref in REFERENCE_SMALL.items():
+        _close(result.per_subject[name], ref)
+        assert [result.details[name][r]["icp_updates"] for r in REGIONS] == OFFICIAL_ICP_UPDATES_SMALL[name]
+    for region in REGIONS:
+        stats = result.summary[region]
+        assert tuple(round(stats[k], 3) for k in ("mean", "median", "std")) == OFFICIAL_SUMMARY_SMALL[region]
+    assert round(result.summary["all"], 3) == OFFICIAL_SUMMARY_SMALL["all"]
+    # the official file, up to a last-digit difference where a value sits on a truncation edge
+    ours = [line.split("\t") for line in result.error_txt().splitlines()]
+    theirs = [line.split("\t") for line in OFFICIAL_TEXT_SMALL.splitlines()]
+    for a, b in zip(ours, theirs):
+        assert a[:2] == b[:2]
+        assert [float(x) for x in a[2:]] == pytest.approx([float(x) for x in b[2:]], abs=1.5e-7)
+
+
+@pytest.mark.slow
+def test_large_subjects_equal_the_official_numbers(tmp_path):
+    data = make_dataset(tmp_path, 3, seed=0, subdivisions=1)
+    assert dataset_digest(data) == DIGEST_LARGE
+    result = evaluate(data.pred_dir, data.realy_root, workers=2)
+    for name, ref in REFERENCE_LARGE.items():
+        _close(result.per_subject[name], ref)
+
+
+# ------------------------------------------------------------------------------- summary, format
+def test_format_and_summary_follow_the_official_code():
+    assert format_value(1.2345678912345) == "1.2345678"
+    assert format_value(12.3) == "12.3"
+    assert format_value(5e-05) == "5e-05"
+    assert format_value(np.float64(0.1) + np.float64(0.2)) == str(np.float64(0.1) + np.float64(0.2))[:9]
+    values = {"1": dict(nose=1.0, mouth=2.0, forehead=3.0, cheek=4.0), "2": dict(nose=3.0, mouth=2.0, forehead=1.0, cheek=0.0)}
+    s = summarize(values)
+    assert s["nose"] == {"mean": 2.0, "median": 2.0, "std": pytest.approx(math.sqrt(2.0))}
+    assert s["all"] == pytest.approx((2.0 + 2.0 + 2.0 + 2.0) / 4)
+    single = summarize({"1": values["1"]})
+    assert math.isnan(single["nose"]["std"]) and single["n"] == 1
+
+
+def test_outputs_are_written_in_the_official_format(small, tmp_path):
+    result = evaluate(_only(small, tmp_path, ["1"]), small.realy_root)
+    out = tmp_path / "out"
+    write_outputs(result, out)
+    assert sorted(p.name for p in out.iterdir()) == sorted(OUTPUT_FILES)
+    line = (out / "REALY_error.txt").read_text()
+    fields = line.rstrip("\n").split("\t")
+    assert fields[0] == "1" and fields[1] == "" and len(fields) == 6
+    assert all(len(f) <= 9 for f in fields[2:])
+    assert [float(f) for f in fields[2:]] == pytest.approx([REFERENCE_SMALL["1"][r] for r in REGIONS], abs=2e-7)
+    data = json.loads((out / "REALY_result.json").read_text())
+    assert data["per_subject_mm"]["1"]["nose"] == result.per_subject["1"]["nose"]
+    assert data["summary"]["nose"]["std"] is None  # one subject: no n-1 std
+    md = (out / "REALY_summary.md").read_text()
+    assert "| Nose | Mouth | Forehead | Cheek | All |" in md
+    csv_rows = (out / "REALY_summary.csv").read_text().splitlines()
+    assert csv_rows[0] == "subject,nose,mouth,forehead,cheek" and csv_rows[1].startswith("1,")
+
+
+# ------------------------------------------------------------------------------- robustness
+def _copy_tree(small, tmp_path):
+    root = tmp_path / "copy"
+    shutil.copytree(small.root, root)
+    return root / "realy", root / "pred"
+
+
+def test_nan_prediction_is_an_input_error(small, tmp_path):
+    realy, pred = _copy_tree(small, tmp_path)
+    lines = (pred / "1.obj").read_text().splitlines()
+    lines[10] = "v nan 0 0"
+    (pred / "1.obj").write_text("\n".join(lines) + "\n")
+    with pytest.raises(InputError, match="NaN"):
+        evaluate(pred, realy)
+
+
+def test_nan_in_a_region_file_is_an_input_error(small, tmp_path):
+    realy, pred = _copy_tree(small, tmp_path)
+    path = realy / "data" / "REALY_scan_region" / "1" / "cheek.obj"
+    lines = path.read_text().splitlines()
+    lines[0] = "v 1 inf 2"
+    path.write_text("\n".join(lines) + "\n")
+    with pytest.raises(InputError, match="cheek region.*NaN or infinity"):
+        evaluate(pred, realy)
+
+
+def test_wrong_vertex_count_and_names_are_input_errors(small, tmp_path):
+    realy, pred = _copy_tree(small, tmp_path)
+    mesh = read_obj(pred / "1.obj")
+    (pred / "1.obj").write_text(obj_text(mesh.vertices[:-1], mesh.triangles[mesh.triangles.max(axis=1) < len(mesh.vertices) - 1]))
+    with pytest.raises(InputError, match="11248"):
+        evaluate(pred, realy)
+    (pred / "1.obj").unlink()
+    (pred / "scan_1.obj").write_text("v 0 0 0\n")
+    with pytest.raises(InputError, match="<id>.obj"):
+        evaluate(pred, realy)
+
+
+def test_missing_subject_data_and_layout_are_input_errors(small, tmp_path):
+    realy, pred = _copy_tree(small, tmp_path)
+    (realy / "data" / "REALY_scan_region" / "3" / "mouth.obj").unlink()
+    with pytest.raises(InputError, match=r"3/mouth.obj.*subject 3"):
+        evaluate(pred, realy)
+    with pytest.raises(InputError, match="REALY_HIFI3D_keypoints"):
+        evaluate(pred, tmp_path / "nowhere")
+    (pred / "7.obj").write_text("v 0 0 0\n")
+    shutil.rmtree(realy / "data" / "REALY_scan_region")
+    with pytest.raises(InputError, match="REALY_scan_region"):
+        evaluate(pred, realy)
+
+
+def test_topology_without_keypoint_file_is_an_input_error(small, tmp_path):
+    realy, pred = _copy_tree(small, tmp_path)
+    shutil.copyfile(realy / "data" / "ICT-FaceKit.obj", realy / "data" / "MyModel.obj")
+    with pytest.raises(InputError, match="keypoint file of topology MyModel.*template mesh but no keypoint file"):
+        evaluate(pred, realy, topology="MyModel")
+    with pytest.raises(InputError, match="keypoint file of topology FLAME"):
+        evaluate(pred, realy, topology="FLAME")
+
+
+def test_subject_id_outside_the_scale_file_is_an_input_error(small, tmp_path):
+    realy, pred = _copy_tree(small, tmp_path)
+    shutil.copyfile(pred / "1.obj", pred / "101.obj")
+    with pytest.raises(InputError, match="subject id"):
+        evaluate(pred, realy)
+
+
+def test_failed_subject_in_a_worker_names_it(small, tmp_path):
+    realy, pred = _copy_tree(small, tmp_path)
+    # a region smaller than its keypoint set cannot be aligned (the official code crashes)
+    (realy / "data" / "REALY_scan_region" / "2" / "nose.obj").write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n")
+    with pytest.raises(FacegeoError, match=r"2.obj.*nose region"):
+        evaluate(pred, realy, workers=2)
