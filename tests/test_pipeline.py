@@ -1,0 +1,79 @@
+"""The whole pipeline on the bundled photo at a small map size."""
+
+import json
+
+import numpy as np
+import pytest
+from PIL import Image
+
+from facegeo import load_model, load_photo
+from facegeo.assets import asset_path
+from facegeo.cli import main
+from facegeo.errors import InputError
+from facegeo.pipeline import STAGES, reconstruct, relit_preview
+
+PHOTO = asset_path("photos/astronaut.png")
+
+
+@pytest.fixture(scope="module")
+def small_asset():
+    photo = load_photo(PHOTO)
+    model = load_model()
+    asset, fit = reconstruct(photo, model, size=256, upscale=2, maps={"albedo", "normal", "displacement"})
+    return photo, model, asset, fit
+
+
+def test_only_the_requested_maps_are_made(small_asset):
+    _, _, asset, _ = small_asset
+    assert set(asset.maps) == {"albedo", "normal", "displacement"}
+    assert set(asset.constants) == {"roughness", "specular"}
+    assert asset.maps["albedo"].shape == (512, 512, 3)  # 256 upscaled ×2
+    np.testing.assert_allclose(np.linalg.norm(asset.maps["normal"], axis=-1), 1.0, atol=1e-4)
+    assert set(asset.metadata["timings_s"]) == set(STAGES)
+    assert 0.0 <= asset.maps["albedo"].min() and asset.maps["albedo"].max() <= 1.0
+    report = asset.metadata["texture_report"]
+    assert report["homogenise"]["remaining_fraction"] < 0.5
+
+
+def test_albedo_is_skin_coloured_on_the_cheeks(small_asset):
+    _, model, asset, _ = small_asset
+    from facegeo.texturing.regions import vertex_regions
+    from facegeo.uv import rasterize_uv
+
+    raster = rasterize_uv(model, size=512)
+    cheeks = raster.scatter(raster.interpolate(vertex_regions(model)["cheeks"][model.triangles][..., None]))[..., 0] > 0.5
+    r, g, b = asset.maps["albedo"][cheeks].mean(axis=0)
+    assert r > g > b and 0.3 < r < 0.95  # reddish skin, neither black nor blown out
+
+
+def test_preview_panels(small_asset):
+    photo, model, asset, fit = small_asset
+    preview = relit_preview(photo.image, asset, fit, model, height=128, shading_size=128)
+    assert preview.shape[0] == 128 and preview.shape[1] > 3 * 64 and preview.dtype == np.uint8
+
+
+def test_bad_arguments_raise():
+    with pytest.raises(InputError, match="maps"):
+        reconstruct(np.zeros((64, 64, 3), np.uint8), maps={"sheen"})
+    with pytest.raises(InputError, match="upscale"):
+        reconstruct(np.zeros((64, 64, 3), np.uint8), upscale=3)
+
+
+def test_reconstruct_command(tmp_path, capsys):
+    out = tmp_path / "rec"
+    code = main(["reconstruct", str(PHOTO), "-o", str(out), "--size", "256", "--format", "glb,usda", "--maps", "albedo,normal,roughness"])
+    _, err = capsys.readouterr()
+    assert code == 0, err
+    names = {p.name for p in out.iterdir()}
+    assert {"fit.json", "asset.json", "mesh.obj", "albedo.png", "normal.png", "roughness.png", "face.glb", "face.usda", "preview.png"} <= names
+    assert "specular.png" not in names and "displacement.png" not in names
+    record = json.loads((out / "fit.json").read_text())
+    assert {"fit", "unwrap", "export", "preview", "total"} <= set(record["timings_s"]["stages"])
+    assert Image.open(out / "albedo.png").size == (256, 256)
+
+
+def test_reconstruct_command_bad_maps_leaves_nothing(tmp_path, capsys):
+    out = tmp_path / "rec"
+    code = main(["reconstruct", str(PHOTO), "-o", str(out), "--maps", "albedo,sheen"])
+    _, err = capsys.readouterr()
+    assert code == 2 and "--maps" in err and not out.exists()
