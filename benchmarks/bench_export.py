@@ -15,7 +15,9 @@ with the level-``--reference-level`` displaced mesh (the converged surface):
 
 Distances are exact point-to-triangle distances (libigl AABB trees). The same is reported for
 the undisplaced surface (plain Loop) to separate subdivision convergence from displacement
-sampling. Then the writers: usdz, usdc and glb of the 1K asset at level 0 and 1.
+sampling. Then the writers (usdz, usdc and glb of an asset with all five 1K maps, level 0
+and 1) and the validator matrix: every validator usd-core registers on usda/usdc/usdz and the
+Khronos glTF-Validator on glb, over map subsets, constants and subdivision levels.
 """
 
 from __future__ import annotations
@@ -115,38 +117,29 @@ def load_average() -> str:
         return "load average unknown"
 
 
-def main() -> int:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--size", type=int, default=1024, help="displacement map size (texels)")
-    parser.add_argument("--reference-level", type=int, default=5)
-    parser.add_argument("--levels", default="0,1,2,3")
-    parser.add_argument("--repeats", type=int, default=3)
-    parser.add_argument("--plot", type=Path, default=Path("benchmarks/out/export_error_vs_time.png"))
-    parser.add_argument("--no-plain", action="store_true", help="skip the undisplaced (plain Loop) comparison")
-    parser.add_argument("--no-validate", action="store_true", help="skip the validator matrix")
-    parser.add_argument("--only-validate", action="store_true", help="run only the validator matrix")
-    args = parser.parse_args()
-    levels = [int(x) for x in args.levels.split(",")]
+SECTIONS = ("errors", "timing", "writers", "uv", "validate")
 
-    print(f"machine: {os.cpu_count()} CPUs, {load_average()} at start")
-    model = load_model()
-    dmap = skin_displacement(args.size)
-    if args.only_validate:
-        sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
-        from test_export_support import synthetic_maps  # noqa: E402
 
-        maps = synthetic_maps(args.size)
-        maps["displacement"] = dmap
-        validation_table(Asset(model.mean_shape, model.triangles, model.uv, model.uv_triangles, maps=maps), args.size)
-        return 0
-    asset = Asset(model.mean_shape, model.triangles, model.uv, model.uv_triangles, maps={"displacement": dmap})
-    print(f"asset: {len(asset.vertices)} vertices, {len(asset.triangles)} triangles; displacement {args.size}² "
-          f"RMS {float(np.sqrt(np.mean(dmap ** 2))):.3f} mm, range [{float(dmap.min()):.2f}, {float(dmap.max()):.2f}] mm")
+def timings(asset: Asset, levels: list[int], repeats: int) -> dict[int, tuple[Asset, float]]:
+    """displace() at each level: (the last result, median seconds), after one warm-up call."""
+    timed = {}
+    for level in levels:
+        displace(asset, level=level)
+        times = []
+        for _ in range(repeats):
+            t = time.perf_counter()
+            mesh = displace(asset, level=level)
+            times.append(time.perf_counter() - t)
+        timed[level] = (mesh, float(np.median(times)))
+        print(f"level {level}: displace() median {timed[level][1]:.3f} s over {repeats} ({load_average()})", flush=True)
+    return timed
 
+
+def error_table(asset: Asset, levels: list[int], args: argparse.Namespace) -> None:
+    timed = timings(asset, levels, args.repeats)  # first, while this process is the only heavy one it runs
     t0 = time.perf_counter()
     reference = displace(asset, level=args.reference_level)
-    ref_seconds = time.perf_counter() - t0
-    print(f"reference: level {args.reference_level}, {len(reference.vertices):,} vertices, {ref_seconds:.1f} s")
+    print(f"reference: level {args.reference_level}, {len(reference.vertices):,} vertices, {time.perf_counter() - t0:.1f} s")
     reference_surface = Surface(reference.vertices, reference.triangles)
     plain_ref = None
     if not args.no_plain:
@@ -155,14 +148,10 @@ def main() -> int:
 
     rows = []
     for level in levels:
-        times = []
-        for _ in range(args.repeats):
-            t = time.perf_counter()
-            mesh = displace(asset, level=level)
-            times.append(time.perf_counter() - t)
+        mesh, seconds = timed[level]
         d_ref = Surface(mesh.vertices, mesh.triangles).distances(reference.vertices)
         d_own = reference_surface.distances(mesh.vertices)
-        row = {"level": level, "vertices": len(mesh.vertices), "triangles": len(mesh.triangles), "seconds": float(np.median(times)),
+        row = {"level": level, "vertices": len(mesh.vertices), "triangles": len(mesh.triangles), "seconds": seconds,
                "rms": float(np.sqrt(np.mean(d_ref ** 2))), "hausdorff": float(max(d_ref.max(), d_own.max())),
                "p99": float(np.percentile(d_ref, 99))}
         if plain_ref is not None:
@@ -172,75 +161,130 @@ def main() -> int:
             row["plain_rms"] = float(np.sqrt(np.mean(pd ** 2)))
             row["plain_hausdorff"] = float(max(pd.max(), po.max()))
         rows.append(row)
-        print(f"level {level}: {row['vertices']:,} vertices, {row['seconds']:.3f} s, RMS {row['rms']:.4f} mm, "
-              f"Hausdorff {row['hausdorff']:.3f} mm ({load_average()})", flush=True)
+        print(f"level {level}: {row['vertices']:,} vertices, RMS {row['rms']:.4f} mm, Hausdorff {row['hausdorff']:.3f} mm", flush=True)
 
-    reference_time = rows[-1]["seconds"]
+    last = rows[-1]["seconds"]
     print(f"\ndisplaced mesh against the level-{args.reference_level} reference ({args.size}² synthetic skin displacement, "
-          f"RMS 0.30 mm); time: displace() median of {args.repeats}; {load_average()}")
+          f"RMS 0.30 mm); time: displace() median of {args.repeats}")
     header = "| level | vertices | triangles | displace() s | time / last level | RMS mm | p99 mm | Hausdorff mm |"
     if plain_ref is not None:
         header += " plain Loop RMS mm | plain Hausdorff mm |"
     print(header)
     print("|" + "---|" * (header.count("|") - 1))
     for r in rows:
-        line = (f"| {r['level']} | {r['vertices']:,} | {r['triangles']:,} | {r['seconds']:.3f} | {r['seconds'] / reference_time:.2f} | "
+        line = (f"| {r['level']} | {r['vertices']:,} | {r['triangles']:,} | {r['seconds']:.3f} | {r['seconds'] / last:.2f} | "
                 f"{r['rms']:.4f} | {r['p99']:.4f} | {r['hausdorff']:.3f} |")
         if plain_ref is not None:
             line += f" {r['plain_rms']:.4f} | {r['plain_hausdorff']:.3f} |"
         print(line)
+    if args.plot:
+        plot(rows, plain_ref is not None, args)
 
-    writer_rows = []
+
+def plot(rows: list[dict], plain: bool, args: argparse.Namespace) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    args.plot.parent.mkdir(parents=True, exist_ok=True)
+    fig, ax = plt.subplots(figsize=(6.5, 4.2))
+    t = [r["seconds"] for r in rows]
+    ax.loglog(t, [r["rms"] for r in rows], "o-", label="RMS")
+    ax.loglog(t, [r["hausdorff"] for r in rows], "s-", label="Hausdorff")
+    if plain:
+        ax.loglog(t, [r["plain_rms"] for r in rows], "o--", alpha=0.6, label="RMS, no displacement")
+    for r in rows:
+        ax.annotate(f"level {r['level']}\n{r['vertices']:,} v", (r["seconds"], r["rms"]), textcoords="offset points", xytext=(4, -22), fontsize=8)
+    ax.set_xlabel("displace() time, s (2-core CPU)")
+    ax.set_ylabel(f"distance to level-{args.reference_level} reference, mm")
+    ax.set_title("Displaced mesh: error against run time")
+    ax.grid(True, which="both", alpha=0.3)
+    ax.legend()
+    fig.tight_layout()
+    fig.savefig(args.plot, dpi=120)
+    print(f"\nplot: {args.plot}")
+
+
+def writer_table(full: Asset, size: int, repeats: int) -> None:
     from facegeo.export.gltf import write_glb
     from facegeo.export.usd import write_usd
 
-    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
-    from test_export_support import synthetic_maps  # noqa: E402
-
-    maps = synthetic_maps(args.size)
-    maps["displacement"] = dmap
-    full = Asset(model.mean_shape, model.triangles, model.uv, model.uv_triangles, maps=maps)
+    rows = []
     with tempfile.TemporaryDirectory() as tmp:
         for level in (0, 1):
             for suffix, write in (("usdz", write_usd), ("usdc", write_usd), ("glb", write_glb)):
+                write(full, Path(tmp) / f"face.{suffix}", level=level)  # warm-up
                 times = []
-                for _ in range(args.repeats):
+                for _ in range(repeats):
                     t = time.perf_counter()
                     path = write(full, Path(tmp) / f"face.{suffix}", level=level)
                     times.append(time.perf_counter() - t)
-                writer_rows.append((suffix, level, float(np.median(times)), path.stat().st_size))
-    print(f"\nwriters: all five maps at {args.size}² (displacement baked), median of {args.repeats}; {load_average()}")
+                rows.append((suffix, level, float(np.median(times)), path.stat().st_size))
+    print(f"\nwriters: all five maps at {size}² (displacement baked), median of {repeats}; {load_average()}")
     print("| format | level | seconds | file MB |")
     print("|---|---|---|---|")
-    for suffix, level, seconds, size in writer_rows:
-        print(f"| {suffix} | {level} | {seconds:.2f} | {size / 1e6:.1f} |")
+    for suffix, level, seconds, nbytes in rows:
+        print(f"| {suffix} | {level} | {seconds:.2f} | {nbytes / 1e6:.1f} |")
 
-    if not args.no_validate:
+
+def uv_drift_table(model, levels: list[int]) -> None:
+    """How far the coarse-surface point addressed by each subdivided UV is from the subdivided
+    vertex (mm): the texture 'swimming' of each UV rule."""
+    from test_export_subdivision import _uv_implied_positions  # noqa: E402  (one definition)
+
+    from facegeo.export.facevarying import wedges
+
+    v0, f0 = model.mean_shape.astype(np.float64), model.triangles
+    uv0, ut0 = model.uv.astype(np.float64), model.uv_triangles
+    print("\nUV drift: distance (mm) between a subdivided vertex and the coarse-surface point its UV addresses")
+    print("| level | UV rule | mean | p99 | max | UVs outside the coarse charts |")
+    print("|---|---|---|---|---|---|")
+    for level in [lv for lv in levels if lv > 0]:
+        for rule in ("surface", "linear"):
+            v, f, uv, ut = subdivide_arrays(v0, f0, uv0, ut0, level, uv_interpolation=rule)
+            vw, tw, _ = wedges(f, ut)
+            implied, score = _uv_implied_positions(v0, f0, uv0, ut0, uv[tw])
+            err = np.linalg.norm(implied - v[vw], axis=1)
+            print(f"| {level} | {rule} | {err.mean():.3f} | {np.percentile(err, 99):.3f} | {err.max():.3f} | "
+                  f"{int((score < -1e-9).sum())} of {len(err):,} |", flush=True)
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--size", type=int, default=1024, help="map size (texels)")
+    parser.add_argument("--reference-level", type=int, default=5)
+    parser.add_argument("--levels", default="0,1,2,3")
+    parser.add_argument("--repeats", type=int, default=5)
+    parser.add_argument("--plot", type=Path, default=Path("benchmarks/out/export_error_vs_time.png"))
+    parser.add_argument("--no-plain", action="store_true", help="skip the undisplaced (plain Loop) comparison")
+    parser.add_argument("--sections", default=",".join(SECTIONS),
+                        help=f"comma-separated among {', '.join(SECTIONS)} (timing = the displace() timings alone)")
+    args = parser.parse_args()
+    levels = [int(x) for x in args.levels.split(",")]
+    sections = [x.strip() for x in args.sections.split(",") if x.strip()]
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
+    from test_export_support import synthetic_maps  # noqa: E402
+
+    print(f"machine: {os.cpu_count()} CPUs, {load_average()} at start")
+    model = load_model()
+    dmap = skin_displacement(args.size)
+    asset = Asset(model.mean_shape, model.triangles, model.uv, model.uv_triangles, maps={"displacement": dmap})
+    print(f"asset: {len(asset.vertices)} vertices, {len(asset.triangles)} triangles; displacement {args.size}² "
+          f"RMS {float(np.sqrt(np.mean(dmap ** 2))):.3f} mm, range [{float(dmap.min()):.2f}, {float(dmap.max()):.2f}] mm")
+    maps = synthetic_maps(args.size)
+    maps["displacement"] = dmap
+    full = Asset(model.mean_shape, model.triangles, model.uv, model.uv_triangles, maps=maps)
+    if "errors" in sections:
+        error_table(asset, levels, args)
+    elif "timing" in sections:
+        timings(asset, levels, args.repeats)
+    if "writers" in sections:
+        writer_table(full, args.size, args.repeats)
+    if "uv" in sections:
+        uv_drift_table(model, levels)
+    if "validate" in sections:
         validation_table(full, args.size)
-
-    if args.plot:
-        import matplotlib
-
-        matplotlib.use("Agg")
-        import matplotlib.pyplot as plt
-
-        args.plot.parent.mkdir(parents=True, exist_ok=True)
-        fig, ax = plt.subplots(figsize=(6.5, 4.2))
-        t = [r["seconds"] for r in rows]
-        ax.loglog(t, [r["rms"] for r in rows], "o-", label="RMS")
-        ax.loglog(t, [r["hausdorff"] for r in rows], "s-", label="Hausdorff")
-        if plain_ref is not None:
-            ax.loglog(t, [r["plain_rms"] for r in rows], "o--", alpha=0.6, label="RMS, no displacement")
-        for r in rows:
-            ax.annotate(f"level {r['level']}\n{r['vertices']:,} v", (r["seconds"], r["rms"]), textcoords="offset points", xytext=(4, -22), fontsize=8)
-        ax.set_xlabel("displace() time, s (2-core CPU)")
-        ax.set_ylabel(f"distance to level-{args.reference_level} reference, mm")
-        ax.set_title("Displaced mesh: error against run time")
-        ax.grid(True, which="both", alpha=0.3)
-        ax.legend()
-        fig.tight_layout()
-        fig.savefig(args.plot, dpi=120)
-        print(f"\nplot: {args.plot}")
     return 0
 
 

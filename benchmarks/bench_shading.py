@@ -1,10 +1,12 @@
 """Benchmark of ``facegeo.texturing.shading.shade_ggx``: torch float32 forward + backward against a
 float64 NumPy forward of the same formulas (paper A.1), in the same run.
 
-    python benchmarks/bench_shading.py [--size 1024] [--lights 3] [--repeats 5] [--compile]
+    python benchmarks/bench_shading.py [--size 1024] [--lights 3] [--repeats 5] [--threads N] [--compile]
 
-Prints the timings (median of ``--repeats``), the speed ratio, the peak memory of each variant, the
-float32-vs-float64 error, and a Markdown table (for benchmarks/RESULTS_shading.md).
+Prints the timings (median of ``--repeats``: wall clock, and the process CPU time, which is less
+disturbed by other jobs on a shared machine), the speed ratio, the peak memory of each variant, the
+float32-vs-float64 error, and Markdown tables (for benchmarks/RESULTS_shading.md). NumPy runs its
+element-wise work on one thread; torch uses ``--threads`` (default: torch's default).
 
 Variants:
 - ``numpy f64 literal``: the formulas as written in A.1 (Gram-Schmidt local frame, l and v projected
@@ -255,6 +257,7 @@ def main(argv=None):
     parser.add_argument("--size", type=int, default=1024)
     parser.add_argument("--lights", type=int, default=3)
     parser.add_argument("--repeats", type=int, default=5)
+    parser.add_argument("--threads", type=int, help="torch intra-op threads (default: torch's default)")
     parser.add_argument("--compile", action="store_true", help="also time torch.compile(shade_ggx)")
     parser.add_argument("--memory-variant", help=argparse.SUPPRESS)
     args = parser.parse_args(argv)
@@ -266,6 +269,8 @@ def main(argv=None):
 
     from facegeo.texturing import shading
 
+    if args.threads:
+        torch.set_num_threads(args.threads)
     load_start = os.getloadavg()
     inputs = make_inputs(args.size, args.lights)
     n = args.size * args.size
@@ -274,14 +279,16 @@ def main(argv=None):
           f"CHUNK_TEXELS = {shading.CHUNK_TEXELS}, load average at start {load_start[0]:.2f}")  # fmt: skip
 
     times: dict[str, list[float]] = {}
+    cpu: dict[str, list[float]] = {}
     ref = None
     for name, fn in (("numpy f64 literal", numpy_literal), ("numpy f64 lean", numpy_lean)):
         fn(inputs)  # warm (page faults of first allocations)
-        times[name] = []
+        times[name], cpu[name] = [], []
         for _ in range(args.repeats):
-            start = time.perf_counter()
+            start, start_cpu = time.perf_counter(), time.process_time()
             out = fn(inputs)
             times[name].append(time.perf_counter() - start)
+            cpu[name].append(time.process_time() - start_cpu)
         if ref is None:
             ref = out
     lean_vs_literal = max(np.abs(a - b).max() for a, b in zip(out, ref))
@@ -299,14 +306,22 @@ def main(argv=None):
     outputs32 = {}
     for name, fn in variants:
         torch_step(fn, t32)
-        runs = [torch_step(fn, t32) for _ in range(args.repeats)]
+        runs, cpus = [], []
+        for _ in range(args.repeats):
+            start_cpu = time.process_time()
+            runs.append(torch_step(fn, t32))
+            cpus.append(time.process_time() - start_cpu)
         outputs32[name] = [o.detach().numpy()[0] for o in runs[-1][0]]
-        totals = [f + b for _, f, b in runs]
-        times[name] = totals
+        times[name] = [f + b for _, f, b in runs]
+        cpu[name] = cpus
         fwd_bwd[name] = (statistics.median(f for _, f, _ in runs), statistics.median(b for _, _, b in runs))
+        no_grad = torch_inputs(inputs, torch.float32, False)
+        times[name + " (forward only)"], cpu[name + " (forward only)"] = [], []
         with torch.no_grad():
-            times[name + " (forward only)"] = [torch_step(fn, torch_inputs(inputs, torch.float32, False), False)[1]
-                                               for _ in range(args.repeats)]  # fmt: skip
+            for _ in range(args.repeats):
+                start_cpu = time.process_time()
+                times[name + " (forward only)"].append(torch_step(fn, no_grad, False)[1])
+                cpu[name + " (forward only)"].append(time.process_time() - start_cpu)
 
     t64 = torch_inputs(inputs, torch.float64)
     out64 = [o.detach().numpy()[0] for o in torch_step(shading.shade_ggx, t64, backward=False)[0]]
@@ -324,9 +339,10 @@ def main(argv=None):
 
     mib = 2**20
     med = {k: statistics.median(v) for k, v in times.items()}
-    base = med["numpy f64 literal"]
+    med_cpu = {k: statistics.median(v) for k, v in cpu.items()}
+    base, lean = med["numpy f64 literal"], med["numpy f64 lean"]
     print(f"load average at end {load_end[0]:.2f}; lean NumPy vs literal NumPy max |diff| {lean_vs_literal:.1e}")
-    print("\n| variant | what is timed | median s | ms per Mtexel | speed-up vs NumPy literal | vs NumPy lean | peak memory MiB |")
+    print("\n| variant | what is timed | wall s (median) | speed-up vs NumPy literal / lean | CPU s (median) | CPU-time ratio vs literal / lean | peak memory MiB |")
     print("|---|---|---|---|---|---|---|")
     rows = [
         ("numpy f64 literal", "forward", f"{memory['numpy_literal']['rss_growth'] / mib:.0f} (tracemalloc {memory['numpy_literal']['tracemalloc_peak'] / mib:.0f})"),
@@ -338,9 +354,9 @@ def main(argv=None):
         rows.append((name, f"forward + backward (fwd {f:.3f} + bwd {b:.3f})", mem))
         rows.append((name + " (forward only)", "forward, no grad", "-"))
     for name, what, mem in rows:
-        s = med[name]
-        print(f"| {name} | {what} | {s:.3f} | {1e3 * s / (n / 1e6):.0f} | {base / s:.1f}x | "
-              f"{med['numpy f64 lean'] / s:.1f}x | {mem} |")  # fmt: skip
+        s, c = med[name], med_cpu[name]
+        print(f"| {name} | {what} | {s:.3f} | {base / s:.1f}x / {lean / s:.1f}x | {c:.3f} | "
+              f"{med_cpu['numpy f64 literal'] / c:.1f}x / {med_cpu['numpy f64 lean'] / c:.1f}x | {mem} |")  # fmt: skip
     if compile_s is not None:
         print(f"\ntorch.compile first call (compilation + one step): {compile_s:.1f} s")
     print("\nerror against the NumPy float64 literal evaluation (max |diff| / max |ref|; max relative where |ref| > 1e-3 max):")

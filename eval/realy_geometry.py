@@ -189,7 +189,15 @@ def point_triangle_closest(p: np.ndarray, a: np.ndarray, b: np.ndarray, c: np.nd
 
 
 def _closest_tolerant(p, a, b, c):
-    """Ericson's closest point with trimesh 3.x's tolerances and branch order."""
+    """Ericson's closest point with trimesh 3.x's tolerances and branch order.
+
+    Fully degenerate triangles can give NaN here, as in trimesh; NaN distances sort last.
+    """
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return _closest_tolerant_raw(p, a, b, c)
+
+
+def _closest_tolerant_raw(p, a, b, c):
     z = _ZERO
     result = np.zeros_like(p)
     remain = np.ones(len(p), dtype=bool)

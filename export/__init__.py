@@ -1,6 +1,36 @@
-"""Asset export (installed as ``facegeo.export``): subdivision with UVs, displacement, USD, glTF.
-
-Built by the export issue; the geometry half (``facegeo``) never imports it.
+"""Asset export (installed as ``facegeo.export``): Loop subdivision with face-varying UVs,
+displacement baking, USD (usda/usdc/usdz, UsdPreviewSurface) and glTF 2.0 (glb) writers, and
+the asset folder format. Names are imported lazily (USD and glTF libraries load on first use).
 """
 
-__all__: list[str] = []
+from __future__ import annotations
+
+from importlib import import_module
+from typing import Any
+
+_EXPORTS = {
+    "subdivide": "facegeo.export.subdivision",
+    "displace": "facegeo.export.displacement",
+    "bake_displacement": "facegeo.export.displacement",
+    "to_trimesh": "facegeo.export.facevarying",
+    "from_trimesh": "facegeo.export.facevarying",
+    "FaceVaryingMesh": "facegeo.export.facevarying",
+    "export_asset": "facegeo.export.writers",
+    "FORMATS": "facegeo.export.writers",
+    "write_usd": "facegeo.export.usd",
+    "validate_usd": "facegeo.export.usd",
+    "check_usd": "facegeo.export.usd",
+    "write_glb": "facegeo.export.gltf",
+    "validate_glb": "facegeo.export.gltf",
+    "save_asset": "facegeo.export.asset_io",
+    "load_asset": "facegeo.export.asset_io",
+    "write_asset_files": "facegeo.export.asset_io",
+}
+
+__all__ = list(_EXPORTS)
+
+
+def __getattr__(name: str) -> Any:
+    if name in _EXPORTS:
+        return getattr(import_module(_EXPORTS[name]), name)
+    raise AttributeError(f"module 'facegeo.export' has no attribute {name!r}")

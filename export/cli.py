@@ -32,7 +32,7 @@ def register(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParser:
                    help="output file; its suffix picks the format, or give --format (several formats: FILE is the stem)")
     p.add_argument("--format", default=None, metavar="FMT[,FMT]",
                    help=f"format(s), comma-separated, among {', '.join(FORMATS)} (default: the suffix of FILE)")
-    p.add_argument("--subdiv", type=int, default=0, metavar="N", help="Loop subdivision levels before baking the displacement (0-3; default 0)")
+    p.add_argument("--subdiv", type=int, choices=[0, 1, 2, 3], default=0, help="Loop subdivision levels before baking the displacement (default 0)")
     p.add_argument("--maps", default=None, metavar="NAME[,NAME]",
                    help="maps to carry, among albedo, normal, roughness, specular, displacement (default: all the asset has)")
     p.add_argument("--displacement", choices=["bake", "texture"], default="bake",
@@ -65,8 +65,6 @@ def run_export(args: argparse.Namespace) -> None:
         targets = [(out, None)]
     if args.displacement == "texture" and any((f or path.suffix.lower().lstrip(".")) == "glb" for path, f in targets):
         raise InputError(out, "--displacement", "'bake' when writing glb (glTF has no displacement input)", "texture")
-    if not 0 <= args.subdiv <= 4:
-        raise InputError("--subdiv", "--subdiv", "a level in [0, 4]", str(args.subdiv))
     written = []
     for path, fmt in targets:
         written.append(export_asset(asset, path, format=fmt, level=args.subdiv, displacement=args.displacement, maps=maps))

@@ -38,9 +38,8 @@ def vertex_normals(vertices: np.ndarray, triangles: np.ndarray) -> np.ndarray:
     v = np.asarray(vertices, dtype=np.float64)
     f = np.asarray(triangles, dtype=np.int64)
     face_n = np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]])  # 2 × area × unit normal
-    n = np.zeros_like(v)
-    for k in range(3):
-        np.add.at(n, f[:, k], face_n)
+    corners = f.ravel()
+    n = np.stack([np.bincount(corners, weights=np.repeat(face_n[:, c], 3), minlength=len(v)) for c in range(3)], axis=1)
     length = np.linalg.norm(n, axis=1)
     scale = np.max(length) if len(length) else 0.0
     bad = length <= 1e-12 * max(scale, 1e-300)
@@ -96,12 +95,11 @@ def vertex_values(mesh: Any, image: np.ndarray) -> np.ndarray:
     pairs = np.unique(fv.triangles.ravel() * n_uv + fv.uv_triangles.ravel())
     vert, uvi = pairs // n_uv, pairs % n_uv
     samples = sample_map(image, fv.uv[uvi])
-    count = np.bincount(vert, minlength=len(fv.vertices)).astype(np.float64)
-    shape = (len(fv.vertices),) + samples.shape[1:]
-    total = np.zeros(shape)
-    np.add.at(total, vert, samples)
-    count = np.maximum(count, 1.0)
-    return total / (count if samples.ndim == 1 else count[:, None])
+    n = len(fv.vertices)
+    count = np.maximum(np.bincount(vert, minlength=n), 1).astype(np.float64)
+    if samples.ndim == 1:
+        return np.bincount(vert, weights=samples, minlength=n) / count
+    return np.stack([np.bincount(vert, weights=samples[:, c], minlength=n) for c in range(samples.shape[1])], axis=1) / count[:, None]
 
 
 def bake_displacement(mesh: Any, displacement_map: np.ndarray | float | None = None, scale_mm: float = 1.0) -> Any:

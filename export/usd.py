@@ -300,7 +300,8 @@ def check_usd(path: str | os.PathLike[str]) -> UsdCheck:
         resolved = asset_path.resolvedPath if asset_path is not None else ""
         assert resolved, f"{path}: {shader_prim.GetPath()} file {asset_path} does not resolve"
         if is_package:
-            assert resolved.startswith(os.path.abspath(str(path)) + "[") or "[" in resolved, f"{path}: {asset_path} resolves outside the package: {resolved}"
+            inside = "[" in resolved and Path(resolved.split("[", 1)[0]).resolve() == Path(path).resolve()
+            assert inside, f"{path}: {asset_path} resolves outside the package: {resolved}"
         data = resolver.OpenAsset(Ar.ResolvedPath(resolved))
         assert data is not None and data.GetSize() > 0, f"{path}: {resolved} cannot be read"
         textures[shader_prim.GetName()] = resolved

@@ -42,7 +42,7 @@ def export_asset(
     suffix = target.suffix.lower().lstrip(".")
     if format is None:
         if suffix not in FORMATS:
-            raise InputError(target, "file name", f"a suffix among {', '.join('.' + f for f in FORMATS)} (or pass format=)", target.suffix or "none")
+            raise InputError(target, "file name", f"a suffix among {', '.join('.' + f for f in FORMATS)} (or an explicit format)", target.suffix or "none")
         format = suffix
     format = format.lower().lstrip(".")
     if format not in FORMATS:

@@ -65,9 +65,13 @@ def build_parser() -> argparse.ArgumentParser:
     rec.add_argument("--no-preview", action="store_true", help="do not render preview.png")
     rec.set_defaults(run=_run_reconstruct)
 
+    from facegeo.eval.realy_cli import register as register_realy
     from facegeo.export.cli import register as register_export
+    from facegeo.uv.cli import register as register_unwrap
 
+    register_unwrap(sub)
     register_export(sub)
+    register_realy(sub)
     return parser
 
 
@@ -151,8 +155,11 @@ def _run_reconstruct(args: argparse.Namespace) -> None:
         bar.update(1)
         t = time.perf_counter()
         write_asset_files(asset, stage.staging_dir)
+        # An 11k-vertex mesh cannot carry texel-scale displacement: at --subdiv 0 the detail
+        # travels in the normal map only (the displacement map stays in the asset folder).
+        carried = [m for m in asset.maps if m != "displacement" or args.subdiv > 0]
         for fmt in formats:
-            export_asset(asset, stage.path(f"face.{fmt}"), format=fmt, level=args.subdiv)
+            export_asset(asset, stage.path(f"face.{fmt}"), format=fmt, level=args.subdiv, maps=carried)
         timings["export"] = time.perf_counter() - t
         if not args.no_preview:
             bar.set_postfix_str("preview")

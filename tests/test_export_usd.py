@@ -181,3 +181,15 @@ def test_degenerate_geometry_still_validates(tmp_path):
         stage = Usd.Stage.Open(str(path))
         normals = np.array(UsdGeom.Mesh(stage.GetPrimAtPath("/face/mesh")).GetNormalsAttr().Get())
         assert np.isfinite(normals).all() and np.allclose(np.linalg.norm(normals, axis=1), 1.0, atol=1e-5)
+
+
+def test_sixteen_bit_linear_textures(tmp_path):
+    from facegeo.export.textures import read_png
+
+    path = write_usd(ict_asset(size=16), tmp_path / "h.usda", linear_bits=16, displacement="texture")
+    assert validate_usd(path) == []
+    for name in ("normal", "roughness", "specular", "displacement"):
+        assert read_png(str(tmp_path / "h_textures" / f"{name}.png")).dtype == np.uint16
+    assert read_png(str(tmp_path / "h_textures" / "albedo.png")).dtype == np.uint8
+    with pytest.raises(InputError, match="linear_bits"):
+        write_usd(ict_asset(size=16), tmp_path / "x.usda", linear_bits=12)

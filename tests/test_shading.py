@@ -196,6 +196,22 @@ def test_batch_one_maps_and_lights_broadcast():
         torch.testing.assert_close(getattr(a, f), getattr(b, f), rtol=0, atol=1e-14)
 
 
+def test_batch_one_maps_get_the_gradient_summed_over_the_batch():
+    inputs = make_inputs(seed=19, batch=2, height=2, width=3)
+    shared = {**inputs, "geo_normal": inputs["geo_normal"][:1], "roughness": inputs["roughness"][:1]}
+    _, grads = _values_and_grads(shared)
+    per_item = [
+        _values_and_grads({k: (v[b : b + 1] if isinstance(v, torch.Tensor) and v.shape[0] == 2 else v)
+                           for k, v in shared.items()})[1]
+        for b in range(2)
+    ]  # fmt: skip
+    for name in ("geo_normal", "roughness", "albedo", "light_dirs"):
+        expected = per_item[0][name] + per_item[1][name] if shared[name].shape[0] == 1 else torch.cat(
+            [per_item[0][name], per_item[1][name]]
+        )
+        torch.testing.assert_close(grads[name], expected, rtol=1e-12, atol=1e-12, msg=name)
+
+
 def test_chunking_does_not_change_values_or_gradients(monkeypatch):
     inputs = make_inputs(seed=6, batch=2, height=3, width=5)
     leaves = {k: v.clone().requires_grad_() for k, v in inputs.items() if isinstance(v, torch.Tensor)}
@@ -581,5 +597,8 @@ def test_input_checks():
         call({**inputs, "camera_pos": inputs["camera_pos"][:, :2]})
     with pytest.raises(ValueError, match="ambient"):
         call({**inputs, "ambient": torch.zeros(3, dtype=torch.float64)})
+    half = {k: v.half() if isinstance(v, torch.Tensor) else v for k, v in inputs.items()}
+    with pytest.raises(TypeError, match="float32 or float64"):
+        call(half)
     with pytest.raises(TypeError, match="Tensor"):
         call({**inputs, "albedo": inputs["albedo"].numpy()})

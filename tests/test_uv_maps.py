@@ -44,7 +44,8 @@ def test_ict_maps(model):
     np.testing.assert_allclose(np.linalg.norm(g.tangent[m], axis=1), 1, atol=1e-5)
     assert set(np.unique(g.bitangent_sign[m])) == {1.0}
     # interpolated frames stay close to orthogonal
-    assert np.abs((g.normal[m] * g.tangent[m]).sum(1)).max() < 0.2
+    nt = np.abs((g.normal[m] * g.tangent[m]).sum(1))
+    assert np.quantile(nt, 0.999) < 0.05 and nt.max() < 0.5
     # positions are the barycentric interpolation of the covering triangle
     tri = r.texel_triangle
     corners = model.mean_shape[model.triangles[tri]]

@@ -245,3 +245,26 @@ def test_vertex_normals_match_the_model(model):
     ours = vertex_normals(V, model.triangles)
     theirs = model.vertex_normals(torch.from_numpy(V)).numpy()
     np.testing.assert_allclose(ours, theirs, atol=1e-5)
+
+
+def test_angular_threshold_split_path(model, monkeypatch):
+    """The reference's sub-groups (only exactly opposite directions split at the default 180°):
+    with a 2° threshold forced, groups split and every corner still gets a unit tangent in the
+    normal's plane, within 90° of its own triangle's ∂P/∂u."""
+    import facegeo.uv.tangents as tangents
+
+    V = model.mean_shape
+    default = mesh_tangents(V, model.triangles, model.uv, model.uv_triangles)
+    monkeypatch.setattr(tangents, "_THRESHOLD_COS", np.float32(np.cos(np.radians(2.0))))
+    n = vertex_normals(V, model.triangles)[model.triangles]
+    t = mikktspace_tangents(V[model.triangles], n, model.uv[model.uv_triangles])
+    tang = t[..., :3]
+    np.testing.assert_allclose(np.linalg.norm(tang, axis=-1), 1.0, atol=1e-5)
+    assert np.abs((tang * n).sum(-1)).max() < 1e-5
+    P = V[model.triangles].astype(np.float64)
+    T = model.uv[model.uv_triangles].astype(np.float64)
+    d1, d2 = P[:, 1] - P[:, 0], P[:, 2] - P[:, 0]
+    t1, t2 = T[:, 1] - T[:, 0], T[:, 2] - T[:, 0]
+    dpdu = d1 * t2[:, 1:2] - d2 * t1[:, 1:2]
+    assert ((tang * dpdu[:, None, :]).sum(-1) > 0).all()
+    assert np.abs(default[..., :3] - tang).max() > 1e-3  # the split changed something

@@ -336,6 +336,8 @@ def _check_inputs(maps: dict[str, tuple[Tensor, int]], light_dirs, light_radianc
                 f"shade_ggx: {name} must be a floating tensor of albedo's dtype and device "
                 f"({ref.dtype}, {ref.device}), got {t.dtype}, {t.device}"
             )
+    if ref.dtype not in (torch.float32, torch.float64):
+        raise TypeError(f"shade_ggx: float32 or float64 tensors expected (the guards need them), got {ref.dtype}")
     if ref.dim() != 4:
         raise ValueError(f"shade_ggx: albedo must be (B, 3, H, W), got {tuple(ref.shape)}")
     height, width = ref.shape[2:]
@@ -375,10 +377,15 @@ def shade_ggx(
 ) -> ShadingResult:
     """Shade UV-space PBR maps with the GGX microfacet model of the paper's A.1 (module docstring).
 
-    All tensors share one floating dtype and device (float32 or float64; the outputs keep it) and
-    are channel-first. Maps are (B, C, H, W); a map, light or camera tensor with batch size 1 is
-    broadcast over the batch. Units: ``position``, ``camera_pos`` and ``s_disp · displacement`` in
-    one length unit (e.g. mm); directions are dimensionless; radiance in any unit (outputs in it).
+    All tensors share one dtype, float32 or float64 (the outputs keep it), and one device; maps are
+    channel-first (B, C, H, W); a map, light or camera tensor with batch size 1 is broadcast over
+    the batch. Units: ``position``, ``camera_pos`` and ``s_disp · displacement`` in one length unit
+    (e.g. mm); directions are dimensionless; radiance in any unit (the outputs are in it).
+
+    Cost: on the CPU the texels are shaded in chunks of :data:`CHUNK_TEXELS` and the backward
+    recomputes each chunk, so memory beyond inputs and outputs stays at one chunk's temporaries;
+    on a GPU, or under ``torch.compile`` (which fuses the loops; first call compiles for about a
+    minute on the CPU), all texels go in one pass. First derivatives only (no double backward).
 
     Args:
         albedo: (B, 3, H, W) base colour, **linear** RGB (decode sRGB first), usually in [0, 1].
@@ -386,13 +393,15 @@ def shade_ggx(
             0..1 texture encoding); need not be unit length (N_s is normalised).
         roughness: (B, 1, H, W) perceptual roughness; α = roughness² (clamped ≥ ALPHA_MIN).
         specular: (B, 1, H, W) specular level; F0 = 0.08 · specular.
-        displacement: (B, 1, H, W) displacement along N_g, in units of ``position`` / s_disp.
+        displacement: (B, 1, H, W) displacement along N_g; ``s_disp · displacement`` is in the
+            units of ``position`` (A.1's s_disp = 0.01 belongs to its normalised maps: pass
+            ``s_disp=1.0`` for a displacement map in the units of ``position``).
         position: (B, 3, H, W) world-space position of the surface at each texel.
         geo_normal: (B, 3, H, W) world-space geometric normal, any non-zero length.
         geo_tangent: (B, 3, H, W) world-space geometric tangent, any non-zero length.
         mask: (B, 1, H, W) texel mask M (usually 0/1; multiplies ``shaded`` and ``visibility``).
-        light_dirs: (B, K, 3) unit vectors from the surface towards each directional light
-            (normalised again here).
+        light_dirs: (B, K, 3) world-space unit vectors from the surface towards each directional
+            light (normalised again here).
         light_radiance: (B, K, 3) linear RGB radiance L_k of each light.
         camera_pos: (B, 3) camera centre, world space, units of ``position``.
         ambient: I_amb, a float, a 0-d tensor or a (B,) tensor.

@@ -13,27 +13,47 @@ pixels continuous with the origin at the top-left corner (centres at +0.5).
 
 from __future__ import annotations
 
-from facegeo.uv.maps import GeometryMaps, geometry_maps
-from facegeo.uv.raster import UVRaster, clear_raster_cache, default_padding, rasterize_uv
-from facegeo.uv.renderer import Rendering, rasterize_mesh, render
-from facegeo.uv.tangents import mesh_tangents, mikktspace_tangents, vertex_normals
-from facegeo.uv.unwrapping import FACING_RAMP, Unwrapped, unwrap, unwrap_details
+from importlib import import_module
+from typing import TYPE_CHECKING, Any
 
-__all__ = [
-    "UVRaster",
-    "rasterize_uv",
-    "default_padding",
-    "clear_raster_cache",
-    "GeometryMaps",
-    "geometry_maps",
-    "vertex_normals",
-    "mikktspace_tangents",
-    "mesh_tangents",
-    "unwrap",
-    "unwrap_details",
-    "Unwrapped",
-    "FACING_RAMP",
-    "Rendering",
-    "render",
-    "rasterize_mesh",
-]
+# Names are imported lazily (like ``facegeo``'s), so ``facegeo --help`` and the CLI's parser do not
+# pay for torch, OpenCV and SciPy.
+_EXPORTS = {
+    "UVRaster": "facegeo.uv.raster",
+    "rasterize_uv": "facegeo.uv.raster",
+    "default_padding": "facegeo.uv.raster",
+    "clear_raster_cache": "facegeo.uv.raster",
+    "GeometryMaps": "facegeo.uv.maps",
+    "geometry_maps": "facegeo.uv.maps",
+    "vertex_normals": "facegeo.uv.tangents",
+    "mikktspace_tangents": "facegeo.uv.tangents",
+    "mesh_tangents": "facegeo.uv.tangents",
+    "unwrap": "facegeo.uv.unwrapping",
+    "unwrap_details": "facegeo.uv.unwrapping",
+    "Unwrapped": "facegeo.uv.unwrapping",
+    "FACING_RAMP": "facegeo.uv.unwrapping",
+    "Rendering": "facegeo.uv.renderer",
+    "render": "facegeo.uv.renderer",
+    "rasterize_mesh": "facegeo.uv.renderer",
+}
+
+__all__ = list(_EXPORTS)
+
+if TYPE_CHECKING:
+    from facegeo.uv.maps import GeometryMaps, geometry_maps
+    from facegeo.uv.raster import UVRaster, clear_raster_cache, default_padding, rasterize_uv
+    from facegeo.uv.renderer import Rendering, rasterize_mesh, render
+    from facegeo.uv.tangents import mesh_tangents, mikktspace_tangents, vertex_normals
+    from facegeo.uv.unwrapping import FACING_RAMP, Unwrapped, unwrap, unwrap_details
+
+
+def __getattr__(name: str) -> Any:
+    if name in _EXPORTS:
+        value = getattr(import_module(_EXPORTS[name]), name)
+        globals()[name] = value
+        return value
+    raise AttributeError(f"module 'facegeo.uv' has no attribute {name!r}")
+
+
+def __dir__() -> list[str]:
+    return sorted(set(globals()) | set(_EXPORTS))

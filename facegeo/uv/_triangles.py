@@ -9,8 +9,10 @@ canonical order, so the two triangles compute bit-identical values of opposite s
 zero or non-finite area cover nothing. Both orientations are rasterised (mirrored UV islands and
 back faces alike).
 
-Each triangle contributes the pixels of its bounding box, tested in vectorised chunks of at most
-:data:`CHUNK` candidates, so memory stays bounded at any resolution.
+Each triangle contributes the pixel centres of its bounding box. Triangles are grouped by
+bounding-box shape (rounded up to a few sizes) and each group is tested by broadcasting, with no
+per-candidate gathers, in chunks of at most :data:`CHUNK` candidates, so memory stays bounded at
+any resolution.
 """
 
 from __future__ import annotations

@@ -120,7 +120,8 @@ class UVRaster:
     def scatter(self, values: np.ndarray, fill: float = 0.0) -> np.ndarray:
         """Dense (S, S, ...) map from per-texel ``values`` (N, ...), ``fill`` elsewhere."""
         values = np.asarray(values)
-        out = np.full((self.size * self.size, *values.shape[1:]), fill, dtype=values.dtype)
+        shape = (self.size * self.size, *values.shape[1:])
+        out = np.zeros(shape, dtype=values.dtype) if fill == 0 else np.full(shape, fill, dtype=values.dtype)
         out[self.texels] = values
         return out.reshape(self.size, self.size, *values.shape[1:])
 

@@ -53,14 +53,15 @@ class Rendering:
     mask: np.ndarray
 
 
-def rasterize_mesh(vertices_cam: np.ndarray, triangles: np.ndarray, camera: Camera, near: float = NEAR_MM
-                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def rasterize_mesh(vertices_cam: np.ndarray, triangles: np.ndarray, camera: Camera, near: float = NEAR_MM,
+                   barycentric: bool = True) -> tuple[np.ndarray, np.ndarray | None, np.ndarray]:
     """The z-buffer: per pixel the nearest triangle, its perspective-correct barycentrics and depth.
 
     Args:
         vertices_cam: (V, 3) camera-space positions, mm. triangles: (F, 3) int.
         camera: intrinsics and image size.
         near: triangles with a corner at depth < ``near`` mm are skipped.
+        barycentric: also return the barycentric buffer (else None; a little faster).
     Returns:
         ``(triangle (H, W) int32, barycentric (H, W, 3) float32, depth (H, W) float32)``; −1,
         zeros and inf on the background. Ties in depth go to the triangle drawn last.
@@ -77,17 +78,19 @@ def rasterize_mesh(vertices_cam: np.ndarray, triangles: np.ndarray, camera: Came
     inv_d = 1.0 / safe[tri[ok]]  # (F', 3)
     zbuf = np.full(H * W, np.inf)
     tbuf = np.full(H * W, -1, dtype=np.int32)
-    bbuf = np.zeros((H * W, 3), dtype=np.float32)
+    bbuf = np.zeros((H * W, 3), dtype=np.float32) if barycentric else None
     for pix, t, lam in triangle_fragments(pts, W, H):
         w = lam * inv_d[t]  # perspective-correct weights
-        s = w.sum(axis=1)
+        s = w[:, 0] + w[:, 1] + w[:, 2]
         d = 1.0 / s
         np.minimum.at(zbuf, pix, d)
         win = d <= zbuf[pix]
-        pix, t, w, s = pix[win], t[win], w[win], s[win]
+        pix, t = pix[win], t[win]
         tbuf[pix] = ok[t]
-        bbuf[pix] = w / s[:, None]
-    return tbuf.reshape(H, W), bbuf.reshape(H, W, 3), zbuf.astype(np.float32).reshape(H, W)
+        if bbuf is not None:
+            bbuf[pix] = w[win] / s[win, None]
+    return (tbuf.reshape(H, W), None if bbuf is None else bbuf.reshape(H, W, 3),
+            zbuf.astype(np.float32).reshape(H, W))
 
 
 def render(vertices_cam: np.ndarray, model, camera: Camera, texture: np.ndarray | None = None,
@@ -174,13 +177,7 @@ def _remap(img: np.ndarray, map_x: np.ndarray, map_y: np.ndarray) -> np.ndarray:
     outs = []
     for c0 in range(0, src.shape[2], 4):
         part = np.ascontiguousarray(src[..., c0:c0 + 4])
-        if part.shape[2] == 2:  # OpenCV has no 2-channel float remap path issue, but keep it simple
-            r = np.stack([cv2.remap(part[..., k], map_x, map_y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
-                          for k in range(2)], axis=-1)
-        else:
-            r = cv2.remap(part, map_x, map_y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
-            if r.ndim == 2:
-                r = r[..., None]
-        outs.append(r)
+        r = cv2.remap(part, map_x, map_y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+        outs.append(r[..., None] if r.ndim == 2 else r)
     out = np.concatenate(outs, axis=-1)
     return out[..., 0] if squeeze else out

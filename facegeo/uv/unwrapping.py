@@ -9,34 +9,39 @@ pixel coordinates, pixel centres at +0.5, :mod:`facegeo.camera`), and
   default the photo's own sRGB values as float32 in [0, 1] (a colour map, stored in sRGB as
   DESIGN.md asks; linearise with ``facegeo.fitting.srgb_to_linear`` before shading);
   ``colour_space="linear"`` linearises the photo first and returns linear RGB.
-* ``M_vis`` = coverage · facing · front · in_image · (1 − occlusion), in [0, 1], where
-  - **coverage** (self-occlusion) is the share of the bilinear footprint of (x, y) that sees this
-    surface: each of the four pixel centres around (x, y) counts, with its bilinear weight, when
-    the nearest surface there (the z-buffer of :func:`facegeo.uv.rasterize_mesh`) is the
-    texel's own triangle or lies within ``tol`` of the plane of that triangle, with
-    tol = ``depth_tolerance_mm`` + 1.5 pixel footprints (1.5·depth/f mm). Texels hidden behind
-    the nose, an ear or the cheek get 0; along occluding contours and silhouettes the value falls
-    off over a pixel, so colours mixed with the occluder or the background are down-weighted;
+* ``M_vis`` = visible · coverage · facing · (1 − occlusion), in [0, 1], where
+  - **visible** (self-occlusion, image bounds, orientation) is the geometric visibility of P:
+    P is in front of the camera, projects inside the image, its triangle's own (flat) normal
+    faces the camera, and the ray from the camera to P is not blocked by the mesh. The depth test
+    uses the z-buffer of the mesh rendered at the photo's resolution
+    (:func:`facegeo.uv.rasterize_mesh`): when one of the four pixel centres around (x, y) sees a
+    surface nearer than P by more than ``tol`` = ``depth_tolerance_mm`` + 1.5 pixel footprints
+    (1.5·depth/f mm), a walk across the mesh from that surface's triangle towards P's ray looks
+    for a triangle the ray passes through in front of P (exact wherever the occluder is
+    connected to what the pixels see); when all four see a surface more than max(3·tol, 10 mm)
+    nearer, P counts as hidden too. This agrees with ray casting (Open3D's ``RaycastingScene``,
+    compared in the tests) on more than 99.8 % of the texels at every pose tried;
+  - **coverage** is the share of the bilinear footprint of (x, y) that sees P's own surface: each
+    of the four pixel centres counts, with its bilinear weight, when its nearest surface is P's
+    triangle or a point within ``tol`` of that triangle's plane and of P's depth (±``tol`` + 3
+    pixel footprints). It falls off over a pixel along occluding contours and silhouettes, where
+    the photo's colours mix with the occluder or the background;
   - **facing** = smoothstep((cos θ − c0)/(c1 − c0)) with cos θ = N·v, N the interpolated vertex
     normal and v the unit vector from P to the camera, (c0, c1) = ``facing_ramp`` = (0, 0.3) by
     default: 0 at and beyond grazing (θ ≥ 90°), 1 from θ ≤ 72.5°, smooth between, so strongly
     foreshortened (blurred, resampled) texels fade out;
-  - **front** = 1 when the triangle's own (flat) normal faces the camera, else 0;
-  - **in_image** = 1 when P is in front of the camera and (x, y) lies inside the image;
   - **occlusion** is the optional image-space mask (1 = something covers the face: hair,
     glasses, hands) sampled bilinearly at (x, y).
 
-Texels with M_vis = 0 (and texels without a triangle) have T_inc = 0. The binary
-``visible = coverage ≥ 0.5 ∧ front ∧ in_image`` of :func:`unwrap_details` is the geometric
-visibility that a ray-casting oracle checks (the tests compare it with Open3D's
-``RaycastingScene``).
+Texels with M_vis = 0 (and texels without a triangle) have T_inc = 0. :func:`unwrap_details`
+also returns every factor (``visible``, ``coverage``, ``facing``, ``cos_view``, ``in_image``,
+``front``, ``occlusion``) and the projected pixel positions.
 """
 
 from __future__ import annotations
 
 import hashlib
 
-import cv2
 import numpy as np
 
 from facegeo.camera import Camera
@@ -63,7 +68,7 @@ class Unwrapped:
     Attributes / properties:
         texture: (S, S, 3) float32 T_inc (colour space per ``colour_space``).
         visibility: M_vis in [0, 1].
-        visible: bool, geometric visibility (coverage ≥ 0.5, front-facing, inside the image).
+        visible: bool, geometric visibility (unblocked ray, front-facing, inside the image).
         coverage, facing: the factors of M_vis described in the module docstring.
         cos_view: N·v, the cosine between the interpolated normal and the direction to the camera.
         in_image: bool. front: bool.
@@ -147,7 +152,10 @@ def unwrap_details(image, fit, model, size: int = 1024, *, occlusion: np.ndarray
 
     if maps is not None:
         raster = maps.raster
-        P, n_s = maps.texel["position"], maps.texel["normal"]
+        if "position" in maps.texel and "normal" in maps.texel:
+            P, n_s = maps.texel["position"], maps.texel["normal"]
+        else:
+            P, n_s = raster.gather(maps.position), raster.gather(maps.normal)
     else:
         if raster is None:
             raster = rasterize_uv(model, size=size)
@@ -180,7 +188,7 @@ def unwrap_details(image, fit, model, size: int = 1024, *, occlusion: np.ndarray
     t = np.clip((cos_view - np.float32(c0)) / np.float32(max(c1 - c0, 1e-9)), 0.0, 1.0)
     facing = t * t * (np.float32(3.0) - np.float32(2.0) * t)
     if todo.size:
-        tri_buf, _, depth_buf = rasterize_mesh(vertices, triangles, camera, near)
+        tri_buf, _, depth_buf = rasterize_mesh(vertices, triangles, camera, near, barycentric=False)
         tol = depth_tolerance_mm + TOLERANCE_PIXELS * depth[todo] / camera.focal
         cov, hidden = _coverage(P[todo], depth[todo], x[todo], y[todo], tri[todo], tol, tri_buf, depth_buf,
                                 planes, triangles, camera)
@@ -242,7 +250,11 @@ class _Planes:
 _HIT_EPS = 1e-6
 _HIT_DEPTH_EPS = 1e-5
 #: Steps of the walk across the mesh from a tap's triangle towards the texel's ray.
-_WALK_STEPS = 8
+_WALK_STEPS = 16
+#: Taps whose surface is nearer than the texel by more than max(_FAR_TOLERANCES·tol, _FAR_MM):
+#: when all four are, the texel counts as hidden.
+_FAR_TOLERANCES = 3.0
+_FAR_MM = 10.0
 #: A tap's surface point counts as the texel's surface only within this many pixel footprints
 #: (plus the tolerance) of the texel's depth.
 _NEAR_PIXELS = 3.0
@@ -291,6 +303,9 @@ def _coverage(P, depth, x, y, tri, tol, tri_buf, depth_buf, planes: _Planes, tri
     # per texel, the nearest tap surface that is more than tol in front of it: where a walk starts
     start_depth = depth32 - tol32
     start_tri = np.full(P.shape[0], -1, dtype=np.int32)
+    others: list[tuple[np.ndarray, np.ndarray]] = []
+    far = np.zeros(P.shape[0], dtype=np.int8)
+    far_depth = depth32 - np.maximum(_FAR_TOLERANCES * tol32, f32(_FAR_MM))
     for dx, dy in ((0, 0), (1, 0), (0, 1), (1, 1)):
         w = (ax if dx else 1.0 - ax) * (ay if dy else 1.0 - ay)
         q = base + (dy * (W + 2) + dx)
@@ -300,13 +315,23 @@ def _coverage(P, depth, x, y, tri, tol, tri_buf, depth_buf, planes: _Planes, tri
         agree = (np.abs(d_q * k - c_own) <= tol32) & (np.abs(d_q - depth32) <= near)
         same = (f == tri32) | ((f >= 0) & valid_own & agree)
         cov += np.where(same, w, f32(0.0))
-        nearer = (f >= 0) & ~same & (d_q < start_depth)
+        candidate = (f >= 0) & (f != tri32) & (d_q < depth32 - tol32)
+        others.append((candidate, f))
+        nearer = candidate & (d_q < start_depth)
         start_depth = np.where(nearer, d_q, start_depth)
         start_tri = np.where(nearer, f, start_tri)
+        far += (f >= 0) & (d_q < far_depth)
     hidden = np.zeros(P.shape[0], dtype=bool)
+    adjacency = _edge_adjacency(triangles)
     a = np.flatnonzero(start_tri >= 0)
-    if a.size:
-        hidden[a[_walk_to_ray(P[a], depth[a], start_tri[a].astype(np.int64), planes, _edge_adjacency(triangles))]] = True
+    if a.size:  # first from the nearest tap surface ...
+        hidden[a[_walk_to_ray(P[a], depth[a], start_tri[a].astype(np.int64), planes, adjacency)]] = True
+    for candidate, f in others:  # ... then from the other nearer ones
+        b = np.flatnonzero(candidate & ~hidden & (f != start_tri))
+        if b.size:
+            hidden[b[_walk_to_ray(P[b], depth[b], f[b].astype(np.int64), planes, adjacency)]] = True
+    # the whole footprint sees a surface far in front: hidden even if no walk reached the ray
+    hidden |= far == 4
     return cov, hidden
 
 

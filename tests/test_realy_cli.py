@@ -1,0 +1,67 @@
+"""The ``facegeo realy`` subcommand (argparse, registered by facegeo.eval.realy_cli.register)."""
+
+from __future__ import annotations
+
+import argparse
+import shutil
+
+import pytest
+
+from facegeo.errors import FacegeoError
+from facegeo.eval.realy_cli import register
+from facegeo.eval.realy_report import OUTPUT_FILES
+from facegeo.eval.realy_synthetic import make_dataset
+
+
+def run(args, capsys):
+    """What facegeo.cli.main does with a registered subcommand: run, print FacegeoError, exit 2."""
+    parser = argparse.ArgumentParser(prog="facegeo")
+    register(parser.add_subparsers(dest="command", required=True))
+    ns = parser.parse_args([str(a) for a in args])
+    try:
+        ns.run(ns)
+        code = 0
+    except FacegeoError as exc:
+        print(f"facegeo: error: {exc}", file=__import__("sys").stderr)
+        code = 2
+    out, err = capsys.readouterr()
+    return code, out, err
+
+
+@pytest.fixture(scope="module")
+def data(tmp_path_factory):
+    d = make_dataset(tmp_path_factory.mktemp("realy_cli"), 1, seed=0, subdivisions=0)
+    return d
+
+
+def test_cli_writes_the_four_files(data, tmp_path, capsys):
+    out = tmp_path / "eval"
+    code, stdout, err = run(["realy", data.pred_dir, "--realy-root", data.realy_root, "-o", out], capsys)
+    assert code == 0, err
+    assert sorted(p.name for p in out.iterdir()) == sorted(OUTPUT_FILES)
+    assert (out / "REALY_error.txt").read_text().startswith("1\t\t0.8506133\t1.5193866\t3.7678127\t1.9261925")
+    assert "| mean ± std (mm) |" in stdout and "evaluated 1 prediction(s)" in stdout
+
+
+def test_cli_errors_exit_2_with_one_line(data, tmp_path, capsys):
+    code, _, err = run(["realy", data.pred_dir, "--realy-root", tmp_path], capsys)
+    assert code == 2 and "REALY_HIFI3D_keypoints" in err and "Traceback" not in err
+    code, _, err = run(["realy", data.pred_dir, "--realy-root", data.realy_root, "--topology", "BFM09"], capsys)
+    assert code == 2 and "keypoint file of topology BFM09" in err
+    code, _, err = run(["realy", data.pred_dir, "--realy-root", data.realy_root, "--workers", "0"], capsys)
+    assert code == 2 and "--workers" in err
+    empty = tmp_path / "empty_pred"
+    empty.mkdir()
+    code, _, err = run(["realy", empty, "--realy-root", data.realy_root], capsys)
+    assert code == 2 and "no .obj files" in err
+    with pytest.raises(SystemExit):  # argparse: --topology and --keypoints exclude each other
+        run(["realy", data.pred_dir, "--topology", "X", "--keypoints", "k.txt"], capsys)
+
+
+def test_cli_keypoints_file_and_missing_subject(data, tmp_path, capsys):
+    pred = tmp_path / "pred"
+    shutil.copytree(data.pred_dir, pred)
+    shutil.copyfile(pred / "1.obj", pred / "2.obj")  # subject 2 has no REALY data
+    kp = data.realy_root / "data" / "ICT-FaceKit.txt"
+    code, _, err = run(["realy", pred, "--realy-root", data.realy_root, "--keypoints", kp], capsys)
+    assert code == 2 and "REALY_HIFI3D_keypoints/2.obj" in err and "subject 2" in err
