@@ -232,3 +232,19 @@ def test_failed_subject_in_a_worker_names_it(small, tmp_path):
     shutil.copyfile(pred / "2.obj", pred / "2_1.obj")  # two predictions of subject 2 (multi-view names)
     with pytest.raises(FacegeoError, match=r"2(_1)?.obj.*nose region"):
         evaluate(pred, realy, workers=2)
+
+
+def test_template_mask_checks_its_length(small, tmp_path):
+    mask = tmp_path / "mask.txt"
+    mask.write_text(",".join(["1"] * 100))
+    with pytest.raises(InputError, match="11248 values"):
+        evaluate(small.pred_dir, small.realy_root, template_mask=mask)
+
+
+@pytest.mark.slow
+def test_template_mask_of_ones_changes_nothing(small, tmp_path):
+    mask = tmp_path / "mask.txt"
+    mask.write_text(",".join(["1"] * 11248))
+    pred = _only(small, tmp_path, ["2"])
+    result = evaluate(pred, small.realy_root, template_mask=mask)
+    _close(result.per_subject["2"], REFERENCE_SMALL["2"])
