@@ -138,8 +138,8 @@ def numpy_lean(i, s_disp=0.01):
     shading = np.zeros_like(i["albedo"])
     glossy = np.zeros_like(i["albedo"])
     for l, radiance in zip(i["light_dirs"], i["light_radiance"]):
-        nl_raw = np.tensordot(l, n_s, 1)
-        lv = np.tensordot(l, v, 1)
+        nl_raw = l[0] * n_s[0] + l[1] * n_s[1] + l[2] * n_s[2]
+        lv = l[0] * v[0] + l[1] * v[1] + l[2] * v[2]
         inv = 1 / np.sqrt(2 + 2 * lv)
         nh = np.clip((nl_raw + nv_raw) * inv, 0, 1)
         lh = np.clip((1 + lv) * inv, 0, 1)

@@ -182,7 +182,8 @@ def relit_preview(photo: np.ndarray, asset: Asset, fit_result: Fit, model: Morph
     directions /= np.linalg.norm(directions, axis=1, keepdims=True)
     panels = [photo]
     for d in directions:
-        shaded = shade_ggx(*maps, torch.from_numpy(d)[None, None], torch.full((1, 1, 3), 2.2), torch.zeros(1, 3), 0.15)
+        shaded = shade_ggx(*maps, torch.from_numpy(d)[None, None], torch.full((1, 1, 3), 2.2), torch.zeros(1, 3), 0.15,
+                           s_disp=1.0)  # positions and displacement are both in mm
         texture = np.ascontiguousarray(shaded.shaded[0].numpy().transpose(1, 2, 0))
         image = cv2.remap(texture, map_x, map_y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
         rgb = (linear_to_srgb(image) * 255).round().astype(np.uint8)

@@ -86,6 +86,12 @@ def multiband_blend(a: np.ndarray, b: np.ndarray, mask: np.ndarray, levels: int)
     return out
 
 
+def _subsample(rows: np.ndarray, limit: int = 65536) -> np.ndarray:
+    """At most ``limit`` evenly spaced entries of ``rows`` (least-squares fits of 9 SH
+    coefficients need no more)."""
+    return rows if len(rows) <= limit else rows[:: int(np.ceil(len(rows) / limit))]
+
+
 def _lab_transfer(source: np.ndarray, target_srgb: np.ndarray, target_weight: np.ndarray) -> np.ndarray:
     """Reinhard colour transfer in CIELAB: shift/scale ``source`` (S, S, 3) sRGB so its mean and
     standard deviation match ``target_srgb`` over texels weighted by ``target_weight``."""
@@ -110,18 +116,24 @@ class DefaultBackend:
     detail_sigma_fraction: float = 1.0 / 512.0  # detail = frequencies above ~S/512 texels⁻¹ (pores, fine wrinkles)
     displacement_gain_mm: float = 0.5  # mm of depth per unit of log-luminance detail (dark = deeper)
     report: dict[str, Any] = field(default_factory=dict)
+    _shading_cache: tuple[TextureContext, np.ndarray] | None = field(default=None, repr=False)
 
     # ---------------------------------------------------------------------------------- shading
-    @staticmethod
-    def shading(ctx: TextureContext) -> np.ndarray:
+    def shading(self, ctx: TextureContext) -> np.ndarray:
         """(S, S, 3) the fitted SH irradiance of each texel's normal divided by its mean over the
-        skin, clipped to [0.25, 4] (grazing and back-facing normals get a bounded gain)."""
+        skin, clipped to [0.25, 4] (grazing and back-facing normals get a bounded gain); 1
+        outside the layout. Computed once per context."""
+        if self._shading_cache is not None and self._shading_cache[0] is ctx:
+            return self._shading_cache[1]
         cover = ctx.coverage
         skin = cover if ctx.skin is None else cover & (ctx.skin > 0.5)
-        normals = torch.from_numpy(ctx.normal_camera.astype(np.float32))
-        irradiance = sh_irradiance(normals, torch.from_numpy(ctx.gamma.astype(np.float32))).numpy()
+        irradiance = np.ones((*cover.shape, 3), np.float32)
+        normals = torch.from_numpy(ctx.normal_camera[cover].astype(np.float32))
+        irradiance[cover] = sh_irradiance(normals, torch.from_numpy(ctx.gamma.astype(np.float32))).numpy()
         mean_e = irradiance[skin].mean(axis=0) if skin.any() else np.ones(3, np.float32)
-        return np.clip(irradiance / np.maximum(mean_e, 1e-6), 0.25, 4.0).astype(np.float32)
+        shading = np.where(cover[..., None], np.clip(irradiance / np.maximum(mean_e, 1e-6), 0.25, 4.0), 1.0)
+        self._shading_cache = (ctx, shading.astype(np.float32))
+        return self._shading_cache[1]
 
     # ---------------------------------------------------------------------------------- inpaint
     def inpaint(self, T_inc: np.ndarray, M_vis: np.ndarray, ctx: TextureContext) -> np.ndarray:
@@ -156,16 +168,19 @@ class DefaultBackend:
         """(S, S, 3) sRGB -> (S, S, 3) sRGB under uniform white light."""
         cover = ctx.coverage
         skin = cover if ctx.skin is None else cover & (ctx.skin > 0.5)
-        normals = torch.from_numpy(ctx.normal_camera.astype(np.float32))
         linear = srgb_to_linear(T_full)
         before = self._shading_variance(linear, ctx.normal_camera, skin)
         delit = linear / self.shading(ctx)
         # residual: the low-frequency log-luminance that the SH basis of the normals still explains
         log_l = np.log(np.maximum(luminance(delit), 1e-4))
         low = masked_blur(log_l, skin, sigma=ctx.size / 64.0)  # shading is smooth at ≥ S/64 texels
-        basis = sh_basis(normals).numpy()
-        coeffs, *_ = np.linalg.lstsq(basis[skin], low[skin] - low[skin].mean(), rcond=None)
-        residual = basis @ coeffs
+        fit_rows = _subsample(np.flatnonzero(skin.ravel()))
+        flat_normals = ctx.normal_camera.reshape(-1, 3)
+        basis = sh_basis(torch.from_numpy(flat_normals[fit_rows].astype(np.float32))).numpy()
+        coeffs, *_ = np.linalg.lstsq(basis, low.ravel()[fit_rows] - low.ravel()[fit_rows].mean(), rcond=None)
+        residual = np.zeros(cover.size, np.float32)
+        residual[cover.ravel()] = sh_basis(torch.from_numpy(flat_normals[cover.ravel()].astype(np.float32))).numpy() @ coeffs
+        residual = residual.reshape(cover.shape)
         residual -= residual[skin].mean()
         delit = delit * np.exp(-np.clip(residual, -0.7, 0.7))[..., None]  # at most a factor 2 either way
         after = self._shading_variance(delit, ctx.normal_camera, skin)
@@ -179,8 +194,9 @@ class DefaultBackend:
     @staticmethod
     def _shading_variance(linear: np.ndarray, normals: np.ndarray, skin: np.ndarray) -> float:
         """Variance of the skin's log-luminance explained by the SH basis of the normals."""
-        log_l = np.log(np.maximum(luminance(linear[skin]), 1e-4))
-        basis = sh_basis(torch.from_numpy(normals[skin].astype(np.float32))).numpy()
+        rows = _subsample(np.flatnonzero(skin.ravel()))
+        log_l = np.log(np.maximum(luminance(linear.reshape(-1, 3)[rows]), 1e-4))
+        basis = sh_basis(torch.from_numpy(normals.reshape(-1, 3)[rows].astype(np.float32))).numpy()
         coeffs, *_ = np.linalg.lstsq(basis, log_l - log_l.mean(), rcond=None)
         return float(np.var(basis @ coeffs))
 
