@@ -22,6 +22,8 @@ _EXPORTS = {
     "Fit": "facegeo.fitting",
     "fit": "facegeo.fitting",
     "fit_landmarks": "facegeo.fitting",
+    "reconstruct": "facegeo.pipeline",
+    "Asset": "facegeo.asset",
     "Photo": "facegeo.photo",
     "load_photo": "facegeo.photo",
     "FacegeoError": "facegeo.errors",
@@ -39,7 +41,9 @@ if TYPE_CHECKING:
     from facegeo.landmarks.detectors import FaceLandmarks, LandmarkDetector, detect_landmarks
     from facegeo.model_files import load_model
     from facegeo.morphable_model import MorphableModel
+    from facegeo.asset import Asset
     from facegeo.photo import Photo, load_photo
+    from facegeo.pipeline import reconstruct
 
 
 def __getattr__(name: str) -> Any:

@@ -127,7 +127,7 @@ def _run_reconstruct(args: argparse.Namespace) -> None:
     from facegeo.export.writers import FORMATS, export_asset
     from facegeo.model_files import load_model
     from facegeo.photo import load_photo
-    from facegeo.pipeline import STAGES, reconstruct, relit_preview
+    from facegeo.pipeline import STAGES, reconstruct_with_fit, relit_preview
     from facegeo.staged_output import StagedOutput
 
     maps = [m.strip() for m in args.maps.split(",") if m.strip()]
@@ -147,7 +147,7 @@ def _run_reconstruct(args: argparse.Namespace) -> None:
         bar.set_postfix_str(stage)
         bar.update(1)
 
-    asset, result = reconstruct(photo, model, backend=args.backend, size=args.size, upscale=args.upscale,
+    asset, result = reconstruct_with_fit(photo, model, backend=args.backend, size=args.size, upscale=args.upscale,
                                 maps=maps, detector=args.landmarks, progress=progress)
     timings = dict(asset.metadata["timings_s"])
     with StagedOutput(args.output) as stage:

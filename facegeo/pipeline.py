@@ -27,7 +27,7 @@ from facegeo.texturing.context import build_context
 from facegeo.texturing.default_backend import DefaultBackend
 from facegeo.uv import geometry_maps, rasterize_uv, render, unwrap
 
-__all__ = ["reconstruct", "relit_preview", "BACKENDS", "STAGES"]
+__all__ = ["reconstruct", "reconstruct_with_fit", "relit_preview", "BACKENDS", "STAGES"]
 
 #: Texture backends by name. The diffusion backend (an adapter over a DiT) is not built yet.
 BACKENDS: dict[str, Callable[[], TextureBackend]] = {"default": DefaultBackend}
@@ -38,7 +38,14 @@ STAGES = ("fit", "unwrap", "inpaint", "homogenise", "materials", "upscale")
 DEFAULT_CONSTANTS = {"roughness": 0.55, "specular": 0.45}
 
 
-def reconstruct(
+def reconstruct(image: np.ndarray | str | Path | Photo, model: MorphableModel | None = None, **options) -> Asset:
+    """Reconstruct a textured face from one photo: :func:`reconstruct_with_fit` without the fit
+    (its parameters are in ``asset.metadata["fit"]``)."""
+    asset, _ = reconstruct_with_fit(image, model, **options)
+    return asset
+
+
+def reconstruct_with_fit(
     image: np.ndarray | str | Path | Photo,
     model: MorphableModel | None = None,
     *,
@@ -138,6 +145,7 @@ def reconstruct(
             "timings_s": timings,
             "texture_report": report,
             "landmark_rms_px": result.landmark_rms_px,
+            "fit": {k: v for k, v in result.to_dict().items() if k not in ("landmarks_px", "landmarks_fitted_px")},
         },
     )
     return asset, result

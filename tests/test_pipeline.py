@@ -10,7 +10,7 @@ from facegeo import load_model, load_photo
 from facegeo.assets import asset_path
 from facegeo.cli import main
 from facegeo.errors import InputError
-from facegeo.pipeline import STAGES, reconstruct, relit_preview
+from facegeo.pipeline import STAGES, reconstruct, reconstruct_with_fit, relit_preview
 
 PHOTO = asset_path("photos/astronaut.png")
 
@@ -19,7 +19,7 @@ PHOTO = asset_path("photos/astronaut.png")
 def small_asset():
     photo = load_photo(PHOTO)
     model = load_model()
-    asset, fit = reconstruct(photo, model, size=256, upscale=2, maps={"albedo", "normal", "displacement"})
+    asset, fit = reconstruct_with_fit(photo, model, size=256, upscale=2, maps={"albedo", "normal", "displacement"})
     return photo, model, asset, fit
 
 
@@ -30,6 +30,7 @@ def test_only_the_requested_maps_are_made(small_asset):
     assert asset.maps["albedo"].shape == (512, 512, 3)  # 256 upscaled ×2
     np.testing.assert_allclose(np.linalg.norm(asset.maps["normal"], axis=-1), 1.0, atol=1e-4)
     assert set(asset.metadata["timings_s"]) == set(STAGES)
+    assert asset.metadata["fit"]["alpha"] == fit.alpha.tolist()
     assert 0.0 <= asset.maps["albedo"].min() and asset.maps["albedo"].max() <= 1.0
     report = asset.metadata["texture_report"]
     assert report["homogenise"]["remaining_fraction"] < 0.5
