@@ -30,6 +30,9 @@ from facegeo.camera import Camera, rotation_from_euler
 from facegeo.uv import clear_raster_cache, geometry_maps, rasterize_uv, render, unwrap
 from facegeo.uv import tangents as _tangents
 
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
+from test_uv_support import painted_texture  # noqa: E402  (one definition of the test texture)
+
 SIZES = (256, 512, 1024, 2048, 4096)
 REFERENCE_SIZE = 1024
 
@@ -39,17 +42,6 @@ def load() -> str:
         return " ".join(f"{x:.2f}" for x in os.getloadavg())
     except OSError:  # pragma: no cover
         return "n/a"
-
-
-def painted_texture(model, raster) -> np.ndarray:
-    p = geometry_maps(model.mean_shape, model, raster, tangents=False).position.astype(np.float64)
-    x, y, z = p[..., 0], p[..., 1], p[..., 2]
-    tex = np.stack([
-        0.5 + 0.3 * np.sin(2 * np.pi * x / 40.0) * np.cos(2 * np.pi * y / 50.0),
-        0.5 + 0.3 * np.sin(2 * np.pi * (x + z) / 35.0 + 1.0),
-        0.5 + 0.25 * np.cos(2 * np.pi * (y - z) / 45.0),
-    ], axis=-1)
-    return np.where(raster.mask[..., None], tex, 0.0).astype(np.float32)
 
 
 def pipeline(model, fit, image, size):
