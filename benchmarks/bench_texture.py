@@ -118,13 +118,16 @@ def skin_texture(position: np.ndarray, cover: np.ndarray, seed: int = 0) -> np.n
 class Scene:
     """A fit at one yaw and its UV context / known texture / unwrapped photo at size S."""
 
-    def __init__(self, model, fit, size: int, seed: int = 0):
+    def __init__(self, model, fit, size: int, seed: int = 0, gamma: np.ndarray | None = None):
         self.fit = fit
         self.raster = rasterize_uv(model, size=size)
         self.ctx = build_context(model, fit, self.raster)
         cover = self.ctx.coverage
         self.truth = pad_outside(skin_texture(self.ctx.position, cover, seed), cover)
         self.skin = cover & (self.ctx.skin > 0.5)
+        if gamma is not None:  # a shaded photo: truth = the texture under γ, known to the context
+            self.ctx = replace(self.ctx, gamma=gamma)
+            self.truth = shade(self, gamma)
         self._model = model
         self._unwrapped = None
 
@@ -204,15 +207,20 @@ def inpaint_case(scene: Scene, levels: int = 0, repeats: int = 1, with_ssim: boo
     t_in = np.where(shown[..., None], t_inc, 0.0).astype(np.float32)
     hidden = cover & ~shown
     hidden_skin = hidden & scene.skin
+    has = (ctx.mirror[..., 0] >= 0) & cover
+    mirror_shown = has & shown[np.maximum(ctx.mirror[..., 0], 0), np.maximum(ctx.mirror[..., 1], 0)]
+    via_mirror, neither = hidden & mirror_shown, hidden & ~mirror_shown
     out, seconds = timed(lambda: DefaultBackend(levels=levels).inpaint(t_in, m_in, ctx), repeats)
     vis_skin = shown & scene.skin
     mean_colour = t_in[vis_skin].mean(0) if vis_skin.any() else np.full(3, 0.5, np.float32)
     trivial = np.where(shown[..., None], t_in, mean_colour).astype(np.float32)
     truth = scene.truth
     row = dict(hidden=int(hidden.sum()), hidden_frac=float(hidden.sum() / cover.sum()),
-               mirrored=float(((ctx.mirror[..., 0] >= 0) & hidden).sum() / max(hidden.sum(), 1)),
                psnr=psnr(out, truth, hidden), base_psnr=psnr(trivial, truth, hidden),
                psnr_skin=psnr(out, truth, hidden_skin), base_psnr_skin=psnr(trivial, truth, hidden_skin),
+               via_mirror=float(via_mirror.sum() / max(hidden.sum(), 1)),
+               psnr_mirror=psnr(out, truth, via_mirror), base_psnr_mirror=psnr(trivial, truth, via_mirror),
+               psnr_neither=psnr(out, truth, neither), base_psnr_neither=psnr(trivial, truth, neither),
                vis_psnr=psnr(out, truth, cover & shown), seconds=seconds, out=out)
     if with_ssim:
         row.update(ssim=ssim(out, truth, hidden, cover), base_ssim=ssim(trivial, truth, hidden, cover))
@@ -225,11 +233,14 @@ def sheet(model, size: int, path: Path, jpeg: Path | None) -> str:
 
     from facegeo.assets import asset_path
     from facegeo.photo import load_photo
-    from facegeo.pipeline import reconstruct
+    from facegeo import pipeline
 
     photo = load_photo(asset_path("photos/astronaut.png"))
     t = time.perf_counter()
-    asset, fit = reconstruct(photo, model, size=size)
+    if hasattr(pipeline, "reconstruct_with_fit"):  # reconstruct returns the asset alone
+        asset, fit = pipeline.reconstruct_with_fit(photo, model, size=size)
+    else:
+        asset, fit = pipeline.reconstruct(photo, model, size=size)
     seconds = time.perf_counter() - t
     t_inc, m_vis = unwrap(photo.image, fit, model, raster=rasterize_uv(model, size=size))
     maps = asset.maps
@@ -315,17 +326,22 @@ def main(argv=None) -> int:
     lines += ["", f"### 2. inpaint, visibility from posed fits (S = {args.size}, {PHOTO}² render, 40° fov, "
               f"{DISTANCE_MM:g} mm, pitch 5°; hidden = covered & M_vis < 0.5)", "",
               "Baseline = visible texels kept, hidden ones filled with the mean colour of the visible skin. "
-              "'mirrored' = share of hidden texels with a mirror texel in the layout.", "",
-              "| yaw ° | hidden texels (% of covered) | mirrored % | PSNR dB ours | PSNR dB mean fill | Δ dB | SSIM ours | SSIM mean fill | "
-              "PSNR skin-only ours / mean fill | PSNR on visible texels | s |",
-              "|---|---|---|---|---|---|---|---|---|---|---|"]
+              "'via mirror' = hidden texels whose mirror texel is shown (filled from it); 'neither' = the rest "
+              "(mirror hidden too, or no mirror: filled from the model's texture after the Lab transfer). "
+              "Rows without a lighting: unshaded photo, ctx.gamma = ambient (fit_landmarks); lit rows: the photo and "
+              "the truth are the texture under that SH lighting.", "",
+              "| yaw ° | hidden texels (% of covered) | via mirror % | PSNR dB ours | PSNR dB mean fill | Δ dB | SSIM ours | SSIM mean fill | "
+              "PSNR via mirror ours / mean fill | PSNR neither ours / mean fill | PSNR hidden skin ours / mean fill | PSNR on shown texels | s |",
+              "|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
     scenes = {}
-    for yaw in YAWS:
-        sc = Scene(model, synthetic_fit(model, yaw), args.size, seed=1)
+    for yaw, light in [(y, None) for y in YAWS] + [(30.0, "side"), (30.0, "frontal")]:
+        if yaw not in scenes:
+            scenes[yaw] = synthetic_fit(model, yaw)
+        sc = Scene(model, scenes[yaw], args.size, seed=1, gamma=None if light is None else lighting(light))
         r = inpaint_case(sc, repeats=args.repeats)
-        scenes[yaw] = sc.fit
-        lines.append(f"| {yaw:g} | {r['hidden']} ({100 * r['hidden_frac']:.1f}) | {100 * r['mirrored']:.1f} | {r['psnr']:.2f} | "
+        lines.append(f"| {yaw:g}{'' if light is None else f', {light}-lit photo (ctx.gamma = γ)'} | {r['hidden']} ({100 * r['hidden_frac']:.1f}) | {100 * r['via_mirror']:.1f} | {r['psnr']:.2f} | "
                      f"{r['base_psnr']:.2f} | {r['psnr'] - r['base_psnr']:+.2f} | {r['ssim']:.4f} | {r['base_ssim']:.4f} | "
+                     f"{r['psnr_mirror']:.2f} / {r['base_psnr_mirror']:.2f} | {r['psnr_neither']:.2f} / {r['base_psnr_neither']:.2f} | "
                      f"{r['psnr_skin']:.2f} / {r['base_psnr_skin']:.2f} | {r['vis_psnr']:.2f} | {r['seconds']:.3f} |")
         print(lines[-1], file=sys.stderr)
 
@@ -351,12 +367,12 @@ def main(argv=None) -> int:
     S = 1024
     default_levels = max(1, int(np.log2(S)) - 3)
     lines += ["", f"### 4. error against run time: blending levels (S = {S}; default 0 → {default_levels})", "",
-              "| levels | yaw ° | inpaint s | PSNR hidden dB | SSIM hidden | PSNR hidden skin dB |", "|---|---|---|---|---|---|"]
+              "| levels | yaw ° | inpaint s | PSNR hidden dB | SSIM hidden | PSNR via mirror dB | PSNR neither dB |", "|---|---|---|---|---|---|---|"]
     for yaw in (30.0, 60.0):
         sc = Scene(model, scenes[yaw], S, seed=1)
         for lv in levels:
             r = inpaint_case(sc, levels=lv, repeats=args.repeats)
-            lines.append(f"| {lv} | {yaw:g} | {r['seconds']:.3f} | {r['psnr']:.2f} | {r['ssim']:.4f} | {r['psnr_skin']:.2f} |")
+            lines.append(f"| {lv} | {yaw:g} | {r['seconds']:.3f} | {r['psnr']:.2f} | {r['ssim']:.4f} | {r['psnr_mirror']:.2f} | {r['psnr_neither']:.2f} |")
             print(lines[-1], file=sys.stderr)
         del sc
 

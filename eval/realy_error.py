@@ -19,7 +19,9 @@ Written from the protocol of the official REALY code (``utils/eval.py``, ``utils
 
 Each least-squares step solves the normal equations ``A^T A X = A^T B`` (the official code
 factors ``A^T A`` with CHOLMOD); here ``A^T A`` is assembled directly, block by block, and
-factored by scikit-sparse's CHOLMOD where it is installed, else by SciPy's SuperLU.
+factored by scikit-sparse's CHOLMOD where it is installed, else by SciPy's SuperLU. A singular
+system (a part of the region that nothing holds, where the official CHOLMOD call fails) raises
+:class:`~facegeo.errors.FacegeoError` instead of giving a number.
 """
 
 from __future__ import annotations
@@ -47,6 +49,10 @@ _STIFFNESS = np.array([1.0, 1.0, 1.0, 1.0])  # diag(G)^2, gamma = 1
 _STIFFNESS_KEYPOINTS = np.array([2.0, 2.0, 3.0, 2.0]) ** 2  # diag(G_KP)^2
 
 
+_SINGULAR = ("the non-rigid ICP's linear system is singular: a part of the region has too few keypoints "
+             "or matches to fix it (the official code fails here too)")
+
+
 class _Solver:
     """Factor-and-solve for matrices with one fixed sparsity pattern (CHOLMOD or SuperLU)."""
 
@@ -60,6 +66,17 @@ class _Solver:
             self._cholmod = None
 
     def solve(self, matrix: sp.csc_matrix, rhs: np.ndarray) -> np.ndarray:
+        """Solve, or raise FacegeoError when the matrix is singular (as CHOLMOD does)."""
+        try:
+            x = self._solve(matrix, rhs)
+        except Exception as exc:  # SuperLU: "exactly singular"; CHOLMOD: not positive definite
+            raise FacegeoError(f"{_SINGULAR} ({type(exc).__name__})") from None
+        residual = np.linalg.norm(matrix @ x - rhs)
+        if not np.isfinite(residual) or residual > 1e-6 * max(np.linalg.norm(rhs), 1e-300):
+            raise FacegeoError(f"{_SINGULAR} (relative residual {residual / max(np.linalg.norm(rhs), 1e-300):.1e})")
+        return x
+
+    def _solve(self, matrix: sp.csc_matrix, rhs: np.ndarray) -> np.ndarray:
         if self._cholmod is not None:
             if self._symbolic is None:
                 self._symbolic = self._cholmod.analyze(matrix)

@@ -7,7 +7,7 @@ the official code's ``trimesh.Trimesh.nearest.on_surface`` (trimesh 3.x) does, v
 * the exact float64 closest point comes from libigl's AABB tree
   (``igl.point_mesh_squared_distance``; it agrees with a brute-force point-to-triangle search to
   rounding, tests/test_realy_geometry.py). open3d's RaycastingScene is not used: it computes in
-  float32 (errors of about 1e-6 of the coordinates);
+  float32 (errors up to 2e-5 mm on a head measured in mm);
 * trimesh does not always return the nearest of its candidates: when the two nearest candidate
   triangles are within 1e-8 in *squared* distance (and both farther than 1e-8), it takes the one
   whose normal points more towards the query. That happens when the closest point lies within
@@ -119,16 +119,6 @@ class SurfaceQuery:
             pick = (normals * vectors).sum(axis=2).argmax(axis=1)
             result[r] = close[r, two[tie][np.arange(len(r)), pick]]
         return result
-
-
-def _segment_distance(p: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    d = b - a
-    length2 = np.einsum("ij,ij->i", d, d)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        t = np.clip(np.einsum("ij,ij->i", p - a, d) / length2, 0.0, 1.0)
-    t = np.where(length2 > 0, t, 0.0)
-    r = p - (a + d * t[:, None])
-    return np.sqrt(np.einsum("ij,ij->i", r, r))
 
 
 def _unit_normals(tri: np.ndarray) -> np.ndarray:

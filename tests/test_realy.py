@@ -248,3 +248,18 @@ def test_template_mask_of_ones_changes_nothing(small, tmp_path):
     pred = _only(small, tmp_path, ["2"])
     result = evaluate(pred, small.realy_root, template_mask=mask)
     _close(result.per_subject["2"], REFERENCE_SMALL["2"])
+
+
+def test_region_part_without_keypoints_is_an_error_not_a_number(small, tmp_path):
+    # an island far from the nose keypoints has nothing to hold it in the keypoint-only first
+    # stage of the non-rigid ICP: the official CHOLMOD call fails ("not positive definite")
+    realy, pred = _copy_tree(small, tmp_path)
+    path = realy / "data" / "REALY_scan_region" / "1" / "nose.obj"
+    mesh = read_obj(path)
+    island = mesh.vertices[:3] + [0.0, 0.0, -4.0]
+    n = len(mesh.vertices)
+    path.write_text(obj_text(np.vstack([mesh.vertices, island]), np.vstack([mesh.triangles, [[n, n + 1, n + 2]]])))
+    for name in ("2.obj", "3.obj"):
+        (pred / name).unlink()
+    with pytest.raises(FacegeoError, match="1.obj: nose: .*singular"):
+        evaluate(pred, realy)
