@@ -136,3 +136,17 @@ def test_upscale_lanczos():
     m = np.random.default_rng(0).random((16, 16, 3)).astype(np.float32)
     assert DefaultBackend().upscale(m, 4).shape == (64, 64, 3)
     assert DefaultBackend().upscale(m, 1) is m
+
+
+def test_unseen_texels_get_the_visible_skin_colour_from_a_flat_model_texture():
+    """The Lab transfer takes the model texture's statistics over the layout only (a black
+    background outside it once darkened and streaked the fill)."""
+    ctx = hemisphere_context(64)
+    colour = np.array([0.8, 0.6, 0.5], np.float32)
+    t_inc = np.broadcast_to(colour, (64, 64, 3)).copy()
+    x = np.linspace(-1, 1, 64)[None, :].repeat(64, 0)
+    visible = (x < 0.3).astype(np.float32)
+    ctx.mirror[...] = -1  # nothing mirrors: the hidden part comes from the model texture
+    full = DefaultBackend(levels=1).inpaint(t_inc, visible, ctx)
+    hidden = ctx.coverage & (visible == 0)
+    np.testing.assert_allclose(full[hidden].mean(axis=0), colour, atol=0.01)
