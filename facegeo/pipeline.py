@@ -100,8 +100,9 @@ def reconstruct_with_fit(
 
     t = stage("unwrap")
     raster = rasterize_uv(model, size=size)
-    t_inc, m_vis = unwrap(pixels, result, model, raster=raster)
-    ctx = build_context(model, result, raster)
+    camera_maps = geometry_maps(result.vertices, model, raster, tangents=False)  # shared by both
+    t_inc, m_vis = unwrap(pixels, result, model, maps=camera_maps)
+    ctx = build_context(model, result, raster, camera_maps)
     timings["unwrap"] = time.perf_counter() - t
 
     t = stage("inpaint")

@@ -11,7 +11,7 @@ from facegeo.fitting import Fit, skin_vertex_mask
 from facegeo.morphable_model import MorphableModel
 from facegeo.texturing.backend import TextureContext
 from facegeo.texturing.regions import vertex_regions
-from facegeo.uv import UVRaster
+from facegeo.uv import GeometryMaps, UVRaster, geometry_maps
 
 __all__ = ["build_context", "mirror_vertices"]
 
@@ -34,8 +34,11 @@ def _per_vertex_uv(model: MorphableModel) -> np.ndarray:
     return uv
 
 
-def build_context(model: MorphableModel, fit: Fit, raster: UVRaster) -> TextureContext:
-    """The texture stage's view of ``fit`` at the raster's size S (see :class:`TextureContext`)."""
+def build_context(model: MorphableModel, fit: Fit, raster: UVRaster, camera_maps: GeometryMaps | None = None) -> TextureContext:
+    """The texture stage's view of ``fit`` at the raster's size S (see :class:`TextureContext`).
+
+    ``camera_maps``: the geometry maps of ``fit.vertices`` on ``raster`` if already computed
+    (e.g. for the unwrap); their normals are the context's camera-space normals."""
     size = raster.size
     tri = model.triangles
     cover = np.asarray(raster.inside)
@@ -46,10 +49,9 @@ def build_context(model: MorphableModel, fit: Fit, raster: UVRaster) -> TextureC
         return raster.scatter(raster.interpolate(per_vertex[tri]))
 
     position = to_uv(fit.shape_vertices)
-    normals = model.vertex_normals(torch.from_numpy(fit.vertices)).numpy()
-    normal_camera = to_uv(normals)
-    normal_camera /= np.maximum(np.linalg.norm(normal_camera, axis=-1, keepdims=True), 1e-6)
-    normal_camera[~mask] = 0.0
+    if camera_maps is None:
+        camera_maps = geometry_maps(fit.vertices, model, raster, tangents=False)
+    normal_camera = np.where(mask[..., None], camera_maps.normal, 0.0)
 
     # texel size on the surface: |∂P/∂column| and |∂P/∂row| (rows run towards −v)
     texel = np.stack(
