@@ -13,7 +13,6 @@ import sys
 import time
 from pathlib import Path
 
-import numpy as np
 
 from facegeo import __version__
 from facegeo.errors import FacegeoError
@@ -76,9 +75,8 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def _run_fit(args: argparse.Namespace) -> None:
-    import cv2
-
     from facegeo.camera import Camera
+    from facegeo.export.textures import png_bytes
     from facegeo.fitting import fit
     from facegeo.landmarks.scheme import inter_ocular_distance
     from facegeo.mesh_io import obj_text
@@ -105,8 +103,7 @@ def _run_fit(args: argparse.Namespace) -> None:
         stage.path("fit.json").write_text(json.dumps(result.to_dict(), indent=1))
         stage.path("mesh.obj").write_text(obj_text(result.vertices, model.triangles, model.uv, model.uv_triangles))
         overlay = draw_overlay(photo.image, result, model)
-        ok, png = cv2.imencode(".png", np.ascontiguousarray(overlay[..., ::-1]))
-        stage.path("overlay.png").write_bytes(png.tobytes())
+        stage.path("overlay.png").write_bytes(png_bytes(overlay))
     for note in result.info.get("notes", []):
         print(f"note: {note}")
     print(
@@ -118,12 +115,12 @@ def _run_fit(args: argparse.Namespace) -> None:
 
 
 def _run_reconstruct(args: argparse.Namespace) -> None:
-    import cv2
     from tqdm import tqdm
 
     from facegeo.asset import MAP_NAMES
     from facegeo.errors import InputError
     from facegeo.export.asset_io import write_asset_files
+    from facegeo.export.textures import png_bytes
     from facegeo.export.writers import FORMATS, export_asset
     from facegeo.model_files import load_model
     from facegeo.photo import load_photo
@@ -166,8 +163,7 @@ def _run_reconstruct(args: argparse.Namespace) -> None:
             bar.update(1)
             t = time.perf_counter()
             preview = relit_preview(photo.image, asset, result, model)
-            ok, png = cv2.imencode(".png", np.ascontiguousarray(preview[..., ::-1]))
-            stage.path("preview.png").write_bytes(png.tobytes())
+            stage.path("preview.png").write_bytes(png_bytes(preview))
             timings["preview"] = time.perf_counter() - t
         timings["total"] = time.perf_counter() - start
         record = result.to_dict()

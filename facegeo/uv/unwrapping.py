@@ -45,6 +45,7 @@ import hashlib
 import numpy as np
 
 from facegeo.camera import Camera
+from facegeo.colour import srgb_to_linear
 from facegeo.errors import InputError
 from facegeo.uv.maps import GeometryMaps, texel_geometry
 from facegeo.uv.raster import UVRaster, rasterize_uv
@@ -409,7 +410,7 @@ def _photo(image, camera: Camera, colour_space: str) -> np.ndarray:
                          f"shape {img.shape}")
     img = np.ascontiguousarray(img[..., :3])
     if colour_space == "linear":
-        img = np.where(img <= 0.04045, img / 12.92, ((np.clip(img, 0, None) + 0.055) / 1.055) ** 2.4).astype(np.float32)
+        img = srgb_to_linear(img)
     return img
 
 
