@@ -4,10 +4,11 @@ trimesh-style vertex merging.
 :class:`SurfaceQuery` answers, for every query point, the closest point on a triangle mesh the way
 the official code's ``trimesh.Trimesh.nearest.on_surface`` (trimesh 3.x) does, vectorised:
 
-* the exact float64 closest point comes from libigl's AABB tree
-  (``igl.point_mesh_squared_distance``; it agrees with a brute-force point-to-triangle search to
-  rounding, tests/test_realy_geometry.py). open3d's RaycastingScene is not used: it computes in
-  float32 (errors up to 2e-5 mm on a head measured in mm);
+* the nearest face comes from libigl's AABB tree (``igl.AABB``, exact in float64: it agrees
+  with a brute-force point-to-triangle search to rounding, tests/test_realy_geometry.py), built
+  once per prediction and reused for its rigid motions (:class:`SurfaceQuery`). open3d's
+  RaycastingScene is not used: it computes in float32 (errors up to 2e-5 mm on a head measured
+  in mm);
 * trimesh does not always return the nearest of its candidates: when the two nearest candidate
   triangles are within 1e-8 in *squared* distance (and both farther than 1e-8), it takes the one
   whose normal points more towards the query. That happens when the closest point lies within
@@ -51,11 +52,27 @@ def _igl_closest(vertices, triangles, queries):
 
 
 class SurfaceQuery:
-    """Closest points on meshes of one triangulation, as trimesh's ``nearest.on_surface`` gives them."""
+    """Closest points on meshes of one triangulation, as trimesh's ``nearest.on_surface`` gives them.
+
+    The protocol queries one prediction in many poses (the regional ICPs move it rigidly, with a
+    float32 cast after every step). The AABB tree is built once, for the first vertices given;
+    a later call whose vertices are a rigid motion of those (Kabsch fit, largest deviation at
+    most ``FRAME_TOLERANCE`` times the mesh size: float32 rounding) maps its queries into the
+    tree's frame to find each query's nearest face there, and the exact closest point is then
+    computed on the *given* vertices among the faces around that face, with trimesh's rule.
+    That is the exact answer unless a non-adjacent face is within twice the deviation (about
+    1e-6 of the mesh size) of the nearest one; other vertices get a new tree.
+    """
+
+    #: largest deviation from a rigid motion of the tree's vertices, relative to the mesh size
+    FRAME_TOLERANCE = 1e-6
 
     def __init__(self, triangles: np.ndarray):
         self.triangles = np.ascontiguousarray(triangles, dtype=np.int64)
         self._ring_table: np.ndarray | None = None
+        self._tree = None
+        self._tree_vertices: np.ndarray | None = None
+        self.trees_built = 0
 
     def _rings(self) -> np.ndarray:
         """(F, K) table: each face and the faces sharing a vertex with it, padded with -1."""
@@ -79,17 +96,34 @@ class SurfaceQuery:
             self._ring_table = table
         return self._ring_table
 
+    def _queries_in_tree_frame(self, vertices: np.ndarray, queries: np.ndarray) -> np.ndarray:
+        """``queries`` mapped into the frame of the tree (built here when none fits)."""
+        ref = self._tree_vertices
+        if ref is not None and ref.shape == vertices.shape:
+            if np.array_equal(ref, vertices):
+                return queries
+            rotation, translation = _rigid_fit(ref, vertices)
+            size = float(np.ptp(ref, axis=0).max())
+            deviation = float(np.abs(ref @ rotation.T + translation - vertices).max())
+            if deviation <= self.FRAME_TOLERANCE * size:
+                return (queries - translation) @ rotation
+        import igl
+
+        self._tree_vertices = np.ascontiguousarray(vertices)
+        self._tree = igl.AABB()
+        self._tree.init(self._tree_vertices, self.triangles)
+        self.trees_built += 1
+        return queries
+
     def __call__(self, vertices: np.ndarray, queries: np.ndarray) -> np.ndarray:
         """(Q, 3) float64 closest points of ``queries`` on the mesh with these ``vertices``."""
         vertices = np.asarray(vertices, dtype=np.float64)
         queries = np.asarray(queries, dtype=np.float64)
-        d2, face, points = _igl_closest(vertices, self.triangles, queries)
-        # trimesh may prefer a rival within 1e-8 in squared distance: look at the faces around
-        # the nearest one (a rival is either across a nearby edge or a nearly coplanar neighbour)
-        far = np.nonzero(d2 > 0.5 * _MERGE)[0]
-        if len(far):
-            points[far] = self._trimesh_pick(vertices, queries[far], face[far])
-        return points
+        mapped = np.ascontiguousarray(self._queries_in_tree_frame(vertices, queries))
+        _, face, _ = self._tree.squared_distance(self._tree_vertices, self.triangles, mapped)
+        # the exact point among the faces around the nearest one, where trimesh may also prefer
+        # a rival within 1e-8 in squared distance (across a nearby edge or nearly coplanar)
+        return self._trimesh_pick(vertices, queries, np.asarray(face, dtype=np.int64).reshape(-1))
 
     def _trimesh_pick(self, vertices: np.ndarray, queries: np.ndarray, faces: np.ndarray) -> np.ndarray:
         """trimesh's choice among the faces around ``faces`` for each query (see the module doc)."""
@@ -119,6 +153,15 @@ class SurfaceQuery:
             pick = (normals * vectors).sum(axis=2).argmax(axis=1)
             result[r] = close[r, two[tie][np.arange(len(r)), pick]]
         return result
+
+
+def _rigid_fit(source: np.ndarray, target: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Least-squares rotation and translation with ``source @ R.T + t ~ target`` (Kabsch)."""
+    cs, ct = source.mean(axis=0), target.mean(axis=0)
+    u, _, vt = np.linalg.svd((target - ct).T @ (source - cs))
+    fix = np.diag([1.0, 1.0, np.sign(np.linalg.det(u @ vt))])
+    rotation = u @ fix @ vt
+    return rotation, ct - cs @ rotation.T
 
 
 def _unit_normals(tri: np.ndarray) -> np.ndarray:

@@ -57,6 +57,28 @@ def test_degenerate_triangles_act_as_their_segment_or_point(head):
     assert np.all(((picked - q) ** 2).sum(axis=1) - ((exact - q) ** 2).sum(axis=1) < 1e-8 + 1e-15)
 
 
+def test_one_tree_serves_rigid_motions_of_the_mesh(head):
+    v, f = head
+    rng = np.random.default_rng(3)
+    q = v[rng.choice(len(v), 300)] + rng.normal(scale=0.5, size=(300, 3))
+    query = SurfaceQuery(f)
+    first = query(v, q)
+    angle = 0.3
+    rotation = np.array([[np.cos(angle), 0, np.sin(angle)], [0, 1, 0], [-np.sin(angle), 0, np.cos(angle)]])
+    moved = (v @ rotation.T + [3.0, -1.0, 2.0]).astype(np.float32)  # as the regional ICP moves it
+    q_moved = q @ rotation.T + [3.0, -1.0, 2.0]
+    got = query(moved, q_moved)
+    assert query.trees_built == 1
+    fresh = SurfaceQuery(f)(moved, q_moved)  # a tree of its own
+    assert np.array_equal(got, fresh)
+    assert np.abs(got - (first @ rotation.T + [3.0, -1.0, 2.0])).max() < 1e-5
+    # a non-rigid change of the vertices is not mistaken for a motion: a new tree
+    bent = v.copy()
+    bent[:, 2] += 0.05 * np.sin(bent[:, 0])
+    assert np.array_equal(query(bent, q), SurfaceQuery(f)(bent, q))
+    assert query.trees_built == 2
+
+
 def test_merge_vertices_follows_trimesh_process():
     v = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [5, 5, 5], [1, 0, 0], [0, 1, 1e-9]], dtype=np.float32)
     f = np.array([[0, 1, 2], [0, 4, 5]])
