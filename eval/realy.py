@@ -3,11 +3,13 @@
 :func:`evaluate` gives, for every prediction in a folder, the error (mm) on the four scan regions
 nose, mouth, forehead and cheek, with the same numbers as the official REALY code
 (github czh-98/REALY, ``main.py``; equal to 1e-6 relative on the synthetic subjects of
-tests/test_realy.py, the rigid alignments bit for bit). Closest points come from an AABB tree
-(libigl) instead of per-point R-tree queries in Python, with trimesh's tie rule reproduced;
-the non-rigid ICP's normal equations are assembled block by block and factored directly (as the
-official code does with CHOLMOD: these ~50-60 sparse factorisations per subject are most of the
-time left); subjects run in parallel processes with ``workers``.
+tests/test_realy.py, the rigid alignments bit for bit). Closest points come from one AABB tree
+(libigl) per prediction instead of an R-tree per ICP step and per-point queries in Python, with
+trimesh's tie rule reproduced; the non-rigid ICP's normal equations are assembled block by block,
+in METIS' nested-dissection order, and factored by SuperLU (the official code uses CHOLMOD).
+Those ~50-60 sparse factorisations per subject are needed to reproduce the official numbers and
+are most of the time left (benchmarks/RESULTS.md). Subjects run in parallel processes with
+``workers``, one BLAS thread each.
 
 Per subject (see :mod:`facegeo.eval.realy_align` and :mod:`facegeo.eval.realy_error`):
 the 85 keypoints of the prediction from the topology's barycentric keypoint file; a similarity
