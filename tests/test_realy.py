@@ -263,3 +263,18 @@ def test_region_part_without_keypoints_is_an_error_not_a_number(small, tmp_path)
         (pred / name).unlink()
     with pytest.raises(FacegeoError, match="1.obj: nose: .*singular"):
         evaluate(pred, realy)
+
+
+def test_degenerate_prediction_triangle_acts_as_its_edge(small, tmp_path):
+    # a zero-area face (a, b, a) on an edge of the nose adds no surface: the numbers stay
+    realy, pred = _copy_tree(small, tmp_path)
+    for name in ("2", "3"):
+        (pred / f"{name}.obj").unlink()
+    mesh = read_obj(pred / "1.obj")
+    nose_tip = int(np.argmax(mesh.vertices[:, 2] - np.abs(mesh.vertices[:, 0])))
+    a, b = (int(i) for i in mesh.triangles[np.nonzero((mesh.triangles == nose_tip).any(axis=1))[0][0]][:2])
+    with (pred / "1.obj").open("a") as f:
+        f.write(f"f {a + 1} {b + 1} {a + 1}\n")
+    result = evaluate(pred, realy)
+    for region in REGIONS:
+        assert result.per_subject["1"][region] == pytest.approx(REFERENCE_SMALL["1"][region], rel=REL), region
