@@ -26,6 +26,8 @@ degenerate are kept).
 
 from __future__ import annotations
 
+import hashlib
+
 import numpy as np
 
 __all__ = ["SurfaceQuery", "closest_points", "merge_vertices", "point_triangle_closest"]
@@ -34,6 +36,8 @@ __all__ = ["SurfaceQuery", "closest_points", "merge_vertices", "point_triangle_c
 _MERGE = 1e-8
 _ZERO = 1e-13
 _ONES = np.ones(3)
+#: ring tables by triangulation digest (a few topologies at most)
+_RING_TABLES: dict[bytes, np.ndarray] = {}
 
 
 def closest_points(vertices: np.ndarray, triangles: np.ndarray, queries: np.ndarray) -> np.ndarray:
@@ -75,7 +79,13 @@ class SurfaceQuery:
         self.trees_built = 0
 
     def _rings(self) -> np.ndarray:
-        """(F, K) table: each face and the faces sharing a vertex with it, padded with -1."""
+        """(F, K) table: each face and the faces sharing a vertex with it, padded with -1.
+
+        Shared by the queries of one triangulation (the predictions of a topology) in a process.
+        """
+        if self._ring_table is None:
+            key = hashlib.blake2b(self.triangles.tobytes(), digest_size=16).digest()
+            self._ring_table = _RING_TABLES.get(key)
         if self._ring_table is None:
             f = self.triangles
             corner_vertex = f.reshape(-1)
@@ -93,7 +103,9 @@ class SurfaceQuery:
             table = np.full((len(f), int(sizes.max())), -1, dtype=np.int64)
             slot = np.arange(len(pairs)) - np.repeat(np.cumsum(sizes) - sizes, sizes)
             table[face, slot] = other
-            self._ring_table = table
+            if len(_RING_TABLES) >= 4:
+                _RING_TABLES.pop(next(iter(_RING_TABLES)))
+            _RING_TABLES[key] = self._ring_table = table
         return self._ring_table
 
     def _queries_in_tree_frame(self, vertices: np.ndarray, queries: np.ndarray) -> np.ndarray:

@@ -15,6 +15,8 @@ A keypoint file is a JSON list of ``[triangle, w0, w1]`` rows: the keypoint is
 from __future__ import annotations
 
 import json
+import re
+import warnings
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -31,6 +33,10 @@ __all__ = [
     "read_metrical_scales",
     "obj_text",
 ]
+
+
+_SLASH_TAIL = re.compile(r"/\S*")  # the vt/vn part of an f token
+_NOT_INDEX = re.compile(r"[^0-9\s]")  # anything but unsigned integers and blanks
 
 
 @dataclass(frozen=True)
@@ -54,30 +60,16 @@ def _lines(path: Path, what: str) -> list[str]:
 def read_obj(path: str | Path, what: str = "mesh", need_faces: bool = True) -> Mesh:
     """Read an OBJ's ``v`` and ``f`` lines the way the official REALY reader does (see module doc)."""
     path = Path(path)
-    verts: list[str] = []
-    faces: list[list[int]] = []
-    for number, raw in enumerate(_lines(path, what), 1):
-        if raw.startswith("v "):
-            verts.append(raw)
-        elif raw.startswith("f "):
-            tokens = raw.split()[1:]
-            try:
-                idx = [int(t.split("/", 1)[0]) for t in tokens]
-            except ValueError:
-                raise InputError(path, f"{what} face on line {number}", "integer vertex indices",
-                                 repr(raw.strip()[:60])) from None
-            if len(idx) == 3:
-                faces.append(idx)
-            elif len(idx) == 4:
-                faces.append([idx[0], idx[1], idx[2]])
-                faces.append([idx[0], idx[2], idx[3]])
-            else:
-                raise InputError(path, f"{what} face on line {number}", "a triangle or a quad",
-                                 f"a face with {len(idx)} corners")
+    lines = _lines(path, what)
+    verts = [raw for raw in lines if raw.startswith("v ")]
+    face_lines = [raw for raw in lines if raw.startswith("f ")]
     vertices = _parse_vertices(path, what, verts)
-    if need_faces and not faces:
+    faces = _parse_faces_fast(face_lines)
+    if faces is None:  # something unusual: line by line, for the message naming the line
+        faces = _parse_faces(path, what, lines)
+    if need_faces and not len(faces):
         raise InputError(path, what, "a mesh with faces ('f' lines)", "no faces")
-    triangles = np.array(faces, dtype=np.int64).reshape(-1, 3) - 1
+    triangles = np.asarray(faces, dtype=np.int64).reshape(-1, 3) - 1
     if triangles.size and (triangles.min() < 0 or triangles.max() >= len(vertices)):
         bad = int(triangles.min() + 1 if triangles.min() < 0 else triangles.max() + 1)
         raise InputError(path, f"{what} faces", f"1-based vertex indices in 1..{len(vertices)}",
@@ -85,14 +77,76 @@ def read_obj(path: str | Path, what: str = "mesh", need_faces: bool = True) -> M
     return Mesh(vertices, triangles)
 
 
+def _numbers(text: str, dtype: type) -> np.ndarray | None:
+    """Whitespace-separated numbers of ``text`` (None when one does not parse)."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # a partial parse warns; the caller checks the count
+        try:
+            return np.fromstring(text, dtype=dtype, sep=" ")
+        except ValueError:
+            return None
+
+
+def _parse_faces_fast(face_lines: list[str]) -> np.ndarray | None:
+    """(T, 3) 1-based triangles of well-formed ``f`` lines (3 or 4 plain or ``v/vt/vn`` tokens), else None."""
+    if not face_lines:
+        return np.zeros((0, 3), dtype=np.int64)
+    counts = np.array([len(raw.split()) - 1 for raw in face_lines])
+    if not np.all((counts == 3) | (counts == 4)):
+        return None
+    text = _SLASH_TAIL.sub("", " ".join(raw[2:] for raw in face_lines))
+    if _NOT_INDEX.search(text):
+        return None
+    flat = _numbers(text, np.int64)
+    if flat is None or len(flat) != counts.sum():
+        return None
+    start = np.cumsum(counts) - counts
+    first = flat[start[:, None] + np.array([0, 1, 2])]
+    quad = counts == 4
+    second = flat[start[quad, None] + np.array([0, 2, 3])]
+    out = np.empty((len(counts) + int(quad.sum()), 3), dtype=np.int64)
+    row = np.arange(len(counts)) + np.concatenate([[0], np.cumsum(quad)[:-1]])  # each line's first row
+    out[row] = first
+    out[row[quad] + 1] = second
+    return out
+
+
+def _parse_faces(path: Path, what: str, lines: list[str]) -> list[list[int]]:
+    faces: list[list[int]] = []
+    for number, raw in enumerate(lines, 1):
+        if not raw.startswith("f "):
+            continue
+        tokens = raw.split()[1:]
+        try:
+            idx = [int(t.split("/", 1)[0]) for t in tokens]
+        except ValueError:
+            raise InputError(path, f"{what} face on line {number}", "integer vertex indices",
+                             repr(raw.strip()[:60])) from None
+        if len(idx) == 3:
+            faces.append(idx)
+        elif len(idx) == 4:
+            faces.append([idx[0], idx[1], idx[2]])
+            faces.append([idx[0], idx[2], idx[3]])
+        else:
+            raise InputError(path, f"{what} face on line {number}", "a triangle or a quad",
+                             f"a face with {len(idx)} corners")
+    return faces
+
+
 def _parse_vertices(path: Path, what: str, lines: list[str]) -> np.ndarray:
     if not lines:
         raise InputError(path, what, "vertices ('v' lines)", "none")
-    try:
-        coords = [[float(t) for t in line.split()[1:4]] for line in lines]
-        arr = np.array(coords, dtype=np.float64)
-    except ValueError:
-        raise InputError(path, f"{what} vertices", "'v x y z' lines with numbers", "a malformed line") from None
+    arr = None
+    per_line = {len(line.split()) for line in lines}
+    if len(per_line) == 1 and (k := per_line.pop() - 1) >= 3:  # every line 'v' + k numbers
+        flat = _numbers(" ".join(line[2:] for line in lines), np.float64)
+        if flat is not None and len(flat) == k * len(lines):
+            arr = flat.reshape(-1, k)[:, :3]
+    if arr is None:
+        try:
+            arr = np.array([[float(t) for t in line.split()[1:4]] for line in lines], dtype=np.float64)
+        except ValueError:
+            raise InputError(path, f"{what} vertices", "'v x y z' lines with numbers", "a malformed line") from None
     if arr.ndim != 2 or arr.shape[1] != 3:
         raise InputError(path, f"{what} vertices", "'v x y z' lines with three coordinates", "fewer")
     vertices = arr.astype(np.float32)

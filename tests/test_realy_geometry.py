@@ -106,6 +106,34 @@ def test_obj_reader_splits_quads_like_the_official_reader(tmp_path):
         read_obj(path)
 
 
+def test_obj_reader_fast_and_line_by_line_paths_agree(tmp_path):
+    # well-formed files take a vectorised path; one odd line sends the file line by line
+    rng = np.random.default_rng(4)
+    v = rng.normal(size=(40, 3))
+    faces = [rng.choice(40, size=rng.choice([3, 4]), replace=False) + 1 for _ in range(60)]
+    v_lines = [f"v {x!r} {y!r} {z!r} 0.5 0.5 0.5" for x, y, z in v.tolist()]  # with vertex colours
+    f_lines = ["f " + " ".join(f"{i}/{i}/{i}" if k % 2 else str(i) for i in f) for k, f in enumerate(faces)]
+    expected = []
+    for f in faces:
+        expected += [[f[0], f[1], f[2]]] + ([[f[0], f[2], f[3]]] if len(f) == 4 else [])
+    for extra in ([], ["f 1 2 -40"]):  # a negative (relative) index: an error, named, on either path
+        path = tmp_path / "m.obj"
+        path.write_text("\n".join(v_lines + ["vt 0 0"] + f_lines + extra) + "\n")
+        if extra:
+            with pytest.raises(InputError, match="index -40"):
+                read_obj(path)
+            continue
+        mesh = read_obj(path)
+        assert np.array_equal(mesh.vertices, v.astype(np.float32))
+        assert mesh.triangles.tolist() == (np.array(expected) - 1).tolist()
+    path.write_text("v 0 0 0\nv 1 0 zero\nv 0 1 0\nf 1 2 3\n")
+    with pytest.raises(InputError, match="numbers"):
+        read_obj(path)
+    path.write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 x\n")
+    with pytest.raises(InputError, match="line 4"):
+        read_obj(path)
+
+
 def test_keypoint_file_checks(tmp_path):
     path = tmp_path / "k.txt"
     path.write_text("[[0, 1, 0]]")
