@@ -59,14 +59,14 @@ def _solve(matrix: sp.csc_matrix, rhs: np.ndarray) -> np.ndarray:
 
     SciPy's SuperLU with the given order kept (``NATURAL``), no pivoting and symmetric mode: a
     Cholesky-like LU. With METIS' nested dissection of the vertex graph it factors these systems
-    1.9x faster than with SuperLU's own minimum-degree order, as fast as CHOLMOD's simplicial
-    factorisation (benchmarks/RESULTS.md).
+    1.8x faster than with SuperLU's own minimum-degree order, about as fast as CHOLMOD's
+    simplicial factorisation (benchmarks/RESULTS.md).
     """
     from scipy.sparse.linalg import splu
 
     try:
-        x = splu(matrix, permc_spec="NATURAL", diag_pivot_thresh=0.0, relax=8, panel_size=12,
-                 options={"SymmetricMode": True}).solve(rhs)
+        # SuperLU's default relax / panel_size: larger ones (16 / 24) corrupted the heap here
+        x = splu(matrix, permc_spec="NATURAL", diag_pivot_thresh=0.0, options={"SymmetricMode": True}).solve(rhs)
     except RuntimeError as exc:  # "Factor is exactly singular"
         raise FacegeoError(f"{_SINGULAR} ({exc})") from None
     rhs_norm = max(float(np.linalg.norm(rhs)), 1e-300)
@@ -86,7 +86,7 @@ def _nested_dissection(n: int, edges: np.ndarray) -> np.ndarray:
     both = both[np.lexsort((both[:, 1], both[:, 0]))]
     xadj = np.searchsorted(both[:, 0], np.arange(n + 1)).astype(np.int32)
     adjncy = np.ascontiguousarray(both[:, 1], dtype=np.int32)
-    # CSRAdjacency, not the deprecated xadj=/adjncy= keywords (those crash at exit in 2025.2.2)
+    # CSRAdjacency: the xadj=/adjncy= keywords are deprecated (to be removed in 2027)
     perm, _ = pymetis.nested_dissection(adjacency=pymetis.CSRAdjacency(xadj, adjncy))
     return np.asarray(perm, dtype=np.int64)
 
