@@ -17,7 +17,17 @@ from pathlib import Path
 from facegeo import __version__
 from facegeo.errors import FacegeoError
 
-__all__ = ["main", "build_parser"]
+__all__ = ["main", "build_parser", "add_fit_arguments"]
+
+
+def add_fit_arguments(parser: argparse.ArgumentParser) -> None:
+    """The photo, output folder and fitting options shared by ``fit`` and ``unwrap``."""
+    parser.add_argument("photo", type=Path, help="the photo (PNG, JPEG, ...); EXIF orientation is honoured")
+    parser.add_argument("-o", "--output", type=Path, required=True, help="output folder (created)")
+    parser.add_argument("--model", type=Path, default=None, help="model file (.npz, HIFI3D++ .mat, AI-NExT .mat); default: $FACEGEO_MODEL or the bundled ICT-FaceKit model")
+    parser.add_argument("--landmarks", choices=["hybrid", "dlib", "mediapipe"], default="hybrid", help="landmark detector (default: hybrid = dlib 68 + MediaPipe 20 lip points; mediapipe is licence-clean for commercial use)")
+    parser.add_argument("--focal", type=float, default=None, help="focal length in pixels of the (possibly downscaled) photo; default: 40° field of view on the long side")
+    parser.add_argument("--max-side", type=int, default=2048, help="downscale photos whose longer side exceeds this (pixels)")
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -33,12 +43,7 @@ def build_parser() -> argparse.ArgumentParser:
         "and write fit.json (parameters, camera, per-point landmark errors, timings), mesh.obj "
         "(posed mesh in camera space, mm, with UVs) and overlay.png.",
     )
-    fit.add_argument("photo", type=Path, help="the photo (PNG, JPEG, ...); EXIF orientation is honoured")
-    fit.add_argument("-o", "--output", type=Path, required=True, help="output folder (created)")
-    fit.add_argument("--model", type=Path, default=None, help="model file (.npz, HIFI3D++ .mat, AI-NExT .mat); default: $FACEGEO_MODEL or the bundled ICT-FaceKit model")
-    fit.add_argument("--landmarks", choices=["hybrid", "dlib", "mediapipe"], default="hybrid", help="landmark detector (default: hybrid = dlib 68 + MediaPipe 20 lip points; mediapipe is licence-clean for commercial use)")
-    fit.add_argument("--focal", type=float, default=None, help="focal length in pixels of the (possibly downscaled) photo; default: 40° field of view on the long side")
-    fit.add_argument("--max-side", type=int, default=2048, help="downscale photos whose longer side exceeds this (pixels)")
+    add_fit_arguments(fit)
     fit.add_argument("--no-photometric", action="store_true", help="skip the albedo and lighting stage")
     fit.set_defaults(run=_run_fit)
 

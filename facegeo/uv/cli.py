@@ -41,6 +41,8 @@ OUTPUT_FILES = ("texture_incomplete.png", "visibility.png", "position.exr", "nor
 
 def register(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParser:
     """Add the ``unwrap`` subcommand to the ``facegeo`` sub-parsers; returns its parser."""
+    from facegeo.cli import add_fit_arguments
+
     p = subparsers.add_parser(
         "unwrap",
         help="fit, then unwrap the photo into UV space (texture_incomplete.png, visibility.png, geometry EXRs)",
@@ -48,14 +50,9 @@ def register(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParser:
         "(texture_incomplete.png, sRGB), its visibility M_vis (visibility.png), and the position, normal and "
         "MikkTSpace tangent maps of the fitted mesh as float32 EXR (camera space, mm), plus unwrap.json.",
     )
-    p.add_argument("photo", type=Path, help="the photo (PNG, JPEG, ...); EXIF orientation is honoured")
-    p.add_argument("-o", "--output", type=Path, required=True, help="output folder (created)")
+    add_fit_arguments(p)
     p.add_argument("--size", type=int, default=1024, help="UV map size in texels (default 1024)")
     p.add_argument("--padding", type=int, default=None, help="seam padding in texels (default size/128, at least 2)")
-    p.add_argument("--model", type=Path, default=None, help="model file (.npz, HIFI3D++ .mat, AI-NExT .mat); default: $FACEGEO_MODEL or the bundled ICT-FaceKit model")
-    p.add_argument("--landmarks", choices=["hybrid", "dlib", "mediapipe"], default="hybrid", help="landmark detector (default: hybrid)")
-    p.add_argument("--focal", type=float, default=None, help="focal length in pixels of the (possibly downscaled) photo; default: 40° field of view on the long side")
-    p.add_argument("--max-side", type=int, default=2048, help="downscale photos whose longer side exceeds this (pixels)")
     p.add_argument("--occlusion", type=Path, default=None, help="optional image-space mask, same size as the photo: white where hair, glasses or hands cover the face")
     p.set_defaults(run=run_unwrap)
     return p
