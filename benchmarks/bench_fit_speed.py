@@ -8,8 +8,9 @@ validation faces (:mod:`fit_validation`). Per round, every case is fitted once b
 points, 1 torch thread, the default), by facegeo with 2 torch threads, and by eos (its 68 iBUG
 points, Surrey Face Model with expression blendshapes, its default 5 iterations; run by
 ``eos_timing.py`` in eos's own interpreter, model files loaded before timing); rounds alternate so
-that machine load hits all alike. Reported per case: min and median ms over the rounds and the
-ratio facegeo / eos of the medians. Without ``EOS_PYTHON`` the eos columns are left out.
+that machine load hits all alike. Times are CPU time of the fitting process (``process_time``):
+on a shared, loaded machine wall time measures the neighbours. Reported per case: min and
+median ms over the rounds and the ratio facegeo / eos of the medians. Without ``EOS_PYTHON`` the eos columns are left out.
 """
 
 from __future__ import annotations
@@ -49,9 +50,9 @@ def time_ours(model, items, threads: int) -> list[float]:
     fitting.LANDMARK_FIT_THREADS = threads
     seconds = []
     for _, points, camera in items:
-        t0 = time.perf_counter()
+        t0 = time.process_time()
         fitting.fit_landmarks(model, points, camera)
-        seconds.append(time.perf_counter() - t0)
+        seconds.append(time.process_time() - t0)
     fitting.LANDMARK_FIT_THREADS = 1
     return seconds
 
@@ -83,7 +84,7 @@ def main() -> None:
         eos = time_eos(items)
         if eos is not None:
             runs["eos"].append(eos)
-    print(f"load average {os.getloadavg()[0]:.1f}; {args.rounds} rounds; ms per fit (min / median)\n")
+    print(f"load average {os.getloadavg()[0]:.1f}; {args.rounds} rounds; CPU ms per fit (min / median)\n")
     print("| landmarks | facegeo, 1 thread | facegeo, 2 threads | eos | facegeo / eos (medians) |\n|---|---|---|---|---|")
     ratios = []
     for i, (name, _, _) in enumerate(items):

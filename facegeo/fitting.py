@@ -254,6 +254,7 @@ class _LandmarkProblem:
         mask[[j for j in range(17) if j != CHIN]] = torch.from_numpy(jaw_articulation.astype(np.float64))
         self.exp_mask = mask  # (88, n_exp): which expressions move which landmark
         self.contour_rows = {side: torch.tensor([self.position[int(v)] for v in c]) for side, c in self.contours.items()}
+        self.contour_vertex_rows = torch.unique(torch.cat(list(self.contour_rows.values())))
         self._update_bases(torch.zeros(model.n_exp, dtype=torch.float64))
 
     def points(self, alpha: torch.Tensor) -> torch.Tensor:
@@ -285,9 +286,12 @@ class _LandmarkProblem:
     def slide_jaw(self, rotation: torch.Tensor, translation: torch.Tensor, alpha: torch.Tensor, delta: torch.Tensor) -> None:
         """Move each jaw point (but the chin) to the nearest point of its projected contour, and
         freeze the contour's expression part at ``delta``."""
-        with torch.no_grad():
-            shape = self.points(alpha) + (delta @ self.exp_basis.reshape(len(delta), -1)).reshape(-1, 3)
-            uv = project(shape, rotation, translation, self.camera)
+        with torch.no_grad():  # the contour vertices only
+            rows_all = self.contour_vertex_rows
+            shape = self.mean[rows_all] + (alpha @ self.id_basis[:, rows_all].reshape(len(alpha), -1)
+                                           + delta @ self.exp_basis[:, rows_all].reshape(len(delta), -1)).reshape(-1, 3)
+            uv = torch.zeros(len(self.mean), 2, dtype=torch.float64)
+            uv[rows_all] = project(shape, rotation, translation, self.camera)
         for side, jaw_points in (("right", list(range(0, CHIN))), ("left", list(range(CHIN + 1, 17)))):
             rows = self.contour_rows[side]
             a, b = uv[rows[:-1]], uv[rows[1:]]  # (S, 2) segment ends
@@ -336,12 +340,13 @@ class _LandmarkProblem:
         px, py, pz = p_model.unbind(-1)
         z0 = torch.zeros_like(px)
         skew = torch.stack([z0, -pz, py, pz, z0, -px, -py, px, z0], dim=-1).reshape(-1, 3, 3)
-        d_rot = -rotation @ skew  # (88, 3, 3): d X_c / d ω
-        d_trans = (t_unit * torch.eye(3, dtype=cam.dtype)).expand(len(cam), 3, 3)
-        d_id = torch.einsum("ij,kvj->vik", rotation, self.id_lm[:n_id])  # (88, 3, n_id)
-        d_exp = torch.einsum("ij,kvj->vik", rotation, self.exp_lm[:n_exp])
-        d_cam = torch.cat([d_rot, d_trans, d_id, d_exp], dim=-1)  # (88, 3, n)
-        return (torch.einsum("vab,vbn->van", dproj, d_cam) * self.sqrt_w[:, None, None]).reshape(2 * len(cam), -1)
+        to_model = dproj @ rotation  # (88, 2, 3): d(u, v) / d(model-space point)
+        d_rot = -to_model @ skew  # X_c = R·exp([ω]×)·X: d X_c / d ω = −R·[X]×
+        d_trans = t_unit * dproj
+        d_id = torch.einsum("vaj,kvj->vak", to_model, self.id_lm[:n_id])  # (88, 2, n_id)
+        d_exp = torch.einsum("vaj,kvj->vak", to_model, self.exp_lm[:n_exp])
+        jac = torch.cat([d_rot, d_trans, d_id, d_exp], dim=-1) * self.sqrt_w[:, None, None]
+        return jac.reshape(2 * len(cam), -1)
 
     def correspondence(self) -> np.ndarray:
         """(88,) int64: the model vertex nearest to each (slid) landmark."""
