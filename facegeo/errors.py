@@ -8,8 +8,11 @@ prints that message alone (no traceback) and exits with status 2.
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Any
 
-__all__ = ["FacegeoError", "InputError", "ModelFileError", "NoFaceError"]
+import numpy as np
+
+__all__ = ["FacegeoError", "InputError", "ModelFileError", "NoFaceError", "OutputError", "check_finite"]
 
 
 class FacegeoError(Exception):
@@ -40,3 +43,29 @@ class ModelFileError(InputError):
 
 class NoFaceError(InputError):
     """No face (or no usable face) was found in an image."""
+
+
+class OutputError(FacegeoError):
+    """Writing an output failed for a reason outside facegeo: ``OutputError(path, problem)``
+    (a full disk, the file size limit, a read-only or failing file system). Nothing partial is
+    left behind."""
+
+    def __init__(self, path: str | Path, problem: str):
+        self.path = str(path)
+        self.problem = problem
+        super().__init__(f"{self.path}: output file: expected room to write it, found {problem}")
+
+
+def check_finite(value: Any, name: str, source: str = "<array>") -> None:
+    """Raise :class:`InputError` naming ``name`` if the array or tensor ``value`` holds NaN or
+    ±inf (the one finiteness check at facegeo's public API boundaries)."""
+    if hasattr(value, "detach"):  # a torch tensor (errors.py does not import torch)
+        finite = value.detach().isfinite()
+        bad, count = int((~finite).sum()), finite.numel()
+    else:
+        array = np.asarray(value)
+        if not np.issubdtype(array.dtype, np.number):
+            return
+        bad, count = int((~np.isfinite(array)).sum()), array.size
+    if bad:
+        raise InputError(source, name, "finite values", f"{bad} of {count} values NaN or infinite")
