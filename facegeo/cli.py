@@ -18,7 +18,7 @@ import signal
 import sys
 import time
 from pathlib import Path
-from typing import Iterable
+from typing import Iterable, NoReturn
 
 from facegeo import __version__
 from facegeo.errors import FacegeoError, InputError
@@ -80,6 +80,13 @@ def check_arguments(args: argparse.Namespace) -> None:
         check_output_location(args.output, folder=True, replace=True)
 
 
+class _Parser(argparse.ArgumentParser):
+    """argparse's parser with its usage errors on one line (it prints the usage above them)."""
+
+    def error(self, message: str) -> NoReturn:
+        self.exit(2, f"facegeo: error: {COMMAND_LINE}: {message} (see '{self.prog} --help')\n")
+
+
 def add_fit_arguments(parser: argparse.ArgumentParser) -> None:
     """The photo, output folder and fitting options shared by ``fit`` and ``unwrap``."""
     parser.add_argument("photo", type=Path, help="the photo (PNG, JPEG, ...); EXIF orientation is honoured")
@@ -92,7 +99,7 @@ def add_fit_arguments(parser: argparse.ArgumentParser) -> None:
 
 def build_parser() -> argparse.ArgumentParser:
     """The argument parser with all subcommands."""
-    parser = argparse.ArgumentParser(prog="facegeo", description="One photo of a face in, a measured 3D face out.")
+    parser = _Parser(prog="facegeo", description="One photo of a face in, a measured 3D face out.")
     parser.add_argument("--version", action="version", version=f"facegeo {__version__}")
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
 

@@ -48,7 +48,7 @@ from typing import Iterable
 from facegeo.errors import InputError, OutputError
 
 __all__ = ["StagedOutput", "atomic_write_bytes", "atomic_write_text", "check_output_location",
-           "remove_stale_temporaries", "TEMP_PREFIX", "OUTPUT_MARKERS"]
+           "remove_stale_temporaries", "TEMP_PREFIX", "OUTPUT_MARKERS", "WRITE_FAULTS"]
 
 #: Name prefix of the hidden staging folders (and of atomic-write temporary files).
 TEMP_PREFIX = ".facegeo-tmp-"
@@ -125,14 +125,14 @@ class StagedOutput:
                 self._commit()
         except BaseException as failure:
             self._rollback()
-            fault = _as_output_error(failure, self.out_dir)
+            fault = _as_output_error(failure, self.out_dir, self._tmp)
             if fault is not None:
                 raise fault from None
             raise
         else:
             if exc_type is not None:
                 self._rollback()
-                fault = _as_output_error(exc, self.out_dir)
+                fault = _as_output_error(exc, self.out_dir, self._tmp)
                 if fault is not None:
                     raise fault from None
         finally:
@@ -349,13 +349,21 @@ def atomic_write_text(path: str | os.PathLike[str], text: str, encoding: str = "
 # -- helpers ---------------------------------------------------------------------------------
 
 
-def _as_output_error(exc: BaseException | None, out: Path) -> OutputError | None:
-    """The :class:`OutputError` for a write fault (ENOSPC, EFBIG, ...), else None."""
+def _as_output_error(exc: BaseException | None, out: Path, staging: Path | None = None) -> OutputError | None:
+    """The :class:`OutputError` for a write fault (ENOSPC, EFBIG, ... or an OutputError raised
+    deeper), naming the final output path rather than the staging one; None for anything else."""
     if isinstance(exc, OutputError):
+        path, problem = Path(exc.path), exc.problem
+    elif isinstance(exc, OSError) and exc.errno in WRITE_FAULTS:
+        path, problem = Path(exc.filename or out), WRITE_FAULTS[exc.errno]
+    else:
         return None
-    if isinstance(exc, OSError) and exc.errno in WRITE_FAULTS:
-        return OutputError(exc.filename or out, WRITE_FAULTS[exc.errno])
-    return None
+    if staging is not None:
+        try:
+            path = out / path.relative_to(staging)
+        except ValueError:
+            pass
+    return OutputError(path, problem)
 
 
 def _process_alive(pid: int) -> bool:
