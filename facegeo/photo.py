@@ -85,6 +85,8 @@ class Photo:
         if not (isinstance(img, np.ndarray) and img.ndim == 3 and img.shape[2] == 3
                 and img.dtype == np.uint8 and img.flags.c_contiguous):
             raise ValueError("Photo.image must be a C-contiguous (H, W, 3) uint8 array")
+        if self.opacity is not None and np.shape(self.opacity) != img.shape[:2]:
+            raise ValueError(f"Photo.opacity must be None or an (H, W) = {img.shape[:2]} array, got {np.shape(self.opacity)}")
         object.__setattr__(self, "notes", tuple(self.notes))
         object.__setattr__(self, "original_size", tuple(int(v) for v in self.original_size))
 
