@@ -7,8 +7,9 @@ prints that message alone (no traceback) and exits with status 2.
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
-from typing import Any
+from typing import Any, Mapping
 
 import numpy as np
 
@@ -56,16 +57,27 @@ class OutputError(FacegeoError):
         super().__init__(f"{self.path}: output file: expected room to write it, found {problem}")
 
 
-def check_finite(value: Any, name: str, source: str = "<array>") -> None:
-    """Raise :class:`InputError` naming ``name`` if the array or tensor ``value`` holds NaN or
-    ±inf (the one finiteness check at facegeo's public API boundaries)."""
-    if hasattr(value, "detach"):  # a torch tensor (errors.py does not import torch)
-        finite = value.detach().isfinite()
-        bad, count = int((~finite).sum()), finite.numel()
-    else:
-        array = np.asarray(value)
-        if not np.issubdtype(array.dtype, np.number):
-            return
-        bad, count = int((~np.isfinite(array)).sum()), array.size
-    if bad:
-        raise InputError(source, name, "finite values", f"{bad} of {count} values NaN or infinite")
+def check_finite(values: Mapping[str, Any], source: str = "<array>") -> None:
+    """Raise :class:`InputError` naming the first entry of ``values`` (name -> NumPy array, torch
+    tensor or number) that holds NaN or ±inf: the one finiteness check at facegeo's public API
+    boundaries. Fast path: one sum per value (NaN and ±inf survive a sum); only when the total
+    is not finite are the values inspected one by one (a finite overflow passes)."""
+    total = 0.0
+    for value in values.values():
+        total += float(value.detach().sum()) if hasattr(value, "detach") else float(np.sum(_numeric(value), dtype=np.float64))
+    if math.isfinite(total):
+        return
+    for name, value in values.items():
+        if hasattr(value, "detach"):  # a torch tensor (errors.py does not import torch)
+            finite = value.detach().isfinite()
+            bad, count = int((~finite).sum()), finite.numel()
+        else:
+            array = _numeric(value)
+            bad, count = int((~np.isfinite(array)).sum()), array.size
+        if bad:
+            raise InputError(source, name, "finite values", f"{bad} of {count} values NaN or infinite")
+
+
+def _numeric(value: Any) -> np.ndarray:
+    array = np.asarray(value)
+    return array if np.issubdtype(array.dtype, np.number) else np.zeros(0)

@@ -103,8 +103,8 @@ def check_fit(result: Fit, image: Any) -> None:
         NoFaceError: landmarks the model cannot follow (a wrong detection), or a transparent face.
     """
     source = str(result.info.get("source", "<array>"))
-    for name in ("vertices", "rotation", "translation", "alpha", "delta", "beta", "gamma", "landmarks_fitted"):
-        check_finite(getattr(result, name), f"fit {name}", source)
+    names = ("vertices", "rotation", "translation", "alpha", "delta", "beta", "gamma", "landmarks_fitted")
+    check_finite({f"fit {name}": getattr(result, name) for name in names}, source)
     depth = result.vertices[result.landmark_vertices, 2]
     if not np.all(depth < 0):
         raise InputError(source, "pose", "a face in front of the camera (z < 0 mm)",

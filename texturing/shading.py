@@ -434,10 +434,8 @@ def shade_ggx(
     }
     batch, n_lights, height, width = _check_inputs(maps, light_dirs, light_radiance, camera_pos)
     if not torch.compiler.is_compiling():  # one NaN texel would make every gradient NaN: refuse it
-        inputs = {**{name: t for name, (t, _) in maps.items()}, "light_dirs": light_dirs,
-                  "light_radiance": light_radiance, "camera_pos": camera_pos, "ambient": ambient, "s_disp": s_disp}
-        for name, value in inputs.items():
-            check_finite(value, name, "shade_ggx")
+        check_finite({**{name: t for name, (t, _) in maps.items()}, "light_dirs": light_dirs, "light_radiance": light_radiance,
+                      "camera_pos": camera_pos, "ambient": ambient, "s_disp": s_disp}, "shade_ggx")
     dtype = albedo.dtype
     if isinstance(ambient, Tensor):
         if ambient.dim() > 1 or (ambient.dim() == 1 and ambient.shape[0] not in (1, batch)):
