@@ -372,6 +372,17 @@ def astronaut():
     return load_photo(PHOTO)
 
 
+@pytest.mark.parametrize("k", [0, 1, 2, 3])
+def test_points_found_on_a_turned_copy_map_back_exactly(k):
+    from facegeo.landmarks.detectors import _turn_back
+
+    image = np.zeros((5, 7), np.uint8)
+    image[1, 5] = 255  # row 1, column 5: centre (5.5, 1.5) in corner-origin pixels
+    turned = np.rot90(image, k)
+    row, col = np.argwhere(turned == 255)[0]
+    np.testing.assert_array_equal(_turn_back(np.array([[col + 0.5, row + 0.5]]), k, turned.shape), [[5.5, 1.5]])
+
+
 @pytest.mark.parametrize("quarter_turns", [1, 2, 3])
 def test_turned_photo_is_fitted_upright(model, astronaut, quarter_turns):
     image = np.ascontiguousarray(np.rot90(astronaut.image, quarter_turns))
