@@ -62,7 +62,8 @@ def check_arguments(args: argparse.Namespace) -> None:
     ``--max-side`` (≥ MIN_SIDE px), ``--focal`` (finite, > 0 px), and, for the commands that write
     an output folder (``output_folder`` set by their parser), the ``-o`` location
     (:func:`facegeo.staged_output.check_output_location`: name lengths, parents, writability,
-    an existing folder must be empty or an earlier facegeo output).
+    an existing folder must be empty or an earlier facegeo output; and it must not hold an input
+    file such as the photo, since it is replaced as a whole).
 
     Raises:
         InputError: naming the option and what was expected.
@@ -78,6 +79,11 @@ def check_arguments(args: argparse.Namespace) -> None:
         raise InputError(COMMAND_LINE, "--focal", "a finite focal length > 0 in pixels", str(focal))
     if getattr(args, "output_folder", False):
         check_output_location(args.output, folder=True, replace=True)
+        out = Path(args.output).resolve()
+        for name, value in vars(args).items():  # an existing OUT is replaced: it must not hold an input
+            if name != "output" and isinstance(value, Path) and value.exists() and out in value.resolve().parents:
+                raise InputError(COMMAND_LINE, "-o", f"an output folder that does not hold the inputs (it is replaced as a whole)",
+                                 f"{args.output}, which holds {value}")
 
 
 class _Parser(argparse.ArgumentParser):

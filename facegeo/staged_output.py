@@ -251,6 +251,9 @@ def check_output_location(path: str | os.PathLike[str], *, folder: bool, replace
             raise InputError(source, field, "a directory", "an existing file")
         if not folder and target.is_dir():
             raise InputError(source, field, "a file path", "an existing directory")
+        if folder and replace and target.resolve() in (Path.cwd(), *Path.cwd().parents):
+            raise InputError(source, field, "a folder other than the current one and its parents (it is replaced as a whole)",
+                             f"{target.resolve()}")
         if folder and replace:
             entries = sorted(e.name for e in target.iterdir() if not e.name.startswith(TEMP_PREFIX))
             if entries and not any((target / m).is_file() for m in OUTPUT_MARKERS):

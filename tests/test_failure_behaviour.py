@@ -142,6 +142,22 @@ def test_export_options_fail_cleanly(tmp_path, capsys, asset_dir, output, fmt, n
     assert not (tmp_path / "out").exists() and leftovers(tmp_path) == []
 
 
+def test_an_earlier_output_holding_the_photo_or_the_cwd_is_not_replaced(tmp_path, capsys, monkeypatch, no_fit):
+    out = tmp_path / "out"
+    out.mkdir()
+    (out / "fit.json").write_text("{}")
+    photo = out / "me.png"
+    photo.write_bytes(Path(PHOTO).read_bytes())
+    code, _, err = run(["reconstruct", photo, "-o", out], capsys)
+    assert code == 2
+    assert_one_line(err, "-o", "does not hold the inputs")
+    monkeypatch.chdir(out)
+    code, _, err = run(["fit", tmp_path / "elsewhere.png", "-o", "."], capsys)
+    assert code == 2
+    assert_one_line(err, "other than the current one")
+    assert sorted(p.name for p in out.iterdir()) == ["fit.json", "me.png"]
+
+
 def test_rerun_into_an_earlier_output_leaves_exactly_one_run(tmp_path):
     out = tmp_path / "out"
     with StagedOutput(out, replace=True) as stage:
