@@ -23,7 +23,7 @@ from typing import Iterable, NoReturn
 from facegeo import __version__
 from facegeo.errors import FacegeoError, InputError
 
-__all__ = ["main", "build_parser", "add_fit_arguments", "check_arguments", "parse_list", "Interrupted"]
+__all__ = ["main", "build_parser", "add_fit_arguments", "check_arguments", "parse_list", "Interrupted", "COMMAND_LINE"]
 
 #: The command line as the ``source`` of an :class:`InputError` about an option.
 COMMAND_LINE = "<command line>"
@@ -82,7 +82,7 @@ def check_arguments(args: argparse.Namespace) -> None:
         out = Path(args.output).resolve()
         for name, value in vars(args).items():  # an existing OUT is replaced: it must not hold an input
             if name != "output" and isinstance(value, Path) and value.exists() and out in value.resolve().parents:
-                raise InputError(COMMAND_LINE, "-o", f"an output folder that does not hold the inputs (it is replaced as a whole)",
+                raise InputError(COMMAND_LINE, "-o", "an output folder that does not hold the inputs (it is replaced as a whole)",
                                  f"{args.output}, which holds {value}")
 
 
