@@ -43,6 +43,7 @@ usdz) and the material binds.
 from __future__ import annotations
 
 import os
+import re
 import tempfile
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -52,10 +53,10 @@ import numpy as np
 
 from facegeo.asset import Asset
 from facegeo.colour import srgb_to_linear
-from facegeo.errors import InputError
+from facegeo.errors import InputError, OutputError
 from facegeo.export.scene import SceneContents, scene_contents
 from facegeo.export.textures import DEFAULT_ROUGHNESS, SPECULAR_F0_SCALE, encode_map, png_bytes
-from facegeo.staged_output import StagedOutput, atomic_write_bytes
+from facegeo.staged_output import WRITE_FAULTS, StagedOutput, atomic_write_bytes
 
 __all__ = ["write_usd", "validate_usd", "check_usd", "UsdCheck", "USD_SUFFIXES"]
 
@@ -90,15 +91,22 @@ def write_usd(
     contents = scene_contents(asset, level=level, displacement=displacement, maps=maps, uv_interpolation=uv_interpolation)
     name = _prim_name(asset.name)
     if suffix == ".usdz":
-        with tempfile.TemporaryDirectory(prefix="facegeo-usdz-") as tmp:
-            root = Path(tmp) / f"{name}.usdc"
-            _write_layer(contents, root, name, "textures", linear_bits)
-            package = Path(tmp) / f"{name}.usdz"
-            from pxr import Sdf, UsdUtils
+        try:
+            with tempfile.TemporaryDirectory(prefix="facegeo-usdz-") as tmp:
+                root = Path(tmp) / f"{name}.usdc"
+                _write_layer(contents, root, name, "textures", linear_bits)
+                package = Path(tmp) / f"{name}.usdz"
+                from pxr import Sdf, UsdUtils
 
-            if not UsdUtils.CreateNewUsdzPackage(Sdf.AssetPath(str(root)), str(package)):  # pragma: no cover
-                raise RuntimeError(f"UsdUtils.CreateNewUsdzPackage failed for {root}")
-            data = package.read_bytes()
+                if not UsdUtils.CreateNewUsdzPackage(Sdf.AssetPath(str(root)), str(package)):  # pragma: no cover
+                    raise RuntimeError(f"UsdUtils.CreateNewUsdzPackage failed for {root}")
+                data = package.read_bytes()
+        except OutputError as exc:  # the package is built in a temporary folder: name the target
+            raise OutputError(target, exc.problem) from None
+        except OSError as exc:
+            if exc.errno not in WRITE_FAULTS:
+                raise
+            raise OutputError(target, WRITE_FAULTS[exc.errno]) from None
         target.parent.mkdir(parents=True, exist_ok=True)
         atomic_write_bytes(target, data)
         return target
@@ -119,7 +127,7 @@ def _prim_name(name: str) -> str:
 
 
 def _write_layer(contents: SceneContents, layer_path: Path, name: str, texture_dir: str, linear_bits: int) -> None:
-    from pxr import Gf, Kind, Sdf, Usd, UsdGeom, UsdShade, Vt
+    from pxr import Gf, Kind, Sdf, Tf, Usd, UsdGeom, UsdShade, Vt
 
     stage = Usd.Stage.CreateNew(str(layer_path))
     UsdGeom.SetStageUpAxis(stage, UsdGeom.Tokens.y)
@@ -228,7 +236,16 @@ def _write_layer(contents: SceneContents, layer_path: Path, name: str, texture_d
         out = layer_path.parent / rel
         out.parent.mkdir(parents=True, exist_ok=True)
         out.write_bytes(data)
-    stage.GetRootLayer().Save()
+    try:
+        stage.GetRootLayer().Save()
+    except Tf.ErrorException as exc:  # usd-core reports a failed write (full disk, size limit) this way
+        raise OutputError(layer_path, f"USD could not write it ({_usd_reason(exc)})") from None
+
+
+def _usd_reason(exc: Exception) -> str:
+    """The first quoted reason of a usd-core error (its message lists every C++ frame)."""
+    reasons = re.findall(r": '([^']+)'", str(exc))
+    return reasons[0] if reasons else str(exc).strip().splitlines()[0]
 
 
 # -- checks --------------------------------------------------------------------------------------

@@ -40,6 +40,7 @@ import torch
 from facegeo.camera import OPENCV_FROM_OPENGL, Camera, euler_from_rotation, project, rotation_from_axis_angle
 from facegeo.colour import srgb_to_linear
 from facegeo.errors import InputError
+from facegeo.fit_checks import check_fit, check_landmarks
 from facegeo.landmarks.detectors import FaceLandmarks, LandmarkDetector, get_detector
 from facegeo.landmarks.scheme import CHIN, LANDMARK_WEIGHTS, N_LANDMARKS, inter_ocular_distance
 from facegeo.lighting import AMBIENT_WHITE, N_SH, sh_basis
@@ -501,6 +502,7 @@ def fit_landmarks(
     weights = LANDMARK_WEIGHTS if weights is None else np.asarray(weights, dtype=np.float32)
     if weights.shape != (N_LANDMARKS,) or not np.all(np.isfinite(weights)) or np.any(weights < 0):
         raise InputError("<weights>", "weights", f"({N_LANDMARKS},) finite, non-negative", str(weights.shape))
+    check_landmarks(targets, camera)
 
     with _threads_for_small_problems():
         timings: dict[str, float] = {}
@@ -724,4 +726,5 @@ def fit(
         faces_found=detection.n_faces if detection else None,
         notes=notes,
     )
+    check_fit(result, image)
     return result
