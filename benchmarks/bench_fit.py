@@ -2,8 +2,9 @@
 
     python benchmarks/bench_fit.py [--instances 20] [--plot benchmarks/out/fit_error_vs_iterations.png]
 
-Synthetic: random instances of the bundled model (α, δ ~ N(0, 0.5²), yaw uniform in [−60°, 60°],
-pitch ±15°, roll ±10°) projected into a 512×512 camera; ``fit_landmarks`` with the fine stage
+Synthetic: noiseless faces of the bundled model with realistic expression mixes
+(:func:`fit_validation.make_faces`, ``kind="model"``: α ~ N(0, I), δ in [0, 1], yaw ±50°) projected
+into a 512×512 camera, without and with 1 px landmark noise; ``fit_landmarks`` with the fine stage
 cut to k Levenberg–Marquardt iterations. Reported: reprojection RMS (px), the 3D error of the
 face region after similarity alignment as a fraction of the mean shape's, and the time per fit
 as a ratio to the default schedule measured in the same run. Real photo: model load,
@@ -20,28 +21,25 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from facegeo import Camera, fit, fit_landmarks, load_model, load_photo, project
+from facegeo import fit, fit_landmarks, load_model, load_photo
 from facegeo.assets import asset_path
-from facegeo.camera import rotation_from_euler
 from facegeo.fitting import LANDMARK_SCHEDULE, LandmarkStage
 from facegeo.landmarks import get_detector
 from facegeo.landmarks.scheme import inter_ocular_distance
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
 from test_fitting import similarity_rms  # noqa: E402  (one definition of the 3D error)
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from fit_validation import CAMERA, make_faces  # noqa: E402
 
 
 def synthetic_table(model, instances: int, noise_px: float) -> list[tuple]:
-    camera = Camera.for_image(512, 512)
     rng = np.random.default_rng(2024)
     cases = []
-    for _ in range(instances):
-        alpha = rng.normal(0, 0.5, model.n_id).astype(np.float32)
-        delta = rng.normal(0, 0.5, model.n_exp).astype(np.float32)
-        rotation = rotation_from_euler(rng.uniform(-60, 60), rng.uniform(-15, 15), rng.uniform(-10, 10))
-        shape = model.shape(torch.from_numpy(alpha), torch.from_numpy(delta)).numpy()
-        lm = project(shape[model.landmark_indices].astype(np.float64), rotation, np.array([0, 0, -600.0]), camera)
-        cases.append((shape, lm + rng.normal(0, noise_px, lm.shape) if noise_px else lm))
+    for face in make_faces(model, instances, seed=2024, kind="model"):
+        lm = face.landmarks
+        cases.append((face.shape, lm + rng.normal(0, noise_px, lm.shape) if noise_px else lm))
+    camera = CAMERA
     face = model.face_mask
     rows = []
     default_fine = LANDMARK_SCHEDULE[-1].iterations
