@@ -435,7 +435,8 @@ def convert_parts(ict_root: Path, output: Path, n_error_samples: int = 1000) -> 
 
     Per part ``p`` the file holds (V_p own vertices, K_p shared skin vertices, F_p triangles):
     ``p__mean`` (V_p, 3) float32 mm; ``p__skin_index`` (K_p,) int64 skin vertices the part's
-    triangles also use (they come after the own vertices: local index V_p + k); ``p__triangles``
+    triangles also use (they come after the own vertices: local index V_p + k) and their neutral
+    positions ``p__skin_mean`` (K_p, 3) float32 (how a model is recognised as the parts' skin); ``p__triangles``
     (F_p, 3) int32, counter-clockwise seen from outside; ``p__uv`` (T_p, 2) float32 (ICT's UVs with
     the UDIM tile offset removed) and ``p__uv_triangles``; identity as ``p__id_basis`` (n_id, V_p,
     3) float16 mm/σ or, for "affine" parts, ``p__group`` (V_p,) int16 and ``p__id_affine`` (n_id,
@@ -488,6 +489,7 @@ def convert_parts(ict_root: Path, output: Path, n_error_samples: int = 1000) -> 
         prefix = f"{name}__"
         arrays[prefix + "mean"] = mean.astype(np.float32)
         arrays[prefix + "skin_index"] = shared.astype(np.int64)
+        arrays[prefix + "skin_mean"] = (positions[shared] * CM_TO_MM).astype(np.float32)
         arrays[prefix + "triangles"] = triangles.astype(np.int32)
         arrays[prefix + "uv"] = uv.astype(np.float32)
         arrays[prefix + "uv_triangles"] = remap[tri_uv_raw].astype(np.int32)
