@@ -42,6 +42,10 @@ MEMBERS = {
         "face_landmark.tflite",
         "1055cb9d4a9ca8b8c688902a3a5194311138ba256bcc94e336d8373a5f30c814",
     ),
+    "mediapipe/modules/iris_landmark/iris_landmark.tflite": (
+        "iris_landmark.tflite",
+        "d1744d2a09c25f501d39eba4faff47e53ecca8852c5ce19bce8eeac39357521f",
+    ),
     f"mediapipe-{VERSION}.dist-info/LICENSE": (
         "LICENSE",
         "8707eef0533987efc5b155d64761eeb6e20793f50b9bd1a68dad1cf4719d0ed8",
