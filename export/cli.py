@@ -37,6 +37,9 @@ def register(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParser:
                    help="maps to carry, among albedo, normal, roughness, specular, displacement (default: all the asset has)")
     p.add_argument("--displacement", choices=["bake", "texture"], default="bake",
                    help="bake the displacement into the geometry (default) or, USD only, write it as the material's displacement input")
+    from facegeo.cli import add_parts_argument
+
+    add_parts_argument(p)
     p.set_defaults(run=run_export)
     return p
 
@@ -47,7 +50,7 @@ def run_export(args: argparse.Namespace) -> None:
     from facegeo.export.writers import FORMATS, export_asset
 
     start = time.perf_counter()
-    asset = load_asset(args.asset_dir)
+    asset = load_asset(args.asset_dir).select(args.parts)
     maps = [m.strip() for m in args.maps.split(",") if m.strip()] if args.maps else None
     out = Path(args.output)
     if args.format:
@@ -70,4 +73,4 @@ def run_export(args: argparse.Namespace) -> None:
         written.append(export_asset(asset, path, format=fmt, level=args.subdiv, displacement=args.displacement, maps=maps))
     seconds = time.perf_counter() - start
     print(f"wrote {', '.join(str(w) for w in written)} from {args.asset_dir} "
-          f"(subdivision level {args.subdiv}, {seconds:.2f} s)")
+          f"(parts {args.parts}, subdivision level {args.subdiv}, {seconds:.2f} s)")

@@ -17,7 +17,7 @@ from pathlib import Path
 from facegeo import __version__
 from facegeo.errors import FacegeoError
 
-__all__ = ["main", "build_parser", "add_fit_arguments"]
+__all__ = ["main", "build_parser", "add_fit_arguments", "add_parts_argument"]
 
 
 def add_fit_arguments(parser: argparse.ArgumentParser) -> None:
@@ -28,6 +28,15 @@ def add_fit_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--landmarks", choices=["hybrid", "dlib", "mediapipe"], default="hybrid", help="landmark detector (default: hybrid = dlib 68 + MediaPipe 20 lip points; mediapipe is licence-clean for commercial use)")
     parser.add_argument("--focal", type=float, default=None, help="focal length in pixels of the (possibly downscaled) photo; default: 40° field of view on the long side")
     parser.add_argument("--max-side", type=int, default=2048, help="downscale photos whose longer side exceeds this (pixels)")
+
+
+def add_parts_argument(parser: argparse.ArgumentParser) -> None:
+    """``--parts face|head|full``: what the written scenes hold (``reconstruct`` and ``export``)."""
+    from facegeo.asset import PART_CHOICES
+
+    parser.add_argument("--parts", choices=PART_CHOICES, default="full",
+                        help="what the USD/glTF scenes hold: face = the face region of the skin, head = all the skin, "
+                        "full = the head with eyes and mouth interior (default; the model's parts, if it has any)")
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -53,7 +62,7 @@ def build_parser() -> argparse.ArgumentParser:
         description="Fit the model, unwrap the photo into UV space, complete and de-light the texture, "
         "estimate PBR maps (albedo, normal, roughness, specular, displacement) and write fit.json, "
         "the maps (asset.json + PNGs, re-exportable with 'facegeo export'), the assets and preview.png "
-        "(the asset relit from three directions next to the photo).",
+        "(the photo beside the asset from the front, three-quarter and profile, textured and as clay).",
     )
     rec.add_argument("photo", type=Path, help="the photo")
     rec.add_argument("-o", "--output", type=Path, required=True, help="output folder (created)")
@@ -67,6 +76,7 @@ def build_parser() -> argparse.ArgumentParser:
     rec.add_argument("--landmarks", choices=["hybrid", "dlib", "mediapipe"], default="hybrid", help="landmark detector")
     rec.add_argument("--max-side", type=int, default=2048, help="downscale photos whose longer side exceeds this (pixels)")
     rec.add_argument("--no-preview", action="store_true", help="do not render preview.png")
+    add_parts_argument(rec)
     rec.set_defaults(run=_run_reconstruct)
 
     from facegeo.eval.realy_cli import register as register_realy
@@ -160,14 +170,15 @@ def _run_reconstruct(args: argparse.Namespace) -> None:
         # An 11k-vertex mesh cannot carry texel-scale displacement: at --subdiv 0 the detail
         # travels in the normal map only (the displacement map stays in the asset folder).
         carried = [m for m in asset.maps if m != "displacement" or args.subdiv > 0]
+        scene = asset.select(args.parts)
         for fmt in formats:
-            export_asset(asset, stage.path(f"face.{fmt}"), format=fmt, level=args.subdiv, maps=carried)
+            export_asset(scene, stage.path(f"face.{fmt}"), format=fmt, level=args.subdiv, maps=carried)
         timings["export"] = time.perf_counter() - t
         if not args.no_preview:
             bar.set_postfix_str("preview")
             bar.update(1)
             t = time.perf_counter()
-            preview = relit_preview(photo.image, asset, result, model)
+            preview = relit_preview(photo.image, asset, result)
             stage.path("preview.png").write_bytes(png_bytes(preview))
             timings["preview"] = time.perf_counter() - t
         timings["total"] = time.perf_counter() - start
