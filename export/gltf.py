@@ -24,6 +24,9 @@ vertex (the same on both sides of a seam). The material:
   sRGB; its F0 is 0.04 × colour); a constant s is ``specularColorFactor = [2s, 2s, 2s]``.
   Without a specular input the extension is not written (glTF's default F0 is 0.04 = 0.08 × 0.5).
 
+Parts (``asset.parts``) follow the skin as their own meshes, nodes and materials (``<part>``,
+``<part>_material``, textures named ``<part>_<map>``), all nodes in the one scene.
+
 ``TEXCOORD_0`` is written only when a texture uses it, ``TANGENT`` only with a normal texture.
 Textures are clamped to the edge and mip-mapped. :func:`validate_glb` runs the Khronos
 glTF-Validator (npm ``gltf-validator``) when node and the package are available.

@@ -30,6 +30,11 @@ a default prim ``/<name>`` (an Xform of kind ``component``) holding
     ``scale``/``bias`` turn texels into millimetres (stage units), connected to the material's
     displacement output; the points are then the undisplaced (subdivided) surface.
 
+Parts (``asset.parts``: eyeballs, teeth, ...): each is its own ``Mesh`` at
+``/<name>/parts/<part>`` (under an ``Xform``), with its own material ``/<name>/mtl/<part>`` built
+the same way and bound to it; its textures are ``<part>_<map>.png``. Parts are written at level 0
+(they carry no displacement).
+
 Only inputs the scene uses are authored: no texture for a constant map (a value is), no
 ``primvars:st`` without textures. ``.usdz`` is made with ``UsdUtils.CreateNewUsdzPackage`` from a
 ``.usdc`` root layer and its PNGs; ``.usda``/``.usdc`` write their textures next to the layer in
