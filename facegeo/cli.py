@@ -185,6 +185,7 @@ def _run_reconstruct(args: argparse.Namespace) -> None:
         record = result.to_dict()
         record["timings_s"] = {**record["timings_s"], "stages": timings}
         record["texture_report"] = asset.metadata.get("texture_report", {})
+        record["parts"] = asset.metadata.get("parts", {})
         stage.path("fit.json").write_text(json.dumps(record, indent=1))
     bar.close()
     for note in result.info.get("notes", []):
