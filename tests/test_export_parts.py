@@ -28,9 +28,15 @@ def asset_with_parts() -> Asset:
     return asset
 
 
-def test_asset_folder_round_trip(tmp_path, asset_with_parts):
-    save_asset(asset_with_parts, tmp_path / "a")
-    back = load_asset(tmp_path / "a")
+@pytest.fixture(scope="module")
+def saved(tmp_path_factory, asset_with_parts):
+    folder = tmp_path_factory.mktemp("asset") / "a"
+    save_asset(asset_with_parts, folder)
+    return folder
+
+
+def test_asset_folder_round_trip(saved, asset_with_parts):
+    back = load_asset(saved)
     assert [p.name for p in back.parts] == PART_NAMES
     np.testing.assert_array_equal(back.face_triangles, asset_with_parts.face_triangles)
     for mine, theirs in zip(asset_with_parts.parts, back.parts):
@@ -95,10 +101,9 @@ def test_select(asset_with_parts):
 
 
 @pytest.mark.parametrize("choice, meshes", [("face", 1), ("head", 1), ("full", 6)])
-def test_export_command_parts(tmp_path, asset_with_parts, capsys, choice, meshes):
-    save_asset(asset_with_parts, tmp_path / "a")
+def test_export_command_parts(tmp_path, saved, asset_with_parts, capsys, choice, meshes):
     out = tmp_path / "x.glb"
-    assert main(["export", str(tmp_path / "a"), "-o", str(out), "--parts", choice]) == 0, capsys.readouterr().err
+    assert main(["export", str(saved), "-o", str(out), "--parts", choice, "--maps", "albedo"]) == 0, capsys.readouterr().err
     doc = pygltflib.GLTF2().load_binary(str(out))
     assert len(doc.meshes) == meshes
     n_triangles = doc.accessors[doc.meshes[0].primitives[0].indices].count // 3
@@ -106,8 +111,7 @@ def test_export_command_parts(tmp_path, asset_with_parts, capsys, choice, meshes
     assert n_triangles == expected
 
 
-def test_export_command_rejects_an_unknown_choice(tmp_path, asset_with_parts, capsys):
-    save_asset(asset_with_parts, tmp_path / "a")
+def test_export_command_rejects_an_unknown_choice(tmp_path, saved, capsys):
     with pytest.raises(SystemExit):
-        main(["export", str(tmp_path / "a"), "-o", str(tmp_path / "x.glb"), "--parts", "torso"])
+        main(["export", str(saved), "-o", str(tmp_path / "x.glb"), "--parts", "torso"])
     assert "--parts" in capsys.readouterr().err

@@ -104,20 +104,6 @@ def test_reconstruct_command(tmp_path, capsys):
     assert Image.open(out / "preview.png").size == (5 * 256, 2 * 256)
 
 
-def test_reconstruct_command_parts_choice(tmp_path, capsys):
-    out = tmp_path / "rec"
-    code = main(["reconstruct", str(PHOTO), "-o", str(out), "--size", "128", "--format", "glb", "--maps", "albedo",
-                 "--parts", "face", "--no-preview"])
-    assert code == 0, capsys.readouterr().err
-    import pygltflib
-
-    doc = pygltflib.GLTF2().load_binary(str(out / "face.glb"))
-    assert [m.name for m in doc.meshes] == ["face"]
-    n_triangles = doc.accessors[doc.meshes[0].primitives[0].indices].count // 3
-    model = load_model()
-    assert n_triangles == int(np.all(model.face_mask[model.triangles], axis=1).sum())
-
-
 def test_reconstruct_command_bad_maps_leaves_nothing(tmp_path, capsys):
     out = tmp_path / "rec"
     code = main(["reconstruct", str(PHOTO), "-o", str(out), "--maps", "albedo,sheen"])
