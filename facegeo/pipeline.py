@@ -27,7 +27,7 @@ from facegeo.photo import Photo, as_rgb_uint8, load_photo
 from facegeo.texturing.backend import TextureBackend
 from facegeo.texturing.context import build_context
 from facegeo.texturing.default_backend import DefaultBackend
-from facegeo.uv import geometry_maps, rasterize_uv, render, unwrap
+from facegeo.uv import geometry_maps, rasterize_uv, unwrap
 
 __all__ = ["reconstruct", "reconstruct_with_fit", "relit_preview", "BACKENDS", "STAGES"]
 

@@ -519,7 +519,6 @@ def convert_parts(ict_root: Path, output: Path, n_error_samples: int = 1000) -> 
 
         # ---- checks: orientation (outwards), error of the stored form
         a, b, c = (full_mean[triangles[:, k]] for k in range(3))
-        normals = np.cross(b - a, c - a)
         if shared.size == 0:  # (nearly) closed components: positive signed volume each
             comp = _components(triangles, len(full_mean))[triangles[:, 0]]
             vol = np.einsum("ij,ij->i", a, np.cross(b, c)) / 6.0
