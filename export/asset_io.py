@@ -60,6 +60,7 @@ def write_asset_files(asset: Asset, folder: str | os.PathLike[str], *, linear_bi
     :class:`~facegeo.staged_output.StagedOutput`). Returns the ``asset.json`` content."""
     if not isinstance(asset, Asset):
         raise InputError("<asset>", "asset", "a facegeo.asset.Asset", type(asset).__name__)
+    asset.validate()  # again: the maps may have been changed since construction
     out = Path(folder)
     doc: dict[str, Any] = {
         "format": ASSET_FORMAT,
@@ -176,6 +177,9 @@ def _read_surface(root: Path, meta_path: Path, doc: dict[str, Any], where: str) 
             raise InputError(meta_path, field, "file, bits, scale and offset", str(exc)) from None
         if encoding["bits"] not in (8, 16):
             raise InputError(meta_path, f"{field}.bits", "8 or 16", str(encoding["bits"]))
+        for key in ("scale", "offset"):
+            if not np.isfinite(encoding[key]):
+                raise InputError(meta_path, f"{field}.{key}", "a finite number", repr(encoding[key]))
         if not file.is_file():
             raise InputError(file, field, "an image file", "no such file")
         image = read_png(str(file))

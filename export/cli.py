@@ -45,32 +45,40 @@ def register(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParser:
 
 
 def run_export(args: argparse.Namespace) -> None:
-    """Run ``facegeo export`` with parsed arguments (raises FacegeoError on bad input)."""
+    """Run ``facegeo export`` with parsed arguments (raises FacegeoError on bad input).
+
+    The output files are checked before the asset is read, written into one staging folder and
+    moved into place together: with several formats, either all files appear or none does."""
+    from facegeo.asset import MAP_NAMES
+    from facegeo.cli import COMMAND_LINE, parse_list
     from facegeo.export.asset_io import load_asset
     from facegeo.export.writers import FORMATS, export_asset
+    from facegeo.staged_output import StagedOutput, check_output_location
 
     start = time.perf_counter()
-    asset = load_asset(args.asset_dir).select(args.parts)
-    maps = [m.strip() for m in args.maps.split(",") if m.strip()] if args.maps else None
+    maps = parse_list(args.maps, MAP_NAMES, "--maps") if args.maps is not None else None
     out = Path(args.output)
-    if args.format:
-        formats = [f.strip().lower().lstrip(".") for f in args.format.split(",") if f.strip()]
-        for f in formats:
-            if f not in FORMATS:
-                raise InputError(out, "--format", f"formats among {', '.join(FORMATS)}", repr(f))
-        if len(formats) > 1:
-            if out.suffix.lower().lstrip(".") in FORMATS:
-                out = out.with_suffix("")
+    if args.format is not None:
+        formats = parse_list(args.format, FORMATS, "--format")
+        if len(formats) > 1 and out.suffix.lower().lstrip(".") in FORMATS:
+            out = out.with_suffix("")
+        if len(formats) > 1 or not out.suffix:
             targets = [(out.with_name(out.name + "." + f), f) for f in formats]
         else:
             targets = [(out, formats[0])]
     else:
-        targets = [(out, None)]
-    if args.displacement == "texture" and any((f or path.suffix.lower().lstrip(".")) == "glb" for path, f in targets):
-        raise InputError(out, "--displacement", "'bake' when writing glb (glTF has no displacement input)", "texture")
-    written = []
-    for path, fmt in targets:
-        written.append(export_asset(asset, path, format=fmt, level=args.subdiv, displacement=args.displacement, maps=maps))
+        fmt = out.suffix.lower().lstrip(".")
+        if fmt not in FORMATS:
+            raise InputError(out, "file name", f"a suffix among {', '.join('.' + f for f in FORMATS)} (or --format)", out.suffix or "none")
+        targets = [(out, fmt)]
+    if args.displacement == "texture" and any(f == "glb" for _, f in targets):
+        raise InputError(COMMAND_LINE, "--displacement", "'bake' when writing glb (glTF has no displacement input)", "texture")
+    for path, fmt in targets:  # before any work: names, parents, an existing folder in the way
+        check_output_location(path, folder=False, extra_names=[path.stem + "_textures"] if fmt in ("usda", "usdc") else [])
+    asset = load_asset(args.asset_dir).select(args.parts)
+    with StagedOutput(out.parent) as stage:
+        for path, fmt in targets:
+            export_asset(asset, stage.path(path.name), format=fmt, level=args.subdiv, displacement=args.displacement, maps=maps)
     seconds = time.perf_counter() - start
-    print(f"wrote {', '.join(str(w) for w in written)} from {args.asset_dir} "
+    print(f"wrote {', '.join(str(path) for path, _ in targets)} from {args.asset_dir} "
           f"(parts {args.parts}, subdivision level {args.subdiv}, {seconds:.2f} s)")

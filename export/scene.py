@@ -48,6 +48,7 @@ def scene_contents(asset: Asset, *, level: int = 0, displacement: str = "bake", 
     """Subdivide, bake (or not) and resolve the material of ``asset`` for a writer."""
     if not isinstance(asset, Asset):
         raise InputError("<export>", "asset", "a facegeo.asset.Asset", type(asset).__name__)
+    asset.validate("<export>")  # again: the maps may have been changed since construction
     if displacement not in DISPLACEMENT_MODES:
         raise InputError("<export>", "displacement", f"one of {', '.join(DISPLACEMENT_MODES)}", repr(displacement))
     inputs = material_inputs(asset, maps)

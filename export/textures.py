@@ -26,6 +26,7 @@ import numpy as np
 
 from facegeo.asset import MAP_CHANNELS, MAP_NAMES, Asset
 from facegeo.errors import InputError
+from facegeo.native_stderr import silenced_native_stderr
 
 __all__ = [
     "MaterialInput",
@@ -168,7 +169,8 @@ def read_png(path: str) -> np.ndarray:
     """
     import cv2
 
-    img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+    with silenced_native_stderr():  # libpng prints "libpng error: ..." itself; the InputError says it
+        img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
     if img is None:
         raise InputError(path, "image", "a readable PNG file")
     if img.ndim == 3 and img.shape[2] == 3:

@@ -48,6 +48,7 @@ usdz) and the material binds.
 from __future__ import annotations
 
 import os
+import re
 import tempfile
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -57,10 +58,10 @@ import numpy as np
 
 from facegeo.asset import Asset
 from facegeo.colour import srgb_to_linear
-from facegeo.errors import InputError
+from facegeo.errors import InputError, OutputError
 from facegeo.export.scene import SceneContents, scene_contents
 from facegeo.export.textures import DEFAULT_ROUGHNESS, SPECULAR_F0_SCALE, encode_map, png_bytes
-from facegeo.staged_output import StagedOutput, atomic_write_bytes
+from facegeo.staged_output import WRITE_FAULTS, StagedOutput, atomic_write_bytes
 
 __all__ = ["write_usd", "validate_usd", "check_usd", "UsdCheck", "USD_SUFFIXES"]
 
@@ -96,15 +97,22 @@ def write_usd(
     parts = [(_prim_name(part.name), scene_contents(part)) for part in asset.parts]
     name = _prim_name(asset.name)
     if suffix == ".usdz":
-        with tempfile.TemporaryDirectory(prefix="facegeo-usdz-") as tmp:
-            root = Path(tmp) / f"{name}.usdc"
-            _write_layer(contents, parts, root, name, "textures", linear_bits)
-            package = Path(tmp) / f"{name}.usdz"
-            from pxr import Sdf, UsdUtils
+        try:
+            with tempfile.TemporaryDirectory(prefix="facegeo-usdz-") as tmp:
+                root = Path(tmp) / f"{name}.usdc"
+                _write_layer(contents, parts, root, name, "textures", linear_bits)
+                package = Path(tmp) / f"{name}.usdz"
+                from pxr import Sdf, UsdUtils
 
-            if not UsdUtils.CreateNewUsdzPackage(Sdf.AssetPath(str(root)), str(package)):  # pragma: no cover
-                raise RuntimeError(f"UsdUtils.CreateNewUsdzPackage failed for {root}")
-            data = package.read_bytes()
+                if not UsdUtils.CreateNewUsdzPackage(Sdf.AssetPath(str(root)), str(package)):  # pragma: no cover
+                    raise RuntimeError(f"UsdUtils.CreateNewUsdzPackage failed for {root}")
+                data = package.read_bytes()
+        except OutputError as exc:  # the package is built in a temporary folder: name the target
+            raise OutputError(target, exc.problem) from None
+        except OSError as exc:
+            if exc.errno not in WRITE_FAULTS:
+                raise
+            raise OutputError(target, WRITE_FAULTS[exc.errno]) from None
         target.parent.mkdir(parents=True, exist_ok=True)
         atomic_write_bytes(target, data)
         return target
@@ -128,7 +136,7 @@ def _write_layer(contents: SceneContents, parts: list[tuple[str, SceneContents]]
                  texture_dir: str, linear_bits: int) -> None:
     """The stage: the skin at ``/<name>/mesh`` with ``/<name>/mtl/material``, and each part at
     ``/<name>/parts/<part>`` with ``/<name>/mtl/<part>`` (its textures ``<part>_<map>.png``)."""
-    from pxr import Kind, Usd, UsdGeom
+    from pxr import Kind, Tf, Usd, UsdGeom
 
     stage = Usd.Stage.CreateNew(str(layer_path))
     UsdGeom.SetStageUpAxis(stage, UsdGeom.Tokens.y)
@@ -148,7 +156,10 @@ def _write_layer(contents: SceneContents, parts: list[tuple[str, SceneContents]]
         out = layer_path.parent / rel
         out.parent.mkdir(parents=True, exist_ok=True)
         out.write_bytes(data)
-    stage.GetRootLayer().Save()
+    try:
+        stage.GetRootLayer().Save()
+    except Tf.ErrorException as exc:  # usd-core reports a failed write (full disk, size limit) this way
+        raise OutputError(layer_path, f"USD could not write it ({_usd_reason(exc)})") from None
 
 
 def _write_surface(stage: Any, contents: SceneContents, mesh_path: str, material_path: str, texture_prefix: str,
@@ -251,6 +262,12 @@ def _write_surface(stage: Any, contents: SceneContents, mesh_path: str, material
 
     binding = UsdShade.MaterialBindingAPI.Apply(mesh.GetPrim())
     binding.Bind(material)
+
+
+def _usd_reason(exc: Exception) -> str:
+    """The first quoted reason of a usd-core error (its message lists every C++ frame)."""
+    reasons = re.findall(r": '([^']+)'", str(exc))
+    return reasons[0] if reasons else str(exc).strip().splitlines()[0]
 
 
 # -- checks --------------------------------------------------------------------------------------

@@ -30,13 +30,14 @@ _EXPORTS = {
     "InputError": "facegeo.errors",
     "ModelFileError": "facegeo.errors",
     "NoFaceError": "facegeo.errors",
+    "OutputError": "facegeo.errors",
 }
 
 __all__ = ["__version__", *_EXPORTS]
 
 if TYPE_CHECKING:
     from facegeo.camera import Camera, project
-    from facegeo.errors import FacegeoError, InputError, ModelFileError, NoFaceError
+    from facegeo.errors import FacegeoError, InputError, ModelFileError, NoFaceError, OutputError
     from facegeo.fitting import Fit, fit, fit_landmarks
     from facegeo.landmarks.detectors import FaceLandmarks, LandmarkDetector, detect_landmarks
     from facegeo.model_files import load_model

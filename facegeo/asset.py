@@ -83,7 +83,9 @@ class Asset:
         self.validate()
 
     def validate(self, source: str = "<asset>") -> None:
-        """Raise :class:`InputError` naming the field for wrong shapes, indices or values."""
+        """Raise :class:`InputError` naming the field for wrong shapes, indices or values (NaN
+        or ±inf anywhere included). Run on construction and again by every writer, since the
+        arrays can be changed in place afterwards."""
         v, f = self.vertices, self.triangles
         if v.ndim != 2 or v.shape[1] != 3 or len(v) == 0:
             raise InputError(source, "vertices", "shape (V, 3) with V > 0", str(v.shape))
@@ -111,6 +113,13 @@ class Asset:
                 raise InputError(source, f"constants[{name!r}]", f"one of {', '.join(MAP_NAMES)}", name)
             if name in self.maps:
                 raise InputError(source, f"constants[{name!r}]", "a map or a constant, not both", "both")
+            value = self.constants[name]
+            try:
+                finite = bool(np.all(np.isfinite(np.asarray(value, dtype=np.float64))))
+            except (TypeError, ValueError):
+                finite = False
+            if not finite:
+                raise InputError(source, f"constants[{name!r}]", "a finite number or RGB triple", repr(value))
         ft = self.face_triangles
         if ft is not None and (ft.shape != (len(f),) or not ft.any()):
             raise InputError(source, "face_triangles", f"({len(f)},) bool with at least one True", str(ft.shape))

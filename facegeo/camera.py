@@ -108,7 +108,7 @@ def project(
     p = torch.as_tensor(points, dtype=dtype)
     r = torch.as_tensor(rotation, dtype=dtype)
     t = torch.as_tensor(translation, dtype=dtype)
-    cam = torch.einsum("...ij,...nj->...ni", r, p) + t[..., None, :]
+    cam = p @ r.transpose(-1, -2) + t[..., None, :]
     depth = (-cam[..., 2]).clamp_min(1e-6)
     u = camera.cx + camera.focal * cam[..., 0] / depth
     v = camera.cy - camera.focal * cam[..., 1] / depth

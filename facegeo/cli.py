@@ -2,28 +2,102 @@
 
 Every user-facing failure is a :class:`facegeo.errors.FacegeoError`: the command prints its one
 message (file, field, what was expected) to stderr without a traceback and exits with status 2.
-Outputs are staged in a hidden folder and moved into place only when the run succeeds.
+The options are checked by one path (:func:`check_arguments`), and the output location before
+any work is done. Outputs are staged in a hidden folder and moved into place only when the run
+succeeds; SIGINT (Ctrl-C) and SIGTERM raise :class:`Interrupted`, so the staged files are
+removed, one line is printed and the exit status is 128 + the signal number (130, 143). A write
+that fails for want of room (ENOSPC, EFBIG) is one line and exit status 2 as well.
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import math
+import signal
 import sys
 import time
 from pathlib import Path
-
+from typing import Iterable, NoReturn
 
 from facegeo import __version__
-from facegeo.errors import FacegeoError
+from facegeo.errors import FacegeoError, InputError
 
-__all__ = ["main", "build_parser", "add_fit_arguments", "add_parts_argument"]
+__all__ = ["main", "build_parser", "add_fit_arguments", "add_parts_argument", "check_arguments", "parse_list", "Interrupted",
+           "COMMAND_LINE"]
+
+#: The command line as the ``source`` of an :class:`InputError` about an option.
+COMMAND_LINE = "<command line>"
+
+
+class Interrupted(KeyboardInterrupt):
+    """SIGINT or SIGTERM arrived; ``signum`` says which. A KeyboardInterrupt, so every
+    ``StagedOutput`` on the way out removes its staged files."""
+
+    def __init__(self, signum: int):
+        super().__init__(signum)
+        self.signum = signum
+
+
+def _raise_interrupted(signum: int, frame: object) -> None:
+    for s in (signal.SIGINT, signal.SIGTERM):  # a second signal must not cut the clean-up short
+        signal.signal(s, signal.SIG_IGN)
+    raise Interrupted(signum)
+
+
+def parse_list(text: str, allowed: Iterable[str], option: str) -> list[str]:
+    """The comma-separated names of ``option`` (lower-cased, a leading dot dropped), each among
+    ``allowed``; raises InputError for an unknown name or an empty list."""
+    allowed = tuple(allowed)
+    names = [n.strip().lower().lstrip(".") for n in text.split(",") if n.strip()]
+    if not names:
+        raise InputError(COMMAND_LINE, option, f"one or more of {', '.join(allowed)}, comma-separated", repr(text))
+    for name in names:
+        if name not in allowed:
+            raise InputError(COMMAND_LINE, option, f"names among {', '.join(allowed)}", repr(name))
+    return names
+
+
+def check_arguments(args: argparse.Namespace) -> None:
+    """The one validation path of the options the subcommands share, run before any work:
+    ``--max-side`` (≥ MIN_SIDE px), ``--focal`` (finite, > 0 px), and, for the commands that write
+    an output folder (``output_folder`` set by their parser), the ``-o`` location
+    (:func:`facegeo.staged_output.check_output_location`: name lengths, parents, writability,
+    an existing folder must be empty or an earlier facegeo output; and it must not hold an input
+    file such as the photo, since it is replaced as a whole).
+
+    Raises:
+        InputError: naming the option and what was expected.
+    """
+    from facegeo.photo import MIN_SIDE
+    from facegeo.staged_output import check_output_location
+
+    max_side = getattr(args, "max_side", None)
+    if max_side is not None and max_side < MIN_SIDE:
+        raise InputError(COMMAND_LINE, "--max-side", f"an integer of at least {MIN_SIDE} (pixels; smaller photos hold no findable face)", str(max_side))
+    focal = getattr(args, "focal", None)
+    if focal is not None and not (math.isfinite(focal) and focal > 0):
+        raise InputError(COMMAND_LINE, "--focal", "a finite focal length > 0 in pixels", str(focal))
+    if getattr(args, "output_folder", False):
+        check_output_location(args.output, folder=True, replace=True)
+        out = Path(args.output).resolve()
+        for name, value in vars(args).items():  # an existing OUT is replaced: it must not hold an input
+            if name != "output" and isinstance(value, Path) and value.exists() and out in value.resolve().parents:
+                raise InputError(COMMAND_LINE, "-o", "an output folder that does not hold the inputs (it is replaced as a whole)",
+                                 f"{args.output}, which holds {value}")
+
+
+class _Parser(argparse.ArgumentParser):
+    """argparse's parser with its usage errors on one line (it prints the usage above them)."""
+
+    def error(self, message: str) -> NoReturn:
+        self.exit(2, f"facegeo: error: {COMMAND_LINE}: {message} (see '{self.prog} --help')\n")
 
 
 def add_fit_arguments(parser: argparse.ArgumentParser) -> None:
     """The photo, output folder and fitting options shared by ``fit`` and ``unwrap``."""
     parser.add_argument("photo", type=Path, help="the photo (PNG, JPEG, ...); EXIF orientation is honoured")
-    parser.add_argument("-o", "--output", type=Path, required=True, help="output folder (created)")
+    parser.add_argument("-o", "--output", type=Path, required=True, help="output folder (created; an existing one must be empty or an earlier facegeo output, and is replaced)")
     parser.add_argument("--model", type=Path, default=None, help="model file (.npz, HIFI3D++ .mat, AI-NExT .mat); default: $FACEGEO_MODEL or the bundled ICT-FaceKit model")
     parser.add_argument("--landmarks", choices=["hybrid", "dlib", "mediapipe"], default="hybrid", help="landmark detector (default: hybrid = dlib 68 + MediaPipe 20 lip points; mediapipe is licence-clean for commercial use)")
     parser.add_argument("--focal", type=float, default=None, help="focal length in pixels of the (possibly downscaled) photo; default: 40° field of view on the long side")
@@ -41,7 +115,7 @@ def add_parts_argument(parser: argparse.ArgumentParser) -> None:
 
 def build_parser() -> argparse.ArgumentParser:
     """The argument parser with all subcommands."""
-    parser = argparse.ArgumentParser(prog="facegeo", description="One photo of a face in, a measured 3D face out.")
+    parser = _Parser(prog="facegeo", description="One photo of a face in, a measured 3D face out.")
     parser.add_argument("--version", action="version", version=f"facegeo {__version__}")
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
 
@@ -54,7 +128,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     add_fit_arguments(fit)
     fit.add_argument("--no-photometric", action="store_true", help="skip the albedo and lighting stage")
-    fit.set_defaults(run=_run_fit)
+    fit.set_defaults(run=_run_fit, output_folder=True)
 
     rec = sub.add_parser(
         "reconstruct",
@@ -65,7 +139,7 @@ def build_parser() -> argparse.ArgumentParser:
         "(the photo beside the asset from the front, three-quarter and profile, textured and as clay).",
     )
     rec.add_argument("photo", type=Path, help="the photo")
-    rec.add_argument("-o", "--output", type=Path, required=True, help="output folder (created)")
+    rec.add_argument("-o", "--output", type=Path, required=True, help="output folder (created; an existing one must be empty or an earlier facegeo output, and is replaced)")
     rec.add_argument("--backend", choices=["default"], default="default", help="texture backend (default: weight-free, offline)")
     rec.add_argument("--size", type=int, default=1024, help="UV map size in texels (default 1024)")
     rec.add_argument("--upscale", type=int, choices=[1, 2, 4], default=1, help="upscale the maps by this factor (Lanczos)")
@@ -77,7 +151,7 @@ def build_parser() -> argparse.ArgumentParser:
     rec.add_argument("--max-side", type=int, default=2048, help="downscale photos whose longer side exceeds this (pixels)")
     rec.add_argument("--no-preview", action="store_true", help="do not render preview.png")
     add_parts_argument(rec)
-    rec.set_defaults(run=_run_reconstruct)
+    rec.set_defaults(run=_run_reconstruct, output_folder=True)
 
     from facegeo.eval.realy_cli import register as register_realy
     from facegeo.export.cli import register as register_export
@@ -114,7 +188,7 @@ def _run_fit(args: argparse.Namespace) -> None:
     result.timings["total"] = time.perf_counter() - start
     iod = inter_ocular_distance(result.landmarks)
     result.info["landmark_rms_percent_iod"] = 100.0 * result.landmark_rms_px / iod
-    with StagedOutput(args.output) as stage:
+    with StagedOutput(args.output, replace=True) as stage:
         stage.path("fit.json").write_text(json.dumps(result.to_dict(), indent=1))
         stage.path("mesh.obj").write_text(obj_text(result.vertices, model.triangles, model.uv, model.uv_triangles))
         overlay = draw_overlay(photo.image, result, model)
@@ -133,7 +207,6 @@ def _run_reconstruct(args: argparse.Namespace) -> None:
     from tqdm import tqdm
 
     from facegeo.asset import MAP_NAMES
-    from facegeo.errors import InputError
     from facegeo.export.asset_io import write_asset_files
     from facegeo.export.textures import png_bytes
     from facegeo.export.writers import FORMATS, export_asset
@@ -142,14 +215,8 @@ def _run_reconstruct(args: argparse.Namespace) -> None:
     from facegeo.pipeline import STAGES, reconstruct_with_fit, relit_preview
     from facegeo.staged_output import StagedOutput
 
-    maps = [m.strip() for m in args.maps.split(",") if m.strip()]
-    formats = [f.strip().lower().lstrip(".") for f in args.format.split(",") if f.strip()]
-    for name in maps:
-        if name not in MAP_NAMES:
-            raise InputError("<command line>", "--maps", f"names among {', '.join(MAP_NAMES)}", repr(name))
-    for f in formats:
-        if f not in FORMATS:
-            raise InputError("<command line>", "--format", f"formats among {', '.join(FORMATS)}", repr(f))
+    maps = parse_list(args.maps, MAP_NAMES, "--maps")
+    formats = parse_list(args.format, FORMATS, "--format")
     start = time.perf_counter()
     photo = load_photo(args.photo, max_side=args.max_side)
     model = load_model(args.model)
@@ -162,7 +229,7 @@ def _run_reconstruct(args: argparse.Namespace) -> None:
     asset, result = reconstruct_with_fit(photo, model, backend=args.backend, size=args.size, upscale=args.upscale,
                                 maps=maps, detector=args.landmarks, progress=progress)
     timings = dict(asset.metadata["timings_s"])
-    with StagedOutput(args.output) as stage:
+    with StagedOutput(args.output, replace=True) as stage:
         bar.set_postfix_str("export")
         bar.update(1)
         t = time.perf_counter()
@@ -197,17 +264,31 @@ def _run_reconstruct(args: argparse.Namespace) -> None:
 
 
 def main(argv: list[str] | None = None) -> int:
-    """Entry point of the ``facegeo`` console command; returns the exit status."""
-    parser = build_parser()
-    args = parser.parse_args(argv)
+    """Entry point of the ``facegeo`` console command; returns the exit status: 0, 2 for bad
+    input or a failed write (one line on stderr), 128 + signal number after SIGINT/SIGTERM."""
+    import threading
+
+    on_main_thread = threading.current_thread() is threading.main_thread()  # only there can signals be caught
+    previous = {s: signal.signal(s, _raise_interrupted) for s in (signal.SIGINT, signal.SIGTERM)} if on_main_thread else {}
     try:
+        parser = build_parser()
+        args = parser.parse_args(argv)
+        check_arguments(args)
         args.run(args)
     except FacegeoError as exc:
         print(f"facegeo: error: {exc}", file=sys.stderr)
         return 2
-    except KeyboardInterrupt:
-        print("facegeo: interrupted", file=sys.stderr)
-        return 130
+    except OSError as exc:  # a fault no facegeo check turned into a FacegeoError: still one line
+        where = f"{exc.filename}: " if exc.filename else ""
+        print(f"facegeo: error: {where}{exc.strerror or exc}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt as exc:
+        signum = exc.signum if isinstance(exc, Interrupted) else signal.SIGINT
+        print(f"facegeo: interrupted ({signal.Signals(signum).name}); no output written", file=sys.stderr)
+        return 128 + int(signum)
+    finally:
+        for s, handler in previous.items():
+            signal.signal(s, handler)
     return 0
 
 

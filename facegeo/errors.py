@@ -7,9 +7,13 @@ prints that message alone (no traceback) and exits with status 2.
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
+from typing import Any, Mapping
 
-__all__ = ["FacegeoError", "InputError", "ModelFileError", "NoFaceError"]
+import numpy as np
+
+__all__ = ["FacegeoError", "InputError", "ModelFileError", "NoFaceError", "OutputError", "check_finite"]
 
 
 class FacegeoError(Exception):
@@ -40,3 +44,40 @@ class ModelFileError(InputError):
 
 class NoFaceError(InputError):
     """No face (or no usable face) was found in an image."""
+
+
+class OutputError(FacegeoError):
+    """Writing an output failed for a reason outside facegeo: ``OutputError(path, problem)``
+    (a full disk, the file size limit, a read-only or failing file system). Nothing partial is
+    left behind."""
+
+    def __init__(self, path: str | Path, problem: str):
+        self.path = str(path)
+        self.problem = problem
+        super().__init__(f"{self.path}: output file: expected room to write it, found {problem}")
+
+
+def check_finite(values: Mapping[str, Any], source: str = "<array>") -> None:
+    """Raise :class:`InputError` naming the first entry of ``values`` (name -> NumPy array, torch
+    tensor or number) that holds NaN or ±inf: the one finiteness check at facegeo's public API
+    boundaries. Fast path: one sum per value (NaN and ±inf survive a sum); only when the total
+    is not finite are the values inspected one by one (a finite overflow passes)."""
+    total = 0.0
+    for value in values.values():
+        total += float(value.detach().sum()) if hasattr(value, "detach") else float(np.sum(_numeric(value), dtype=np.float64))
+    if math.isfinite(total):
+        return
+    for name, value in values.items():
+        if hasattr(value, "detach"):  # a torch tensor (errors.py does not import torch)
+            finite = value.detach().isfinite()
+            bad, count = int((~finite).sum()), finite.numel()
+        else:
+            array = _numeric(value)
+            bad, count = int((~np.isfinite(array)).sum()), array.size
+        if bad:
+            raise InputError(source, name, "finite values", f"{bad} of {count} values NaN or infinite")
+
+
+def _numeric(value: Any) -> np.ndarray:
+    array = np.asarray(value)
+    return array if np.issubdtype(array.dtype, np.number) else np.zeros(0)

@@ -27,6 +27,8 @@ Axes and units: DESIGN.md (mm, +Y up, camera looks down −Z); pixels as in :mod
 from __future__ import annotations
 
 import time
+from collections.abc import Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -38,6 +40,7 @@ import torch
 from facegeo.camera import OPENCV_FROM_OPENGL, Camera, euler_from_rotation, project, rotation_from_axis_angle
 from facegeo.colour import srgb_to_linear
 from facegeo.errors import InputError
+from facegeo.fit_checks import check_fit, check_landmarks
 from facegeo.landmarks.detectors import FaceLandmarks, LandmarkDetector, get_detector
 from facegeo.landmarks.scheme import CHIN, LANDMARK_WEIGHTS, N_LANDMARKS, inter_ocular_distance
 from facegeo.lighting import AMBIENT_WHITE, N_SH, sh_basis
@@ -46,7 +49,8 @@ from facegeo.morphable_model import MorphableModel
 from facegeo.photo import Photo, as_rgb_uint8, load_photo
 from facegeo.visibility import vertex_visibility
 
-__all__ = ["Fit", "fit", "fit_landmarks", "LandmarkStage", "LANDMARK_SCHEDULE", "REGULARISATION"]
+__all__ = ["Fit", "fit", "fit_landmarks", "FitPriors", "DEFAULT_PRIORS", "LandmarkStage", "LANDMARK_SCHEDULE",
+           "PHOTOMETRIC_REGULARISATION", "CORRECTIVES"]
 
 
 @dataclass(frozen=True)
@@ -61,7 +65,8 @@ class LandmarkStage:
 
 
 #: The documented coarse-to-fine schedule of the landmark stage (error against iterations in
-#: benchmarks/RESULTS.md).
+#: benchmarks/RESULTS.md). The last stage is repeated after each re-estimation of the noise
+#: level (:class:`FitPriors`).
 LANDMARK_SCHEDULE: tuple[LandmarkStage, ...] = (
     LandmarkStage("pose", 8, 0, False),
     LandmarkStage("coarse", 8, 20, True),
@@ -70,11 +75,60 @@ LANDMARK_SCHEDULE: tuple[LandmarkStage, ...] = (
 
 #: A stage stops early once a step lowers E by less than this fraction.
 CONVERGED_RELATIVE_DECREASE = 1e-6
+#: The noise re-estimation stops once σ changes by less than this (relative, in log).
+NOISE_TOLERANCE = 0.1
 
-#: Prior weights λ of E (coefficients are in σ units, L_lan in inter-ocular units squared):
-#: λ ≈ σ_lm² / N with landmark noise σ_lm ≈ 1.3 % of the inter-ocular distance and N = 176
-#: coordinates; ``tex`` and ``sh`` regularise the photometric least squares.
-REGULARISATION = {"id": 1e-6, "exp": 1e-6, "tex": 1e-2, "sh": 1e-3}
+
+@dataclass(frozen=True)
+class FitPriors:
+    """The priors of the MAP landmark fit and the landmark noise model.
+
+    The landmark stage minimises the negative log posterior (times 2)
+
+        E = Σ_i w_i ‖r_i‖² / σ² + ‖α‖² + Σ_k (δ_k / s_δ)² + 2 Σ_k δ_k / τ
+
+    with r_i the landmark residual in inter-ocular units, w_i the relative precisions of
+    :data:`LANDMARK_WEIGHTS` (mean 1 over the valid points), α ~ N(0, I) the model's identity prior,
+    and for blendshape models (``MorphableModel.expression_kind == "blendshape"``) a truncated
+    Gaussian × exponential prior on δ ∈ [0, 1]: the Gaussian bounds the magnitude (scale s_δ =
+    ``expression_scale``), the exponential (rate 1/τ = ``expression_rate``) favours sparse
+    weights (for δ ≥ 0 it is an L1 penalty). PCA expression models get their own prior N(0, I)
+    and no bounds. σ is the landmark noise per coordinate, in inter-ocular units: it starts at
+    ``noise`` and is re-estimated ``noise_rounds`` times from the residuals of the fit,
+    σ² = Σ w_i ‖r_i‖² / (n_obs − p_eff) with p_eff the effective number of fitted parameters
+    (the trace of the data part of the posterior precision times the posterior covariance;
+    MacKay's evidence approximation), never below ``noise_floor``. So the priors weigh as much
+    as the landmark noise the fit actually sees: little on landmarks that a model face explains
+    exactly, much on a real detector's landmarks of a real face. Values chosen on the
+    validation set of ``benchmarks/bench_fit_priors.py`` (curves in benchmarks/RESULTS.md).
+    """
+
+    noise: float = 0.03
+    noise_floor: float = 0.004
+    noise_rounds: int = 4
+    expression_scale: float = 0.5
+    expression_rate: float = 2.0
+
+    def __post_init__(self) -> None:
+        for name in ("noise", "noise_floor", "expression_scale"):
+            value = getattr(self, name)
+            if not (np.isfinite(value) and value > 0):
+                raise InputError("<priors>", name, "a finite number > 0", repr(value))
+        if not (np.isfinite(self.expression_rate) and self.expression_rate >= 0):
+            raise InputError("<priors>", "expression_rate", "a finite number >= 0", repr(self.expression_rate))
+        if self.noise_rounds < 0:
+            raise InputError("<priors>", "noise_rounds", "an integer >= 0", repr(self.noise_rounds))
+
+
+#: The default priors (see :class:`FitPriors`).
+DEFAULT_PRIORS = FitPriors()
+
+#: Ridge weights of the photometric least squares (β in σ units, SH coefficients).
+PHOTOMETRIC_REGULARISATION = {"tex": 1e-2, "sh": 1e-3}
+
+#: Blendshapes that are correctives of another one (ICT-FaceKit: ``mouthClose`` only works on top
+#: of ``jawOpen``): the fit keeps the corrective's weight at most the driver's.
+CORRECTIVES = {"mouthClose": "jawOpen"}
 
 
 @dataclass
@@ -155,13 +209,21 @@ def _initial_pose(model: MorphableModel, targets: np.ndarray, camera: Camera) ->
 
 # ---------------------------------------------------------------------------------- landmarks
 class _LandmarkProblem:
-    """Residuals of E over the landmark vertices, with the jaw points sliding along the contour.
+    """Residuals of the landmark term over the landmark vertices, with the jaw points sliding
+    along the contour.
 
     Each landmark is a point (1 − t)·S_a + t·S_b on a model edge (a = b, t = 0 for fixed points).
     The jaw contour is the model's frontal jaw polyline (landmark vertices 0→8 on the subject's
     right, 16→8 on the left); before each step every jaw point but the chin moves to the point of
     its side's projected polyline nearest to its detected position (eos's sliding contour, made
     continuous so no vertex spacing limits the fit).
+
+    The jaw contour cannot pull expressions: the sliding contour points are moved by the current
+    expression (a smile widens the lower cheeks), but that part is frozen at each step like the
+    slide itself, so their residuals reach only the pose, the identity and the jaw articulation
+    (blendshapes named ``jaw*``; none for PCA expression models). A detected jaw line that is
+    wider or narrower than the face is explained by the identity, never by puffed cheeks or a
+    stretched mouth. The chin and every other point see all expressions.
     """
 
     def __init__(self, model: MorphableModel, targets: np.ndarray, camera: Camera, weights: np.ndarray):
@@ -178,43 +240,81 @@ class _LandmarkProblem:
         self.exp_basis = model.tensor("exp_basis", torch.float64)[:, idx]
         valid = np.isfinite(targets).all(axis=1)
         w = np.where(valid, weights, 0.0).astype(np.float64)
+        self.n_valid = int(np.count_nonzero(w > 0))
         self.scale = max(inter_ocular_distance(targets), 1.0)
-        self.sqrt_w = torch.tensor(np.sqrt(w / w.sum()) / self.scale, dtype=torch.float64)
+        # relative precisions with mean 1 over the valid points, residuals in inter-ocular units
+        self.sqrt_w = torch.tensor(np.sqrt(w * self.n_valid / w.sum()) / self.scale, dtype=torch.float64)
         self.targets = torch.tensor(np.where(valid[:, None], targets, 0.0), dtype=torch.float64)
         rows = torch.tensor([self.position[int(v)] for v in model.landmark_indices])
         self.rows_a, self.rows_b = rows.clone(), rows.clone()
         self.t = torch.zeros(N_LANDMARKS, dtype=torch.float64)
+        self.sliding = np.array([j for j in range(17) if j != CHIN and valid[j]], dtype=np.int64)
+        self.sliding_rows = [j for j in range(17) if j != CHIN]
+        jaw_articulation = np.array([name.startswith("jaw") for name in model.expression_names] or [False] * model.n_exp)
+        mask = torch.ones(N_LANDMARKS, model.n_exp, dtype=torch.float64)
+        mask[[j for j in range(17) if j != CHIN]] = torch.from_numpy(jaw_articulation.astype(np.float64))
+        self.exp_mask = mask  # (88, n_exp): which expressions move which landmark
+        self.contour_rows = {side: torch.tensor([self.position[int(v)] for v in c]) for side, c in self.contours.items()}
+        self.contour_vertex_rows = torch.unique(torch.cat(list(self.contour_rows.values())))
+        self._update_bases(torch.zeros(model.n_exp, dtype=torch.float64))
 
-    def points(self, alpha: torch.Tensor, delta: torch.Tensor) -> torch.Tensor:
-        """(K, 3) model-space positions of the landmark vertices."""
-        return self.mean + torch.einsum("k,kvc->vc", alpha, self.id_basis) + torch.einsum("k,kvc->vc", delta, self.exp_basis)
+    def points(self, alpha: torch.Tensor) -> torch.Tensor:
+        """(K, 3) model-space positions of the landmark vertices without expression."""
+        return self.mean + (alpha @ self.id_basis.reshape(len(alpha), -1)).reshape(-1, 3)
+
+    def _blend(self, values: torch.Tensor, rows: list[int] | slice) -> torch.Tensor:
+        """(..., K, 3) per landmark vertex -> (..., len(rows), 3) on the (slid) landmark edges."""
+        t = self.t[rows][:, None]
+        return (1 - t) * values[..., self.rows_a[rows], :] + t * values[..., self.rows_b[rows], :]
+
+    def _update_bases(self, delta: torch.Tensor, rows: list[int] | slice = slice(None)) -> None:
+        """The mean and bases at the 88 (slid) landmarks (only ``rows`` recomputed, after a
+        slide): ``mean_lm`` (88, 3) with the frozen expression part of the contour points added,
+        ``id_lm`` (n_id, 88, 3), ``exp_lm`` (n_exp, 88, 3) with the contour's mask applied."""
+        if isinstance(rows, slice):
+            self.mean_lm = torch.zeros(N_LANDMARKS, 3, dtype=torch.float64)
+            self.id_lm = torch.zeros(self.model.n_id, N_LANDMARKS, 3, dtype=torch.float64)
+            self.exp_lm = torch.zeros(self.model.n_exp, N_LANDMARKS, 3, dtype=torch.float64)
+        mask = self.exp_mask[rows].T[:, :, None]
+        exp_full = self._blend(self.exp_basis, rows)
+        frozen = (delta @ (exp_full * (1 - mask)).reshape(len(delta), -1)).reshape(-1, 3)
+        self.mean_lm[rows] = self._blend(self.mean, rows) + frozen
+        self.id_lm[:, rows] = self._blend(self.id_basis, rows)
+        self.exp_lm[:, rows] = exp_full * mask
+        self.id_flat = self.id_lm.reshape(self.model.n_id, -1)
+        self.exp_flat = self.exp_lm.reshape(self.model.n_exp, -1)
 
     def slide_jaw(self, rotation: torch.Tensor, translation: torch.Tensor, alpha: torch.Tensor, delta: torch.Tensor) -> None:
-        """Move each jaw point (but the chin) to the nearest point of its projected contour."""
-        with torch.no_grad():
-            uv = project(self.points(alpha, delta), rotation, translation, self.camera)
-        for side, jaw_points in (("right", range(0, CHIN)), ("left", range(CHIN + 1, 17))):
-            rows = torch.tensor([self.position[int(v)] for v in self.contours[side]])
+        """Move each jaw point (but the chin) to the nearest point of its projected contour, and
+        freeze the contour's expression part at ``delta``."""
+        with torch.no_grad():  # the contour vertices only
+            rows_all = self.contour_vertex_rows
+            shape = self.mean[rows_all] + (alpha @ self.id_basis[:, rows_all].reshape(len(alpha), -1)
+                                           + delta @ self.exp_basis[:, rows_all].reshape(len(delta), -1)).reshape(-1, 3)
+            uv = torch.zeros(len(self.mean), 2, dtype=torch.float64)
+            uv[rows_all] = project(shape, rotation, translation, self.camera)
+        for side, jaw_points in (("right", list(range(0, CHIN))), ("left", list(range(CHIN + 1, 17)))):
+            rows = self.contour_rows[side]
             a, b = uv[rows[:-1]], uv[rows[1:]]  # (S, 2) segment ends
             ab = b - a
-            for j in jaw_points:
-                q = self.targets[j]
-                t = (((q - a) * ab).sum(-1) / (ab * ab).sum(-1).clamp_min(1e-12)).clamp(0.0, 1.0)
-                d = ((a + t[:, None] * ab - q) ** 2).sum(-1)
-                s = int(torch.argmin(d))
-                self.rows_a[j], self.rows_b[j], self.t[j] = rows[s], rows[s + 1], t[s]
+            q = self.targets[jaw_points][:, None, :]  # (P, 1, 2)
+            t = (((q - a) * ab).sum(-1) / (ab * ab).sum(-1).clamp_min(1e-12)).clamp(0.0, 1.0)  # (P, S)
+            d = ((a + t[..., None] * ab - q) ** 2).sum(-1)
+            s = torch.argmin(d, dim=1)
+            self.rows_a[jaw_points], self.rows_b[jaw_points] = rows[s], rows[s + 1]
+            self.t[jaw_points] = t[torch.arange(len(jaw_points)), s]
+        self._update_bases(delta, self.sliding_rows)
 
     def landmark_points(self, alpha: torch.Tensor, delta: torch.Tensor) -> torch.Tensor:
         """(88, 3) model-space landmark positions with the current correspondences."""
-        p = self.points(alpha, delta)
-        return (1 - self.t)[:, None] * p[self.rows_a] + self.t[:, None] * p[self.rows_b]
+        return self.mean_lm + (alpha @ self.id_flat + delta @ self.exp_flat).reshape(N_LANDMARKS, 3)
 
     def projected(self, rotation: torch.Tensor, translation: torch.Tensor, alpha: torch.Tensor, delta: torch.Tensor) -> torch.Tensor:
         """(88, 2) projected landmarks with the current correspondences."""
         return project(self.landmark_points(alpha, delta), rotation, translation, self.camera)
 
     def residuals(self, rotation: torch.Tensor, translation: torch.Tensor, alpha: torch.Tensor, delta: torch.Tensor) -> torch.Tensor:
-        """(176,) weighted landmark residuals; Σ r² = L_lan."""
+        """(176,) weighted landmark residuals in inter-ocular units; Σ r² = Σ w_i ‖r_i‖²."""
         diff = self.projected(rotation, translation, alpha, delta) - self.targets
         return (diff * self.sqrt_w[:, None]).reshape(-1)
 
@@ -241,16 +341,13 @@ class _LandmarkProblem:
         px, py, pz = p_model.unbind(-1)
         z0 = torch.zeros_like(px)
         skew = torch.stack([z0, -pz, py, pz, z0, -px, -py, px, z0], dim=-1).reshape(-1, 3, 3)
-        d_rot = -rotation @ skew  # (88, 3, 3): d X_c / d ω
-        d_trans = (t_unit * torch.eye(3, dtype=cam.dtype)).expand(len(cam), 3, 3)
-
-        def blend(basis: torch.Tensor) -> torch.Tensor:  # (k, K, 3) -> (k, 88, 3) on the slid edges
-            return (1 - self.t)[None, :, None] * basis[:, self.rows_a] + self.t[None, :, None] * basis[:, self.rows_b]
-
-        d_id = torch.einsum("ij,kvj->vik", rotation, blend(self.id_basis[:n_id]))  # (88, 3, n_id)
-        d_exp = torch.einsum("ij,kvj->vik", rotation, blend(self.exp_basis[:n_exp]))
-        d_cam = torch.cat([d_rot, d_trans, d_id, d_exp], dim=-1)  # (88, 3, n)
-        return (torch.einsum("vab,vbn->van", dproj, d_cam) * self.sqrt_w[:, None, None]).reshape(2 * len(cam), -1)
+        to_model = dproj @ rotation  # (88, 2, 3): d(u, v) / d(model-space point)
+        d_rot = -to_model @ skew  # X_c = R·exp([ω]×)·X: d X_c / d ω = −R·[X]×
+        d_trans = t_unit * dproj
+        d_id = torch.einsum("vaj,kvj->vak", to_model, self.id_lm[:n_id])  # (88, 2, n_id)
+        d_exp = torch.einsum("vaj,kvj->vak", to_model, self.exp_lm[:n_exp])
+        jac = torch.cat([d_rot, d_trans, d_id, d_exp], dim=-1) * self.sqrt_w[:, None, None]
+        return jac.reshape(2 * len(cam), -1)
 
     def correspondence(self) -> np.ndarray:
         """(88,) int64: the model vertex nearest to each (slid) landmark."""
@@ -258,48 +355,88 @@ class _LandmarkProblem:
         return self.subset[rows]
 
 
-def _levenberg_marquardt(problem: _LandmarkProblem, state: dict[str, torch.Tensor], stage: LandmarkStage) -> int:
-    """Run ``stage.iterations`` damped Gauss–Newton steps on ``state`` (updated in place).
+class _Prior:
+    """The prior terms of E for one model and :class:`FitPriors`: residuals, linear term, bounds."""
 
-    The rotation is updated multiplicatively, R ← R·exp([ω]×), so ω is always near zero.
-    Returns the number of accepted steps."""
+    def __init__(self, model: MorphableModel, priors: FitPriors):
+        blendshape = model.expression_kind == "blendshape"
+        n_exp = model.n_exp
+        self.exp_scale = torch.full((n_exp,), priors.expression_scale if blendshape else 1.0, dtype=torch.float64)
+        self.exp_rate = torch.full((n_exp,), priors.expression_rate if blendshape else 0.0, dtype=torch.float64)
+        lower, upper = model.expression_range
+        self.lower = torch.from_numpy(lower.astype(np.float64))
+        self.upper = torch.from_numpy(upper.astype(np.float64))
+        names = list(model.expression_names)
+        self.correctives = [(names.index(c), names.index(d)) for c, d in CORRECTIVES.items() if c in names and d in names]
+
+    def project(self, delta: torch.Tensor) -> torch.Tensor:
+        """δ clipped into its range, each corrective at most its driver."""
+        delta = torch.minimum(torch.maximum(delta, self.lower), self.upper)
+        for c, d in self.correctives:
+            delta[c] = torch.minimum(delta[c], delta[d])
+        return delta
+
+
+def _levenberg_marquardt(problem: _LandmarkProblem, state: dict[str, torch.Tensor], stage: LandmarkStage, prior: _Prior,
+                         noise: float) -> int:
+    """Run ``stage.iterations`` damped Gauss–Newton steps on E (:class:`FitPriors`) for the
+    landmark noise ``noise`` (inter-ocular units), updating ``state`` in place.
+
+    The rotation is updated multiplicatively, R ← R·exp([ω]×), so ω is always near zero. Bounded
+    expressions: a projected Levenberg–Marquardt step (Bertsekas' projected Newton): expression
+    weights at a bound whose gradient points outwards are held there for the step, the others
+    take the damped Gauss–Newton step, and the result is projected into the range (and each
+    corrective below its driver). Projection was chosen over a smooth reparameterisation
+    (δ = sigmoid(z)) because most weights of a real face sit exactly at 0, where a sigmoid's
+    gradient vanishes and the weight can neither reach 0 nor leave it. Returns the number of
+    accepted steps."""
     n_id = problem.model.n_id if stage.n_id is None else min(stage.n_id, problem.model.n_id)
     n_exp = problem.model.n_exp if stage.expression else 0
-    lam_id, lam_exp = REGULARISATION["id"], REGULARISATION["exp"]
     t_unit = 10.0  # mm per unit of the translation parameter (keeps the system well scaled)
+    exp_cols = slice(6 + n_id, 6 + n_id + n_exp)
 
     def unpack(x: torch.Tensor) -> tuple[torch.Tensor, ...]:
         rot = state["rotation"] @ rotation_from_axis_angle(x[:3])
         trans = state["translation"] + t_unit * x[3:6]
         alpha = torch.cat([state["alpha"][:n_id] + x[6 : 6 + n_id], state["alpha"][n_id:]])
-        delta = torch.cat([state["delta"][:n_exp] + x[6 + n_id :], state["delta"][n_exp:]])
+        delta = torch.cat([state["delta"][:n_exp] + x[exp_cols], state["delta"][n_exp:]])
         return rot, trans, alpha, delta
 
-    def all_residuals(x: torch.Tensor) -> torch.Tensor:
-        rot, trans, alpha, delta = unpack(x)
-        return torch.cat([problem.residuals(rot, trans, alpha, delta), lam_id**0.5 * alpha, lam_exp**0.5 * delta])
+    def cost(rot: torch.Tensor, trans: torch.Tensor, alpha: torch.Tensor, delta: torch.Tensor) -> tuple[torch.Tensor, float]:
+        r = problem.residuals(rot, trans, alpha, delta) / noise
+        scaled = delta / prior.exp_scale
+        return r, float(r @ r + alpha @ alpha + scaled @ scaled + 2.0 * (prior.exp_rate @ delta))
 
     n = 6 + n_id + n_exp
+    id_cols = slice(6, 6 + n_id)
+    prior_precision = torch.cat([torch.zeros(6, dtype=torch.float64), torch.ones(n_id, dtype=torch.float64), prior.exp_scale[:n_exp] ** -2])
     damping, accepted = 1e-3, 0
     for _ in range(stage.iterations):
         problem.slide_jaw(state["rotation"], state["translation"], state["alpha"], state["delta"])
-        x0 = torch.zeros(n, dtype=torch.float64)
-        r0 = all_residuals(x0)
-        jac_lm = problem.jacobian(state["rotation"], state["translation"], state["alpha"], state["delta"], n_id, n_exp, t_unit)
-        jac_reg = torch.zeros(problem.model.n_id + problem.model.n_exp, n, dtype=torch.float64)
-        jac_reg[range(n_id), range(6, 6 + n_id)] = lam_id**0.5
-        rows = [problem.model.n_id + k for k in range(n_exp)]
-        jac_reg[rows, range(6 + n_id, n)] = lam_exp**0.5
-        jac = torch.cat([jac_lm, jac_reg])
-        jtj, jtr = jac.T @ jac, jac.T @ r0
-        cost0 = float(r0 @ r0)
-        diag = torch.diagonal(jtj).clamp_min(1e-12)
+        r0, cost0 = cost(state["rotation"], state["translation"], state["alpha"], state["delta"])
+        jac = problem.jacobian(state["rotation"], state["translation"], state["alpha"], state["delta"], n_id, n_exp, t_unit) / noise
+        # normal equations of the landmark residuals plus the (diagonal) priors; grad is half ∇E
+        jtj = jac.T @ jac + torch.diag(prior_precision)
+        grad = jac.T @ r0
+        grad[id_cols] += state["alpha"][:n_id]
+        grad[exp_cols] += state["delta"][:n_exp] * prior.exp_scale[:n_exp] ** -2 + prior.exp_rate[:n_exp]
+        free = torch.ones(n, dtype=torch.bool)
+        if n_exp:  # the ε-active set of the bounds
+            d = state["delta"][:n_exp]
+            eps = 1e-9
+            at_lower = (d <= prior.lower[:n_exp] + eps) & (grad[exp_cols] > 0)
+            at_upper = (d >= prior.upper[:n_exp] - eps) & (grad[exp_cols] < 0)
+            free[exp_cols] = ~(at_lower | at_upper)
+        h = jtj[free][:, free]
+        g = grad[free]
+        diag = torch.diagonal(h).clamp_min(1e-12)
         for _attempt in range(8):
-            step = torch.linalg.solve(jtj + damping * torch.diag(diag), -jtr)
-            r1 = all_residuals(step)
-            cost1 = float(r1 @ r1)
-            if torch.isfinite(r1).all() and cost1 < cost0:
-                rot, trans, alpha, delta = unpack(step)
+            step = torch.zeros(n, dtype=torch.float64)
+            step[free] = torch.linalg.solve(h + damping * torch.diag(diag), -g)
+            rot, trans, alpha, delta = unpack(step)
+            delta = prior.project(delta)
+            _, cost1 = cost(rot, trans, alpha, delta)
+            if np.isfinite(cost1) and cost1 < cost0:
                 state.update(rotation=rot, translation=trans, alpha=alpha, delta=delta)
                 damping = max(damping / 3.0, 1e-7)
                 accepted += 1
@@ -312,23 +449,49 @@ def _levenberg_marquardt(problem: _LandmarkProblem, state: dict[str, torch.Tenso
     return accepted
 
 
+def _estimate_noise(problem: _LandmarkProblem, state: dict[str, torch.Tensor], prior: _Prior, noise: float) -> tuple[float, float]:
+    """(σ, p_eff): the landmark noise re-estimated from the residuals (:class:`FitPriors`)."""
+    model = problem.model
+    problem.slide_jaw(state["rotation"], state["translation"], state["alpha"], state["delta"])
+    r = problem.residuals(state["rotation"], state["translation"], state["alpha"], state["delta"])
+    jac = problem.jacobian(state["rotation"], state["translation"], state["alpha"], state["delta"], model.n_id, model.n_exp, 10.0)
+    d = state["delta"]
+    free = torch.ones(jac.shape[1], dtype=torch.bool)
+    free[6 + model.n_id :] = (d > prior.lower + 1e-9) & (d < prior.upper - 1e-9)
+    a = jac[:, free]
+    data = a.T @ a / noise**2
+    precision = torch.cat([torch.zeros(6, dtype=torch.float64), torch.ones(model.n_id, dtype=torch.float64), prior.exp_scale**-2])[free]
+    p_eff = float(torch.trace(torch.linalg.solve(data + torch.diag(precision), data)))
+    n_obs = 2 * problem.n_valid - len(problem.sliding)  # a sliding point only constrains its normal
+    rss = float(r @ r)
+    return float(np.sqrt(rss / max(n_obs - p_eff, 1.0))), p_eff
+
+
 def fit_landmarks(
     model: MorphableModel,
     landmarks: np.ndarray | torch.Tensor,
     camera: Camera,
     weights: np.ndarray | None = None,
     schedule: tuple[LandmarkStage, ...] = LANDMARK_SCHEDULE,
+    priors: FitPriors = DEFAULT_PRIORS,
+    init: Fit | None = None,
 ) -> Fit:
-    """Fit pose, identity and expression to 88 given landmarks (no image).
+    """Fit pose, identity and expression to 88 given landmarks (no image): the MAP estimate of
+    :class:`FitPriors`, with expression weights inside the model's range.
 
     Args:
         model: the morphable model.
         landmarks: (88, 2) pixels (corner-origin); NaN rows are ignored.
         camera: the intrinsics of the image the landmarks come from.
-        weights: (88,) per-point weights (default: :data:`LANDMARK_WEIGHTS`).
-        schedule: the coarse-to-fine stages.
+        weights: (88,) per-point relative precisions (default: :data:`LANDMARK_WEIGHTS`).
+        schedule: the coarse-to-fine stages (the last one is repeated after each noise update).
+        priors: the priors and the landmark noise model.
+        init: start from this fit's pose, α and δ (e.g. a regressor's prediction; δ is clipped
+            into the model's range) instead of solvePnP on the mean shape.
     Returns:
-        A :class:`Fit` with β = 0 and γ = ambient white (no photometric stage).
+        A :class:`Fit` with β = 0 and γ = ambient white (no photometric stage);
+        ``info["landmark_noise"]`` holds the estimated noise (px and inter-ocular fraction),
+        the effective number of parameters and the expression weights held at a bound.
     """
     targets = np.asarray(landmarks.detach().cpu().numpy() if isinstance(landmarks, torch.Tensor) else landmarks, dtype=np.float64)
     if targets.shape != (N_LANDMARKS, 2):
@@ -339,24 +502,74 @@ def fit_landmarks(
     weights = LANDMARK_WEIGHTS if weights is None else np.asarray(weights, dtype=np.float32)
     if weights.shape != (N_LANDMARKS,) or not np.all(np.isfinite(weights)) or np.any(weights < 0):
         raise InputError("<weights>", "weights", f"({N_LANDMARKS},) finite, non-negative", str(weights.shape))
+    check_landmarks(targets, camera)
 
-    timings: dict[str, float] = {}
-    t0 = time.perf_counter()
-    rotation, translation = _initial_pose(model, targets, camera)
-    timings["pose_init"] = time.perf_counter() - t0
+    with _threads_for_small_problems():
+        timings: dict[str, float] = {}
+        t0 = time.perf_counter()
+        prior = _Prior(model, priors)
+        if init is None:
+            rotation, translation = _initial_pose(model, targets, camera)
+            alpha, delta = np.zeros(model.n_id), np.zeros(model.n_exp)
+        else:
+            rotation, translation, alpha, delta = init.rotation, init.translation, init.alpha, init.delta
+        timings["pose_init"] = time.perf_counter() - t0
 
-    t0 = time.perf_counter()
-    problem = _LandmarkProblem(model, targets, camera, weights)
-    state = {
-        "rotation": torch.tensor(rotation, dtype=torch.float64),
-        "translation": torch.tensor(translation, dtype=torch.float64),
-        "alpha": torch.zeros(model.n_id, dtype=torch.float64),
-        "delta": torch.zeros(model.n_exp, dtype=torch.float64),
+        t0 = time.perf_counter()
+        problem = _LandmarkProblem(model, targets, camera, weights)
+        state = {
+            "rotation": torch.tensor(np.asarray(rotation), dtype=torch.float64),
+            "translation": torch.tensor(np.asarray(translation), dtype=torch.float64),
+            "alpha": torch.tensor(np.asarray(alpha), dtype=torch.float64),
+            "delta": prior.project(torch.tensor(np.asarray(delta), dtype=torch.float64)),
+        }
+        noise = priors.noise
+        steps = {stage.name: _levenberg_marquardt(problem, state, stage, prior, noise) for stage in schedule[:-1]}
+        history = [noise]
+        p_eff = float("nan")
+        last = schedule[-1]
+        for round_ in range(priors.noise_rounds + 1):
+            if round_ > 0 or len(schedule) > 1:  # the noise is estimated once some shape is fitted
+                estimate, p_eff = _estimate_noise(problem, state, prior, noise)
+                estimate = max(estimate, priors.noise_floor)
+                if round_ > 0 and abs(np.log(estimate / noise)) < NOISE_TOLERANCE:
+                    break
+                noise = estimate
+                history.append(noise)
+            stage = last if round_ == 0 else LandmarkStage(last.name, max(last.iterations // 2, 1), last.n_id, last.expression)
+            steps[f"{last.name}@{noise:.4f}"] = _levenberg_marquardt(problem, state, stage, prior, noise)
+        problem.slide_jaw(state["rotation"], state["translation"], state["alpha"], state["delta"])
+        timings["landmarks"] = time.perf_counter() - t0
+    d = state["delta"]
+    info = {
+        "landmark_steps": steps,
+        "landmark_noise": {
+            "iod_fraction": noise,
+            "px": noise * problem.scale,
+            "history_iod_fraction": history,
+            "effective_parameters": p_eff,
+            "expression_at_lower": int(((d <= prior.lower + 1e-9) & torch.isfinite(prior.lower)).sum()),
+            "expression_at_upper": int(((d >= prior.upper - 1e-9) & torch.isfinite(prior.upper)).sum()),
+        },
     }
-    steps = {stage.name: _levenberg_marquardt(problem, state, stage) for stage in schedule}
-    problem.slide_jaw(state["rotation"], state["translation"], state["alpha"], state["delta"])
-    timings["landmarks"] = time.perf_counter() - t0
-    return _assemble(model, problem, state, camera, targets, timings, {"landmark_steps": steps})
+    return _assemble(model, problem, state, camera, targets, timings, info)
+
+
+#: Torch threads for the landmark fit's small (176 × ~160) linear algebra: on a loaded 2-core
+#: machine torch's intra-op threads made it 5–15× slower for identical results
+#: (benchmarks/bench_fit_speed.py, results in benchmarks/RESULTS.md).
+LANDMARK_FIT_THREADS = 1
+
+
+@contextmanager
+def _threads_for_small_problems() -> Iterator[None]:
+    """Run the block on at most :data:`LANDMARK_FIT_THREADS` torch threads, then restore."""
+    previous = torch.get_num_threads()
+    torch.set_num_threads(min(previous, LANDMARK_FIT_THREADS))
+    try:
+        yield
+    finally:
+        torch.set_num_threads(previous)
 
 
 def _assemble(
@@ -433,7 +646,7 @@ def _fit_photometric(model: MorphableModel, fit_result: Fit, image_linear: np.nd
     beta = torch.zeros(model.n_tex, dtype=torch.float64)
     gamma = AMBIENT_WHITE.double().clone()
     inliers = torch.ones(len(use), dtype=torch.bool)
-    sh_ridge = torch.full((N_SH,), REGULARISATION["sh"], dtype=torch.float64)
+    sh_ridge = torch.full((N_SH,), PHOTOMETRIC_REGULARISATION["sh"], dtype=torch.float64)
     sh_ridge[0] = 0.0
     for _ in range(rounds):
         albedo = mean_albedo if tex_basis is None else mean_albedo + torch.einsum("k,kvc->vc", beta, tex_basis)
@@ -444,7 +657,7 @@ def _fit_photometric(model: MorphableModel, fit_result: Fit, image_linear: np.nd
             irr = basis @ gamma.T  # (N, 3)
             design = (tex_basis[:, inliers] * irr[inliers][None]).permute(1, 2, 0).reshape(-1, model.n_tex)
             rhs = (observed[inliers] - mean_albedo[inliers] * irr[inliers]).reshape(-1)
-            reg = REGULARISATION["tex"] * len(rhs) * torch.eye(model.n_tex, dtype=torch.float64)
+            reg = PHOTOMETRIC_REGULARISATION["tex"] * len(rhs) * torch.eye(model.n_tex, dtype=torch.float64)
             beta = torch.linalg.solve(design.T @ design + reg, design.T @ rhs)
         albedo = mean_albedo if tex_basis is None else mean_albedo + torch.einsum("k,kvc->vc", beta, tex_basis)
         residual = (albedo * (basis @ gamma.T) - observed).norm(dim=1)
@@ -513,4 +726,5 @@ def fit(
         faces_found=detection.n_faces if detection else None,
         notes=notes,
     )
+    check_fit(result, image)
     return result

@@ -248,9 +248,13 @@ def _load_npz(path: Path) -> MorphableModel:
     if names.dtype.kind not in "U" and names.size:
         raise ModelFileError(path, "expression_names", "an array of strings", f"dtype {names.dtype}")
     name = str(arrays["name"][()]) if "name" in arrays else path.stem
+    # An npz states its expression kind; without the key, named expressions are blendshapes
+    # (the bundled ICT-FaceKit model: ARKit-style weights on [0, 1]) and unnamed ones PCA.
+    kind = str(arrays["expression_kind"][()]) if "expression_kind" in arrays else ("blendshape" if names.size else "pca")
     return _build(
         path,
         name=name,
+        expression_kind=kind,
         expression_names=[str(n) for n in names.reshape(-1)],
         **{key: arrays[key] for key in _NPZ_REQUIRED[1:]},
     )
@@ -507,6 +511,7 @@ def _load_tencent(
         landmark_indices=landmark_indices,
         face_mask=face_mask,
         expression_names=[],
+        expression_kind="pca",
         name=name,
     )
 

@@ -17,7 +17,7 @@ import torch
 
 from facegeo.errors import ModelFileError
 
-__all__ = ["MorphableModel", "N_LANDMARKS", "N_IBUG", "LIP_LANDMARKS_FROM_IBUG"]
+__all__ = ["MorphableModel", "N_LANDMARKS", "N_IBUG", "LIP_LANDMARKS_FROM_IBUG", "EXPRESSION_KINDS"]
 
 #: 68 iBUG points followed by 20 MediaPipe lip points (outer 12 + inner 8, iBUG order 48..67).
 N_IBUG = 68
@@ -25,6 +25,8 @@ N_LANDMARKS = 88
 #: The lip points re-use the model correspondences of iBUG points 48..67 (same semantic points,
 #: detected by MediaPipe instead of dlib).
 LIP_LANDMARKS_FROM_IBUG = np.arange(48, 68)
+#: What the expression coefficients δ are (see :class:`MorphableModel`).
+EXPRESSION_KINDS = ("blendshape", "pca")
 
 
 @dataclass(eq=False)
@@ -46,6 +48,10 @@ class MorphableModel:
             jaw landmarks slide in fitting.
         face_mask: (V,) bool, the facial region (used for the skin mask and for errors).
         expression_names: names of the expression components (may be empty).
+        expression_kind: ``"blendshape"`` (δ are blendshape weights, each valid on
+            ``expression_range``, [0, 1] for ICT-FaceKit's ARKit-style shapes; the fit puts a
+            magnitude and sparsity prior on them) or ``"pca"`` (δ in σ units with the Gaussian
+            prior N(0, I), unbounded: Hifi3D++ and AI-NExT files).
         name: a short human-readable name; ``source``: the file it came from.
     """
 
@@ -60,6 +66,7 @@ class MorphableModel:
     landmark_indices: np.ndarray
     face_mask: np.ndarray
     expression_names: list[str] = field(default_factory=list)
+    expression_kind: str = "pca"
     name: str = "model"
     source: str = "<memory>"
 
@@ -115,6 +122,8 @@ class MorphableModel:
             self._fail("triangles", "at least one triangle", "none")
         if self.expression_names and len(self.expression_names) != self.n_exp:
             self._fail("expression_names", f"{self.n_exp} names", str(len(self.expression_names)))
+        if self.expression_kind not in EXPRESSION_KINDS:
+            self._fail("expression_kind", f"one of {', '.join(EXPRESSION_KINDS)}", repr(self.expression_kind))
 
     # ------------------------------------------------------------------ sizes
     @property
@@ -131,6 +140,14 @@ class MorphableModel:
     def n_exp(self) -> int:
         """Number of expression components (read from the file)."""
         return int(self.exp_basis.shape[0])
+
+    @property
+    def expression_range(self) -> tuple[np.ndarray, np.ndarray]:
+        """(lower, upper): (n_exp,) float32 bounds of each expression coefficient: [0, 1] for
+        blendshape weights, (−inf, inf) for PCA coefficients in σ units."""
+        if self.expression_kind == "blendshape":
+            return np.zeros(self.n_exp, np.float32), np.ones(self.n_exp, np.float32)
+        return np.full(self.n_exp, -np.inf, np.float32), np.full(self.n_exp, np.inf, np.float32)
 
     @property
     def n_tex(self) -> int:

@@ -22,6 +22,7 @@ import numpy as np
 from PIL import Image, ImageFile
 
 from facegeo.errors import InputError
+from facegeo.native_stderr import silenced_native_stderr
 
 __all__ = ["Photo", "load_photo", "as_rgb_uint8", "MIN_SIDE", "DEFAULT_MAX_SIDE"]
 
@@ -66,6 +67,8 @@ class Photo:
         notes: human-readable remarks about what was done to the pixels, e.g.
             ``"downscaled from 8000x6000 to 2048x1536"`` or ``"alpha channel composited over
             white"``; empty for a plain 8-bit RGB file of acceptable size.
+        opacity: None for an opaque photo; else (H, W) float32 alpha in [0, 1] on ``image``'s
+            grid (the fit refuses a face that is mostly transparent: facegeo.fit_checks).
 
     Equality is identity (``eq=False``): comparing arrays element-wise is left to the caller.
     """
@@ -75,12 +78,15 @@ class Photo:
     scale: float
     original_size: tuple[int, int]
     notes: tuple[str, ...] = ()
+    opacity: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         img = self.image
         if not (isinstance(img, np.ndarray) and img.ndim == 3 and img.shape[2] == 3
                 and img.dtype == np.uint8 and img.flags.c_contiguous):
             raise ValueError("Photo.image must be a C-contiguous (H, W, 3) uint8 array")
+        if self.opacity is not None and np.shape(self.opacity) != img.shape[:2]:
+            raise ValueError(f"Photo.opacity must be None or an (H, W) = {img.shape[:2]} array, got {np.shape(self.opacity)}")
         object.__setattr__(self, "notes", tuple(self.notes))
         object.__setattr__(self, "original_size", tuple(int(v) for v in self.original_size))
 
@@ -248,11 +254,13 @@ def load_photo(path: str | os.PathLike[str], max_side: int = DEFAULT_MAX_SIDE) -
 
     rgb, conv_notes = _to_rgb_uint8(array, source, allow_grey_alpha=True)
     notes.extend(n for n in conv_notes if n not in notes)
+    opacity = _opacity(array)
     if icc_note:
         notes.append(icc_note)
 
     if orientation in _ORIENTATION_NAMES:
         rgb = _apply_orientation(rgb, orientation)
+        opacity = None if opacity is None else np.ascontiguousarray(_apply_orientation(opacity[:, :, None], orientation)[:, :, 0])
         notes.append(f"EXIF orientation {orientation} applied ({_ORIENTATION_NAMES[orientation]})")
     rgb = np.ascontiguousarray(rgb)
     h, w = rgb.shape[:2]
@@ -264,6 +272,8 @@ def load_photo(path: str | os.PathLike[str], max_side: int = DEFAULT_MAX_SIDE) -
         new_h = max(1, min(max_side, int(round(h * scale))))
         rgb = cv2.resize(rgb, (new_w, new_h), interpolation=cv2.INTER_AREA)
         rgb = np.ascontiguousarray(rgb)
+        if opacity is not None:
+            opacity = cv2.resize(opacity, (new_w, new_h), interpolation=cv2.INTER_AREA)
         notes.append(f"downscaled from {w}x{h} to {new_w}x{new_h}")
         if min(new_w, new_h) < MIN_SIDE:
             raise InputError(source, "image size",
@@ -271,7 +281,17 @@ def load_photo(path: str | os.PathLike[str], max_side: int = DEFAULT_MAX_SIDE) -
                              f"{max_side} px on the long side (a face cannot be found below that)",
                              f"{w}x{h} px, {new_w}x{new_h} px after downscaling")
 
-    return Photo(image=rgb, path=source, scale=scale, original_size=(w, h), notes=tuple(notes))
+    return Photo(image=rgb, path=source, scale=scale, original_size=(w, h), notes=tuple(notes), opacity=opacity)
+
+
+def _opacity(array: np.ndarray) -> np.ndarray | None:
+    """(H, W) float32 alpha in [0, 1] of a grey+alpha or RGBA array, None if it is opaque."""
+    if array.ndim != 3 or array.shape[2] not in (2, 4):
+        return None
+    alpha = array[:, :, -1]
+    top = float(np.iinfo(alpha.dtype).max) if np.issubdtype(alpha.dtype, np.integer) else 1.0
+    opacity = np.clip(alpha.astype(np.float32) / top, 0.0, 1.0)
+    return None if bool((opacity >= 1.0).all()) else np.ascontiguousarray(opacity)
 
 
 def _check_file(p: Path, source: str) -> None:
@@ -439,7 +459,8 @@ def _decode_16bit_colour(p: Path, size: tuple[int, int], fallback: np.ndarray) -
     8-bit pixels) when OpenCV cannot decode the file or disagrees on its size or channels.
     """
     try:
-        arr = cv2.imdecode(np.fromfile(p, dtype=np.uint8), cv2.IMREAD_UNCHANGED)
+        with silenced_native_stderr():  # libpng's own "libpng error: ..." line
+            arr = cv2.imdecode(np.fromfile(p, dtype=np.uint8), cv2.IMREAD_UNCHANGED)
     except Exception:  # pragma: no cover - cv2 errors on odd files
         return fallback
     if (arr is None or arr.dtype != np.uint16 or arr.ndim != 3 or arr.shape[1::-1] != size

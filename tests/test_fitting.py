@@ -23,9 +23,18 @@ def similarity_rms(a: np.ndarray, b: np.ndarray) -> float:
     return float(np.sqrt(((scale * a @ r.T - bb) ** 2).sum(1).mean()))
 
 
+def realistic_delta(model, rng, sigma=0.5, active=5):
+    """Blendshape weights as real faces have them: a few active shapes in [0, 1], the rest 0."""
+    delta = np.zeros(model.n_exp, np.float32)
+    if sigma > 0:
+        keys = rng.choice(model.n_exp, size=active, replace=False)
+        delta[keys] = np.clip(np.abs(rng.normal(0, sigma, active)), 0, 1)
+    return delta
+
+
 def synthetic(model, rng, yaw, sigma=0.5, pitch=None, roll=None):
     alpha = rng.normal(0, sigma, model.n_id).astype(np.float32)
-    delta = rng.normal(0, sigma, model.n_exp).astype(np.float32)
+    delta = realistic_delta(model, rng, sigma)
     pitch = rng.uniform(-15, 15) if pitch is None else pitch
     roll = rng.uniform(-10, 10) if roll is None else roll
     rotation = rotation_from_euler(yaw, pitch, roll)
@@ -50,8 +59,10 @@ def test_noiseless_recovery(model, seed, yaw):
     error = similarity_rms(fit.shape_vertices[face], shape[face])
     baseline = similarity_rms(model.mean_shape[face], shape[face])
     assert error <= 0.6 * baseline, (error, baseline)
-    # the pose is recovered too
-    assert np.allclose(euler_from_rotation(fit.rotation), euler_from_rotation(rotation), atol=3.0)
+    # the pose is recovered too; pitch trades off against the face's profile (how far the mouth
+    # and chin sit behind the nose), which landmarks see only through perspective
+    error = np.abs(np.subtract(euler_from_rotation(fit.rotation), euler_from_rotation(rotation)))
+    assert np.all(error <= (2.0, 4.0, 2.0)), error
     # posed vertices are the model-space vertices moved by the returned pose
     np.testing.assert_allclose(fit.vertices, fit.shape_vertices @ fit.rotation.T + fit.translation, atol=1e-3)
 
@@ -140,3 +151,108 @@ def test_analytic_jacobian_matches_autodiff(model):
     expected = torch.func.jacfwd(residuals)(x0)
     actual = problem.jacobian(r0, t0, a0, d0, n_id, n_exp, unit)
     torch.testing.assert_close(actual, expected, rtol=1e-9, atol=1e-12)
+
+
+# ------------------------------------------------------------------ the MAP fit (issue 13)
+def _noisy_face(model, rng, noise_iod, yaw=15.0):
+    from facegeo.landmarks.scheme import inter_ocular_distance
+
+    shape, rotation, landmarks = synthetic(model, rng, yaw)
+    iod = inter_ocular_distance(landmarks)
+    return shape, landmarks + rng.normal(0, noise_iod * iod, landmarks.shape), iod
+
+
+def test_expressions_stay_in_their_range_and_most_are_exactly_zero(model):
+    """Noisy landmarks: every ICT weight in [0, 1] (the projected LM keeps them there), most of
+    them exactly at 0 (the sparsity prior), mouthClose at most jawOpen (its driver)."""
+    rng = np.random.default_rng(21)
+    _, landmarks, _ = _noisy_face(model, rng, 0.03)
+    fit = fit_landmarks(model, landmarks, CAMERA)
+    assert fit.delta.min() >= 0.0 and fit.delta.max() <= 1.0
+    assert np.count_nonzero(fit.delta == 0.0) >= model.n_exp // 2
+    names = model.expression_names
+    assert fit.delta[names.index("mouthClose")] <= fit.delta[names.index("jawOpen")]
+    assert fit.info["landmark_noise"]["expression_at_lower"] == np.count_nonzero(fit.delta == 0.0)
+
+
+@pytest.mark.parametrize("noise_iod", [0.01, 0.04])
+def test_noise_level_is_estimated(model, noise_iod):
+    """Known Gaussian landmark noise (a fraction of the inter-ocular distance) is recovered by
+    the evidence estimate within 35 %."""
+    from facegeo.landmarks.scheme import inter_ocular_distance
+
+    rng = np.random.default_rng(int(noise_iod * 1000))
+    _, landmarks, _ = _noisy_face(model, rng, noise_iod)
+    fit = fit_landmarks(model, landmarks, CAMERA)
+    estimate = fit.info["landmark_noise"]["iod_fraction"]
+    assert estimate == pytest.approx(noise_iod, rel=0.35)
+    assert fit.info["landmark_noise"]["px"] == pytest.approx(estimate * inter_ocular_distance(landmarks), rel=1e-6)
+
+
+def test_more_noise_means_a_stronger_prior(model):
+    """The same face with 4 % instead of 0.5 % noise: the identity is pulled towards the mean."""
+    rng = np.random.default_rng(5)
+    shape, _, landmarks = synthetic(model, rng, 10.0)
+    from facegeo.landmarks.scheme import inter_ocular_distance
+
+    iod = inter_ocular_distance(landmarks)
+    unit = rng.normal(0, 1, landmarks.shape)
+    low = fit_landmarks(model, landmarks + 0.005 * iod * unit, CAMERA)
+    high = fit_landmarks(model, landmarks + 0.04 * iod * unit, CAMERA)
+    assert np.linalg.norm(high.alpha) < 0.8 * np.linalg.norm(low.alpha)
+
+
+def test_jaw_contour_cannot_pull_expressions(model):
+    """The sliding contour points move with identity and jaw articulation only: widening the
+    detected jaw line changes no mouth or cheek blendshape (cheekPuff was its favourite)."""
+    from facegeo.fitting import _LandmarkProblem
+    from facegeo.landmarks.scheme import LANDMARK_WEIGHTS
+
+    rng = np.random.default_rng(8)
+    _, rotation, landmarks = synthetic(model, rng, 0.0, sigma=0.0)
+    problem = _LandmarkProblem(model, landmarks, CAMERA, LANDMARK_WEIGHTS)
+    jac = problem.jacobian(torch.tensor(rotation), torch.tensor([0.0, 0.0, -600.0], dtype=torch.float64),
+                           torch.zeros(model.n_id, dtype=torch.float64), torch.zeros(model.n_exp, dtype=torch.float64),
+                           model.n_id, model.n_exp, 10.0)
+    exp_cols = jac[:, 6 + model.n_id :].reshape(88, 2, model.n_exp)
+    jaw_shapes = np.array([n.startswith("jaw") for n in model.expression_names])
+    sliding = [j for j in range(17) if j != 8]
+    assert torch.all(exp_cols[sliding][:, :, ~jaw_shapes] == 0)
+    assert torch.any(exp_cols[8][:, ~jaw_shapes] != 0)  # the chin sees every expression
+    from facegeo.landmarks.scheme import inter_ocular_distance
+
+    noisy = landmarks + rng.normal(0, 0.02 * inter_ocular_distance(landmarks), landmarks.shape)
+    wide = noisy.copy()
+    centre = noisy[:17].mean(0)
+    wide[sliding] = centre + 1.1 * (noisy[sliding] - centre)
+    cheeks = [model.expression_names.index(n) for n in ("cheekPuff_L", "cheekPuff_R", "mouthStretch_L", "mouthStretch_R")]
+    before, after = fit_landmarks(model, noisy, CAMERA), fit_landmarks(model, wide, CAMERA)
+    assert np.abs(after.delta[cheeks] - before.delta[cheeks]).max() < 0.05
+    assert np.linalg.norm(after.alpha - before.alpha) > 0.5  # the identity took the wider jaw
+
+
+def test_pca_expressions_are_unbounded(model):
+    """A PCA expression model (Hifi3D++ kind) keeps δ in σ units with its Gaussian prior: the
+    fit reaches negative coefficients."""
+    import dataclasses
+
+    pca = dataclasses.replace(model, expression_kind="pca", expression_names=[])
+    rng = np.random.default_rng(12)
+    delta = rng.normal(0, 0.5, model.n_exp).astype(np.float32)
+    shape = model.shape(torch.zeros(model.n_id), torch.from_numpy(delta)).numpy()
+    landmarks = project(shape[model.landmark_indices].astype(np.float64), np.eye(3), np.array([0, 0, -600.0]), CAMERA)
+    fit = fit_landmarks(pca, landmarks, CAMERA)
+    assert fit.delta.min() < -0.1
+    assert fit.landmark_rms_px < 0.5
+
+
+def test_initial_fit_is_used(model):
+    """``init=`` starts from a given pose and coefficients: from the truth, the fit stays there."""
+    import dataclasses
+
+    rng = np.random.default_rng(14)
+    shape, rotation, landmarks = synthetic(model, rng, 30.0)
+    first = fit_landmarks(model, landmarks, CAMERA)
+    again = fit_landmarks(model, landmarks, CAMERA, init=dataclasses.replace(first, delta=first.delta + 2.0))
+    assert np.all(again.delta <= 1.0)
+    assert again.landmark_rms_px <= first.landmark_rms_px + 0.05

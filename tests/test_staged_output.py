@@ -7,7 +7,7 @@ import stat
 
 import pytest
 
-from facegeo.errors import InputError
+from facegeo.errors import InputError, OutputError
 from facegeo.staged_output import TEMP_PREFIX, StagedOutput, atomic_write_bytes, atomic_write_text
 
 
@@ -210,7 +210,7 @@ def test_atomic_write_failure_leaves_old_file(tmp_path, monkeypatch):
         raise OSError(28, "No space left on device")
 
     monkeypatch.setattr(os, "fsync", fail)
-    with pytest.raises(OSError):
+    with pytest.raises(OutputError, match="no space left"):  # a full disk is one facegeo error
         atomic_write_text(p, "new")
     assert p.read_text() == "old"
     assert [q.name for q in tmp_path.iterdir()] == ["f.txt"]

@@ -60,6 +60,8 @@ from typing import NamedTuple
 import torch
 from torch import Tensor
 
+from facegeo.errors import check_finite
+
 __all__ = [
     "ShadingResult",
     "shade_ggx",
@@ -412,6 +414,10 @@ def shade_ggx(
         (B, 3, H, W) linear RGB, ``visibility`` (B, 1, H, W). ``diffuse``, ``glossy`` and
         ``shading`` are not masked.
 
+    Raises:
+        InputError: NaN or ±inf in any input, naming the argument (not checked under
+            ``torch.compile``); ValueError: shapes, dtypes or devices that do not match.
+
     Guards (module docstring): ALPHA_MIN = 2e-3, EPS_NORM = 1e-12, EPS_PARALLEL = 1e-3,
     EPS_HALF = 1e-6, EPS_SMITH = 1e-8. None changes a result where its condition does not hold.
     """
@@ -427,6 +433,9 @@ def shade_ggx(
         "mask": (mask, 1),
     }
     batch, n_lights, height, width = _check_inputs(maps, light_dirs, light_radiance, camera_pos)
+    if not torch.compiler.is_compiling():  # one NaN texel would make every gradient NaN: refuse it
+        check_finite({**{name: t for name, (t, _) in maps.items()}, "light_dirs": light_dirs, "light_radiance": light_radiance,
+                      "camera_pos": camera_pos, "ambient": ambient, "s_disp": s_disp}, "shade_ggx")
     dtype = albedo.dtype
     if isinstance(ambient, Tensor):
         if ambient.dim() > 1 or (ambient.dim() == 1 and ambient.shape[0] not in (1, batch)):

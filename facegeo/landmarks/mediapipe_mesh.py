@@ -66,6 +66,7 @@ import numpy as np
 
 from facegeo.errors import InputError, ModelFileError
 from facegeo.landmarks.scheme import IBUG_MIRROR
+from facegeo.native_stderr import silenced_native_stderr
 
 __all__ = [
     "BlazeFaceDetection",
@@ -437,8 +438,9 @@ class _Model:
         except ImportError as exc:  # pragma: no cover - a declared dependency
             raise ModelFileError(path, "runtime", "the ai-edge-litert package", str(exc)) from exc
         try:
-            self.interpreter = Interpreter(model_path=str(path), num_threads=num_threads)
-            self.interpreter.allocate_tensors()
+            with silenced_native_stderr():  # LiteRT's "INFO: Created TensorFlow Lite XNNPACK delegate"
+                self.interpreter = Interpreter(model_path=str(path), num_threads=num_threads)
+                self.interpreter.allocate_tensors()
         except (ValueError, RuntimeError) as exc:
             raise ModelFileError(path, "contents", "a TFLite flatbuffer",
                                  f"{type(exc).__name__}: {str(exc).strip()[:200]}") from exc

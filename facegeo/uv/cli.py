@@ -54,7 +54,7 @@ def register(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParser:
     p.add_argument("--size", type=int, default=1024, help="UV map size in texels (default 1024)")
     p.add_argument("--padding", type=int, default=None, help="seam padding in texels (default size/128, at least 2)")
     p.add_argument("--occlusion", type=Path, default=None, help="optional image-space mask, same size as the photo: white where hair, glasses or hands cover the face")
-    p.set_defaults(run=run_unwrap)
+    p.set_defaults(run=run_unwrap, output_folder=True)
     return p
 
 
@@ -63,6 +63,7 @@ def run_unwrap(args: argparse.Namespace) -> None:
     import cv2
 
     from facegeo.camera import Camera, euler_from_rotation
+    from facegeo.cli import COMMAND_LINE
     from facegeo.fitting import fit
     from facegeo.model_files import load_model
     from facegeo.photo import load_photo
@@ -72,9 +73,9 @@ def run_unwrap(args: argparse.Namespace) -> None:
     from facegeo.uv.unwrapping import FACING_RAMP, unwrap_details
 
     if not 16 <= args.size <= MAX_SIZE:
-        raise InputError("--size", "map size", f"an integer in [16, {MAX_SIZE}]", str(args.size))
+        raise InputError(COMMAND_LINE, "--size", f"a map size in [16, {MAX_SIZE}] texels", str(args.size))
     if args.padding is not None and args.padding < 0:
-        raise InputError("--padding", "seam padding", "a number of texels ≥ 0", str(args.padding))
+        raise InputError(COMMAND_LINE, "--padding", "a number of texels ≥ 0", str(args.padding))
     start = time.perf_counter()
     timings: dict[str, float] = {}
     photo = load_photo(args.photo, max_side=args.max_side)
@@ -125,7 +126,7 @@ def run_unwrap(args: argparse.Namespace) -> None:
         "landmark_rms_px": float(result.landmark_rms_px),
     }
     t = time.perf_counter()
-    with StagedOutput(args.output) as stage:
+    with StagedOutput(args.output, replace=True) as stage:
         rgb8 = np.clip(np.round(texture * 255.0), 0, 255).astype(np.uint8)
         stage.path("texture_incomplete.png").write_bytes(_png(cv2, rgb8[..., ::-1]))
         stage.path("visibility.png").write_bytes(_png(cv2, np.clip(np.round(vis * 255.0), 0, 255).astype(np.uint8)))
