@@ -10,6 +10,11 @@ The folder::
     roughness.png     16-bit
     specular.png      16-bit
     displacement.png  16-bit, value = offset + scale × texel/65535 (mm)
+    parts/<part>_mesh.obj, parts/<part>_<map>.png
+                      each part (eyeballs, teeth, ...) with its own mesh, maps and constants
+
+``asset.json`` lists the parts as ``"parts": [{"name", "mesh", "maps", "constants"}]`` and the
+face region as ``"face_triangles": [[start, stop], ...]`` (triangle index ranges).
 
 Each map entry of ``asset.json`` is ``{"file", "bits", "colorspace", "scale", "offset",
 "shape"}`` (see :mod:`facegeo.export.textures`); the value of a texel is
@@ -39,6 +44,7 @@ ASSET_FILE = "asset.json"
 ASSET_FORMAT = "facegeo-asset"
 ASSET_VERSION = 1
 _MESH_FILE = "mesh.obj"
+_PARTS_DIR = "parts"
 
 
 def save_asset(asset: Asset, folder: str | os.PathLike[str], *, linear_bits: int = 16) -> Path:
@@ -56,35 +62,52 @@ def write_asset_files(asset: Asset, folder: str | os.PathLike[str], *, linear_bi
         raise InputError("<asset>", "asset", "a facegeo.asset.Asset", type(asset).__name__)
     asset.validate()  # again: the maps may have been changed since construction
     out = Path(folder)
-    maps: dict[str, Any] = {}
-    for name in MAP_NAMES:
-        if name not in asset.maps:
-            continue
-        bits = 8 if name == "albedo" else linear_bits
-        image, encoding = encode_map(name, asset.maps[name], bits)
-        file = f"{name}.png"
-        (out / file).write_bytes(png_bytes(image))
-        maps[name] = {"file": file, **encoding, "shape": list(asset.maps[name].shape)}
-    (out / _MESH_FILE).write_text(obj_text(asset.vertices, asset.triangles, asset.uv, asset.uv_triangles))
-    constants = {k: (list(map(float, v)) if np.ndim(v) else float(v)) for k, v in asset.constants.items()}
-    doc = {
+    doc: dict[str, Any] = {
         "format": ASSET_FORMAT,
         "version": ASSET_VERSION,
         "name": asset.name,
         "units": "mm",
         "up_axis": "Y",
         "uv_origin": "bottom-left",
-        "mesh": _MESH_FILE,
-        "maps": maps,
-        "constants": constants,
-        "metadata": asset.metadata,
+        **_write_surface(asset, out, "", linear_bits),
     }
+    if asset.face_triangles is not None:
+        doc["face_triangles"] = _ranges(asset.face_triangles)
+    if asset.parts:
+        (out / _PARTS_DIR).mkdir(exist_ok=True)
+        doc["parts"] = [{"name": part.name, **_write_surface(part, out, f"{_PARTS_DIR}/{part.name}_", linear_bits)}
+                        for part in asset.parts]
+    doc["metadata"] = asset.metadata
     try:
         text = json.dumps(doc, indent=1, allow_nan=False)
     except (TypeError, ValueError) as exc:
         raise InputError("<asset>", "metadata", "JSON-ready values (numbers, strings, lists, dicts)", str(exc)) from None
     (out / ASSET_FILE).write_text(text)
     return doc
+
+
+def _write_surface(asset: Asset, out: Path, prefix: str, linear_bits: int) -> dict[str, Any]:
+    """Write one surface's mesh and maps as ``<prefix>mesh.obj``, ``<prefix><map>.png``; returns
+    its ``mesh``, ``maps`` and ``constants`` records."""
+    maps: dict[str, Any] = {}
+    for name in MAP_NAMES:
+        if name not in asset.maps:
+            continue
+        bits = 8 if name == "albedo" else linear_bits
+        image, encoding = encode_map(name, asset.maps[name], bits)
+        file = f"{prefix}{name}.png"
+        (out / file).write_bytes(png_bytes(image))
+        maps[name] = {"file": file, **encoding, "shape": list(asset.maps[name].shape)}
+    mesh = f"{prefix}{_MESH_FILE}"
+    (out / mesh).write_text(obj_text(asset.vertices, asset.triangles, asset.uv, asset.uv_triangles))
+    constants = {k: (list(map(float, v)) if np.ndim(v) else float(v)) for k, v in asset.constants.items()}
+    return {"mesh": mesh, "maps": maps, "constants": constants}
+
+
+def _ranges(mask: np.ndarray) -> list[list[int]]:
+    """[[start, stop), ...] of the True runs of a bool array (compact in JSON: ICT's face region is one run)."""
+    edges = np.flatnonzero(np.diff(np.concatenate([[0], mask.astype(np.int8), [0]])))
+    return edges.reshape(-1, 2).tolist()
 
 
 def load_asset(folder: str | os.PathLike[str]) -> Asset:
@@ -108,6 +131,33 @@ def load_asset(folder: str | os.PathLike[str]) -> Asset:
         raise InputError(meta_path, "format", repr(ASSET_FORMAT), repr(doc.get("format") if isinstance(doc, dict) else doc))
     if doc.get("version") != ASSET_VERSION:
         raise InputError(meta_path, "version", str(ASSET_VERSION), repr(doc.get("version")))
+    parts = []
+    records = doc.get("parts", []) or []
+    if not isinstance(records, list):
+        raise InputError(meta_path, "parts", "a list of part records")
+    for k, rec in enumerate(records):
+        if not isinstance(rec, dict) or not isinstance(rec.get("name"), str):
+            raise InputError(meta_path, f"parts[{k}]", "a record with a name, mesh, maps and constants")
+        parts.append(Asset(**_read_surface(root, meta_path, rec, f"parts[{k}]."), name=rec["name"]))
+    surface = _read_surface(root, meta_path, doc, "")
+    face_triangles = None
+    if "face_triangles" in doc:
+        face_triangles = np.zeros(len(surface["triangles"]), dtype=bool)
+        try:
+            for start, stop in doc["face_triangles"]:
+                if not 0 <= int(start) < int(stop) <= len(face_triangles):
+                    raise ValueError(f"range [{start}, {stop}) outside [0, {len(face_triangles)}]")
+                face_triangles[int(start):int(stop)] = True
+        except (TypeError, ValueError) as exc:
+            raise InputError(meta_path, "face_triangles", "[start, stop) triangle ranges", str(exc)) from None
+    asset = Asset(**surface, name=str(doc.get("name", "face")), metadata=doc.get("metadata", {}) or {},
+                  parts=parts, face_triangles=face_triangles)
+    asset.validate(str(root))
+    return asset
+
+
+def _read_surface(root: Path, meta_path: Path, doc: dict[str, Any], where: str) -> dict[str, Any]:
+    """Mesh, maps and constants of one record (the asset or one of its parts) as Asset fields."""
     mesh_file = root / str(doc.get("mesh", _MESH_FILE))
     vertices, triangles, uv, uv_triangles = read_obj(mesh_file)
     if uv is None:
@@ -115,9 +165,9 @@ def load_asset(folder: str | os.PathLike[str]) -> Asset:
     maps = {}
     records = doc.get("maps", {})
     if not isinstance(records, dict):
-        raise InputError(meta_path, "maps", "an object of map records")
+        raise InputError(meta_path, f"{where}maps", "an object of map records")
     for name, rec in records.items():
-        field = f"maps.{name}"
+        field = f"{where}maps.{name}"
         if name not in MAP_CHANNELS:
             raise InputError(meta_path, field, f"one of {', '.join(MAP_NAMES)}", repr(name))
         try:
@@ -143,10 +193,8 @@ def load_asset(folder: str | os.PathLike[str]) -> Asset:
             raise InputError(file, field, f"shape {rec['shape']} (as recorded)", str(list(image.shape)))
         maps[name] = decode_map(name, image, encoding)
     constants = doc.get("constants", {}) or {}
-    asset = Asset(vertices, triangles, uv, uv_triangles, maps=maps, constants=constants,
-                  name=str(doc.get("name", "face")), metadata=doc.get("metadata", {}) or {})
-    asset.validate(str(root))
-    return asset
+    return {"vertices": vertices, "triangles": triangles, "uv": uv, "uv_triangles": uv_triangles,
+            "maps": maps, "constants": constants}
 
 
 def read_obj(path: str | os.PathLike[str]) -> tuple[np.ndarray, np.ndarray, np.ndarray | None, np.ndarray | None]:

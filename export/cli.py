@@ -37,6 +37,9 @@ def register(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParser:
                    help="maps to carry, among albedo, normal, roughness, specular, displacement (default: all the asset has)")
     p.add_argument("--displacement", choices=["bake", "texture"], default="bake",
                    help="bake the displacement into the geometry (default) or, USD only, write it as the material's displacement input")
+    from facegeo.cli import add_parts_argument
+
+    add_parts_argument(p)
     p.set_defaults(run=run_export)
     return p
 
@@ -72,10 +75,10 @@ def run_export(args: argparse.Namespace) -> None:
         raise InputError(COMMAND_LINE, "--displacement", "'bake' when writing glb (glTF has no displacement input)", "texture")
     for path, fmt in targets:  # before any work: names, parents, an existing folder in the way
         check_output_location(path, folder=False, extra_names=[path.stem + "_textures"] if fmt in ("usda", "usdc") else [])
-    asset = load_asset(args.asset_dir)
+    asset = load_asset(args.asset_dir).select(args.parts)
     with StagedOutput(out.parent) as stage:
         for path, fmt in targets:
             export_asset(asset, stage.path(path.name), format=fmt, level=args.subdiv, displacement=args.displacement, maps=maps)
     seconds = time.perf_counter() - start
     print(f"wrote {', '.join(str(path) for path, _ in targets)} from {args.asset_dir} "
-          f"(subdivision level {args.subdiv}, {seconds:.2f} s)")
+          f"(parts {args.parts}, subdivision level {args.subdiv}, {seconds:.2f} s)")

@@ -24,6 +24,9 @@ vertex (the same on both sides of a seam). The material:
   sRGB; its F0 is 0.04 × colour); a constant s is ``specularColorFactor = [2s, 2s, 2s]``.
   Without a specular input the extension is not written (glTF's default F0 is 0.04 = 0.08 × 0.5).
 
+Parts (``asset.parts``) follow the skin as their own meshes, nodes and materials (``<part>``,
+``<part>_material``, textures named ``<part>_<map>``), all nodes in the one scene.
+
 ``TEXCOORD_0`` is written only when a texture uses it, ``TANGENT`` only with a normal texture.
 Textures are clamped to the edge and mip-mapped. :func:`validate_glb` runs the Khronos
 glTF-Validator (npm ``gltf-validator``) when node and the package are available.
@@ -45,7 +48,7 @@ from facegeo.asset import Asset
 from facegeo.colour import linear_to_srgb, srgb_to_linear
 from facegeo.errors import InputError
 from facegeo.export.facevarying import wedges
-from facegeo.export.scene import scene_contents
+from facegeo.export.scene import SceneContents, scene_contents
 from facegeo.export.textures import DEFAULT_ROUGHNESS, SPECULAR_F0_SCALE, encode_map, png_bytes, to_uint
 from facegeo.staged_output import atomic_write_bytes
 
@@ -81,22 +84,12 @@ def write_glb(asset: Asset, path: str | os.PathLike[str], *, level: int = 0, map
 
 
 def glb_bytes(asset: Asset, *, level: int = 0, maps: Iterable[str] | None = None, uv_interpolation: str = "surface") -> bytes:
-    """The ``.glb`` file of ``asset`` as bytes (see :func:`write_glb`)."""
+    """The ``.glb`` file of ``asset`` as bytes (see :func:`write_glb`): the skin is mesh, node
+    and material 0; each part follows as its own mesh, node and material (named after it)."""
     import pygltflib as gl
 
-    contents = scene_contents(asset, level=level, displacement="bake", maps=maps, uv_interpolation=uv_interpolation)
-    mesh = contents.mesh
-    inputs = contents.inputs
-    textured = contents.textured
-    with_tangents = "normal" in inputs
-
-    vert, uvi, tris = wedges(mesh.triangles, mesh.uv_triangles if textured else None)
-    uv = mesh.uv[uvi] if textured else None
-    tangents = None
-    if with_tangents:
-        vert, uv, tris, tangents = _with_tangents(mesh, contents.normals, vert, uv, tris)
-    positions_mm = mesh.vertices[vert]
-    normals = contents.normals[vert]
+    surfaces = [(asset.name, scene_contents(asset, level=level, displacement="bake", maps=maps, uv_interpolation=uv_interpolation))]
+    surfaces += [(part.name, scene_contents(part)) for part in asset.parts]
 
     blob = bytearray()
     doc = gl.GLTF2(asset=gl.Asset(version="2.0", generator="facegeo"))
@@ -120,6 +113,43 @@ def glb_bytes(asset: Asset, *, level: int = 0, maps: Iterable[str] | None = None
         doc.accessors.append(acc)
         return len(doc.accessors) - 1
 
+    def texture(name: str, image: np.ndarray) -> int:
+        if not doc.samplers:
+            doc.samplers.append(gl.Sampler(magFilter=9729, minFilter=9987, wrapS=33071, wrapT=33071))
+        doc.images.append(gl.Image(bufferView=view(png_bytes(image)), mimeType="image/png", name=name))
+        doc.textures.append(gl.Texture(sampler=0, source=len(doc.images) - 1, name=name))
+        return len(doc.textures) - 1
+
+    for index, (name, contents) in enumerate(surfaces):
+        prefix = "" if index == 0 else f"{name}_"
+        attributes, indices = _geometry(contents, accessor)
+        material = _material(name, contents, lambda map_name, image: texture(prefix + map_name, image))
+        doc.materials.append(material)
+        doc.meshes.append(gl.Mesh(name=name, primitives=[gl.Primitive(attributes=attributes, indices=indices, material=index, mode=4)]))
+        doc.nodes.append(gl.Node(name=name, mesh=index))
+        if material.extensions:
+            doc.extensionsUsed = ["KHR_materials_specular"]
+    doc.scenes.append(gl.Scene(nodes=list(range(len(surfaces)))))
+    doc.buffers.append(gl.Buffer(byteLength=len(blob)))
+    doc.set_binary_blob(bytes(blob))
+    out = doc.save_to_bytes()
+    return b"".join(out) if isinstance(out, list) else bytes(out)
+
+
+def _geometry(contents: SceneContents, accessor: Any) -> tuple[Any, int]:
+    """The primitive's attributes and index accessor of one surface (wedges, tangents)."""
+    import pygltflib as gl
+
+    mesh = contents.mesh
+    inputs = contents.inputs
+    textured = contents.textured
+    vert, uvi, tris = wedges(mesh.triangles, mesh.uv_triangles if textured else None)
+    uv = mesh.uv[uvi] if textured else None
+    tangents = None
+    if "normal" in inputs:
+        vert, uv, tris, tangents = _with_tangents(mesh, contents.normals, vert, uv, tris)
+    positions_mm = mesh.vertices[vert]
+    normals = contents.normals[vert]
     attributes = gl.Attributes(
         POSITION=accessor((positions_mm * 0.001).astype(np.float32), "VEC3", _FLOAT, _ARRAY_BUFFER, bounds=True),
         NORMAL=accessor(normals.astype(np.float32), "VEC3", _FLOAT, _ARRAY_BUFFER),
@@ -132,16 +162,17 @@ def glb_bytes(asset: Asset, *, level: int = 0, maps: Iterable[str] | None = None
         indices = accessor(tris.astype(np.uint16).ravel(), "SCALAR", _UNSIGNED_SHORT, _ELEMENT_ARRAY_BUFFER)
     else:
         indices = accessor(tris.astype(np.uint32).ravel(), "SCALAR", _UNSIGNED_INT, _ELEMENT_ARRAY_BUFFER)
+    return attributes, indices
 
-    def texture(name: str, image: np.ndarray) -> int:
-        if not doc.samplers:
-            doc.samplers.append(gl.Sampler(magFilter=9729, minFilter=9987, wrapS=33071, wrapT=33071))
-        doc.images.append(gl.Image(bufferView=view(png_bytes(image)), mimeType="image/png", name=name))
-        doc.textures.append(gl.Texture(sampler=0, source=len(doc.images) - 1, name=name))
-        return len(doc.textures) - 1
 
+def _material(name: str, contents: SceneContents, texture: Any) -> Any:
+    """The metallic-roughness material of one surface; ``texture(map name, image)`` adds an image
+    and returns its texture index."""
+    import pygltflib as gl
+
+    inputs = contents.inputs
     pbr = gl.PbrMetallicRoughness(metallicFactor=0.0)
-    material = gl.Material(name=f"{asset.name}_material", pbrMetallicRoughness=pbr, alphaCutoff=None, doubleSided=False)
+    material = gl.Material(name=f"{name}_material", pbrMetallicRoughness=pbr, alphaCutoff=None, doubleSided=False)
     if "albedo" in inputs:
         item = inputs["albedo"]
         if item.is_texture:
@@ -159,7 +190,7 @@ def glb_bytes(asset: Asset, *, level: int = 0, maps: Iterable[str] | None = None
         pbr.roughnessFactor = 1.0
     else:
         pbr.roughnessFactor = float(inputs["roughness"].value) if "roughness" in inputs else DEFAULT_ROUGHNESS
-    if with_tangents:
+    if "normal" in inputs:
         img, _ = encode_map("normal", inputs["normal"].texture, 8)
         material.normalTexture = gl.NormalMaterialTexture(index=texture("normal", img), scale=1.0)
     if "specular" in inputs:
@@ -172,16 +203,7 @@ def glb_bytes(asset: Asset, *, level: int = 0, maps: Iterable[str] | None = None
         else:
             ext = {"specularColorFactor": [factor * float(item.value)] * 3}
         material.extensions = {"KHR_materials_specular": ext}
-        doc.extensionsUsed = ["KHR_materials_specular"]
-
-    doc.materials.append(material)
-    doc.meshes.append(gl.Mesh(name=asset.name, primitives=[gl.Primitive(attributes=attributes, indices=indices, material=0, mode=4)]))
-    doc.nodes.append(gl.Node(name=asset.name, mesh=0))
-    doc.scenes.append(gl.Scene(nodes=[0]))
-    doc.buffers.append(gl.Buffer(byteLength=len(blob)))
-    doc.set_binary_blob(bytes(blob))
-    out = doc.save_to_bytes()
-    return b"".join(out) if isinstance(out, list) else bytes(out)
+    return material
 
 
 def _with_tangents(mesh, normals, vert, uv, tris):

@@ -30,6 +30,11 @@ a default prim ``/<name>`` (an Xform of kind ``component``) holding
     ``scale``/``bias`` turn texels into millimetres (stage units), connected to the material's
     displacement output; the points are then the undisplaced (subdivided) surface.
 
+Parts (``asset.parts``: eyeballs, teeth, ...): each is its own ``Mesh`` at
+``/<name>/parts/<part>`` (under an ``Xform``), with its own material ``/<name>/mtl/<part>`` built
+the same way and bound to it; its textures are ``<part>_<map>.png``. Parts are written at level 0
+(they carry no displacement).
+
 Only inputs the scene uses are authored: no texture for a constant map (a value is), no
 ``primvars:st`` without textures. ``.usdz`` is made with ``UsdUtils.CreateNewUsdzPackage`` from a
 ``.usdc`` root layer and its PNGs; ``.usda``/``.usdc`` write their textures next to the layer in
@@ -89,12 +94,13 @@ def write_usd(
     if linear_bits not in (8, 16):
         raise InputError(target, "linear_bits", "8 or 16", repr(linear_bits))
     contents = scene_contents(asset, level=level, displacement=displacement, maps=maps, uv_interpolation=uv_interpolation)
+    parts = [(_prim_name(part.name), scene_contents(part)) for part in asset.parts]
     name = _prim_name(asset.name)
     if suffix == ".usdz":
         try:
             with tempfile.TemporaryDirectory(prefix="facegeo-usdz-") as tmp:
                 root = Path(tmp) / f"{name}.usdc"
-                _write_layer(contents, root, name, "textures", linear_bits)
+                _write_layer(contents, parts, root, name, "textures", linear_bits)
                 package = Path(tmp) / f"{name}.usdz"
                 from pxr import Sdf, UsdUtils
 
@@ -112,7 +118,7 @@ def write_usd(
         return target
     with StagedOutput(target.parent) as stage:
         layer = stage.path(target.name)
-        _write_layer(contents, layer, name, f"{target.stem}_textures", linear_bits)
+        _write_layer(contents, parts, layer, name, f"{target.stem}_textures", linear_bits)
     return target
 
 
@@ -126,8 +132,11 @@ def _prim_name(name: str) -> str:
     return ident if ident else "face"
 
 
-def _write_layer(contents: SceneContents, layer_path: Path, name: str, texture_dir: str, linear_bits: int) -> None:
-    from pxr import Gf, Kind, Sdf, Tf, Usd, UsdGeom, UsdShade, Vt
+def _write_layer(contents: SceneContents, parts: list[tuple[str, SceneContents]], layer_path: Path, name: str,
+                 texture_dir: str, linear_bits: int) -> None:
+    """The stage: the skin at ``/<name>/mesh`` with ``/<name>/mtl/material``, and each part at
+    ``/<name>/parts/<part>`` with ``/<name>/mtl/<part>`` (its textures ``<part>_<map>.png``)."""
+    from pxr import Kind, Tf, Usd, UsdGeom
 
     stage = Usd.Stage.CreateNew(str(layer_path))
     UsdGeom.SetStageUpAxis(stage, UsdGeom.Tokens.y)
@@ -135,10 +144,33 @@ def _write_layer(contents: SceneContents, layer_path: Path, name: str, texture_d
     root = UsdGeom.Xform.Define(stage, f"/{name}")
     stage.SetDefaultPrim(root.GetPrim())
     Usd.ModelAPI(root.GetPrim()).SetKind(Kind.Tokens.component)
+    UsdGeom.Scope.Define(stage, f"/{name}/mtl")
+    textures: dict[str, bytes] = {}
+    _write_surface(stage, contents, f"/{name}/mesh", f"/{name}/mtl/material", f"{texture_dir}/", linear_bits, textures)
+    if parts:
+        UsdGeom.Xform.Define(stage, f"/{name}/parts")
+    for part_name, part in parts:
+        _write_surface(stage, part, f"/{name}/parts/{part_name}", f"/{name}/mtl/{part_name}",
+                       f"{texture_dir}/{part_name}_", linear_bits, textures)
+    for rel, data in textures.items():
+        out = layer_path.parent / rel
+        out.parent.mkdir(parents=True, exist_ok=True)
+        out.write_bytes(data)
+    try:
+        stage.GetRootLayer().Save()
+    except Tf.ErrorException as exc:  # usd-core reports a failed write (full disk, size limit) this way
+        raise OutputError(layer_path, f"USD could not write it ({_usd_reason(exc)})") from None
+
+
+def _write_surface(stage: Any, contents: SceneContents, mesh_path: str, material_path: str, texture_prefix: str,
+                   linear_bits: int, textures: dict[str, bytes]) -> None:
+    """One Mesh prim and its bound UsdPreviewSurface material; texture files go into ``textures``
+    (relative path -> PNG bytes) as ``<texture_prefix><map>.png``."""
+    from pxr import Gf, Sdf, UsdGeom, UsdShade, Vt
 
     mesh_data = contents.mesh
     points = mesh_data.vertices.astype(np.float32)
-    mesh = UsdGeom.Mesh.Define(stage, f"/{name}/mesh")
+    mesh = UsdGeom.Mesh.Define(stage, mesh_path)
     mesh.CreatePointsAttr(Vt.Vec3fArray.FromNumpy(points))
     mesh.CreateFaceVertexCountsAttr(Vt.IntArray.FromNumpy(np.full(len(mesh_data.triangles), 3, dtype=np.int32)))
     mesh.CreateFaceVertexIndicesAttr(Vt.IntArray.FromNumpy(mesh_data.triangles.ravel().astype(np.int32)))
@@ -152,15 +184,13 @@ def _write_layer(contents: SceneContents, layer_path: Path, name: str, texture_d
         st.Set(Vt.Vec2fArray.FromNumpy(mesh_data.uv.astype(np.float32)))
         st.SetIndices(Vt.IntArray.FromNumpy(mesh_data.uv_triangles.ravel().astype(np.int32)))
 
-    UsdGeom.Scope.Define(stage, f"/{name}/mtl")
-    material = UsdShade.Material.Define(stage, f"/{name}/mtl/material")
+    material = UsdShade.Material.Define(stage, material_path)
     mpath = material.GetPath()
     surface = UsdShade.Shader.Define(stage, mpath.AppendChild("PreviewSurface"))
     surface.CreateIdAttr("UsdPreviewSurface")
     material.CreateSurfaceOutput().ConnectToSource(surface.ConnectableAPI(), "surface")
     surface.CreateInput("metallic", Sdf.ValueTypeNames.Float).Set(0.0)
 
-    textures: dict[str, bytes] = {}
     reader = None
 
     def texture(map_name: str, image: np.ndarray, colorspace: str, scale: tuple, bias: tuple) -> Any:
@@ -170,7 +200,7 @@ def _write_layer(contents: SceneContents, layer_path: Path, name: str, texture_d
             reader.CreateIdAttr("UsdPrimvarReader_float2")
             reader.CreateInput("varname", Sdf.ValueTypeNames.String).Set("st")
             reader.CreateOutput("result", Sdf.ValueTypeNames.Float2)
-        rel = f"{texture_dir}/{map_name}.png"
+        rel = f"{texture_prefix}{map_name}.png"
         textures[rel] = png_bytes(image)
         tex = UsdShade.Shader.Define(stage, mpath.AppendChild(f"{map_name}Texture"))
         tex.CreateIdAttr("UsdUVTexture")
@@ -232,14 +262,6 @@ def _write_layer(contents: SceneContents, layer_path: Path, name: str, texture_d
 
     binding = UsdShade.MaterialBindingAPI.Apply(mesh.GetPrim())
     binding.Bind(material)
-    for rel, data in textures.items():
-        out = layer_path.parent / rel
-        out.parent.mkdir(parents=True, exist_ok=True)
-        out.write_bytes(data)
-    try:
-        stage.GetRootLayer().Save()
-    except Tf.ErrorException as exc:  # usd-core reports a failed write (full disk, size limit) this way
-        raise OutputError(layer_path, f"USD could not write it ({_usd_reason(exc)})") from None
 
 
 def _usd_reason(exc: Exception) -> str:
@@ -278,21 +300,24 @@ def validate_usd(path: str | os.PathLike[str]) -> list[tuple[str, str, str]]:
 
 @dataclass
 class UsdCheck:
-    """What :func:`check_usd` found."""
+    """What :func:`check_usd` found (the skin's mesh and material; the parts by name)."""
 
     default_prim: str
     up_axis: str
     meters_per_unit: float
     mesh_path: str
     material_path: str
-    textures: dict[str, str] = field(default_factory=dict)  # input name -> resolved path
+    textures: dict[str, str] = field(default_factory=dict)  # the skin's: shader name -> resolved path
     primvars: list[str] = field(default_factory=list)
     n_points: int = 0
+    parts: dict[str, str] = field(default_factory=dict)  # part mesh path -> its bound material path
+    part_textures: dict[str, str] = field(default_factory=dict)  # "<part>/<shader name>" -> resolved path
 
 
 def check_usd(path: str | os.PathLike[str]) -> UsdCheck:
     """Open the stage, resolve every ``UsdUVTexture`` file (inside the package for ``.usdz``) and
-    read the mesh's bound material. Raises ``AssertionError`` naming what failed."""
+    read each mesh's bound material (the skin at ``<default prim>/mesh``, parts under
+    ``<default prim>/parts``). Raises ``AssertionError`` naming what failed."""
     from pxr import Ar, Usd, UsdGeom, UsdShade
 
     stage = Usd.Stage.Open(str(path))
@@ -300,28 +325,41 @@ def check_usd(path: str | os.PathLike[str]) -> UsdCheck:
     prim = stage.GetDefaultPrim()
     assert prim and prim.IsValid(), f"{path}: no default prim"
     meshes = [p for p in stage.Traverse() if p.IsA(UsdGeom.Mesh)]
-    assert len(meshes) == 1, f"{path}: expected one mesh, found {len(meshes)}"
-    mesh = UsdGeom.Mesh(meshes[0])
-    material, _ = UsdShade.MaterialBindingAPI(mesh.GetPrim()).ComputeBoundMaterial()
-    assert material and material.GetPrim().IsValid(), f"{path}: the mesh has no bound material"
-    surface = material.ComputeSurfaceSource()[0]
-    assert surface and surface.GetIdAttr().Get() == "UsdPreviewSurface", f"{path}: surface is not a UsdPreviewSurface"
+    skin = [p for p in meshes if p.GetPath() == prim.GetPath().AppendChild("mesh")]
+    assert len(skin) == 1, f"{path}: expected the mesh {prim.GetPath()}/mesh, found {[str(p.GetPath()) for p in meshes]}"
+    others = [p for p in meshes if p != skin[0]]
+    assert all(p.GetParent().GetName() == "parts" for p in others), f"{path}: meshes outside {prim.GetPath()}/parts"
     is_package = str(path).lower().endswith(".usdz")
-    textures = {}
     resolver = Ar.GetResolver()
-    for shader_prim in Usd.PrimRange(material.GetPrim()):
-        shader = UsdShade.Shader(shader_prim)
-        if not shader or shader.GetIdAttr().Get() != "UsdUVTexture":
-            continue
-        asset_path = shader.GetInput("file").Get()
-        resolved = asset_path.resolvedPath if asset_path is not None else ""
-        assert resolved, f"{path}: {shader_prim.GetPath()} file {asset_path} does not resolve"
-        if is_package:
-            inside = "[" in resolved and Path(resolved.split("[", 1)[0]).resolve() == Path(path).resolve()
-            assert inside, f"{path}: {asset_path} resolves outside the package: {resolved}"
-        data = resolver.OpenAsset(Ar.ResolvedPath(resolved))
-        assert data is not None and data.GetSize() > 0, f"{path}: {resolved} cannot be read"
-        textures[shader_prim.GetName()] = resolved
+
+    def bound(mesh_prim: Any) -> tuple[Any, dict[str, str]]:
+        material, _ = UsdShade.MaterialBindingAPI(mesh_prim).ComputeBoundMaterial()
+        assert material and material.GetPrim().IsValid(), f"{path}: {mesh_prim.GetPath()} has no bound material"
+        surface = material.ComputeSurfaceSource()[0]
+        assert surface and surface.GetIdAttr().Get() == "UsdPreviewSurface", f"{path}: surface is not a UsdPreviewSurface"
+        textures = {}
+        for shader_prim in Usd.PrimRange(material.GetPrim()):
+            shader = UsdShade.Shader(shader_prim)
+            if not shader or shader.GetIdAttr().Get() != "UsdUVTexture":
+                continue
+            asset_path = shader.GetInput("file").Get()
+            resolved = asset_path.resolvedPath if asset_path is not None else ""
+            assert resolved, f"{path}: {shader_prim.GetPath()} file {asset_path} does not resolve"
+            if is_package:
+                inside = "[" in resolved and Path(resolved.split("[", 1)[0]).resolve() == Path(path).resolve()
+                assert inside, f"{path}: {asset_path} resolves outside the package: {resolved}"
+            data = resolver.OpenAsset(Ar.ResolvedPath(resolved))
+            assert data is not None and data.GetSize() > 0, f"{path}: {resolved} cannot be read"
+            textures[shader_prim.GetName()] = resolved
+        return material, textures
+
+    mesh = UsdGeom.Mesh(skin[0])
+    material, textures = bound(skin[0])
+    parts, part_textures = {}, {}
+    for p in others:
+        part_material, found = bound(p)
+        parts[str(p.GetPath())] = str(part_material.GetPath())
+        part_textures.update({f"{p.GetName()}/{k}": v for k, v in found.items()})
     primvars = [pv.GetPrimvarName() for pv in UsdGeom.PrimvarsAPI(mesh.GetPrim()).GetAuthoredPrimvars()]
     return UsdCheck(
         default_prim=str(prim.GetPath()),
@@ -332,4 +370,6 @@ def check_usd(path: str | os.PathLike[str]) -> UsdCheck:
         textures=textures,
         primvars=[str(p) for p in primvars],
         n_points=len(mesh.GetPointsAttr().Get()),
+        parts=parts,
+        part_textures=part_textures,
     )

@@ -19,6 +19,11 @@ name            shape           content
 
 A map that is constant over the UV square is better given as a factor in ``constants`` (the
 exporters then write a material factor, not a texture).
+
+Parts: an asset may carry ``parts``, further assets (eyeballs, teeth, ...; see
+:mod:`facegeo.parts`) in the same space, each with its own UVs and material; the exporters write
+each as its own mesh and material. ``face_triangles`` marks the skin's face region, so that a scene
+can be cut down to it (:meth:`Asset.select`, ``--parts face|head|full``).
 """
 
 from __future__ import annotations
@@ -30,12 +35,15 @@ import numpy as np
 
 from facegeo.errors import InputError
 
-__all__ = ["Asset", "MAP_NAMES", "MAP_CHANNELS"]
+__all__ = ["Asset", "MAP_NAMES", "MAP_CHANNELS", "PART_CHOICES"]
 
 #: The map names, in the order the exporters and the CLI list them.
 MAP_NAMES = ("albedo", "normal", "roughness", "specular", "displacement")
 #: Channels of each map (1 means a 2-D (H, W) array).
 MAP_CHANNELS = {"albedo": 3, "normal": 3, "roughness": 1, "specular": 1, "displacement": 1}
+#: What a scene holds (:meth:`Asset.select`): the face region of the skin, all the skin, or the
+#: skin and every part (eyes, mouth interior).
+PART_CHOICES = ("face", "head", "full")
 
 
 @dataclass(eq=False)
@@ -47,6 +55,9 @@ class Asset:
     maps: name -> array as in the module table. constants: name -> a float (1-channel maps)
     or an RGB triple, for maps that are uniform. name: a short name used for files and prims.
     metadata: JSON-ready provenance (fit parameters, timings, map encodings).
+    parts: further assets (eyeballs, teeth, ...) in the same space, each with its own UVs and
+    material; they have no parts themselves and their names are distinct.
+    face_triangles: (F,) bool, the triangles of the face region, or None (all of them).
     """
 
     vertices: np.ndarray
@@ -57,6 +68,8 @@ class Asset:
     constants: dict[str, Any] = field(default_factory=dict)
     name: str = "face"
     metadata: dict[str, Any] = field(default_factory=dict)
+    parts: list["Asset"] = field(default_factory=list)
+    face_triangles: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         self.vertices = np.ascontiguousarray(self.vertices, dtype=np.float32)
@@ -64,6 +77,9 @@ class Asset:
         self.uv = np.ascontiguousarray(self.uv, dtype=np.float32)
         self.uv_triangles = np.ascontiguousarray(self.uv_triangles, dtype=np.int64)
         self.maps = {k: np.ascontiguousarray(v, dtype=np.float32) for k, v in self.maps.items()}
+        if self.face_triangles is not None:
+            self.face_triangles = np.asarray(self.face_triangles, dtype=bool)
+        self.parts = list(self.parts)
         self.validate()
 
     def validate(self, source: str = "<asset>") -> None:
@@ -104,3 +120,27 @@ class Asset:
                 finite = False
             if not finite:
                 raise InputError(source, f"constants[{name!r}]", "a finite number or RGB triple", repr(value))
+        ft = self.face_triangles
+        if ft is not None and (ft.shape != (len(f),) or not ft.any()):
+            raise InputError(source, "face_triangles", f"({len(f)},) bool with at least one True", str(ft.shape))
+        names = [self.name]
+        for part in self.parts:
+            if not isinstance(part, Asset) or part.parts:
+                raise InputError(source, "parts", "assets without parts of their own", type(part).__name__)
+            if part.name in names:
+                raise InputError(source, "parts", "distinct names", repr(part.name))
+            names.append(part.name)
+
+    def select(self, parts: str = "full") -> "Asset":
+        """The scene ``parts`` asks for (one of :data:`PART_CHOICES`): ``"full"`` this asset,
+        ``"head"`` the skin without parts, ``"face"`` the skin's face-region triangles (vertices
+        compacted, UVs and maps unchanged) without parts. Raises :class:`InputError` otherwise."""
+        if parts not in PART_CHOICES:
+            raise InputError("<argument>", "parts", f"one of {', '.join(PART_CHOICES)}", repr(parts))
+        if parts == "full":
+            return self
+        keep = np.ones(len(self.triangles), bool) if parts == "head" or self.face_triangles is None else self.face_triangles
+        used, triangles = np.unique(self.triangles[keep], return_inverse=True)
+        return Asset(self.vertices[used], triangles.reshape(-1, 3), self.uv, self.uv_triangles[keep],
+                     maps=self.maps, constants=dict(self.constants), name=self.name, metadata=self.metadata,
+                     face_triangles=None if parts == "face" or self.face_triangles is None else self.face_triangles)

@@ -23,7 +23,8 @@ from typing import Iterable, NoReturn
 from facegeo import __version__
 from facegeo.errors import FacegeoError, InputError
 
-__all__ = ["main", "build_parser", "add_fit_arguments", "check_arguments", "parse_list", "Interrupted", "COMMAND_LINE"]
+__all__ = ["main", "build_parser", "add_fit_arguments", "add_parts_argument", "check_arguments", "parse_list", "Interrupted",
+           "COMMAND_LINE"]
 
 #: The command line as the ``source`` of an :class:`InputError` about an option.
 COMMAND_LINE = "<command line>"
@@ -103,6 +104,15 @@ def add_fit_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--max-side", type=int, default=2048, help="downscale photos whose longer side exceeds this (pixels)")
 
 
+def add_parts_argument(parser: argparse.ArgumentParser) -> None:
+    """``--parts face|head|full``: what the written scenes hold (``reconstruct`` and ``export``)."""
+    from facegeo.asset import PART_CHOICES
+
+    parser.add_argument("--parts", choices=PART_CHOICES, default="full",
+                        help="what the USD/glTF scenes hold: face = the face region of the skin, head = all the skin, "
+                        "full = the head with eyes and mouth interior (default; the model's parts, if it has any)")
+
+
 def build_parser() -> argparse.ArgumentParser:
     """The argument parser with all subcommands."""
     parser = _Parser(prog="facegeo", description="One photo of a face in, a measured 3D face out.")
@@ -126,7 +136,7 @@ def build_parser() -> argparse.ArgumentParser:
         description="Fit the model, unwrap the photo into UV space, complete and de-light the texture, "
         "estimate PBR maps (albedo, normal, roughness, specular, displacement) and write fit.json, "
         "the maps (asset.json + PNGs, re-exportable with 'facegeo export'), the assets and preview.png "
-        "(the asset relit from three directions next to the photo).",
+        "(the photo beside the asset from the front, three-quarter and profile, textured and as clay).",
     )
     rec.add_argument("photo", type=Path, help="the photo")
     rec.add_argument("-o", "--output", type=Path, required=True, help="output folder (created; an existing one must be empty or an earlier facegeo output, and is replaced)")
@@ -140,6 +150,7 @@ def build_parser() -> argparse.ArgumentParser:
     rec.add_argument("--landmarks", choices=["hybrid", "dlib", "mediapipe"], default="hybrid", help="landmark detector")
     rec.add_argument("--max-side", type=int, default=2048, help="downscale photos whose longer side exceeds this (pixels)")
     rec.add_argument("--no-preview", action="store_true", help="do not render preview.png")
+    add_parts_argument(rec)
     rec.set_defaults(run=_run_reconstruct, output_folder=True)
 
     from facegeo.eval.realy_cli import register as register_realy
@@ -226,20 +237,22 @@ def _run_reconstruct(args: argparse.Namespace) -> None:
         # An 11k-vertex mesh cannot carry texel-scale displacement: at --subdiv 0 the detail
         # travels in the normal map only (the displacement map stays in the asset folder).
         carried = [m for m in asset.maps if m != "displacement" or args.subdiv > 0]
+        scene = asset.select(args.parts)
         for fmt in formats:
-            export_asset(asset, stage.path(f"face.{fmt}"), format=fmt, level=args.subdiv, maps=carried)
+            export_asset(scene, stage.path(f"face.{fmt}"), format=fmt, level=args.subdiv, maps=carried)
         timings["export"] = time.perf_counter() - t
         if not args.no_preview:
             bar.set_postfix_str("preview")
             bar.update(1)
             t = time.perf_counter()
-            preview = relit_preview(photo.image, asset, result, model)
+            preview = relit_preview(photo.image, asset, result)
             stage.path("preview.png").write_bytes(png_bytes(preview))
             timings["preview"] = time.perf_counter() - t
         timings["total"] = time.perf_counter() - start
         record = result.to_dict()
         record["timings_s"] = {**record["timings_s"], "stages": timings}
         record["texture_report"] = asset.metadata.get("texture_report", {})
+        record["parts"] = asset.metadata.get("parts", {})
         stage.path("fit.json").write_text(json.dumps(record, indent=1))
     bar.close()
     for note in result.info.get("notes", []):

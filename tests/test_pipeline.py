@@ -47,10 +47,35 @@ def test_albedo_is_skin_coloured_on_the_cheeks(small_asset):
     assert r > g > b and 0.3 < r < 0.95  # reddish skin, neither black nor blown out
 
 
+def test_the_asset_carries_the_parts_with_the_photos_iris_colour(small_asset):
+    _, _, asset, _ = small_asset
+    assert [p.name for p in asset.parts] == ["eyeballs", "eye_sockets", "mouth_socket", "gums_tongue", "teeth"]
+    report = asset.metadata["parts"]
+    assert len(report["irises"]) == 2 and "note" not in report
+    r, g, b = report["iris_srgb_used"]
+    assert r > g > b and r < 0.6  # the astronaut's brown eyes
+    eyeballs = asset.parts[0]
+    assert eyeballs.maps["albedo"].shape == (256, 256, 3) and set(eyeballs.constants) == {"roughness", "specular"}
+    assert asset.face_triangles is not None and 0.5 < asset.face_triangles.mean() < 1.0
+
+
 def test_preview_panels(small_asset):
     photo, model, asset, fit = small_asset
-    preview = relit_preview(photo.image, asset, fit, model, height=128, shading_size=128)
-    assert preview.shape[0] == 128 and preview.shape[1] > 3 * 64 and preview.dtype == np.uint8
+    p = 64
+    preview = relit_preview(photo.image, asset, fit, panel=p)
+    assert preview.shape == (2 * p, 5 * p, 3) and preview.dtype == np.uint8
+    views = preview[:, 2 * p:].astype(np.float32)
+    textured, clay = views[:p], views[p:]
+    background = np.all(np.abs(views - round(0.12 * 255)) <= 1, axis=-1)
+    for k in range(3):  # every view shows the head, neither empty nor overflowing
+        covered = 1.0 - background[:, k * p:(k + 1) * p].mean()
+        assert 0.15 < covered < 0.9
+    clay_pixels = clay[~background[p:]]
+    assert np.abs(clay_pixels[:, 0] - clay_pixels[:, 2]).max() <= 2  # clay is grey
+    textured_pixels = textured[~background[:p]]
+    assert np.mean(textured_pixels[:, 0] - textured_pixels[:, 2]) > 10  # skin is not
+    # the photo panel is the photo around the face (not the rendering)
+    assert np.abs(preview[:, :2 * p].astype(float).mean() - photo.image.mean()) < 40
 
 
 def test_bad_arguments_raise():
@@ -71,6 +96,12 @@ def test_reconstruct_command(tmp_path, capsys):
     record = json.loads((out / "fit.json").read_text())
     assert {"fit", "unwrap", "export", "preview", "total"} <= set(record["timings_s"]["stages"])
     assert Image.open(out / "albedo.png").size == (256, 256)
+    import pygltflib
+
+    doc = pygltflib.GLTF2().load_binary(str(out / "face.glb"))  # --parts full, the default
+    assert [m.name for m in doc.meshes] == ["face", "eyeballs", "eye_sockets", "mouth_socket", "gums_tongue", "teeth"]
+    assert (out / "parts" / "eyeballs_albedo.png").is_file()
+    assert Image.open(out / "preview.png").size == (5 * 256, 2 * 256)
 
 
 def test_reconstruct_command_bad_maps_leaves_nothing(tmp_path, capsys):

@@ -3,7 +3,10 @@
 Usage (from the repository root, with a checked-out ICT-FaceKit folder)::
 
     python assets/ict_facekit/convert_ict_facekit.py --ict-root /path/to/ICT-FaceKit \\
-        -o assets/ict_facekit/ict_face_model.npz
+        -o assets/ict_facekit/ict_face_model.npz --parts-output assets/ict_facekit/ict_face_parts.npz
+
+``--parts-output`` also writes the eye and mouth-interior parts (see :func:`convert_parts` and
+README.md, "Parts"); it is read by ``facegeo.parts``.
 
 What it reads (all under ``<ict-root>/FaceXModel``):
     generic_neutral_mesh.obj        the mean shape, the polygons and the UVs
@@ -358,6 +361,200 @@ def convert(ict_root: Path, output: Path, uv_layout: str = "packed", n_error_sam
     return stats
 
 
+# ---------------------------------------------------------------------------------------------
+# Parts: eyes and mouth interior (ict_face_parts.npz, read by facegeo.parts)
+
+PARTS_FORMAT_VERSION = 1
+
+#: part name -> ICT polygon ranges [start, stop) (README, "Face Model Topology" and "Eyeball
+#: Details") and how its identity deltas are stored. "affine": each connected component (a
+#: tooth, an eyeball) moves by one affine map per identity mode (fit exact to the error printed);
+#: "dense": per-vertex float16 deltas. Only the sclera sub-mesh of each eyeball is kept (see
+#: README.md: the inner "iris" mesh is hidden behind it once the sclera is opaque).
+PARTS: dict[str, tuple[list[tuple[int, int]], str]] = {
+    "eyeballs": ([(21496, 22296), (23094, 23894)], "affine"),
+    "eye_sockets": ([(13226, 14034)], "dense"),
+    "mouth_socket": ([(11144, 13226)], "dense"),
+    "gums_tongue": ([(14034, 17006)], "dense"),
+    "teeth": ([(17006, 21496)], "affine"),
+}
+#: Expression deltas smaller than this (mm) are dropped (the sparse storage); the error this
+#: causes is part of the measured error.
+SPARSE_EXPRESSION_MM = 0.01
+#: ``radial_mm`` of eyeball vertices behind the centre (never seen; far outside any iris).
+EYE_BACK_RADIAL_MM = 99.0
+
+
+def _components(triangles: np.ndarray, n: int) -> np.ndarray:
+    """Connected-component label of each of ``n`` vertices (scipy's graph search)."""
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    e = np.concatenate([triangles[:, [0, 1]], triangles[:, [1, 2]], triangles[:, [2, 0]]])
+    graph = coo_matrix((np.ones(len(e)), (e[:, 0], e[:, 1])), shape=(n, n))
+    return connected_components(graph, directed=False)[1].astype(np.int16)
+
+
+def _affine_identity(mean: np.ndarray, deltas: np.ndarray, groups: np.ndarray) -> np.ndarray:
+    """Least-squares (n_id, G, 3, 4) maps M with delta_v ~ M[g(v)] @ [p_v, 1] per identity mode."""
+    n_id, G = deltas.shape[0], int(groups.max()) + 1
+    out = np.zeros((n_id, G, 3, 4))
+    for g in range(G):
+        sel = groups == g
+        X = np.c_[mean[sel], np.ones(sel.sum())]
+        for k in range(n_id):
+            out[k, g] = np.linalg.lstsq(X, deltas[k, sel], rcond=None)[0].T
+    return out
+
+
+def _eyeball_radial(mean: np.ndarray, groups: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Per vertex the distance (mm) from its eyeball's optical axis on the front half (99 behind),
+    with the fitted sphere centres (G, 3) and unit axes (G, 3) (centre -> cornea apex)."""
+    radial = np.full(len(mean), EYE_BACK_RADIAL_MM)
+    centres, axes = [], []
+    for g in range(int(groups.max()) + 1):
+        sel = np.flatnonzero(groups == g)
+        p = mean[sel]
+        A = np.c_[2 * p, np.ones(len(p))]
+        x = np.linalg.lstsq(A, (p**2).sum(1), rcond=None)[0]
+        centre = x[:3]
+        rel = p - centre
+        dist = np.linalg.norm(rel, axis=1)
+        apex = rel[dist > np.quantile(dist, 0.97)].mean(axis=0)  # the cornea bulges beyond the sphere
+        axis = apex / np.linalg.norm(apex)
+        along = rel @ axis
+        r = np.linalg.norm(rel - np.outer(along, axis), axis=1)
+        radial[sel] = np.where(along > 0.0, r, EYE_BACK_RADIAL_MM)
+        centres.append(centre)
+        axes.append(axis)
+    return radial, np.array(centres), np.array(axes)
+
+
+def convert_parts(ict_root: Path, output: Path, n_error_samples: int = 1000) -> dict:
+    """Write the eye and mouth-interior parts of ICT-FaceKit to ``output`` (see README.md, "Parts").
+
+    Per part ``p`` the file holds (V_p own vertices, K_p shared skin vertices, F_p triangles):
+    ``p__mean`` (V_p, 3) float32 mm; ``p__skin_index`` (K_p,) int64 skin vertices the part's
+    triangles also use (they come after the own vertices: local index V_p + k) and their neutral
+    positions ``p__skin_mean`` (K_p, 3) float32 (how a model is recognised as the parts' skin); ``p__triangles``
+    (F_p, 3) int32, counter-clockwise seen from outside; ``p__uv`` (T_p, 2) float32 (ICT's UVs with
+    the UDIM tile offset removed) and ``p__uv_triangles``; identity as ``p__id_basis`` (n_id, V_p,
+    3) float16 mm/σ or, for "affine" parts, ``p__group`` (V_p,) int16 and ``p__id_affine`` (n_id,
+    G, 3, 4) float32; expressions as sparse ``p__exp_index`` (N,) int16, ``p__exp_vertex`` (N,)
+    int32, ``p__exp_delta`` (N, 3) float16 mm per unit weight; eyeballs also ``radial_mm``.
+    """
+    model_dir = ict_root / "FaceXModel"
+    config = json.loads((model_dir / "vertex_indices.json").read_text())
+    expression_names = list(config["expressions"])
+    positions, uvs, polygons, polygon_uvs = read_obj(model_dir / "generic_neutral_mesh.obj")
+    identity_names = []
+    while (model_dir / f"identity{len(identity_names):03d}.obj").is_file():
+        identity_names.append(f"identity{len(identity_names):03d}")
+    targets = {name: read_vertices(model_dir / f"{name}.obj") for name in identity_names + expression_names}
+
+    arrays: dict[str, np.ndarray] = {
+        "format_version": np.array(PARTS_FORMAT_VERSION, dtype=np.int64),
+        "source_commit": np.array(git_commit(ict_root)),
+        "part_names": np.array(list(PARTS)),
+        "skin_vertex_count": np.array(N_KEEP_VERTICES, dtype=np.int64),
+        "expression_names": np.array(expression_names),
+        "n_id": np.array(len(identity_names), dtype=np.int64),
+    }
+    stats: dict = {"output": str(output), "parts": {}}
+    rng = np.random.default_rng(0)
+    alpha = rng.standard_normal((n_error_samples, len(identity_names)))
+    delta = rng.uniform(0.0, 1.0, (n_error_samples, len(expression_names)))
+    for name, (ranges, mode) in PARTS.items():
+        polys = [polygons[i] for a, b in ranges for i in range(a, b)]
+        poly_uvs = [polygon_uvs[i] for a, b in ranges for i in range(a, b)]
+        used = np.unique(np.concatenate(polys))
+        own = used[used >= N_KEEP_VERTICES]
+        shared = used[used < N_KEEP_VERTICES]
+        local = np.full(positions.shape[0], -1, dtype=np.int64)
+        local[own] = np.arange(own.size)
+        local[shared] = own.size + np.arange(shared.size)
+        triangles = local[triangulate(polys)]
+        tri_uv_raw = triangulate(poly_uvs)
+        used_uv = np.unique(tri_uv_raw)
+        remap = np.full(uvs.shape[0], -1, dtype=np.int64)
+        remap[used_uv] = np.arange(used_uv.size)
+        uv = uvs[used_uv].copy()
+        uv[:, 0] -= np.floor(uv[:, 0].min())  # each part has its own texture space
+        assert uv[:, 0].max() <= 1.0 + 1e-6, f"{name}: UVs span more than one UDIM tile"
+        mean = positions[own] * CM_TO_MM
+        full_mean = np.concatenate([mean, positions[shared] * CM_TO_MM])
+        dev = {n: (targets[n][own] - positions[own]) * CM_TO_MM for n in targets}
+        id64 = np.stack([dev[n] for n in identity_names])
+        exp64 = np.stack([dev[n] for n in expression_names])
+        prefix = f"{name}__"
+        arrays[prefix + "mean"] = mean.astype(np.float32)
+        arrays[prefix + "skin_index"] = shared.astype(np.int64)
+        arrays[prefix + "skin_mean"] = (positions[shared] * CM_TO_MM).astype(np.float32)
+        arrays[prefix + "triangles"] = triangles.astype(np.int32)
+        arrays[prefix + "uv"] = uv.astype(np.float32)
+        arrays[prefix + "uv_triangles"] = remap[tri_uv_raw].astype(np.int32)
+        if mode == "affine":
+            assert shared.size == 0, f"{name}: affine parts must not share skin vertices"
+            groups = _components(triangles, own.size)
+            maps = _affine_identity(mean, id64, groups).astype(np.float32)
+            arrays[prefix + "group"] = groups
+            arrays[prefix + "id_affine"] = maps
+            X = np.c_[mean, np.ones(len(mean))]
+            id_stored = np.einsum("kvij,vj->kvi", maps.astype(np.float64)[:, groups], X)
+        else:
+            arrays[prefix + "id_basis"] = id64.astype(np.float16)
+            id_stored = arrays[prefix + "id_basis"].astype(np.float64)
+        size = np.linalg.norm(exp64, axis=-1)
+        k_idx, v_idx = np.nonzero(size > SPARSE_EXPRESSION_MM)
+        arrays[prefix + "exp_index"] = k_idx.astype(np.int16)
+        arrays[prefix + "exp_vertex"] = v_idx.astype(np.int32)
+        arrays[prefix + "exp_delta"] = exp64[k_idx, v_idx].astype(np.float16)
+        exp_stored = np.zeros_like(exp64)
+        exp_stored[k_idx, v_idx] = arrays[prefix + "exp_delta"].astype(np.float64)
+        if name == "eyeballs":
+            radial, centres, axes = _eyeball_radial(mean, arrays[prefix + "group"])
+            arrays[prefix + "radial_mm"] = radial.astype(np.float32)
+            stats["eye_centres_mm"] = centres.round(2).tolist()
+            stats["eye_axes"] = axes.round(3).tolist()
+
+        # ---- checks: orientation (outwards), error of the stored form
+        a, b, c = (full_mean[triangles[:, k]] for k in range(3))
+        if shared.size == 0:  # (nearly) closed components: positive signed volume each
+            comp = _components(triangles, len(full_mean))[triangles[:, 0]]
+            vol = np.einsum("ij,ij->i", a, np.cross(b, c)) / 6.0
+            assert all(vol[comp == g].sum() > 0 for g in np.unique(comp)), f"{name}: inward triangles"
+        else:  # linings of the eye and mouth cavities: oriented consistently with the skin they
+            # continue, i.e. every edge shared with a skin triangle runs the other way round
+            skin_edges = {tuple(e) for t in triangulate(polygons[:N_KEEP_POLYGONS]) for e in ((t[0], t[1]), (t[1], t[2]), (t[2], t[0]))}
+            glob = np.concatenate([own, shared])[triangles]
+            edges = [tuple(e) for t in glob.tolist() for e in ((t[0], t[1]), (t[1], t[2]), (t[2], t[0]))]
+            same = sum(e in skin_edges for e in edges)
+            opposite = sum(e[::-1] in skin_edges for e in edges)
+            assert same == 0 and opposite > 0, f"{name}: {same} edges run like the skin's, {opposite} opposite"
+        d_true = np.einsum("sk,kvc->svc", alpha, id64) + np.einsum("sk,kvc->svc", delta, exp64)
+        d_stored = np.einsum("sk,kvc->svc", alpha, id_stored) + np.einsum("sk,kvc->svc", delta, exp_stored)
+        err = np.linalg.norm(d_stored - d_true, axis=-1)
+        stats["parts"][name] = {
+            "own_vertices": int(own.size),
+            "shared_skin_vertices": int(shared.size),
+            "triangles": int(len(triangles)),
+            "identity": mode,
+            "groups": int(arrays[prefix + "group"].max()) + 1 if mode == "affine" else None,
+            "expression_entries": int(k_idx.size),
+            "moving_expressions": sorted({expression_names[k] for k in np.unique(k_idx)
+                                          if size[k].max() > 1.0}),
+            "max_error_mm": round(float(err.max()), 4),
+            "rms_error_mm": round(float(np.sqrt((err**2).mean())), 5),
+            "max_abs_id_delta_mm": round(float(np.abs(id64).max()), 2),
+        }
+    output.parent.mkdir(parents=True, exist_ok=True)
+    tmp = output.with_name(output.name + ".tmp.npz")
+    np.savez_compressed(tmp, **arrays)
+    tmp.replace(output)
+    stats["bytes"] = output.stat().st_size
+    return stats
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--ict-root", type=Path, required=True, help="checked-out ICT-FaceKit folder")
@@ -370,10 +567,15 @@ def main(argv: list[str] | None = None) -> int:
     )
     parser.add_argument("--uv-layout", choices=["packed", "udim"], default="packed")
     parser.add_argument("--error-samples", type=int, default=1000, help="instances for the float16 error")
+    parser.add_argument("--parts-output", type=Path, default=None,
+                        help="also write the eye and mouth-interior parts here (e.g. ict_face_parts.npz)")
+    parser.add_argument("--parts-only", action="store_true", help="write only --parts-output")
     args = parser.parse_args(argv)
     if not (args.ict_root / "FaceXModel" / "generic_neutral_mesh.obj").is_file():
         parser.error(f"{args.ict_root}: no FaceXModel/generic_neutral_mesh.obj there")
-    stats = convert(args.ict_root, args.output, args.uv_layout, args.error_samples)
+    stats = {} if args.parts_only else convert(args.ict_root, args.output, args.uv_layout, args.error_samples)
+    if args.parts_output is not None:
+        stats["parts"] = convert_parts(args.ict_root, args.parts_output, args.error_samples)
     json.dump(stats, sys.stdout, indent=2)
     print()
     return 0

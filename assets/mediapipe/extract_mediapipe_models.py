@@ -1,10 +1,11 @@
-"""Fetch the two MediaPipe face models facegeo uses, without installing mediapipe.
+"""Fetch the three MediaPipe face models facegeo uses, without installing mediapipe.
 
 Downloads the ``mediapipe==0.10.14`` wheel (CPython 3.11, manylinux x86_64) with
 ``pip download --no-deps`` into a temporary folder, checks its sha256, and copies out of it
 
 * ``mediapipe/modules/face_detection/face_detection_short_range.tflite`` (BlazeFace, 128x128)
 * ``mediapipe/modules/face_landmark/face_landmark.tflite`` (face mesh, 468 points, 192x192)
+* ``mediapipe/modules/iris_landmark/iris_landmark.tflite`` (iris + eye contour of one eye, 64x64)
 * ``mediapipe-0.10.14.dist-info/LICENSE`` (Apache-2.0) as ``LICENSE``
 
 into the folder this script lives in. Each extracted file is checked against the sha256 recorded
@@ -41,6 +42,10 @@ MEMBERS = {
     "mediapipe/modules/face_landmark/face_landmark.tflite": (
         "face_landmark.tflite",
         "1055cb9d4a9ca8b8c688902a3a5194311138ba256bcc94e336d8373a5f30c814",
+    ),
+    "mediapipe/modules/iris_landmark/iris_landmark.tflite": (
+        "iris_landmark.tflite",
+        "d1744d2a09c25f501d39eba4faff47e53ecca8852c5ce19bce8eeac39357521f",
     ),
     f"mediapipe-{VERSION}.dist-info/LICENSE": (
         "LICENSE",
