@@ -77,6 +77,7 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--faces", type=int, default=28, help="real-like faces per set (own-model faces: half)")
     parser.add_argument("--plot", type=Path, default=Path("benchmarks/out/fit_priors.png"))
+    parser.add_argument("--test-only", action="store_true", help="skip the validation sweeps")
     args = parser.parse_args()
     torch.set_num_threads(1)
     model = load_model()
@@ -87,6 +88,19 @@ def main() -> None:
         fit = lambda lm: fit_landmarks(model, lm, CAMERA, priors=priors)  # noqa: E731
         return evaluate(model, real, fit), evaluate(model, own, fit)
 
+    if not args.test_only:
+        sweep(args, model, both)
+    print(f"\ntest set (seed 2), defaults {DEFAULT_PRIORS}\n")
+    print(HEADER)
+    real, own = sets[2]
+    before = previous_fit_landmarks()
+    print(row(f"before ({BEFORE}: δ unbounded, λ 1e-6)", evaluate(model, real, lambda lm: before(model, lm, CAMERA)),
+              evaluate(model, own, lambda lm: before(model, lm, CAMERA))))
+    print(row("MAP, defaults", *both(2, DEFAULT_PRIORS)), flush=True)
+
+
+def sweep(args, model, both) -> None:
+    """The validation sweeps (seed 1), their table and plot."""
     print(f"validation set (seed 1): {args.faces} real-like + {args.faces // 2} own-model faces\n")
     print(HEADER)
     curves: dict[str, list[tuple[float, dict, dict]]] = {"scale": [], "rate": [], "uniform": [], "floor": []}
@@ -106,14 +120,6 @@ def main() -> None:
         real, own = both(1, replace(DEFAULT_PRIORS, noise=noise, noise_rounds=0))
         curves["uniform"].append((noise, real, own))
         print(row(f"uniform: σ fixed at {noise}", real, own), flush=True)
-
-    print(f"\ntest set (seed 2), defaults {DEFAULT_PRIORS}\n")
-    print(HEADER)
-    real, own = sets[2]
-    before = previous_fit_landmarks()
-    print(row(f"before ({BEFORE}: δ unbounded, λ 1e-6)", evaluate(model, real, lambda lm: before(model, lm, CAMERA)),
-              evaluate(model, own, lambda lm: before(model, lm, CAMERA))))
-    print(row("MAP, defaults", *both(2, DEFAULT_PRIORS)), flush=True)
 
     import matplotlib
 
