@@ -107,7 +107,7 @@ class FitPriors:
     noise: float = 0.03
     noise_floor: float = 0.002
     noise_rounds: int = 4
-    expression_scale: float = 0.5
+    expression_scale: float = 0.25
     expression_rate: float = 2.0
 
     def __post_init__(self) -> None:
