@@ -5,7 +5,7 @@
 
 Landmarks: the detected landmarks of the real photos (:func:`sample_photos`) and 10 real-like
 validation faces (:mod:`fit_validation`). Per round, every case is fitted once by facegeo (88
-points, 1 torch thread, the default), by facegeo with 2 torch threads, and by eos (its 68 iBUG
+points, 1 BLAS thread, the default), by facegeo with 2 BLAS threads, and by eos (its 68 iBUG
 points, Surrey Face Model with expression blendshapes, its default 5 iterations; run by
 ``eos_timing.py`` in eos's own interpreter, model files loaded before timing); rounds alternate so
 that machine load hits all alike. Times are CPU time of the fitting process (``process_time``):

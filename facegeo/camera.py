@@ -103,23 +103,23 @@ def project(
         plane (z_c ≥ −1e-6 mm) are projected with their depth clamped to 1e-6 mm, so results
         stay finite.
     """
-    as_numpy = not isinstance(points, torch.Tensor)
-    dtype = torch.float64 if as_numpy else points.dtype
-    p = torch.as_tensor(points, dtype=dtype)
-    r = torch.as_tensor(rotation, dtype=dtype)
-    t = torch.as_tensor(translation, dtype=dtype)
-    cam = p @ r.transpose(-1, -2) + t[..., None, :]
-    depth = (-cam[..., 2]).clamp_min(1e-6)
+    if isinstance(points, torch.Tensor):
+        xp, dtype = torch, points.dtype
+        p, r, t = points, torch.as_tensor(rotation, dtype=dtype), torch.as_tensor(translation, dtype=dtype)
+    else:  # NumPy in, NumPy out, computed in float64 without a round trip through torch
+        xp = np
+        p, r, t = (np.asarray(a, dtype=np.float64) for a in (points, rotation, translation))
+    cam = p @ xp.swapaxes(r, -1, -2) + t[..., None, :]
+    depth = xp.clip(-cam[..., 2], 1e-6, None)
     u = camera.cx + camera.focal * cam[..., 0] / depth
     v = camera.cy - camera.focal * cam[..., 1] / depth
-    out = torch.stack([u, v], dim=-1)
-    return out.numpy() if as_numpy else out
+    return xp.stack([u, v], axis=-1)
 
 
 def rotation_from_axis_angle(axis_angle: torch.Tensor) -> torch.Tensor:
     """Rodrigues' formula: (..., 3) axis·angle in radians -> (..., 3, 3) rotation matrices.
 
-    Written out rather than taken from kornia because the fit differentiates it with
+    Written out rather than taken from kornia because callers differentiate it with
     ``torch.func`` transforms, which kornia's data-dependent branches do not support. Smooth and
     exact at the zero rotation: θ² gets a 1e-12 guard that changes no result above 1e-6 rad.
     """

@@ -27,8 +27,6 @@ Axes and units: DESIGN.md (mm, +Y up, camera looks down −Z); pixels as in :mod
 from __future__ import annotations
 
 import time
-from collections.abc import Iterator
-from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -36,8 +34,9 @@ from typing import Any
 import cv2
 import numpy as np
 import torch
+from threadpoolctl import threadpool_limits
 
-from facegeo.camera import OPENCV_FROM_OPENGL, Camera, euler_from_rotation, project, rotation_from_axis_angle
+from facegeo.camera import OPENCV_FROM_OPENGL, Camera, euler_from_rotation, project
 from facegeo.colour import srgb_to_linear
 from facegeo.errors import InputError
 from facegeo.fit_checks import check_fit, check_landmarks
@@ -211,7 +210,9 @@ def _initial_pose(model: MorphableModel, targets: np.ndarray, camera: Camera) ->
 # ---------------------------------------------------------------------------------- landmarks
 class _LandmarkProblem:
     """Residuals of the landmark term over the landmark vertices, with the jaw points sliding
-    along the contour.
+    along the contour (NumPy float64: Gauss–Newton squares the Jacobian, and float32 cannot tell
+    the last sub-pixel decreases of the cost apart; NumPy rather than torch because the problem
+    is small (176 × ~160) and has no autograd in it, so per-call overhead dominates).
 
     Each landmark is a point (1 − t)·S_a + t·S_b on a model edge (a = b, t = 0 for fixed points).
     The jaw contour is the model's frontal jaw polyline (landmark vertices 0→8 on the subject's
@@ -230,52 +231,49 @@ class _LandmarkProblem:
     def __init__(self, model: MorphableModel, targets: np.ndarray, camera: Camera, weights: np.ndarray):
         self.model, self.camera = model, camera
         jaw = model.landmark_indices[:17]
-        self.contours = {"right": jaw[: CHIN + 1], "left": jaw[CHIN:][::-1]}
+        contours = {"right": jaw[: CHIN + 1], "left": jaw[CHIN:][::-1]}
         self.subset = np.unique(model.landmark_indices)
-        self.position = {int(v): i for i, v in enumerate(self.subset)}
-        # float64 here: Gauss-Newton squares the Jacobian, and float32 cannot tell the last
-        # sub-pixel decreases of the cost apart.
-        idx = torch.from_numpy(self.subset)
-        self.mean = model.tensor("mean_shape", torch.float64)[idx]
-        self.id_basis = model.tensor("id_basis", torch.float64)[:, idx]
-        self.exp_basis = model.tensor("exp_basis", torch.float64)[:, idx]
+        position = {int(v): i for i, v in enumerate(self.subset)}
+        self.mean = model.mean_shape[self.subset].astype(np.float64)
+        self.id_basis = model.id_basis[:, self.subset].astype(np.float64)
+        self.exp_basis = model.exp_basis[:, self.subset].astype(np.float64)
         valid = np.isfinite(targets).all(axis=1)
         w = np.where(valid, weights, 0.0).astype(np.float64)
         self.n_valid = int(np.count_nonzero(w > 0))
         self.scale = max(inter_ocular_distance(targets), 1.0)
         # relative precisions with mean 1 over the valid points, residuals in inter-ocular units
-        self.sqrt_w = torch.tensor(np.sqrt(w * self.n_valid / w.sum()) / self.scale, dtype=torch.float64)
-        self.targets = torch.tensor(np.where(valid[:, None], targets, 0.0), dtype=torch.float64)
-        rows = torch.tensor([self.position[int(v)] for v in model.landmark_indices])
-        self.rows_a, self.rows_b = rows.clone(), rows.clone()
-        self.t = torch.zeros(N_LANDMARKS, dtype=torch.float64)
-        self.sliding = np.array([j for j in range(17) if j != CHIN and valid[j]], dtype=np.int64)
-        self.sliding_rows = [j for j in range(17) if j != CHIN]
+        self.sqrt_w = np.sqrt(w * self.n_valid / w.sum()) / self.scale
+        self.targets = np.where(valid[:, None], targets, 0.0)
+        rows = np.array([position[int(v)] for v in model.landmark_indices])
+        self.rows_a, self.rows_b = rows.copy(), rows.copy()
+        self.t = np.zeros(N_LANDMARKS)
+        self.sliding_rows = np.array([j for j in range(17) if j != CHIN])
+        self.sliding = self.sliding_rows[valid[self.sliding_rows]]
         jaw_articulation = np.array([name.startswith("jaw") for name in model.expression_names] or [False] * model.n_exp)
-        mask = torch.ones(N_LANDMARKS, model.n_exp, dtype=torch.float64)
-        mask[[j for j in range(17) if j != CHIN]] = torch.from_numpy(jaw_articulation.astype(np.float64))
-        self.exp_mask = mask  # (88, n_exp): which expressions move which landmark
-        self.contour_rows = {side: torch.tensor([self.position[int(v)] for v in c]) for side, c in self.contours.items()}
-        self.contour_vertex_rows = torch.unique(torch.cat(list(self.contour_rows.values())))
-        self._update_bases(torch.zeros(model.n_exp, dtype=torch.float64))
+        self.exp_mask = np.ones((N_LANDMARKS, model.n_exp))  # which expressions move which landmark
+        self.exp_mask[self.sliding_rows] = jaw_articulation
+        self.contour_rows = {side: np.array([position[int(v)] for v in c]) for side, c in contours.items()}
+        self.contour_vertex_rows = np.unique(np.concatenate(list(self.contour_rows.values())))
+        self._update_bases(np.zeros(model.n_exp))
 
-    def points(self, alpha: torch.Tensor) -> torch.Tensor:
-        """(K, 3) model-space positions of the landmark vertices without expression."""
-        return self.mean + (alpha @ self.id_basis.reshape(len(alpha), -1)).reshape(-1, 3)
+    def points(self, alpha: np.ndarray, rows: np.ndarray | slice = slice(None)) -> np.ndarray:
+        """(K, 3) model-space positions of the landmark vertices (``rows`` of them) without expression."""
+        basis = self.id_basis[:, rows]
+        return self.mean[rows] + (alpha @ basis.reshape(len(alpha), -1)).reshape(-1, 3)
 
-    def _blend(self, values: torch.Tensor, rows: list[int] | slice) -> torch.Tensor:
+    def _blend(self, values: np.ndarray, rows: np.ndarray | slice) -> np.ndarray:
         """(..., K, 3) per landmark vertex -> (..., len(rows), 3) on the (slid) landmark edges."""
         t = self.t[rows][:, None]
         return (1 - t) * values[..., self.rows_a[rows], :] + t * values[..., self.rows_b[rows], :]
 
-    def _update_bases(self, delta: torch.Tensor, rows: list[int] | slice = slice(None)) -> None:
+    def _update_bases(self, delta: np.ndarray, rows: np.ndarray | slice = slice(None)) -> None:
         """The mean and bases at the 88 (slid) landmarks (only ``rows`` recomputed, after a
         slide): ``mean_lm`` (88, 3) with the frozen expression part of the contour points added,
         ``id_lm`` (n_id, 88, 3), ``exp_lm`` (n_exp, 88, 3) with the contour's mask applied."""
         if isinstance(rows, slice):
-            self.mean_lm = torch.zeros(N_LANDMARKS, 3, dtype=torch.float64)
-            self.id_lm = torch.zeros(self.model.n_id, N_LANDMARKS, 3, dtype=torch.float64)
-            self.exp_lm = torch.zeros(self.model.n_exp, N_LANDMARKS, 3, dtype=torch.float64)
+            self.mean_lm = np.zeros((N_LANDMARKS, 3))
+            self.id_lm = np.zeros((self.model.n_id, N_LANDMARKS, 3))
+            self.exp_lm = np.zeros((self.model.n_exp, N_LANDMARKS, 3))
         mask = self.exp_mask[rows].T[:, :, None]
         exp_full = self._blend(self.exp_basis, rows)
         frozen = (delta @ (exp_full * (1 - mask)).reshape(len(delta), -1)).reshape(-1, 3)
@@ -285,100 +283,98 @@ class _LandmarkProblem:
         self.id_flat = self.id_lm.reshape(self.model.n_id, -1)
         self.exp_flat = self.exp_lm.reshape(self.model.n_exp, -1)
 
-    def slide_jaw(self, rotation: torch.Tensor, translation: torch.Tensor, alpha: torch.Tensor, delta: torch.Tensor) -> None:
+    def slide_jaw(self, rotation: np.ndarray, translation: np.ndarray, alpha: np.ndarray, delta: np.ndarray) -> None:
         """Move each jaw point (but the chin) to the nearest point of its projected contour, and
         freeze the contour's expression part at ``delta``."""
-        with torch.no_grad():  # the contour vertices only
-            rows_all = self.contour_vertex_rows
-            shape = self.mean[rows_all] + (alpha @ self.id_basis[:, rows_all].reshape(len(alpha), -1)
-                                           + delta @ self.exp_basis[:, rows_all].reshape(len(delta), -1)).reshape(-1, 3)
-            uv = torch.zeros(len(self.mean), 2, dtype=torch.float64)
-            uv[rows_all] = project(shape, rotation, translation, self.camera)
-        for side, jaw_points in (("right", list(range(0, CHIN))), ("left", list(range(CHIN + 1, 17)))):
+        rows_all = self.contour_vertex_rows  # the contour vertices only
+        shape = self.points(alpha, rows_all) + (delta @ self.exp_basis[:, rows_all].reshape(len(delta), -1)).reshape(-1, 3)
+        uv = np.zeros((len(self.mean), 2))
+        uv[rows_all] = project(shape, rotation, translation, self.camera)
+        for side, jaw_points in (("right", np.arange(0, CHIN)), ("left", np.arange(CHIN + 1, 17))):
             rows = self.contour_rows[side]
             a, b = uv[rows[:-1]], uv[rows[1:]]  # (S, 2) segment ends
             ab = b - a
             q = self.targets[jaw_points][:, None, :]  # (P, 1, 2)
-            t = (((q - a) * ab).sum(-1) / (ab * ab).sum(-1).clamp_min(1e-12)).clamp(0.0, 1.0)  # (P, S)
-            d = ((a + t[..., None] * ab - q) ** 2).sum(-1)
-            s = torch.argmin(d, dim=1)
+            t = np.clip(((q - a) * ab).sum(-1) / np.maximum((ab * ab).sum(-1), 1e-12), 0.0, 1.0)  # (P, S)
+            s = np.argmin(((a + t[..., None] * ab - q) ** 2).sum(-1), axis=1)
             self.rows_a[jaw_points], self.rows_b[jaw_points] = rows[s], rows[s + 1]
-            self.t[jaw_points] = t[torch.arange(len(jaw_points)), s]
+            self.t[jaw_points] = t[np.arange(len(jaw_points)), s]
         self._update_bases(delta, self.sliding_rows)
 
-    def landmark_points(self, alpha: torch.Tensor, delta: torch.Tensor) -> torch.Tensor:
+    def landmark_points(self, alpha: np.ndarray, delta: np.ndarray) -> np.ndarray:
         """(88, 3) model-space landmark positions with the current correspondences."""
         return self.mean_lm + (alpha @ self.id_flat + delta @ self.exp_flat).reshape(N_LANDMARKS, 3)
 
-    def projected(self, rotation: torch.Tensor, translation: torch.Tensor, alpha: torch.Tensor, delta: torch.Tensor) -> torch.Tensor:
+    def projected(self, rotation: np.ndarray, translation: np.ndarray, alpha: np.ndarray, delta: np.ndarray) -> np.ndarray:
         """(88, 2) projected landmarks with the current correspondences."""
         return project(self.landmark_points(alpha, delta), rotation, translation, self.camera)
 
-    def residuals(self, rotation: torch.Tensor, translation: torch.Tensor, alpha: torch.Tensor, delta: torch.Tensor) -> torch.Tensor:
+    def residuals(self, rotation: np.ndarray, translation: np.ndarray, alpha: np.ndarray, delta: np.ndarray) -> np.ndarray:
         """(176,) weighted landmark residuals in inter-ocular units; Σ r² = Σ w_i ‖r_i‖²."""
         diff = self.projected(rotation, translation, alpha, delta) - self.targets
         return (diff * self.sqrt_w[:, None]).reshape(-1)
 
-    def jacobian(self, rotation: torch.Tensor, translation: torch.Tensor, alpha: torch.Tensor, delta: torch.Tensor, n_id: int, n_exp: int, t_unit: float) -> torch.Tensor:
+    def jacobian(self, rotation: np.ndarray, translation: np.ndarray, alpha: np.ndarray, delta: np.ndarray, n_id: int, n_exp: int,
+                 t_unit: float) -> np.ndarray:
         """(176, 6 + n_id + n_exp) Jacobian of :meth:`residuals` with respect to the update
         x = (ω, Δt / t_unit, Δα[:n_id], Δδ[:n_exp]) of R·exp([ω]×), t + t_unit·Δt, α, δ at x = 0.
 
-        Written out (chain rule through the pinhole projection) because torch.func.jacfwd costs
-        about a second of tracing on the first call, more than the whole fit; a test checks it
-        against jacfwd in float64."""
+        Written out (chain rule through the pinhole projection); a test checks it against
+        central finite differences in float64."""
         p_model = self.landmark_points(alpha, delta)  # (88, 3)
         cam = p_model @ rotation.T + translation
-        depth = (-cam[:, 2]).clamp_min(1e-6)
+        depth = np.maximum(-cam[:, 2], 1e-6)
         f = self.camera.focal
-        zero = torch.zeros_like(depth)
-        # d(u, v) / d(x_c, y_c, z_c): (88, 2, 3)
-        dproj = torch.stack(
-            [
-                torch.stack([f / depth, zero, f * cam[:, 0] / depth**2], dim=-1),
-                torch.stack([zero, -f / depth, -f * cam[:, 1] / depth**2], dim=-1),
-            ],
-            dim=1,
-        )
-        px, py, pz = p_model.unbind(-1)
-        z0 = torch.zeros_like(px)
-        skew = torch.stack([z0, -pz, py, pz, z0, -px, -py, px, z0], dim=-1).reshape(-1, 3, 3)
+        dproj = np.zeros((N_LANDMARKS, 2, 3))  # d(u, v) / d(x_c, y_c, z_c)
+        dproj[:, 0, 0] = f / depth
+        dproj[:, 0, 2] = f * cam[:, 0] / depth**2
+        dproj[:, 1, 1] = -f / depth
+        dproj[:, 1, 2] = -f * cam[:, 1] / depth**2
+        skew = np.zeros((N_LANDMARKS, 3, 3))
+        px, py, pz = p_model.T
+        skew[:, 0, 1], skew[:, 0, 2], skew[:, 1, 2] = -pz, py, -px
+        skew[:, 1, 0], skew[:, 2, 0], skew[:, 2, 1] = pz, -py, px
         to_model = dproj @ rotation  # (88, 2, 3): d(u, v) / d(model-space point)
-        d_rot = -to_model @ skew  # X_c = R·exp([ω]×)·X: d X_c / d ω = −R·[X]×
-        d_trans = t_unit * dproj
-        d_id = torch.einsum("vaj,kvj->vak", to_model, self.id_lm[:n_id])  # (88, 2, n_id)
-        d_exp = torch.einsum("vaj,kvj->vak", to_model, self.exp_lm[:n_exp])
-        jac = torch.cat([d_rot, d_trans, d_id, d_exp], dim=-1) * self.sqrt_w[:, None, None]
-        return jac.reshape(2 * len(cam), -1)
+        jac = np.empty((N_LANDMARKS, 2, 6 + n_id + n_exp))
+        jac[:, :, :3] = -to_model @ skew  # X_c = R·exp([ω]×)·X: d X_c / d ω = −R·[X]×
+        jac[:, :, 3:6] = t_unit * dproj
+        jac[:, :, 6 : 6 + n_id] = np.einsum("vaj,kvj->vak", to_model, self.id_lm[:n_id], optimize=False)
+        jac[:, :, 6 + n_id :] = np.einsum("vaj,kvj->vak", to_model, self.exp_lm[:n_exp], optimize=False)
+        jac *= self.sqrt_w[:, None, None]
+        return jac.reshape(2 * N_LANDMARKS, -1)
 
     def correspondence(self) -> np.ndarray:
         """(88,) int64: the model vertex nearest to each (slid) landmark."""
-        rows = torch.where(self.t < 0.5, self.rows_a, self.rows_b).numpy()
-        return self.subset[rows]
+        return self.subset[np.where(self.t < 0.5, self.rows_a, self.rows_b)]
 
 
 class _Prior:
-    """The prior terms of E for one model and :class:`FitPriors`: residuals, linear term, bounds."""
+    """The prior terms of E for one model and :class:`FitPriors`: scales, rates, bounds."""
 
     def __init__(self, model: MorphableModel, priors: FitPriors):
         blendshape = model.expression_kind == "blendshape"
         n_exp = model.n_exp
-        self.exp_scale = torch.full((n_exp,), priors.expression_scale if blendshape else 1.0, dtype=torch.float64)
-        self.exp_rate = torch.full((n_exp,), priors.expression_rate if blendshape else 0.0, dtype=torch.float64)
+        self.exp_scale = np.full(n_exp, priors.expression_scale if blendshape else 1.0)
+        self.exp_rate = np.full(n_exp, priors.expression_rate if blendshape else 0.0)
         lower, upper = model.expression_range
-        self.lower = torch.from_numpy(lower.astype(np.float64))
-        self.upper = torch.from_numpy(upper.astype(np.float64))
+        self.lower, self.upper = lower.astype(np.float64), upper.astype(np.float64)
         names = list(model.expression_names)
         self.correctives = [(names.index(c), names.index(d)) for c, d in CORRECTIVES.items() if c in names and d in names]
 
-    def project(self, delta: torch.Tensor) -> torch.Tensor:
-        """δ clipped into its range, each corrective at most its driver."""
-        delta = torch.minimum(torch.maximum(delta, self.lower), self.upper)
+    def project(self, delta: np.ndarray) -> np.ndarray:
+        """δ clipped into its range, each corrective at most its driver (a new array)."""
+        delta = np.clip(delta, self.lower, self.upper)
         for c, d in self.correctives:
-            delta[c] = torch.minimum(delta[c], delta[d])
+            delta[c] = min(delta[c], delta[d])
         return delta
 
 
-def _levenberg_marquardt(problem: _LandmarkProblem, state: dict[str, torch.Tensor], stage: LandmarkStage, prior: _Prior,
+def _rotation(omega: np.ndarray) -> np.ndarray:
+    """(3, 3) rotation of the axis·angle vector ``omega`` (radians), by OpenCV's Rodrigues."""
+    return cv2.Rodrigues(omega)[0]
+
+
+def _levenberg_marquardt(problem: _LandmarkProblem, state: dict[str, np.ndarray], stage: LandmarkStage, prior: _Prior,
                          noise: float) -> int:
     """Run ``stage.iterations`` damped Gauss–Newton steps on E (:class:`FitPriors`) for the
     landmark noise ``noise`` (inter-ocular units), updating ``state`` in place.
@@ -391,51 +387,49 @@ def _levenberg_marquardt(problem: _LandmarkProblem, state: dict[str, torch.Tenso
     (δ = sigmoid(z)) because most weights of a real face sit exactly at 0, where a sigmoid's
     gradient vanishes and the weight can neither reach 0 nor leave it. Returns the number of
     accepted steps."""
-    n_id = problem.model.n_id if stage.n_id is None else min(stage.n_id, problem.model.n_id)
-    n_exp = problem.model.n_exp if stage.expression else 0
+    model = problem.model
+    n_id = model.n_id if stage.n_id is None else min(stage.n_id, model.n_id)
+    n_exp = model.n_exp if stage.expression else 0
     t_unit = 10.0  # mm per unit of the translation parameter (keeps the system well scaled)
-    exp_cols = slice(6 + n_id, 6 + n_id + n_exp)
+    id_cols, exp_cols = slice(6, 6 + n_id), slice(6 + n_id, 6 + n_id + n_exp)
+    inv_var = prior.exp_scale**-2
 
-    def unpack(x: torch.Tensor) -> tuple[torch.Tensor, ...]:
-        rot = state["rotation"] @ rotation_from_axis_angle(x[:3])
+    def unpack(x: np.ndarray) -> tuple[np.ndarray, ...]:
+        rot = state["rotation"] @ _rotation(x[:3])
         trans = state["translation"] + t_unit * x[3:6]
-        alpha = torch.cat([state["alpha"][:n_id] + x[6 : 6 + n_id], state["alpha"][n_id:]])
-        delta = torch.cat([state["delta"][:n_exp] + x[exp_cols], state["delta"][n_exp:]])
-        return rot, trans, alpha, delta
+        alpha = state["alpha"].copy()
+        alpha[:n_id] += x[id_cols]
+        delta = state["delta"].copy()
+        delta[:n_exp] += x[exp_cols]
+        return rot, trans, alpha, prior.project(delta)
 
-    def cost(rot: torch.Tensor, trans: torch.Tensor, alpha: torch.Tensor, delta: torch.Tensor) -> tuple[torch.Tensor, float]:
+    def cost(rot: np.ndarray, trans: np.ndarray, alpha: np.ndarray, delta: np.ndarray) -> tuple[np.ndarray, float]:
         r = problem.residuals(rot, trans, alpha, delta) / noise
-        scaled = delta / prior.exp_scale
-        return r, float(r @ r + alpha @ alpha + scaled @ scaled + 2.0 * (prior.exp_rate @ delta))
+        return r, float(r @ r + alpha @ alpha + (delta * delta) @ inv_var + 2.0 * (prior.exp_rate @ delta))
 
     n = 6 + n_id + n_exp
-    id_cols = slice(6, 6 + n_id)
-    prior_precision = torch.cat([torch.zeros(6, dtype=torch.float64), torch.ones(n_id, dtype=torch.float64), prior.exp_scale[:n_exp] ** -2])
+    prior_precision = np.concatenate([np.zeros(6), np.ones(n_id), inv_var[:n_exp]])
     damping, accepted = 1e-3, 0
     for _ in range(stage.iterations):
         problem.slide_jaw(state["rotation"], state["translation"], state["alpha"], state["delta"])
         r0, cost0 = cost(state["rotation"], state["translation"], state["alpha"], state["delta"])
         jac = problem.jacobian(state["rotation"], state["translation"], state["alpha"], state["delta"], n_id, n_exp, t_unit) / noise
         # normal equations of the landmark residuals plus the (diagonal) priors; grad is half ∇E
-        jtj = jac.T @ jac + torch.diag(prior_precision)
+        jtj = jac.T @ jac
+        jtj[np.diag_indices(n)] += prior_precision
         grad = jac.T @ r0
         grad[id_cols] += state["alpha"][:n_id]
-        grad[exp_cols] += state["delta"][:n_exp] * prior.exp_scale[:n_exp] ** -2 + prior.exp_rate[:n_exp]
-        free = torch.ones(n, dtype=torch.bool)
+        grad[exp_cols] += state["delta"][:n_exp] * inv_var[:n_exp] + prior.exp_rate[:n_exp]
+        free = np.ones(n, dtype=bool)
         if n_exp:  # the ε-active set of the bounds
-            d = state["delta"][:n_exp]
-            eps = 1e-9
-            at_lower = (d <= prior.lower[:n_exp] + eps) & (grad[exp_cols] > 0)
-            at_upper = (d >= prior.upper[:n_exp] - eps) & (grad[exp_cols] < 0)
-            free[exp_cols] = ~(at_lower | at_upper)
-        h = jtj[free][:, free]
-        g = grad[free]
-        diag = torch.diagonal(h).clamp_min(1e-12)
+            d, g_exp, eps = state["delta"][:n_exp], grad[exp_cols], 1e-9
+            free[exp_cols] = ~(((d <= prior.lower[:n_exp] + eps) & (g_exp > 0)) | ((d >= prior.upper[:n_exp] - eps) & (g_exp < 0)))
+        h, g = jtj[np.ix_(free, free)], grad[free]
+        diag = np.maximum(np.diagonal(h), 1e-12)
         for _attempt in range(8):
-            step = torch.zeros(n, dtype=torch.float64)
-            step[free] = torch.linalg.solve(h + damping * torch.diag(diag), -g)
+            step = np.zeros(n)
+            step[free] = np.linalg.solve(h + np.diag(damping * diag), -g)
             rot, trans, alpha, delta = unpack(step)
-            delta = prior.project(delta)
             _, cost1 = cost(rot, trans, alpha, delta)
             if np.isfinite(cost1) and cost1 < cost0:
                 state.update(rotation=rot, translation=trans, alpha=alpha, delta=delta)
@@ -450,22 +444,21 @@ def _levenberg_marquardt(problem: _LandmarkProblem, state: dict[str, torch.Tenso
     return accepted
 
 
-def _estimate_noise(problem: _LandmarkProblem, state: dict[str, torch.Tensor], prior: _Prior, noise: float) -> tuple[float, float]:
+def _estimate_noise(problem: _LandmarkProblem, state: dict[str, np.ndarray], prior: _Prior, noise: float) -> tuple[float, float]:
     """(σ, p_eff): the landmark noise re-estimated from the residuals (:class:`FitPriors`)."""
     model = problem.model
     problem.slide_jaw(state["rotation"], state["translation"], state["alpha"], state["delta"])
     r = problem.residuals(state["rotation"], state["translation"], state["alpha"], state["delta"])
     jac = problem.jacobian(state["rotation"], state["translation"], state["alpha"], state["delta"], model.n_id, model.n_exp, 10.0)
     d = state["delta"]
-    free = torch.ones(jac.shape[1], dtype=torch.bool)
+    free = np.ones(jac.shape[1], dtype=bool)
     free[6 + model.n_id :] = (d > prior.lower + 1e-9) & (d < prior.upper - 1e-9)
     a = jac[:, free]
     data = a.T @ a / noise**2
-    precision = torch.cat([torch.zeros(6, dtype=torch.float64), torch.ones(model.n_id, dtype=torch.float64), prior.exp_scale**-2])[free]
-    p_eff = float(torch.trace(torch.linalg.solve(data + torch.diag(precision), data)))
+    precision = np.concatenate([np.zeros(6), np.ones(model.n_id), prior.exp_scale**-2])[free]
+    p_eff = float(np.trace(np.linalg.solve(data + np.diag(precision), data)))
     n_obs = 2 * problem.n_valid - len(problem.sliding)  # a sliding point only constrains its normal
-    rss = float(r @ r)
-    return float(np.sqrt(rss / max(n_obs - p_eff, 1.0))), p_eff
+    return float(np.sqrt(float(r @ r) / max(n_obs - p_eff, 1.0))), p_eff
 
 
 def fit_landmarks(
@@ -505,7 +498,7 @@ def fit_landmarks(
         raise InputError("<weights>", "weights", f"({N_LANDMARKS},) finite, non-negative", str(weights.shape))
     check_landmarks(targets, camera)
 
-    with _threads_for_small_problems():
+    with threadpool_limits(limits=LANDMARK_FIT_THREADS, user_api="blas"):
         timings: dict[str, float] = {}
         t0 = time.perf_counter()
         prior = _Prior(model, priors)
@@ -519,10 +512,10 @@ def fit_landmarks(
         t0 = time.perf_counter()
         problem = _LandmarkProblem(model, targets, camera, weights)
         state = {
-            "rotation": torch.tensor(np.asarray(rotation), dtype=torch.float64),
-            "translation": torch.tensor(np.asarray(translation), dtype=torch.float64),
-            "alpha": torch.tensor(np.asarray(alpha), dtype=torch.float64),
-            "delta": prior.project(torch.tensor(np.asarray(delta), dtype=torch.float64)),
+            "rotation": np.array(rotation, dtype=np.float64),
+            "translation": np.array(translation, dtype=np.float64),
+            "alpha": np.array(alpha, dtype=np.float64),
+            "delta": prior.project(np.array(delta, dtype=np.float64)),
         }
         noise = priors.noise
         steps = {stage.name: _levenberg_marquardt(problem, state, stage, prior, noise) for stage in schedule[:-1]}
@@ -549,55 +542,45 @@ def fit_landmarks(
             "px": noise * problem.scale,
             "history_iod_fraction": history,
             "effective_parameters": p_eff,
-            "expression_at_lower": int(((d <= prior.lower + 1e-9) & torch.isfinite(prior.lower)).sum()),
-            "expression_at_upper": int(((d >= prior.upper - 1e-9) & torch.isfinite(prior.upper)).sum()),
+            "expression_at_lower": int(((d <= prior.lower + 1e-9) & np.isfinite(prior.lower)).sum()),
+            "expression_at_upper": int(((d >= prior.upper - 1e-9) & np.isfinite(prior.upper)).sum()),
         },
     }
     return _assemble(model, problem, state, camera, targets, timings, info)
 
 
-#: Torch threads for the landmark fit's small (176 × ~160) linear algebra: on a loaded 2-core
-#: machine torch's intra-op threads made it 5–15× slower for identical results
-#: (benchmarks/bench_fit_speed.py, results in benchmarks/RESULTS.md).
+#: BLAS threads for the landmark fit's small (176 × ~160) linear algebra: on a loaded 2-core
+#: machine more threads made it 5–15× slower for identical results (benchmarks/bench_fit_speed.py,
+#: results in benchmarks/RESULTS.md).
 LANDMARK_FIT_THREADS = 1
-
-
-@contextmanager
-def _threads_for_small_problems() -> Iterator[None]:
-    """Run the block on at most :data:`LANDMARK_FIT_THREADS` torch threads, then restore."""
-    previous = torch.get_num_threads()
-    torch.set_num_threads(min(previous, LANDMARK_FIT_THREADS))
-    try:
-        yield
-    finally:
-        torch.set_num_threads(previous)
 
 
 def _assemble(
     model: MorphableModel,
     problem: _LandmarkProblem,
-    state: dict[str, torch.Tensor],
+    state: dict[str, np.ndarray],
     camera: Camera,
     targets: np.ndarray,
     timings: dict[str, float],
     info: dict[str, Any],
 ) -> Fit:
+    fitted = problem.projected(state["rotation"], state["translation"], state["alpha"], state["delta"])
     with torch.no_grad():
-        fitted = problem.projected(state["rotation"], state["translation"], state["alpha"], state["delta"]).numpy()
-        shape_vertices = model.shape(state["alpha"].float(), state["delta"].float())
-        vertices = shape_vertices @ state["rotation"].float().T + state["translation"].float()
+        shape_vertices = model.shape(torch.from_numpy(state["alpha"]).float(), torch.from_numpy(state["delta"]).float()).numpy()
+    rotation, translation = state["rotation"].astype(np.float32), state["translation"].astype(np.float32)
+    vertices = shape_vertices @ rotation.T + translation
     errors = np.linalg.norm(fitted - targets, axis=1)
     valid = np.isfinite(errors)
     return Fit(
-        alpha=state["alpha"].numpy().astype(np.float32),
-        delta=state["delta"].numpy().astype(np.float32),
+        alpha=state["alpha"].astype(np.float32),
+        delta=state["delta"].astype(np.float32),
         beta=np.zeros(model.n_tex, dtype=np.float32),
         gamma=AMBIENT_WHITE.numpy().copy(),
-        rotation=state["rotation"].numpy().astype(np.float32),
-        translation=state["translation"].numpy().astype(np.float32),
+        rotation=rotation,
+        translation=translation,
         camera=camera,
-        vertices=vertices.numpy().astype(np.float32),
-        shape_vertices=shape_vertices.numpy().astype(np.float32),
+        vertices=vertices.astype(np.float32),
+        shape_vertices=shape_vertices.astype(np.float32),
         landmarks=targets.astype(np.float32),
         landmarks_fitted=fitted.astype(np.float32),
         landmark_vertices=problem.correspondence(),
