@@ -56,6 +56,7 @@ def reconstruct_with_fit(
     detector: str = "hybrid",
     camera: Camera | None = None,
     progress: Callable[[str], None] | None = None,
+    fitter: Callable[..., Fit] = fit,
 ) -> tuple[Asset, Fit]:
     """Reconstruct a textured face from one photo.
 
@@ -69,6 +70,8 @@ def reconstruct_with_fit(
             asked for are not computed (roughness and specular fall back to constant factors).
         detector: landmark detector name. camera: intrinsics (default: 40° field of view).
         progress: called with each stage's name as it starts.
+        fitter: called as ``fitter(photo, model=, detector=, camera=)`` -> :class:`Fit`; default
+            the analysis-by-synthesis :func:`facegeo.fit` (e.g. a ``facegeo.regressor.Predictor``).
     Returns:
         ``(asset, fit)``: the asset in model space (upright, mm) with its maps, and the fit.
     """
@@ -95,7 +98,7 @@ def reconstruct_with_fit(
         return time.perf_counter()
 
     t = stage("fit")
-    result = fit(photo, model=model, detector=detector, camera=camera)
+    result = fitter(photo, model=model, detector=detector, camera=camera)
     timings["fit"] = time.perf_counter() - t
 
     t = stage("unwrap")
