@@ -10,7 +10,8 @@
   mean per-vertex colour distance. Sampled at vertices, not rasterised: the sampling positions
   carry the gradient to the geometry without a differentiable rasteriser (none runs on CPU
   without extra compiled packages), and the model's ~1 px vertex spacing in a 224 px crop loses
-  little. Occlusion is not tested (only facing); the skin mask keeps out eyes, brows and lips.
+  little. Visibility: facing the camera and not behind another vertex in a coarse vertex
+  z-buffer; the skin mask keeps out eyes, brows and lips.
 - L_per: 1 − cos between a local embedding network's outputs for the crop and for the crop
   with the predicted face composited in (z-buffer from ``facegeo.uv.rasterize_mesh``, colours
   interpolated differentiably); skipped with a logged note when no checkpoint is configured.
@@ -77,36 +78,52 @@ def linear_to_srgb_torch(x: torch.Tensor) -> torch.Tensor:
     return torch.where(x <= 0.0031308, 12.92 * x, 1.055 * x.clamp_min(0.0031308) ** (1 / 2.4) - 0.055)
 
 
-def slide_jaw(projected: torch.Tensor, landmark_indices: np.ndarray, targets: torch.Tensor) -> torch.Tensor:
+def slide_jaw(points_cam: torch.Tensor, landmark_indices: np.ndarray, targets: torch.Tensor,
+              camera: "BatchCamera | Camera") -> torch.Tensor:
     """The 88 projected landmarks with each jaw point but the chin moved to the point of its
-    side's projected jaw polyline nearest to its target (``fit_landmarks``' sliding contour).
+    side's projected jaw polyline nearest to its target; as in ``fit_landmarks``, the point is
+    interpolated on the 3D edge with the parameter found in the image, then projected.
 
     Args:
-        projected: (B, V, 2) projected model vertices, px.
-        landmark_indices: (88,) the model's frontal landmark vertices (0..16 = the jaw polyline).
+        points_cam: (B, V, 3) camera-space model vertices, mm (or any vertex subset holding
+            the landmark vertices, with ``landmark_indices`` into it).
+        landmark_indices: (88,) the frontal landmark vertices (0..16 = the jaw polyline).
         targets: (B, 88, 2) px; NaN rows keep their frontal correspondence.
+        camera: the intrinsics (per sample or shared).
     Returns:
-        (B, 88, 2) px; differentiable in ``projected`` (the segment choice is not).
+        (B, 88, 2) px; differentiable in ``points_cam`` (the choice of edge is not).
     """
     idx = torch.as_tensor(landmark_indices, dtype=torch.long)
-    out = projected[:, idx].clone()
+    eye, zero = torch.eye(3).expand(len(points_cam), 3, 3), torch.zeros(len(points_cam), 3)
+    points = points_cam[:, idx].clone()  # (B, 88, 3)
     jaw = idx[:17]
-    for contour, points in ((jaw[: CHIN + 1], list(range(0, CHIN))), (jaw[CHIN:].flip(0), list(range(CHIN + 1, 17)))):
-        poly = projected[:, contour]  # (B, P, 2)
-        a, b = poly[:, :-1], poly[:, 1:]
-        q = targets[:, points]  # (B, J, 2)
+    for contour, rows in ((jaw[: CHIN + 1], list(range(0, CHIN))), (jaw[CHIN:].flip(0), list(range(CHIN + 1, 17)))):
+        ends = points_cam[:, contour]  # (B, P, 3)
+        q = targets[:, rows]  # (B, J, 2)
         with torch.no_grad():
-            ab = b - a
+            poly = project(ends, eye, zero, camera)
+            a, ab = poly[:, :-1], poly[:, 1:] - poly[:, :-1]
             t = (((q[:, :, None] - a[:, None]) * ab[:, None]).sum(-1) / (ab * ab).sum(-1).clamp_min(1e-12)[:, None]).clamp(0, 1)
             d = ((a[:, None] + t[..., None] * ab[:, None] - q[:, :, None]) ** 2).sum(-1)  # (B, J, S)
             seg = d.argmin(-1)  # (B, J)
-            t_best = t.gather(-1, seg[..., None])[..., 0]
-        pa = a.gather(1, seg[..., None].expand(-1, -1, 2))
-        pb = b.gather(1, seg[..., None].expand(-1, -1, 2))
-        slid = (1 - t_best)[..., None] * pa + t_best[..., None] * pb
+            t_best = t.gather(-1, seg[..., None])  # (B, J, 1)
+        pa = ends.gather(1, seg[..., None].expand(-1, -1, 3))
+        pb = ends.gather(1, (seg + 1)[..., None].expand(-1, -1, 3))
         finite = torch.isfinite(q).all(-1, keepdim=True)
-        out[:, points] = torch.where(finite, slid, out[:, points])
-    return out
+        points[:, rows] = torch.where(finite, (1 - t_best) * pa + t_best * pb, points[:, rows])
+    return project(points, eye, zero, camera)
+
+
+def _unoccluded(posed: torch.Tensor, grid: torch.Tensor, cells: int, tolerance_mm: float = 5.0) -> torch.Tensor:
+    """(B, V) bool: vertices within ``tolerance_mm`` of the nearest vertex depth in their cell of a
+    ``cells``² grid over the crop. A batched vertex z-buffer in torch: ``facegeo.visibility``
+    splats every triangle in NumPy (~80 ms a face), too slow for every training sample."""
+    b, v = posed.shape[:2]
+    cell = ((grid + 1) / 2 * cells).long().clamp(0, cells - 1)
+    key = (torch.arange(b)[:, None] * cells + cell[..., 1]) * cells + cell[..., 0]
+    depth = -posed[..., 2]
+    buffer = torch.full((b * cells * cells,), float("inf")).scatter_reduce(0, key.reshape(-1), depth.reshape(-1), "amin")
+    return depth <= buffer[key] + tolerance_mm
 
 
 class Objective:
@@ -149,16 +166,19 @@ class Objective:
         subset = None if need_colour else self.landmark_subset
         shape = model.shape(params["alpha"], params["delta"], subset)  # (B, V or K, 3) mm
         posed = shape @ params["rotation"].transpose(1, 2) + params["translation"][:, None]
-        uv = project(posed, torch.eye(3).expand(len(posed), 3, 3), torch.zeros(len(posed), 3), cam)
         iod = torch.linalg.norm(landmarks[:, 36] - landmarks[:, 45], dim=-1).nan_to_num(1.0).clamp_min(1.0)
         indices = model.landmark_indices if subset is None else self.landmark_rows
-        lan = landmark_loss(slide_jaw(uv, indices, landmarks), landmarks, self.weights, iod)
+        lan = landmark_loss(slide_jaw(posed, indices, landmarks, cam), landmarks, self.weights, iod)
         terms = {"lan": lan}
         zero = torch.zeros_like(lan)
         if need_colour:
             normals = model.vertex_normals(posed)
             colour = model.albedo(params["beta"]) * sh_irradiance(normals, params["gamma"])  # (B, V, 3) linear
-        terms["pho"] = self._photometric(image, uv, posed, normals, colour) if c.pho > 0 else zero
+        if c.pho > 0:
+            uv = project(posed, torch.eye(3).expand(len(posed), 3, 3), torch.zeros(len(posed), 3), cam)
+            terms["pho"] = self._photometric(image, uv, posed, normals, colour)
+        else:
+            terms["pho"] = zero
         terms["per"] = self._perceptual(image, posed.detach(), colour, cam) if self.embed is not None else zero
         reg = (c.reg_id * params["alpha"].pow(2).mean(-1) + c.reg_exp * params["delta"].pow(2).mean(-1)
                + c.reg_sh * (params["gamma"] - AMBIENT_WHITE).pow(2).mean((-1, -2)))
@@ -177,7 +197,7 @@ class Objective:
         with torch.no_grad():
             facing = (normals * -posed).sum(-1) > 0
             inside = ((grid > -1) & (grid < 1)).all(-1)
-            use = (facing & inside & self.skin).float()
+            use = (facing & inside & self.skin & _unoccluded(posed, grid, max(8, self.size // 4))).float()
         dist = ((colour - observed) ** 2).sum(-1).add(1e-8).sqrt()
         return (dist * use).sum(-1) / use.sum(-1).clamp_min(1.0)
 

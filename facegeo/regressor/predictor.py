@@ -153,11 +153,13 @@ class Predictor:
             shape = self.model.shape(p["alpha"], p["delta"])
             posed = shape @ p["rotation"].T + p["translation"]
             uv = project(posed, torch.eye(3), torch.zeros(3), camera)
-            fitted = slide_jaw(uv[None], self.model.landmark_indices, torch.from_numpy(targets).float()[None])[0].double().numpy()
+            fitted = slide_jaw(posed[None], self.model.landmark_indices, torch.from_numpy(targets).float()[None], camera)[0].double().numpy()
         timings["regress"] = time.perf_counter() - t0
         errors = np.linalg.norm(fitted - targets, axis=1)
         valid = np.isfinite(errors)
-        nearest = np.argmin(((uv.numpy()[None] - fitted[:, None]) ** 2).sum(-1), axis=1)  # (88,) slid correspondences
+        nearest = self.model.landmark_indices.copy()  # the jaw points' slid correspondences: nearest contour vertex
+        jaw = nearest[:17]
+        nearest[:17] = jaw[np.argmin(((uv.numpy()[jaw][None] - fitted[:17, None]) ** 2).sum(-1), axis=1)]
         f32 = lambda t: t.numpy().astype(np.float32)  # noqa: E731
         prediction = Fit(
             alpha=f32(p["alpha"]), delta=f32(p["delta"]), beta=f32(p["beta"]), gamma=f32(p["gamma"]),

@@ -117,7 +117,9 @@ def train(images: str | Path, run: str | Path, config: RegressorConfig | None = 
     else:
         config = config or RegressorConfig()
         config.check()
-        network = MSSFRegressor(config.network, ModelSignature.of(model))
+        with torch.random.fork_rng():  # the same seed gives the same initial network
+            torch.manual_seed(config.train.seed)
+            network = MSSFRegressor(config.network, ModelSignature.of(model))
     network.to(device).train()
     atomic_write_text(run / "config.json", json.dumps(config.to_dict(), indent=1))
     tc = config.train
