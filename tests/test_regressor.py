@@ -164,6 +164,25 @@ def test_head_sizes_and_start_come_from_the_model(model, which):
     torch.testing.assert_close(uv[0], torch.tensor([16.0, 16.0]), atol=1e-4, rtol=0)
 
 
+def test_backbones_load_from_local_folders(model, tmp_path, monkeypatch):
+    from transformers import ConvNextV2Config, ConvNextV2Model, DINOv3ViTConfig, DINOv3ViTModel
+
+    net = TINY["network"]
+    ConvNextV2Model(ConvNextV2Config(**net["convnext"])).save_pretrained(tmp_path / "convnext")
+    dino = DINOv3ViTModel(DINOv3ViTConfig(num_register_tokens=4, **net["dino"]))
+    dino.save_pretrained(tmp_path / "dino")
+    config = tiny_config().network
+    config.convnext_weights = str(tmp_path / "convnext")
+    monkeypatch.setenv("FACEGEO_DINOV3_WEIGHTS", str(tmp_path / "dino"))
+    loaded = MSSFRegressor(config, ModelSignature.of(model))
+    assert loaded.loaded == {"convnext": str(tmp_path / "convnext"), "dino": str(tmp_path / "dino")}
+    for k, v in dino.state_dict().items():
+        assert torch.equal(loaded.dino.state_dict()[k], v)
+    config.convnext_weights = str(tmp_path / "missing")
+    with pytest.raises(InputError, match="missing.*config.json"):
+        MSSFRegressor(config, ModelSignature.of(model))
+
+
 def test_frozen_dino_gets_no_gradient_and_does_not_change(model, faces, tmp_path):
     folder, _ = faces
     config = tiny_config(epochs=1)

@@ -173,10 +173,10 @@ def train(images: str | Path, run: str | Path, config: RegressorConfig | None = 
                 optimizer.step()
                 step += 1
                 writer.writerow({"epoch": epoch, "step": step, "split": "train", "lr": tc.lr,
-                                 "seconds": round(time.perf_counter() - t0, 4), "total": float(terms["total"]),
-                                 **{k: float(terms[k].mean()) for k in ("lan", "pho", "per", "reg")}})
+                                 "seconds": round(time.perf_counter() - t0, 4), "total": terms["total"].item(),
+                                 **{k: terms[k].mean().item() for k in ("lan", "pho", "per", "reg")}})
                 bar.update(1)
-                bar.set_postfix(loss=f"{float(terms['total']):.4g}", epoch=epoch)
+                bar.set_postfix(loss=f"{terms['total'].item():.4g}", epoch=epoch)
                 if step >= total_steps:
                     break
                 if tc.checkpoint_every and step % tc.checkpoint_every == 0 and b + 1 < len(batches):
