@@ -113,6 +113,39 @@ def test_photometric_loss_is_small_at_the_truth(model):
     assert at_truth < 0.03 and darker > 3 * at_truth and shifted > 1.5 * at_truth, (at_truth, darker, shifted)
 
 
+def test_perceptual_loss_from_a_local_torchscript_network(model, tmp_path):
+    class Embed(torch.nn.Module):
+        def __init__(self):
+            super().__init__()
+            self.conv = torch.nn.Conv2d(3, 8, 3, stride=2)
+
+        def forward(self, x: torch.Tensor) -> torch.Tensor:
+            return torch.relu(self.conv(x)).mean(dim=(2, 3))
+
+    torch.manual_seed(0)
+    torch.jit.script(Embed()).save(str(tmp_path / "embed.pt"))
+    rng = np.random.default_rng(4)
+    face = random_face(model, rng, 128, max_yaw=20)
+    image, landmarks, camera = render_face(model, face, 128, rng)
+    x0, y0, side = crop_box(landmarks.astype(np.float64), 1.5)
+    img = torch.from_numpy(crop_face(image, (x0, y0, side), 64).astype(np.float32).transpose(2, 0, 1) / 255)[None]
+    s = 64 / side
+    intrinsics = torch.tensor([[camera.focal * s, (camera.cx - x0) * s, (camera.cy - y0) * s]])
+    lm = torch.from_numpy((landmarks - [x0, y0]) * s).float()[None]
+    config = tiny_config().loss
+    config.per, config.perceptual_checkpoint = 1.0, str(tmp_path / "embed.pt")
+    params = {k: torch.from_numpy(np.asarray(face[k]))[None] for k in ("alpha", "delta", "beta", "gamma", "rotation", "translation")}
+    params["gamma"] = (params["gamma"] * 3).requires_grad_()  # far too bright: the composite differs
+    per = Objective(model, config, 64)(params, img, intrinsics, lm)["per"]
+    assert 0 < float(per) <= 2
+    per.sum().backward()
+    assert float(params["gamma"].grad.abs().sum()) > 0
+    (tmp_path / "bad.pt").write_bytes(b"nope")
+    config.perceptual_checkpoint = str(tmp_path / "bad.pt")
+    with pytest.raises(InputError, match="bad.pt: perceptual_checkpoint"):
+        Objective(model, config, 64)
+
+
 def test_jaw_sliding_matches_fit_landmarks(model):
     rng = np.random.default_rng(5)
     camera = Camera.for_image(400, 400)

@@ -146,7 +146,8 @@ class Objective:
                 self.embed = torch.jit.load(str(path), map_location="cpu").eval()
             except (OSError, RuntimeError, ValueError) as exc:
                 raise InputError(path, "perceptual_checkpoint", "a TorchScript embedding network file", str(exc).splitlines()[0]) from None
-            self.embed.requires_grad_(False)
+            for p in self.embed.parameters():  # frozen (ScriptModules have no requires_grad_)
+                p.requires_grad_(False)
         elif config.per > 0:
             log.info("L_per skipped: no perceptual_checkpoint in the loss config")
 

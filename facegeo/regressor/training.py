@@ -97,7 +97,8 @@ def train(images: str | Path, run: str | Path, config: RegressorConfig | None = 
         model: the morphable model or its file (default: the bundled one).
         landmarks: ``auto`` (the ground truth of a synthetic folder, else ``hybrid``),
             ``truth``, or a detector name.
-        resume: continue from ``run/last.pt`` when it exists (its config wins).
+        resume: continue from ``run/last.pt`` when it exists (its network and loss sections
+            win; the train section is ``config``'s when given).
         device: ``cuda`` / ``cpu`` (default: cuda when available). workers: DataLoader workers.
         max_side: photos are downscaled to this before cropping. max_steps: stop after this
             many optimiser steps in total (None: run all epochs).
@@ -112,8 +113,11 @@ def train(images: str | Path, run: str | Path, config: RegressorConfig | None = 
     model = model if isinstance(model, MorphableModel) else load_model(model)
     last = run / "last.pt"
     payload = read_checkpoint(last) if resume and last.is_file() else None
-    if payload is not None:
-        network, config = network_from_checkpoint(payload, last, model)
+    if payload is not None:  # the run's network and loss; the train section as given (if given)
+        network, stored = network_from_checkpoint(payload, last, model)
+        if config is not None:
+            stored.train = config.train
+        config = stored
     else:
         config = config or RegressorConfig()
         config.check()
