@@ -2,6 +2,7 @@
 the throughput / peak memory of the real default sizes on CPU.
 
     python benchmarks/bench_regressor.py ablation   --out /tmp/bench_regressor [--steps 400]
+    python benchmarks/bench_regressor.py fits       --out /tmp/bench_regressor   # after ablation
     python benchmarks/bench_regressor.py throughput [--batch 8] [--repeats 3]
 
 ablation: ``make-synthetic-faces`` renders 400 training and 80 test faces (128 px, yaw uniform in
@@ -12,6 +13,9 @@ landmarks given for the crop: 3D error (face region, mm, after similarity alignm
 tests/test_fitting.similarity_rms, as in bench_fit.py), landmark RMS (px of the 128 px image) and
 times. Then ``fit`` (landmarks only, the current analysis-by-synthesis fit) against "Ours" on the
 same test faces, split at |yaw| = 60°, and how often the hybrid detector finds the face there.
+
+fits: on the same test faces, the current fit (solvePnP start), the "Ours" regressor alone, and
+the landmark fit started from the regressor's prediction (:func:`fit_from`).
 
 throughput: ConvNeXt V2 Base + DINOv3 ViT-B/16 at 224 px (random weights: the arithmetic is the
 same), images/s of the forward pass (no gradient) and of a training step (forward, the landmark
@@ -118,6 +122,40 @@ def ablation(out: Path, steps: int) -> dict:
     return results
 
 
+def fit_from(model, start, targets: np.ndarray):
+    """The landmark fit (``fit_landmarks``' problem, schedule and assembly) started from the pose,
+    α and δ of ``start`` instead of solvePnP: what ``fit_landmarks(..., init=start)`` will do once
+    fitting.py has it (written here with fitting's private pieces, for this benchmark only)."""
+    from facegeo.fitting import LANDMARK_SCHEDULE, _assemble, _LandmarkProblem, _levenberg_marquardt
+    from facegeo.landmarks.scheme import LANDMARK_WEIGHTS
+
+    t0 = time.perf_counter()
+    targets = np.asarray(targets, np.float64)
+    problem = _LandmarkProblem(model, targets, start.camera, LANDMARK_WEIGHTS)
+    state = {k: torch.from_numpy(np.asarray(getattr(start, k), np.float64)) for k in ("rotation", "translation", "alpha", "delta")}
+    steps = {stage.name: _levenberg_marquardt(problem, state, stage) for stage in LANDMARK_SCHEDULE}
+    problem.slide_jaw(state["rotation"], state["translation"], state["alpha"], state["delta"])
+    return _assemble(model, problem, state, start.camera, targets, {"landmarks": time.perf_counter() - t0}, {"landmark_steps": steps})
+
+
+def compare_fits(out: Path) -> dict:
+    """fit (solvePnP start) / regressor / regressor then the landmark fit from its prediction,
+    on the ablation's test faces with the true landmarks, split at |yaw| = 60°."""
+    model = load_model()
+    test_dir = out / "test"
+    predictor = load(out / "run_ours" / "last.pt", model=model)
+    rows = {
+        "fit (solvePnP start, current)": evaluate_predictions(model, test_dir, lambda photo, lm: fit(photo, model=model, landmarks=lm, photometric=False)),
+        "regressor (Ours) alone": evaluate_predictions(model, test_dir, lambda photo, lm: predictor(photo, landmarks=lm)),
+        "regressor + landmark fit from it": evaluate_predictions(model, test_dir, lambda photo, lm: fit_from(model, predictor(photo, landmarks=lm), lm)),
+    }
+    results = {name: {"all": summary(r), "yaw<60": summary(r, 0, 60), "yaw>=60": summary(r, 60)} for name, r in rows.items()}
+    for name, r in results.items():
+        print(name, json.dumps(r), flush=True)
+    (out / "fits.json").write_text(json.dumps(results, indent=1))
+    return results
+
+
 def one_throughput(kind: str, batch: int, repeats: int) -> dict:
     """Measured in this process: images/s (min and median over repeats) and peak RSS (MiB)."""
     from facegeo.regressor.losses import Objective
@@ -160,6 +198,8 @@ def main() -> None:
     a = sub.add_parser("ablation")
     a.add_argument("--out", type=Path, default=Path("/tmp/bench_regressor"))
     a.add_argument("--steps", type=int, default=400)
+    f = sub.add_parser("fits")
+    f.add_argument("--out", type=Path, default=Path("/tmp/bench_regressor"))
     t = sub.add_parser("throughput")
     t.add_argument("--batch", type=int, default=8)
     t.add_argument("--repeats", type=int, default=3)
@@ -168,6 +208,8 @@ def main() -> None:
     if args.what == "ablation":
         args.out.mkdir(parents=True, exist_ok=True)
         ablation(args.out, args.steps)
+    elif args.what == "fits":
+        compare_fits(args.out)
     elif args.one:
         print(json.dumps(one_throughput(args.one, args.batch, args.repeats)))
     else:
