@@ -1,7 +1,7 @@
 """Regressor benchmarks: the ablation on synthetic faces, regressor against the current fit, and
 the throughput / peak memory of the real default sizes on CPU.
 
-    python benchmarks/bench_regressor.py ablation   --out /tmp/bench_regressor [--steps 400]
+    python benchmarks/bench_regressor.py ablation   --out /tmp/bench_regressor [--steps 250]
     python benchmarks/bench_regressor.py fits       --out /tmp/bench_regressor   # after ablation
     python benchmarks/bench_regressor.py throughput [--batch 8] [--repeats 3]
 
@@ -44,8 +44,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
 from test_fitting import similarity_rms  # noqa: E402  (one definition of the 3D error)
 
 TINY_NETWORK = {"image_size": 64, "width": 32,
-                "convnext": {"hidden_sizes": [16, 32, 64, 128], "depths": [1, 1, 1, 1]},
-                "dino": {"hidden_size": 64, "num_hidden_layers": 4, "num_attention_heads": 4, "intermediate_size": 128}}
+                "convnext": {"hidden_sizes": [8, 16, 32, 64], "depths": [1, 1, 1, 1]},
+                "dino": {"hidden_size": 32, "num_hidden_layers": 4, "num_attention_heads": 2, "intermediate_size": 64}}
 VARIANTS = {  # name: (DINOv3 branch, landmark loss)
     "Baseline (ConvNeXt, 68-point loss)": (False, "ibug68"),
     "w/o MSSF (ConvNeXt, 88-point loss)": (False, "hybrid88"),
@@ -197,7 +197,7 @@ def main() -> None:
     sub = parser.add_subparsers(dest="what", required=True)
     a = sub.add_parser("ablation")
     a.add_argument("--out", type=Path, default=Path("/tmp/bench_regressor"))
-    a.add_argument("--steps", type=int, default=400)
+    a.add_argument("--steps", type=int, default=250)
     f = sub.add_parser("fits")
     f.add_argument("--out", type=Path, default=Path("/tmp/bench_regressor"))
     t = sub.add_parser("throughput")

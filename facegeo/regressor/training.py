@@ -201,6 +201,6 @@ def train(images: str | Path, run: str | Path, config: RegressorConfig | None = 
         bar.close()
     if not (run / "best.pt").is_file():
         save_checkpoint(run / "best.pt", network, config, step=step, epoch=epoch)
-    return {"steps": step, "epochs": epoch, "train": {k: float(v.mean()) for k, v in terms.items()}, "val": val,
+    return {"steps": step, "epochs": epoch, "train": {k: float(v.detach().mean()) for k, v in terms.items()}, "val": val,
             "skipped": skipped, "n_train": len(train_set), "n_val": len(val_set), "run": str(run),
             "backbones_loaded": dict(network.loaded)}
