@@ -1,8 +1,8 @@
 """Synthetic training faces with known parameters (``facegeo make-synthetic-faces``).
 
 Each image is a random instance of the morphable model rendered with ``facegeo.uv.render``:
-α ~ N(0, σ_id²); δ sparse (each expression active with probability 0.25, uniform in its range,
-or N(0, 0.5²) when unbounded); a skin albedo = the model's albedo(β) times a random skin-tone
+α ~ N(0, σ_id²) (σ_id = 0.8 by default); δ sparse (each expression active with probability 0.25
+by default, uniform in its range, or N(0, 0.5²) when unbounded); a skin albedo = the model's albedo(β) times a random skin-tone
 gain and a smooth random variation; random SH lighting about ambient white; yaw, pitch and roll
 uniform in ±``max_yaw``, ±20°, ±12°; the face filling 35–60 % of the frame; a random background
 (a colour gradient with noise). Camera: :meth:`Camera.for_image` (40° field of view).
@@ -34,15 +34,17 @@ __all__ = ["random_face", "render_face", "make_synthetic_faces"]
 
 
 def random_face(model: MorphableModel, rng: np.random.Generator, size: int, max_yaw: float = 75.0,
-                sigma_id: float = 0.8) -> dict[str, np.ndarray]:
+                sigma_id: float = 0.8, expressions: float = 0.25) -> dict[str, np.ndarray]:
     """Random parameters of one face: alpha, delta, beta, gamma (3, 9), rotation (3, 3),
-    translation (3,) mm for a ``size``² image; float32, plus ``albedo`` (V, 3) linear RGB."""
+    translation (3,) mm for a ``size``² image; float32, plus ``albedo`` (V, 3) linear RGB.
+    ``sigma_id``: the identity's standard deviation (σ units); ``expressions``: the probability
+    of each bounded expression being active (unbounded ones are scaled by it / 0.25 × 0.5)."""
     lower, upper = expression_bounds(model)
     bounded = np.isfinite(lower) & np.isfinite(upper)
-    active = rng.random(model.n_exp) < 0.25
+    active = rng.random(model.n_exp) < expressions
     span = np.where(bounded, upper - lower, 1.0)
     delta = np.where(bounded, np.where(active, lower + rng.uniform(0, 0.8, model.n_exp) * span, np.clip(0.0, lower, upper)),
-                     rng.normal(0, 0.5, model.n_exp))
+                     rng.normal(0, 2.0 * expressions, model.n_exp))
     alpha = rng.normal(0, sigma_id, model.n_id)
     beta = rng.normal(0, 1.0, model.n_tex)
     gamma = AMBIENT_WHITE.numpy().astype(np.float64).copy()
@@ -88,9 +90,11 @@ def render_face(model: MorphableModel, face: dict[str, np.ndarray], size: int,
 
 
 def make_synthetic_faces(out_dir: str | Path, count: int, model: MorphableModel, size: int = 256, seed: int = 0,
-                         max_yaw: float = 75.0, progress: bool = False) -> Path:
+                         max_yaw: float = 75.0, progress: bool = False, sigma_id: float = 0.8,
+                         expressions: float = 0.25) -> Path:
     """Render ``count`` random faces into ``out_dir`` (written atomically) with their ground
-    truth in ``faces.npz``; returns ``out_dir``. See the module docstring for the contents."""
+    truth in ``faces.npz``; returns ``out_dir``. See the module docstring for the contents and
+    :func:`random_face` for ``sigma_id`` and ``expressions``."""
     from tqdm import tqdm
 
     rng = np.random.default_rng(seed)
@@ -98,7 +102,7 @@ def make_synthetic_faces(out_dir: str | Path, count: int, model: MorphableModel,
     truth: dict[str, list] = {k: [] for k in (*keys, "names", "landmarks", "camera")}
     with StagedOutput(out_dir) as stage:
         for i in tqdm(range(count), desc="synthetic faces", unit="img", disable=not progress, leave=False):
-            face = random_face(model, rng, size, max_yaw)
+            face = random_face(model, rng, size, max_yaw, sigma_id, expressions)
             image, landmarks, camera = render_face(model, face, size, rng)
             name = f"{i:06d}.png"
             stage.path(name).write_bytes(cv2.imencode(".png", image[..., ::-1])[1].tobytes())
