@@ -318,6 +318,20 @@ def test_cli_regressor_options_and_errors(model, tmp_path, capsys):
     assert record["info"]["fitter"] == "regressor+refine" and record["landmark_rms_px"] < 5.0
 
 
+def test_train_regressor_command(faces, tmp_path, capsys):
+    folder, _ = faces
+    (tmp_path / "tiny.json").write_text(json.dumps(TINY))
+    args = ["train-regressor", "--images", str(folder), "--out", str(tmp_path / "run"), "--config", str(tmp_path / "tiny.json"),
+            "--max-steps", "1"]
+    assert main(args) == 0
+    assert "trained 1 steps" in capsys.readouterr().out
+    assert {"last.pt", "best.pt", "metrics.csv", "config.json", "skipped.txt"} <= {p.name for p in (tmp_path / "run").iterdir()}
+    (tmp_path / "bad.json").write_text(json.dumps({"loss": {"lambda_lan": 1.0}}))
+    assert main(["train-regressor", "--images", str(folder), "--out", str(tmp_path / "r2"), "--config", str(tmp_path / "bad.json")]) == 2
+    err = capsys.readouterr().err
+    assert "bad.json: config.loss" in err and "lambda_lan" in err
+
+
 def test_make_synthetic_faces_command(tmp_path, capsys):
     assert main(["make-synthetic-faces", "--out", str(tmp_path / "s"), "--count", "2", "--size", "64"]) == 0
     truth = np.load(tmp_path / "s" / "faces.npz")
