@@ -22,6 +22,8 @@ from typing import Iterable, NoReturn
 
 from facegeo import __version__
 from facegeo.errors import FacegeoError, InputError
+from facegeo.regressor.cli import add_regressor_arguments, predictor_from_args
+from facegeo.regressor.cli import register as register_regressor
 
 __all__ = ["main", "build_parser", "add_fit_arguments", "add_parts_argument", "check_arguments", "parse_list", "Interrupted",
            "COMMAND_LINE"]
@@ -128,6 +130,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     add_fit_arguments(fit)
     fit.add_argument("--no-photometric", action="store_true", help="skip the albedo and lighting stage")
+    add_regressor_arguments(fit)
     fit.set_defaults(run=_run_fit, output_folder=True)
 
     rec = sub.add_parser(
@@ -151,6 +154,7 @@ def build_parser() -> argparse.ArgumentParser:
     rec.add_argument("--max-side", type=int, default=2048, help="downscale photos whose longer side exceeds this (pixels)")
     rec.add_argument("--no-preview", action="store_true", help="do not render preview.png")
     add_parts_argument(rec)
+    add_regressor_arguments(rec)
     rec.set_defaults(run=_run_reconstruct, output_folder=True)
 
     from facegeo.eval.realy_cli import register as register_realy
@@ -160,6 +164,7 @@ def build_parser() -> argparse.ArgumentParser:
     register_unwrap(sub)
     register_export(sub)
     register_realy(sub)
+    register_regressor(sub)
     return parser
 
 
@@ -175,15 +180,16 @@ def _run_fit(args: argparse.Namespace) -> None:
     from facegeo.staged_output import StagedOutput
 
     start = time.perf_counter()
-    photo = load_photo(args.photo, max_side=args.max_side)
     t_model = time.perf_counter()
     model = load_model(args.model)
     model_seconds = time.perf_counter() - t_model
+    fitter = predictor_from_args(args, model) or fit
+    photo = load_photo(args.photo, max_side=args.max_side)
     height, width = photo.image.shape[:2]
     camera = Camera.for_image(width, height)
     if args.focal is not None:
         camera = Camera(args.focal, width / 2.0, height / 2.0, width, height)
-    result = fit(photo, model=model, detector=args.landmarks, camera=camera, photometric=not args.no_photometric)
+    result = fitter(photo, model=model, detector=args.landmarks, camera=camera, photometric=not args.no_photometric)
     result.timings["load_model"] = model_seconds
     result.timings["total"] = time.perf_counter() - start
     iod = inter_ocular_distance(result.landmarks)
@@ -218,8 +224,9 @@ def _run_reconstruct(args: argparse.Namespace) -> None:
     maps = parse_list(args.maps, MAP_NAMES, "--maps")
     formats = parse_list(args.format, FORMATS, "--format")
     start = time.perf_counter()
-    photo = load_photo(args.photo, max_side=args.max_side)
     model = load_model(args.model)
+    predictor = predictor_from_args(args, model)
+    photo = load_photo(args.photo, max_side=args.max_side)
     bar = tqdm(total=len(STAGES) + 2, desc="reconstruct", unit="stage", disable=not sys.stderr.isatty(), leave=False)
 
     def progress(stage: str) -> None:
@@ -227,7 +234,8 @@ def _run_reconstruct(args: argparse.Namespace) -> None:
         bar.update(1)
 
     asset, result = reconstruct_with_fit(photo, model, backend=args.backend, size=args.size, upscale=args.upscale,
-                                maps=maps, detector=args.landmarks, progress=progress)
+                                maps=maps, detector=args.landmarks, progress=progress,
+                                **({"fitter": predictor} if predictor else {}))
     timings = dict(asset.metadata["timings_s"])
     with StagedOutput(args.output, replace=True) as stage:
         bar.set_postfix_str("export")

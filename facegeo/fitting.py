@@ -660,6 +660,8 @@ def fit(
     detector: str | LandmarkDetector = "hybrid",
     camera: Camera | None = None,
     photometric: bool = True,
+    init: Fit | None = None,
+    priors: FitPriors = DEFAULT_PRIORS,
 ) -> Fit:
     """Fit the model to one photo: landmarks (detected unless given), pose, shape, expression,
     then albedo and SH lighting.
@@ -671,6 +673,9 @@ def fit(
         detector: a detector name (``hybrid``, ``dlib``, ``mediapipe``) or instance.
         camera: intrinsics (default: :meth:`Camera.for_image`, 40° field of view).
         photometric: run the albedo + lighting stage.
+        init: start the landmark fit from this fit's pose, α and δ (e.g. a regressor's
+            prediction) instead of solvePnP on the mean shape.
+        priors: the landmark fit's priors (:class:`FitPriors`).
     """
     timings: dict[str, float] = {}
     notes: list[str] = []
@@ -696,7 +701,7 @@ def fit(
         landmarks = detection.points
         notes.extend(detection.notes)
         timings["detect"] = time.perf_counter() - t0
-    result = fit_landmarks(model, landmarks, camera)
+    result = fit_landmarks(model, landmarks, camera, priors=priors, init=init)
     result.timings = {**timings, **result.timings}
     if photometric:
         t0 = time.perf_counter()

@@ -59,6 +59,7 @@ def reconstruct_with_fit(
     camera: Camera | None = None,
     progress: Callable[[str], None] | None = None,
     parts: bool = True,
+    fitter: Callable[..., Fit] = fit,
 ) -> tuple[Asset, Fit]:
     """Reconstruct a textured face from one photo.
 
@@ -76,6 +77,8 @@ def reconstruct_with_fit(
             without parts) as ``asset.parts``, the eyeballs with the iris colour found in the
             photo (:func:`facegeo.landmarks.iris.iris_colour`; a default colour and a note in
             ``fit.info["notes"]`` when none is found).
+        fitter: called as ``fitter(photo, model=, detector=, camera=)`` -> :class:`Fit`; default
+            the analysis-by-synthesis :func:`facegeo.fit` (e.g. a ``facegeo.regressor.Predictor``).
     Returns:
         ``(asset, fit)``: the asset in model space (upright, mm) with its maps, and the fit.
     """
@@ -102,7 +105,7 @@ def reconstruct_with_fit(
         return time.perf_counter()
 
     t = stage("fit")
-    result = fit(photo, model=model, detector=detector, camera=camera)
+    result = fitter(photo, model=model, detector=detector, camera=camera)
     timings["fit"] = time.perf_counter() - t
 
     t = stage("unwrap")

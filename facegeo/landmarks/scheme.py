@@ -68,22 +68,23 @@ def landmark_loss(
     predicted: torch.Tensor,
     target: torch.Tensor,
     weights: torch.Tensor | np.ndarray | None = None,
-    scale: float = 1.0,
+    scale: float | torch.Tensor = 1.0,
 ) -> torch.Tensor:
     """Weighted mean squared landmark distance, normalised by ``scale``².
 
     Args:
         predicted: (..., 88, 2) projected model landmarks, pixels.
-        target: (88, 2) detected landmarks, pixels; NaN rows are ignored (weight 0).
+        target: (88, 2) or (..., 88, 2) detected landmarks, pixels; NaN rows are ignored
+            (weight 0).
         weights: (88,) per-point weights (default :data:`LANDMARK_WEIGHTS`).
         scale: a face size in pixels (e.g. the inter-ocular distance) so the loss is
-            resolution-independent.
+            resolution-independent; a float or a (...) tensor (one per target set).
     Returns:
         (...) tensor: Σ w_i ‖p_i − q_i‖² / (Σ w_i · scale²).
     """
     w = torch.as_tensor(LANDMARK_WEIGHTS if weights is None else weights, dtype=predicted.dtype)
     valid = torch.isfinite(target).all(-1)
     w = torch.where(valid, w, torch.zeros_like(w))
-    target = torch.where(valid[:, None], target, torch.zeros_like(target))
+    target = torch.where(valid[..., None], target, torch.zeros_like(target))
     sq = ((predicted - target) ** 2).sum(-1)
-    return (sq * w).sum(-1) / (w.sum() * scale * scale)
+    return (sq * w).sum(-1) / (w.sum(-1) * scale * scale)
