@@ -57,7 +57,8 @@ def build_parser() -> argparse.ArgumentParser:
     )
     rec.add_argument("photo", type=Path, help="the photo")
     rec.add_argument("-o", "--output", type=Path, required=True, help="output folder (created)")
-    rec.add_argument("--backend", choices=["default"], default="default", help="texture backend (default: weight-free, offline)")
+    rec.add_argument("--backend", choices=["default", "diffusion"], default="default", help="texture backend (default: weight-free, offline; diffusion: needs --weights and the [diffusion] extra)")
+    rec.add_argument("--weights", type=Path, default=None, help="diffusion backend: folder with base/, loras/<task>/ and sr/ (see facegeo.texturing.diffusion.backend)")
     rec.add_argument("--size", type=int, default=1024, help="UV map size in texels (default 1024)")
     rec.add_argument("--upscale", type=int, choices=[1, 2, 4], default=1, help="upscale the maps by this factor (Lanczos)")
     rec.add_argument("--subdiv", type=int, choices=[0, 1, 2, 3], default=0, help="Loop subdivision levels of the exported mesh (displacement baked)")
@@ -70,12 +71,14 @@ def build_parser() -> argparse.ArgumentParser:
     rec.set_defaults(run=_run_reconstruct)
 
     from facegeo.eval.realy_cli import register as register_realy
+    from facegeo.texturing.diffusion.cli import register as register_diffusion
     from facegeo.export.cli import register as register_export
     from facegeo.uv.cli import register as register_unwrap
 
     register_unwrap(sub)
     register_export(sub)
     register_realy(sub)
+    register_diffusion(sub)
     return parser
 
 
@@ -129,7 +132,7 @@ def _run_reconstruct(args: argparse.Namespace) -> None:
     from facegeo.export.writers import FORMATS, export_asset
     from facegeo.model_files import load_model
     from facegeo.photo import load_photo
-    from facegeo.pipeline import STAGES, reconstruct_with_fit, relit_preview
+    from facegeo.pipeline import BACKENDS, STAGES, reconstruct_with_fit, relit_preview
     from facegeo.staged_output import StagedOutput
 
     maps = [m.strip() for m in args.maps.split(",") if m.strip()]
@@ -140,7 +143,10 @@ def _run_reconstruct(args: argparse.Namespace) -> None:
     for f in formats:
         if f not in FORMATS:
             raise InputError("<command line>", "--format", f"formats among {', '.join(FORMATS)}", repr(f))
+    if args.weights is not None and args.backend != "diffusion":
+        raise InputError("<command line>", "--weights", "--backend diffusion", f"--backend {args.backend}")
     start = time.perf_counter()
+    backend = BACKENDS[args.backend](args.weights) if args.backend == "diffusion" else args.backend  # weights checked first
     photo = load_photo(args.photo, max_side=args.max_side)
     model = load_model(args.model)
     bar = tqdm(total=len(STAGES) + 2, desc="reconstruct", unit="stage", disable=not sys.stderr.isatty(), leave=False)
@@ -149,7 +155,7 @@ def _run_reconstruct(args: argparse.Namespace) -> None:
         bar.set_postfix_str(stage)
         bar.update(1)
 
-    asset, result = reconstruct_with_fit(photo, model, backend=args.backend, size=args.size, upscale=args.upscale,
+    asset, result = reconstruct_with_fit(photo, model, backend=backend, size=args.size, upscale=args.upscale,
                                 maps=maps, detector=args.landmarks, progress=progress)
     timings = dict(asset.metadata["timings_s"])
     with StagedOutput(args.output) as stage:
