@@ -3,7 +3,7 @@ one dual-stream block at 1K-texture token counts, and sampling steps against tim
 tiny trained LoRA.
 
     python benchmarks/bench_diffusion.py --sizes
-    python benchmarks/bench_diffusion.py --block [--tokens 8192 --text 256 --repeat 2]
+    python benchmarks/bench_diffusion.py --block [--tokens 8192 --text 256 --repeat 2 --branches]
     python benchmarks/bench_diffusion.py --steps [--train-steps 300]
 
 Token count of a 1K texture: 1024² texels → VAE /8 → 128² latents → 2 × 2 packing → 4096 tokens,
@@ -52,7 +52,7 @@ def sizes() -> None:
           f"({100 * lora(False) / n_dit:.2f} % of the DiT); dual-stream blocks only: {lora(True) / 1e6:.1f} M")
 
 
-def block_time(tokens: int, text: int, repeat: int) -> None:
+def block_time(tokens: int, text: int, repeat: int, branches: bool) -> None:
     from diffusers.models.transformers.transformer_longcat_image import LongCatImagePosEmbed, LongCatImageTransformerBlock
 
     from facegeo.texturing.diffusion.attention import CrossIntrinsicAttention
@@ -76,15 +76,12 @@ def block_time(tokens: int, text: int, repeat: int) -> None:
             block(hidden, context, temb, rope)
             times.append(time.perf_counter() - t)
     print(f"  stock attention: min {min(times):.1f} s, median {float(np.median(times)):.1f} s over {repeat}")
-    # the material stage's batch: three branches, keys/values over all three
-    block.attn.set_processor(CrossIntrinsicAttention(3))
-    times3 = []
-    with torch.no_grad():
-        for _ in range(max(1, repeat // 2)):
+    if branches:  # the material stage's batch: three branches, keys/values over all three
+        block.attn.set_processor(CrossIntrinsicAttention(3))
+        with torch.no_grad():
             t = time.perf_counter()
             block(hidden.repeat(3, 1, 1), context.repeat(3, 1, 1), temb.repeat(3, 1), rope)
-            times3.append(time.perf_counter() - t)
-    print(f"  three branches, cross-intrinsic attention: min {min(times3):.1f} s")
+        print(f"  three branches, cross-intrinsic attention: {time.perf_counter() - t:.1f} s")
     per_stage = min(times) * (19 + 38 * 0.5) * 30 * 2  # 19 dual + 38 single (≈ half a dual block each), 30 steps, CFG
     print(f"  extrapolated 30-step stage with guidance (19 dual + 38 single ≈ 38 dual blocks): {per_stage / 3600:.1f} h on this CPU")
 
@@ -135,12 +132,13 @@ def main() -> None:
     parser.add_argument("--tokens", type=int, default=8192)
     parser.add_argument("--text", type=int, default=256)
     parser.add_argument("--repeat", type=int, default=2)
+    parser.add_argument("--branches", action="store_true", help="--block: also time the three-branch cross-intrinsic block")
     parser.add_argument("--train-steps", type=int, default=300)
     args = parser.parse_args()
     if args.sizes:
         sizes()
     if args.block:
-        block_time(args.tokens, args.text, args.repeat)
+        block_time(args.tokens, args.text, args.repeat, args.branches)
     if args.steps:
         steps_vs_psnr(args.train_steps)
 

@@ -190,25 +190,41 @@ def _psnr(a: torch.Tensor, b: torch.Tensor) -> float:
     return float(10 * torch.log10(1.0 / ((a.clamp(0, 1) - b.clamp(0, 1)) ** 2).mean()))
 
 
-def test_training_lowers_the_loss_and_improves_samples(pairs, tmp_path):
-    c = tiny_components()
-    data = read_samples(pairs, ("t_inc", "t_env"))
-    data = {k: v[:2] for k, v in data.items()}
-    lat = encode_samples(c, data, "inpaint")
-    add_adapters(c.transformer, ["inpaint"], rank=16)
+def _train_and_measure(c, lat, steps: int, lr: float, rank: int, run: Path) -> tuple[float, float, float, float]:
+    """(loss before, loss after, sample PSNR before, after) of an inpaint LoRA trained ``steps``."""
+    n = lat.condition.shape[0]
+    add_adapters(c.transformer, ["inpaint"], rank=rank)
 
-    def samples() -> float:
-        z = sample(c.transformer, c.scheduler, lat.condition, c.prompt("inpaint").expand(2, -1, -1),
-                   c.prompt("negative").expand(2, -1, -1), lat.grid, adapters=["inpaint"] * 2, steps=8, guidance=1.0,
+    def psnr_of_samples() -> float:
+        z = sample(c.transformer, c.scheduler, lat.condition, c.prompt("inpaint").expand(n, -1, -1),
+                   c.prompt("negative").expand(n, -1, -1), lat.grid, adapters=["inpaint"] * n, steps=8, guidance=1.0,
                    generator=torch.Generator().manual_seed(0))
         with torch.no_grad():  # against the targets as the VAE reproduces them (the tiny VAE is untrained)
             return _psnr(decode(c.vae, unpack(z, *lat.latent_hw)), decode(c.vae, unpack(lat.targets[0], *lat.latent_hw)))
 
-    before, psnr_before = _eval_loss(c, lat, "inpaint", 2), samples()
-    rows = train_lora(c, lat, TrainConfig(task="inpaint", steps=200, batch=2, lr=1e-2, rank=16, save_every=10**6, caption_dropout=0.0),
-                      tmp_path / "run", progress=False)
-    after, psnr_after = _eval_loss(c, lat, "inpaint", 2), samples()
-    assert len(rows) == 200 and (tmp_path / "run" / "inpaint" / "pytorch_lora_weights.safetensors").is_file()
+    before, psnr_before = _eval_loss(c, lat, "inpaint", n), psnr_of_samples()
+    rows = train_lora(c, lat, TrainConfig(task="inpaint", steps=steps, batch=n, lr=lr, rank=rank, save_every=10**6,
+                                          caption_dropout=0.0), run, progress=False)
+    assert len(rows) == steps and (run / "inpaint" / LORA_FILE).is_file()
+    return before, _eval_loss(c, lat, "inpaint", n), psnr_before, psnr_of_samples()
+
+
+def test_short_training_lowers_the_loss_and_improves_samples(pairs, tmp_path):
+    c = tiny_components()
+    lat = encode_samples(c, {k: v[:2] for k, v in read_samples(pairs, ("t_inc", "t_env")).items()}, "inpaint")
+    before, after, psnr_before, psnr_after = _train_and_measure(c, lat, 100, 1e-2, 16, tmp_path / "run")
+    assert before / after >= 1.4, (before, after)  # measured 1.61 (the 5× bar: the slow test below)
+    assert psnr_after > psnr_before + 0.4, (psnr_before, psnr_after)  # measured +0.8 dB
+
+
+@pytest.mark.slow
+def test_a_few_hundred_steps_lower_the_loss_five_times(pairs, tmp_path):
+    """The issue's bar. A random frozen one-layer backbone cannot learn the σ-dependent velocity
+    through LoRAs alone (it plateaus near 2.5× in 1000 steps), so this uses a slightly wider one
+    (4 heads of 32, two blocks of each kind; still random, still only LoRA weights train)."""
+    c = tiny_components(num_attention_heads=4, attention_head_dim=32, num_layers=2, num_single_layers=2, axes_dims_rope=[8, 12, 12])
+    lat = encode_samples(c, {k: v[:2] for k, v in read_samples(pairs, ("t_inc", "t_env")).items()}, "inpaint")
+    before, after, psnr_before, psnr_after = _train_and_measure(c, lat, 800, 3e-3, 16, tmp_path / "run")
     assert before / after >= 5.0, (before, after)
     assert psnr_after > psnr_before + 3.0, (psnr_before, psnr_after)
 
