@@ -71,8 +71,8 @@ def build_parser() -> argparse.ArgumentParser:
     rec.set_defaults(run=_run_reconstruct)
 
     from facegeo.eval.realy_cli import register as register_realy
-    from facegeo.texturing.diffusion.cli import register as register_diffusion
     from facegeo.export.cli import register as register_export
+    from facegeo.texturing.diffusion.cli import register as register_diffusion
     from facegeo.uv.cli import register as register_unwrap
 
     register_unwrap(sub)

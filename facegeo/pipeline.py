@@ -30,13 +30,13 @@ from facegeo.uv import geometry_maps, rasterize_uv, render, unwrap
 __all__ = ["reconstruct", "reconstruct_with_fit", "relit_preview", "BACKENDS", "STAGES"]
 
 
-
 def _diffusion_backend(weights: str | Path | None = None) -> TextureBackend:
     """The diffusion backend from a weights folder (the optional [diffusion] extra, imported only here)."""
-    try:
-        from facegeo.texturing.diffusion.backend import DiffusionBackend
-    except ImportError as exc:
-        raise InputError("<install>", "diffusers/peft", 'the optional extra: pip install -e ".[diffusion]"', str(exc)) from None
+    from facegeo.texturing.diffusion import require_extra
+
+    require_extra()
+    from facegeo.texturing.diffusion.backend import DiffusionBackend
+
     return DiffusionBackend.from_weights(weights)
 
 

@@ -357,6 +357,7 @@ def test_backend_stages_shapes_and_map_subsets(weights):
     assert set(backend.materials(hom, ctx, {"roughness"})) == {"roughness"}
     assert backend.upscale(maps["roughness"], 4).shape == (4 * S, 4 * S)
     assert backend.upscale(maps["normal"], 2).shape == (2 * S, 2 * S, 3)
+    assert set(backend.report) == {"inpaint", "homogenise", "albedo+normal+rsd", "rsd"} and backend.report["rsd"]["steps"] == 2
     again = DiffusionBackend.from_weights(weights, resolution=32, steps=2).homogenise(full, ctx)
     assert np.array_equal(again, hom)  # seeded
 

@@ -40,7 +40,19 @@ _EXPORTS = {
     "tiny_components": "components",
 }
 
-__all__ = list(_EXPORTS)
+__all__ = [*_EXPORTS, "require_extra"]
+
+
+def require_extra() -> None:
+    """Raise :class:`facegeo.errors.InputError` saying how to install the optional extra when
+    diffusers or peft cannot be imported."""
+    from facegeo.errors import InputError
+
+    try:
+        import diffusers  # noqa: F401
+        import peft  # noqa: F401
+    except ImportError as exc:
+        raise InputError("<install>", "diffusers/peft", 'the optional extra: pip install -e ".[diffusion]"', str(exc)) from None
 
 
 def __getattr__(name: str) -> Any:

@@ -20,6 +20,7 @@ diffusion --weights DIR``)::
 from __future__ import annotations
 
 import os
+import time
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -32,7 +33,7 @@ from facegeo.asset import MAP_NAMES
 from facegeo.errors import InputError
 from facegeo.texturing.backend import TextureContext
 from facegeo.texturing.default_backend import pad_outside
-from facegeo.texturing.diffusion.components import Components, load_components, missing_base_files
+from facegeo.texturing.diffusion.components import PROMPT_FILE, Components, load_components, missing_base_files
 from facegeo.texturing.diffusion.data import unpack_rsd
 from facegeo.texturing.diffusion.model import MATERIAL_BRANCHES, TASKS, decode, encode, pack, unpack, vae_factor
 from facegeo.texturing.diffusion.sampling import DEFAULT_GUIDANCE, DEFAULT_STEPS, sample
@@ -113,6 +114,7 @@ class DiffusionBackend:
         """Sample one image per task from one condition image (S, S, 3) in [0, 1]; several tasks
         are the material branches, sampled jointly with cross-intrinsic attention."""
         c = self.components
+        start = time.perf_counter()
         size = condition.shape[0]
         res = self.resolution
         step = 2 * vae_factor(c.vae)
@@ -124,16 +126,18 @@ class DiffusionBackend:
             latent = encode(c.vae, x)
         hw = tuple(latent.shape[-2:])
         cond = pack(latent).repeat(len(tasks), 1, 1)
-        prompt = torch.cat([c.prompt(t, self.captions.get(t), image) for t in tasks])
+        prompts = [c.prompt(t, self.captions.get(t), image) for t in tasks]
+        if len({p.shape[1] for p in prompts}) > 1:  # LongCat pads every caption to 512 tokens; precomputed ones must agree
+            raise InputError(PROMPT_FILE, ", ".join(tasks), "caption embeddings of one length", str([p.shape[1] for p in prompts]))
+        prompt = torch.cat(prompts)
         negative = c.prompt("negative").expand(len(tasks), -1, -1) if self.guidance > 1 else prompt
-        if negative.shape[1] != prompt.shape[1] and self.guidance > 1:  # captions of different lengths: pad the shorter
-            length = max(negative.shape[1], prompt.shape[1])
-            prompt, negative = (torch.nn.functional.pad(p, (0, 0, 0, length - p.shape[1])) for p in (prompt, negative))
         generator = torch.Generator().manual_seed(self.seed)
         z = sample(c.transformer, c.scheduler, cond, prompt, negative, (hw[0] // 2, hw[1] // 2), adapters=tasks,
                    modalities=len(tasks), steps=self.steps, guidance=self.guidance, generator=generator)
         with torch.no_grad():
             out = decode(c.vae, unpack(z.to(c.dtype), *hw)).float().clamp(0, 1).cpu().numpy()
+        self.report["+".join(tasks)] = {"steps": self.steps, "guidance": self.guidance, "resolution": res, "seed": self.seed,
+                                        "seconds": time.perf_counter() - start}
         return [np.clip(_resize(np.ascontiguousarray(o.transpose(1, 2, 0)), size), 0.0, 1.0) for o in out]
 
     # ------------------------------------------------------------------------------ protocol

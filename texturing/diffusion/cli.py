@@ -55,16 +55,10 @@ def register(sub: argparse._SubParsersAction) -> None:
     pairs.set_defaults(run=_run_pairs)
 
 
-def _need_extra() -> None:
-    try:
-        import diffusers  # noqa: F401
-        import peft  # noqa: F401
-    except ImportError as exc:
-        raise InputError("<install>", "diffusers/peft", 'the optional extra: pip install -e ".[diffusion]"', str(exc)) from None
-
-
 def _run_train(args: argparse.Namespace) -> None:
-    _need_extra()
+    from facegeo.texturing.diffusion import require_extra
+
+    require_extra()
     from facegeo.texturing.diffusion.components import load_components
     from facegeo.texturing.diffusion.data import read_samples
     from facegeo.texturing.diffusion.training import TASK_DATA, TrainConfig, encode_samples, train_lora

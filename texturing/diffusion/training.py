@@ -31,6 +31,7 @@ one folder per adapter written by diffusers' ``save_lora_adapter``.
 from __future__ import annotations
 
 import csv
+import io
 import math
 import os
 import time
@@ -318,6 +319,13 @@ def train_lora(components: Components, latents: LatentSet, config: TrainConfig, 
     fields = ["step", "stage", "loss", "diff", "img", "lpips", "lr", "seconds"]
     csv_path = run / "metrics.csv"
     new_file = not csv_path.exists() or start == 0
+    if not new_file:  # drop rows logged after the checkpoint we resume from
+        with open(csv_path, newline="") as handle:
+            kept = [r for r in csv.DictReader(handle) if int(r["step"]) <= start]
+        with open(csv_path, "w", newline="") as handle:
+            writer = csv.DictWriter(handle, fieldnames=fields)
+            writer.writeheader()
+            writer.writerows(kept)
     rows: list[dict[str, float]] = []
     transformer.train()
     with open(csv_path, "w" if new_file else "a", newline="") as handle:
@@ -336,7 +344,7 @@ def train_lora(components: Components, latents: LatentSet, config: TrainConfig, 
             out["loss"].backward()
             optimizer.step()
             row = {"step": step + 1, "stage": 2 if joint and task == "materials" else 1, "lr": config.lr,
-                   "seconds": time.perf_counter() - t0, **{k: float(v) for k, v in out.items()}}
+                   "seconds": time.perf_counter() - t0, **{k: float(v.detach()) for k, v in out.items()}}
             writer.writerow({k: row.get(k, "") for k in fields})
             rows.append(row)
             bar.set_postfix(loss=f"{row['loss']:.4f}")
@@ -347,8 +355,6 @@ def train_lora(components: Components, latents: LatentSet, config: TrainConfig, 
                          "config": asdict(config)}
                 path = run / f"checkpoint-{step + 1}" / "state.pt"
                 path.parent.mkdir(exist_ok=True)
-                import io
-
                 buffer = io.BytesIO()
                 torch.save(state, buffer)
                 atomic_write_bytes(path, buffer.getvalue())
