@@ -83,8 +83,10 @@ def block_time(tokens: int, text: int, repeat: int, branches: bool) -> None:
             t = time.perf_counter()
             block(hidden.repeat(3, 1, 1), context.repeat(3, 1, 1), temb.repeat(3, 1), rope)
         print(f"  three branches, cross-intrinsic attention: {time.perf_counter() - t:.1f} s")
-    per_stage = min(times) * (19 + 38 * 0.5) * 30 * 2  # 19 dual + 38 single (≈ half a dual block each), 30 steps, CFG
-    print(f"  extrapolated 30-step stage with guidance (19 dual + 38 single ≈ 38 dual blocks): {per_stage / 3600:.1f} h on this CPU")
+    # a single-stream block costs about one dual-stream block: 12·d² multiply-adds per token in its linear layers
+    # (q, k, v 3d², proj_mlp 4d², proj_out 5d²) against the dual block's image stream (attention 4d², FF 8d²)
+    per_stage = min(times) * (19 + 38) * 30 * 2  # 57 blocks, 30 steps, guidance = two forwards per step
+    print(f"  extrapolated 30-step stage with guidance (19 dual + 38 single blocks): {per_stage / 3600:.0f} h on this CPU")
 
 
 def steps_vs_psnr(train_steps: int) -> None:
