@@ -23,6 +23,7 @@ at rank 32 on the real LongCat sizes that gives 89.7 M parameters per adapter, t
 
 from __future__ import annotations
 
+import warnings
 from collections.abc import Iterator, Sequence
 from contextlib import contextmanager
 from typing import Any
@@ -89,7 +90,9 @@ def add_adapters(transformer: LongCatImageTransformer2DModel, names: Sequence[st
     """Add one LoRA adapter per name; afterwards only these adapters' weights require gradients
     (the backbone and any other adapter are frozen)."""
     for name in names:
-        transformer.add_adapter(lora_config(rank), adapter_name=name)
+        with warnings.catch_warnings():  # peft warns on every adapter after the first; several are the point here
+            warnings.filterwarnings("ignore", message="Already found a `peft_config` attribute")
+            transformer.add_adapter(lora_config(rank), adapter_name=name)
     transformer.requires_grad_(False)
     for p in lora_parameters(transformer, names):
         p.requires_grad_(True)

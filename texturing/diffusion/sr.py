@@ -104,13 +104,16 @@ def load_realesrgan(path: str | os.PathLike[str], scale: int = 4) -> RRDBNet:
 
 
 @torch.no_grad()
-def upscale_tiled(net: RRDBNet, image: np.ndarray, tile: int = 256, pad: int = 16) -> np.ndarray:
+def upscale_tiled(net: RRDBNet, image: np.ndarray, tile: int = 128, pad: int = 16) -> np.ndarray:
     """(H, W, C) float in [0, 1] -> (s·H, s·W, C) float32, clipped to [0, 1], s = ``net.scale``.
 
     The input is cut into ``tile`` × ``tile`` tiles each read with ``pad`` texels of context (edge
     replicated at the border); only the tile's own part of each output is kept, so memory is one
     padded tile's activations and the result equals the whole-image output wherever the
-    network's receptive field fits in ``pad``.
+    network's receptive field fits in ``pad`` (the official 23-block network's is wider, so tile
+    seams differ from a whole-image run by a little, as in Real-ESRGAN's own tiling). Memory at
+    the default 128-texel tiles and 64 features: ~85 MB per full-resolution activation, so a 1K →
+    4K map runs in about 1 GB besides the 4K output.
     """
     s = net.scale
     h, w, _ = image.shape
