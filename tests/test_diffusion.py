@@ -387,3 +387,17 @@ def test_core_install_does_not_import_the_diffusion_stack():
             f"import facegeo.pipeline; print([m for m in {heavy}[:3] if m in sys.modules])")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout.split()
     assert out == ["[]", "[]"]  # the parser (with train-lora etc.) imports nothing heavy; the pipeline not the extra
+
+
+@pytest.mark.slow
+def test_reconstruct_with_the_diffusion_backend(weights):
+    """The whole pipeline on the bundled photo with the tiny weights (a wiring test: the maps are noise)."""
+    from facegeo.pipeline import reconstruct
+
+    backend = DiffusionBackend.from_weights(weights, resolution=32, steps=2)
+    photo = Path(__file__).resolve().parents[1] / "assets" / "photos" / "astronaut.png"
+    asset = reconstruct(photo, backend=backend, size=64, upscale=2)
+    assert asset.metadata["backend"] == "diffusion"
+    assert {k: v.shape[:2] for k, v in asset.maps.items()} == {k: (128, 128) for k in ("albedo", "normal", "roughness", "specular", "displacement")}
+    assert set(asset.metadata["texture_report"]) == {"inpaint", "homogenise", "albedo+normal+rsd"}
+    asset.validate("<test>")
