@@ -143,7 +143,8 @@ def build_parser() -> argparse.ArgumentParser:
     )
     rec.add_argument("photo", type=Path, help="the photo")
     rec.add_argument("-o", "--output", type=Path, required=True, help="output folder (created; an existing one must be empty or an earlier facegeo output, and is replaced)")
-    rec.add_argument("--backend", choices=["default"], default="default", help="texture backend (default: weight-free, offline)")
+    rec.add_argument("--backend", choices=["default", "diffusion"], default="default", help="texture backend (default: weight-free, offline; diffusion: needs --weights and the [diffusion] extra)")
+    rec.add_argument("--weights", type=Path, default=None, help="diffusion backend: folder with base/, loras/<task>/ and sr/ (see facegeo.texturing.diffusion.backend)")
     rec.add_argument("--size", type=int, default=1024, help="UV map size in texels (default 1024)")
     rec.add_argument("--upscale", type=int, choices=[1, 2, 4], default=1, help="upscale the maps by this factor (Lanczos)")
     rec.add_argument("--subdiv", type=int, choices=[0, 1, 2, 3], default=0, help="Loop subdivision levels of the exported mesh (displacement baked)")
@@ -159,12 +160,14 @@ def build_parser() -> argparse.ArgumentParser:
 
     from facegeo.eval.realy_cli import register as register_realy
     from facegeo.export.cli import register as register_export
+    from facegeo.texturing.diffusion.cli import register as register_diffusion
     from facegeo.uv.cli import register as register_unwrap
 
     register_unwrap(sub)
     register_export(sub)
     register_realy(sub)
     register_regressor(sub)
+    register_diffusion(sub)
     return parser
 
 
@@ -218,12 +221,15 @@ def _run_reconstruct(args: argparse.Namespace) -> None:
     from facegeo.export.writers import FORMATS, export_asset
     from facegeo.model_files import load_model
     from facegeo.photo import load_photo
-    from facegeo.pipeline import STAGES, reconstruct_with_fit, relit_preview
+    from facegeo.pipeline import BACKENDS, STAGES, reconstruct_with_fit, relit_preview
     from facegeo.staged_output import StagedOutput
 
     maps = parse_list(args.maps, MAP_NAMES, "--maps")
     formats = parse_list(args.format, FORMATS, "--format")
+    if args.weights is not None and args.backend != "diffusion":
+        raise InputError(COMMAND_LINE, "--weights", "--backend diffusion", f"--backend {args.backend}")
     start = time.perf_counter()
+    backend = BACKENDS[args.backend](args.weights) if args.backend == "diffusion" else args.backend  # weights checked first
     model = load_model(args.model)
     predictor = predictor_from_args(args, model)
     photo = load_photo(args.photo, max_side=args.max_side)
@@ -233,7 +239,7 @@ def _run_reconstruct(args: argparse.Namespace) -> None:
         bar.set_postfix_str(stage)
         bar.update(1)
 
-    asset, result = reconstruct_with_fit(photo, model, backend=args.backend, size=args.size, upscale=args.upscale,
+    asset, result = reconstruct_with_fit(photo, model, backend=backend, size=args.size, upscale=args.upscale,
                                 maps=maps, detector=args.landmarks, progress=progress,
                                 **({"fitter": predictor} if predictor else {}))
     timings = dict(asset.metadata["timings_s"])

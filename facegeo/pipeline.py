@@ -31,8 +31,19 @@ from facegeo.uv import geometry_maps, rasterize_uv, unwrap
 
 __all__ = ["reconstruct", "reconstruct_with_fit", "relit_preview", "BACKENDS", "STAGES"]
 
-#: Texture backends by name. The diffusion backend (an adapter over a DiT) is not built yet.
-BACKENDS: dict[str, Callable[[], TextureBackend]] = {"default": DefaultBackend}
+
+def _diffusion_backend(weights: str | Path | None = None) -> TextureBackend:
+    """The diffusion backend from a weights folder (the optional [diffusion] extra, imported only here)."""
+    from facegeo.texturing.diffusion import require_extra
+
+    require_extra()
+    from facegeo.texturing.diffusion.backend import DiffusionBackend
+
+    return DiffusionBackend.from_weights(weights)
+
+
+#: Texture backends by name; ``diffusion`` takes its weights folder as its argument.
+BACKENDS: dict[str, Callable[..., TextureBackend]] = {"default": DefaultBackend, "diffusion": _diffusion_backend}
 #: The stages, in order, as reported to a progress callback and in ``metadata["timings_s"]``.
 STAGES = ("fit", "unwrap", "inpaint", "homogenise", "materials", "upscale", "parts")
 

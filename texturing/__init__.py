@@ -1,10 +1,40 @@
 """UV-space texturing (installed as ``facegeo.texturing``): the texture-backend protocol, the
 weight-free default backend, the texture context of a fit, and the differentiable GGX shader of
 the paper's appendix A.1. The geometry half (``facegeo``) never imports it; the pipeline does.
+
+Names are imported lazily (like ``facegeo.uv``'s), so building the CLI's parser, which registers
+the diffusion subcommands from ``facegeo.texturing.diffusion.cli``, does not pay for torch and
+OpenCV.
 """
 
-from facegeo.texturing.backend import TextureBackend, TextureContext
-from facegeo.texturing.default_backend import DefaultBackend
-from facegeo.texturing.shading import ShadingResult, shade_ggx
+from __future__ import annotations
 
-__all__ = ["TextureBackend", "TextureContext", "DefaultBackend", "ShadingResult", "shade_ggx"]
+from importlib import import_module
+from typing import TYPE_CHECKING, Any
+
+_EXPORTS = {
+    "TextureBackend": "facegeo.texturing.backend",
+    "TextureContext": "facegeo.texturing.backend",
+    "DefaultBackend": "facegeo.texturing.default_backend",
+    "ShadingResult": "facegeo.texturing.shading",
+    "shade_ggx": "facegeo.texturing.shading",
+}
+
+__all__ = list(_EXPORTS)
+
+if TYPE_CHECKING:
+    from facegeo.texturing.backend import TextureBackend, TextureContext
+    from facegeo.texturing.default_backend import DefaultBackend
+    from facegeo.texturing.shading import ShadingResult, shade_ggx
+
+
+def __getattr__(name: str) -> Any:
+    if name in _EXPORTS:
+        value = getattr(import_module(_EXPORTS[name]), name)
+        globals()[name] = value
+        return value
+    raise AttributeError(f"module 'facegeo.texturing' has no attribute {name!r}")
+
+
+def __dir__() -> list[str]:
+    return sorted(set(globals()) | set(_EXPORTS))
