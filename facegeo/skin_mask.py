@@ -29,7 +29,9 @@ colour model lets it through; it is the one occluder this mask does not remove (
 ``benchmarks/bench_albedo.py``).
 
 :func:`skin_mask` returns a :class:`SkinMask`; its ``occlusion`` (1 = something other than the
-face's surface is seen) is what :func:`facegeo.uv.unwrap` folds into M_vis.
+face's surface is seen) is what :func:`facegeo.uv.unwrap` folds into M_vis; ``facegeo unwrap``
+and ``facegeo reconstruct`` save it as ``skin_mask.png`` (:func:`skin_mask_image`: 255 = the face's
+own surface, 0 = occluded).
 """
 
 from __future__ import annotations
@@ -43,7 +45,7 @@ from facegeo.colour import luminance, srgb_to_linear
 from facegeo.errors import NoFaceError
 from facegeo.photo import as_rgb_uint8
 
-__all__ = ["SkinMask", "FaceRegions", "skin_mask", "DARK_FRACTION", "HALO_FRACTION"]
+__all__ = ["SkinMask", "FaceRegions", "skin_mask", "skin_mask_image", "DARK_FRACTION", "HALO_FRACTION", "LOCAL_DARK"]
 
 # MediaPipe face-mesh contours (vertex indices of the 468-point canonical mesh, in order).
 FACE_OVAL = [10, 338, 297, 332, 284, 251, 389, 356, 454, 323, 361, 288, 397, 365, 379, 378, 400, 377, 152, 148,
@@ -56,7 +58,7 @@ LIPS_OUTER = [61, 146, 91, 181, 84, 17, 314, 405, 321, 375, 291, 409, 270, 269, 
 LIPS_INNER = [78, 95, 88, 178, 87, 14, 317, 402, 318, 324, 308, 415, 310, 311, 312, 13, 82, 81, 80, 191]
 
 #: Pixels darker than this fraction of the sampled skin's median luminance are not skin.
-DARK_FRACTION = 0.12
+DARK_FRACTION = 0.2
 #: Occlusion is dilated by this fraction of the inter-ocular distance (hair strands, frame edges).
 HALO_FRACTION = 0.04
 #: Mahalanobis distances (σ) of the skin-colour model: skin below the first, occluder above the second.
@@ -236,9 +238,16 @@ def skin_mask(image: np.ndarray, landmarks: np.ndarray | None = None, *, regions
     # neighbourhood, where skin creases and shadows are only somewhat darker
     local = cv2.GaussianBlur(lum, (0, 0), 0.12 * iod)
     occluded |= (lum < LOCAL_DARK * local) & ~(lips | brows | eyes)
-    occluded |= eyes | mouth
-    occluded = cv2.dilate(occluded.astype(np.uint8), _disc(HALO_FRACTION * iod)).astype(np.float32)
+    occluded = cv2.dilate(occluded.astype(np.uint8), _disc(HALO_FRACTION * iod)).astype(bool)
+    occluded |= cv2.dilate((eyes | mouth).astype(np.uint8), _disc(0.02 * iod)).astype(bool)  # lashes, lip edge
+    occluded = occluded.astype(np.float32)
     sigma = max(0.5, 0.02 * iod)
     occlusion = np.clip(cv2.GaussianBlur(occluded, (0, 0), sigma) * 1.5, 0.0, 1.0)  # feathered, 1 on the occluder
     occlusion = np.maximum(occlusion, (eyes | mouth).astype(np.float32))
     return SkinMask(occlusion.astype(np.float32), prob, sample, mean, cov, origin)
+
+
+def skin_mask_image(mask: SkinMask) -> np.ndarray:
+    """(H, W) uint8 picture of the mask as saved (``skin_mask.png``): 255 where the photo shows
+    the face's own surface, 0 where an occluder (or an eye interior, the mouth opening) covers it."""
+    return np.clip(np.round((1.0 - mask.occlusion) * 255.0), 0, 255).astype(np.uint8)
