@@ -57,6 +57,7 @@ def reconstruct_with_fit(
     detector: str = "hybrid",
     camera: Camera | None = None,
     skin: SkinMask | None = None,
+    landmarks: np.ndarray | None = None,
     progress: Callable[[str], None] | None = None,
 ) -> tuple[Asset, Fit]:
     """Reconstruct a textured face from one photo.
@@ -73,6 +74,7 @@ def reconstruct_with_fit(
         skin: the photo's :class:`facegeo.skin_mask.SkinMask` if already computed (default: computed
             here, from the 468-point mesh or, failing that, the fit's landmarks); its occlusion is
             folded into M_vis. ``asset.metadata["skin_mask"]`` summarises it.
+        landmarks: optional (88, 2) pixel landmarks (skips detection, as :func:`facegeo.fit`).
         progress: called with each stage's name as it starts.
     Returns:
         ``(asset, fit)``: the asset in model space (upright, mm) with its maps, and the fit.
@@ -100,7 +102,7 @@ def reconstruct_with_fit(
         return time.perf_counter()
 
     t = stage("fit")
-    result = fit(photo, model=model, detector=detector, camera=camera)
+    result = fit(photo, model=model, landmarks=landmarks, detector=detector, camera=camera)
     timings["fit"] = time.perf_counter() - t
 
     t = stage("unwrap")
