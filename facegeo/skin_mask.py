@@ -19,7 +19,7 @@ The mask is built from what runs offline here, in three parts:
    and the mouth opening are always occluded, and so is everything outside the face oval (dilated
    by 10 % of the inter-ocular distance) above the upper eyelids: the temples and scalp, where
    hair and headwear are (blond hair has skin's chroma). Thin dark structures (glasses frames,
-   strands) are pixels darker than :data:`LOCAL_DARK` of their neighbourhood. Colour-occluded specks thinner than ~6 % of the
+   strands) are pixels darker than :data:`LOCAL_DARK` of their neighbourhood. Colour-occluded specks thinner than ~3 % of the
    inter-ocular distance (pores, freckles) are dropped by a morphological opening, the rest is
    dilated by :data:`HALO_FRACTION` of the inter-ocular distance (the soft fringe of hair strands
    and frames) and feathered.
@@ -233,7 +233,7 @@ def skin_mask(image: np.ndarray, landmarks: np.ndarray | None = None, *, regions
     eye_top = min(float(e[:, 1].min()) for e in regions.eyes)
     near_oval = cv2.dilate(oval.astype(np.uint8), _disc(0.1 * iod)).astype(bool)
     occluded = ((prob < 0.5) | (~near_oval & (rows < eye_top))) & ~(lips | brows)
-    occluded = cv2.morphologyEx(occluded.astype(np.uint8), cv2.MORPH_OPEN, _disc(0.03 * iod)).astype(bool)
+    occluded = cv2.morphologyEx(occluded.astype(np.uint8), cv2.MORPH_OPEN, _disc(0.015 * iod)).astype(bool)
     # thin dark structures on the face (glasses frames, strands of hair): much darker than their
     # neighbourhood, where skin creases and shadows are only somewhat darker
     local = cv2.GaussianBlur(lum, (0, 0), 0.12 * iod)

@@ -8,7 +8,7 @@ only where it removes lighting, so the albedo keeps the photo's chroma.
   the camera-space normal are fitted to the luminance of the seen skin (iteratively trimmed least
   squares: texels whose log-ratio to the fit is beyond 2.5 robust σ, highlights, creases, stray
   occluders, are left out); then the cast shadows and occlusion SH cannot explain: dips of the
-  de-lit log-luminance at ~S/128 texels below its ~S/24 neighbourhood, deeper than
+  de-lit log-luminance at ~S/128 texels below the brighter of its ~S/12 and ~S/5 neighbourhoods (~25 and ~60 mm; broad shadows such as the jaw's on the neck), deeper than
   :data:`SHADOW_TOLERANCE`. The de-lighting gain 1/shading is bounded to [1/g, g] with g =
   :data:`MAX_GAIN` where the surface faces the camera, falling to :data:`GRAZING_GAIN` at grazing
   angles (SH fits underestimate grazing irradiance; unbounded gains made metallic streaks).
@@ -72,7 +72,7 @@ MAX_GAIN = 2.0
 #: Largest gain at grazing angles (camera-space normal z → 0).
 GRAZING_GAIN = 1.25
 #: Log-luminance dips (local vs neighbourhood) shallower than this are albedo, deeper ones shadow.
-SHADOW_TOLERANCE = 0.08
+SHADOW_TOLERANCE = 0.05
 #: (start, full): a texel is a highlight where its de-lit luminance exceeds its neighbourhood's by these ratios.
 HIGHLIGHT_RATIO = (1.15, 1.4)
 #: Displacement in mm per unit of high-frequency log-luminance detail (dark = deeper): a pore that
@@ -201,7 +201,7 @@ class DefaultBackend:
             # cast shadows / occlusion: local dips of the de-lit log-luminance below the neighbourhood
             log_a = np.log(np.maximum(lum / shading, 1e-4))
             local = masked_blur(log_a, fit_mask, size / 128.0)
-            region = masked_blur(log_a, fit_mask, size / 24.0)
+            region = np.maximum(masked_blur(log_a, fit_mask, size / 12.0), masked_blur(log_a, fit_mask, size / 5.0))
             support = np.clip(cv2.GaussianBlur(fit_mask.astype(np.float32), (0, 0), size / 128.0) * 2.0, 0.0, 1.0)
             dip = np.clip(local - region + SHADOW_TOLERANCE, -0.7, 0.0) * support  # no evidence, no shadow
             shading = shading * np.exp(np.where(cover, dip, 0.0))
