@@ -140,7 +140,8 @@ def test_inpaint_mirror_beats_mean_colour_fill():
     hidden = ctx.coverage & (visible < 0.01)
     mean_fill = np.where(visible[..., None] > 0.5, t_inc, truth[ctx.coverage & (visible > 0.99)].mean(0))
     ours, trivial = psnr(full, truth, hidden), psnr(mean_fill, truth, hidden)
-    assert ours > trivial + 10.0, (ours, trivial)
+    # +6 dB, not the exact mirror copy: dark blotches deeper than SHADOW_TOLERANCE count as shadow
+    assert ours > trivial + 6.0, (ours, trivial)
     assert np.all(np.isfinite(full)) and full.min() >= 0 and full.max() <= 1
 
 
