@@ -36,6 +36,7 @@ only where it removes lighting, so the albedo keeps the photo's chroma.
 
 from __future__ import annotations
 
+import hashlib
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -51,7 +52,7 @@ from facegeo.colour import linear_to_srgb, luminance, srgb_to_linear
 from facegeo.lighting import sh_basis
 from facegeo.texturing.backend import TextureContext
 
-__all__ = ["DefaultBackend", "REGION_PRIORS", "pad_outside", "masked_blur", "value_noise", "MAX_GAIN",
+__all__ = ["DefaultBackend", "REGION_PRIORS", "pad_outside", "masked_blur", "gaussian_blur", "value_noise", "MAX_GAIN",
            "GRAZING_GAIN", "SHADOW_TOLERANCE", "HIGHLIGHT_RATIO", "DETAIL_DEPTH_MM"]
 
 #: (roughness, specular) priors per facial region; oily T-zone glossier, brows matte, lips smooth
@@ -84,22 +85,49 @@ FILL_SMOOTHNESS = 2.0
 MIRROR_SMOOTHNESS = 50.0
 
 
+def gaussian_blur(image: np.ndarray, sigma: float) -> np.ndarray:
+    """Gaussian blur (reflected borders) of an (H, W[, C]) float32 image. Above σ = 8 texels it
+    runs on a copy downsampled by a power of two (area averaging) and is upsampled bilinearly:
+    the result is smooth at that scale anyway, and a direct 6σ kernel at σ = S/5 costs seconds."""
+    image = np.asarray(image, np.float32)
+    factor = 1
+    while sigma / (factor * 2) >= 4.0 and min(image.shape[:2]) // (factor * 2) >= 8:
+        factor *= 2
+    if factor == 1:
+        return cv2.GaussianBlur(image, (0, 0), sigma, borderType=cv2.BORDER_REFLECT)
+    h, w = image.shape[:2]
+    small = cv2.resize(image, (max(1, w // factor), max(1, h // factor)), interpolation=cv2.INTER_AREA)
+    small = cv2.GaussianBlur(small, (0, 0), sigma / factor, borderType=cv2.BORDER_REFLECT)
+    out = cv2.resize(small, (w, h), interpolation=cv2.INTER_LINEAR)
+    return out.reshape(image.shape)
+
+
 def masked_blur(image: np.ndarray, weight: np.ndarray, sigma: float) -> np.ndarray:
     """Gaussian blur of ``image`` (S, S[, C]) that only averages texels with ``weight`` (S, S) >
     0: blur(w·x) / blur(w). Texels with no weighted neighbour within ~3σ get 0."""
     w = weight.astype(np.float32)
-    num = cv2.GaussianBlur(image * (w[..., None] if image.ndim == 3 else w), (0, 0), sigma, borderType=cv2.BORDER_REFLECT)
-    den = cv2.GaussianBlur(w, (0, 0), sigma, borderType=cv2.BORDER_REFLECT)
+    num = gaussian_blur(image * (w[..., None] if image.ndim == 3 else w), sigma)
+    den = gaussian_blur(w, sigma)
     den = np.maximum(den, 1e-6)
     return num / (den[..., None] if image.ndim == 3 else den)
 
 
+_NEAREST_CACHE: dict[bytes, tuple[np.ndarray, np.ndarray]] = {}
+
+
 def pad_outside(image: np.ndarray, inside: np.ndarray) -> np.ndarray:
     """Give every texel outside ``inside`` (S, S) bool the value of the nearest inside texel
-    (seam padding: bilinear sampling and mip-maps never see the background)."""
+    (seam padding: bilinear sampling and mip-maps never see the background). The nearest-texel
+    table is cached per mask (a layout pads all its maps with the same one)."""
     if inside.all() or not inside.any():
         return image
-    _, (rows, cols) = ndimage.distance_transform_edt(~inside, return_indices=True)
+    key = hashlib.blake2b(np.packbits(inside).tobytes() + str(inside.shape).encode(), digest_size=16).digest()
+    if key not in _NEAREST_CACHE:
+        if len(_NEAREST_CACHE) >= 4:
+            _NEAREST_CACHE.clear()
+        _, (rows, cols) = ndimage.distance_transform_edt(~inside, return_indices=True)
+        _NEAREST_CACHE[key] = (rows.astype(np.int32), cols.astype(np.int32))
+    rows, cols = _NEAREST_CACHE[key]
     return image[rows, cols]
 
 
@@ -107,20 +135,22 @@ def value_noise(position_mm: np.ndarray, cell_mm: float, seed: int = 0) -> np.nd
     """3-D value noise (trilinear interpolation of hashed lattice values in [−1, 1], smoothstep
     weights) at (N, 3) points in mm on a lattice of ``cell_mm``: (N,) float32. A function of
     the surface position, so it is continuous across UV seams."""
-    g = position_mm.astype(np.float64) / cell_mm
+    g = position_mm.astype(np.float32) / np.float32(cell_mm)
     base = np.floor(g)
     f = g - base
     f = f * f * (3 - 2 * f)
-    base = base.astype(np.int64)
-    out = np.zeros(len(g))
+    base = base.astype(np.int32)
+    out = np.zeros(len(g), np.float32)
     for corner in range(8):
-        o = np.array([(corner >> 2) & 1, (corner >> 1) & 1, corner & 1])
-        i = base + o
-        h = np.sin(i[:, 0] * 127.1 + i[:, 1] * 311.7 + i[:, 2] * 74.7 + seed * 19.19) * 43758.5453
-        value = 2 * (h - np.floor(h)) - 1
-        weight = np.prod(np.where(o == 1, f, 1 - f), axis=1)
+        o = ((corner >> 2) & 1, (corner >> 1) & 1, corner & 1)
+        # integer hash of the lattice point (a xorshift-multiply mix), then to [−1, 1]
+        h = ((base[:, 0] + o[0]) * 73856093) ^ ((base[:, 1] + o[1]) * 19349663) ^ ((base[:, 2] + o[2]) * 83492791) ^ (seed * 2654435)
+        h = (h ^ (h >> 13)) * 1274126177
+        h = h ^ (h >> 16)
+        value = (h & 0xFFFF).astype(np.float32) * np.float32(2.0 / 65535.0) - 1.0
+        weight = (f[:, 0] if o[0] else 1 - f[:, 0]) * (f[:, 1] if o[1] else 1 - f[:, 1]) * (f[:, 2] if o[2] else 1 - f[:, 2])
         out += weight * value
-    return out.astype(np.float32)
+    return out
 
 
 def _subsample(rows: np.ndarray, limit: int = 65536) -> np.ndarray:
@@ -143,7 +173,7 @@ def _push_pull(values: np.ndarray, weight: np.ndarray, size: int, finest: float,
         sigmas.append(sigmas[-1] / 4)
     for sigma in sigmas:
         blurred = masked_blur(values, weight, sigma)
-        support = np.clip(cv2.GaussianBlur(weight.astype(np.float32), (0, 0), sigma) * 4.0, 0.0, 1.0)[..., None]
+        support = np.clip(gaussian_blur(weight, sigma) * 4.0, 0.0, 1.0)[..., None]
         out = support * blurred + (1 - support) * out
     return out
 
@@ -202,7 +232,7 @@ class DefaultBackend:
             log_a = np.log(np.maximum(lum / shading, 1e-4))
             local = masked_blur(log_a, fit_mask, size / 128.0)
             region = np.maximum(masked_blur(log_a, fit_mask, size / 12.0), masked_blur(log_a, fit_mask, size / 5.0))
-            support = np.clip(cv2.GaussianBlur(fit_mask.astype(np.float32), (0, 0), size / 128.0) * 2.0, 0.0, 1.0)
+            support = np.clip(gaussian_blur(fit_mask, size / 128.0) * 2.0, 0.0, 1.0)
             dip = np.clip(local - region + SHADOW_TOLERANCE, -0.7, 0.0) * support  # no evidence, no shadow
             shading = shading * np.exp(np.where(cover, dip, 0.0))
         facing = np.clip(normals[..., 2] / 0.5, 0.0, 1.0)
@@ -216,7 +246,7 @@ class DefaultBackend:
             ratio = delit_lum / np.maximum(ref_lum, 1e-6)
             ref_weight = ref_weight & (ratio < lo)
         highlight = np.clip((ratio - lo) / (hi - lo), 0.0, 1.0) * (w > 0)
-        highlight = np.clip(cv2.GaussianBlur(highlight.astype(np.float32), (0, 0), max(1.0, size / 512.0)) * 2.0, 0.0, 1.0) * cover
+        highlight = np.clip(gaussian_blur(highlight, max(1.0, size / 512.0)) * 2.0, 0.0, 1.0) * cover
         analysis = _Analysis(shading, highlight.astype(np.float32), (w * (1.0 - highlight)).astype(np.float32))
         self._analysis = (ctx, analysis)
         self.report["analyse"] = {
