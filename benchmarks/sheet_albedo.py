@@ -1,6 +1,7 @@
 """Contact sheet of the default backend on real photos (issue 14): per photo, the photo with its
 skin mask (occluded pixels tinted magenta), the albedo in UV, and the asset relit from the front
-(``relit_preview``'s middle panel), one row per photo.
+(``relit_preview``'s middle panel), one row per photo. It also prints, per photo, how much the
+normal map changes a ``shade_ggx`` render under a 60° side light (mean |Δ| over the skin, 8-bit).
 
 Photos: the bundled astronaut and every real face photo a pip dependency ships (matplotlib's
 ``grace_hopper.jpg``).
@@ -44,10 +45,41 @@ def row(path: Path, model, size: int, height: int) -> tuple[np.ndarray, str]:
     crop = _same_crop(photo.image, photo_panel.shape, tinted.astype(np.uint8), fit, model)
     albedo = cv2.resize((np.clip(asset.maps["albedo"], 0, 1) * 255).astype(np.uint8), (height, height), interpolation=cv2.INTER_AREA)
     report = asset.metadata["texture_report"]
+    relief = relief_effect(asset, fit, model)
     note = (f"{path.name}: {seconds:.1f} s, occluded {100 * skin.occlusion.mean():.0f} % of the photo, "
+            f"normal-map relief {relief:.1f}/255 (mean |Δ| under a 60° side light), "
             f"seen {100 * report['inpaint']['seen']:.0f} % of the layout, highlights "
             f"{100 * report['analyse']['highlight_fraction_of_seen_skin']:.1f} % of the seen skin")
     return np.concatenate([photo_panel, crop, albedo, front], axis=1), note
+
+
+def relief_effect(asset, fit, model, size: int = 512) -> float:
+    """Mean |Δ| in 8-bit sRGB over the face's skin texels between ``shade_ggx`` renders (UV space,
+    fitted geometry, one light 60° off the view axis from the side) with the asset's normal map
+    and with flat normals: how much the relief shows."""
+    import torch
+
+    from facegeo.colour import linear_to_srgb, srgb_to_linear
+    from facegeo.fitting import skin_vertex_mask
+    from facegeo.texturing.context import surface_operators
+    from facegeo.texturing.shading import shade_ggx
+    from facegeo.uv import geometry_maps, rasterize_uv
+
+    raster = rasterize_uv(model, size=size)
+    geo = geometry_maps(fit.vertices, model, raster)
+    skin = (surface_operators(model, raster).to_texels(skin_vertex_mask(model).astype(np.float32), size) > 0.5) & raster.inside
+    chw = lambda a: torch.from_numpy(np.ascontiguousarray((a[..., None] if a.ndim == 2 else a).transpose(2, 0, 1), np.float32))[None]  # noqa: E731
+    resized = lambda name: cv2.resize(asset.maps[name], (size, size), interpolation=cv2.INTER_AREA)  # noqa: E731
+    normal = resized("normal")
+    normal /= np.maximum(np.linalg.norm(normal, axis=-1, keepdims=True), 1e-6)
+    light = torch.tensor([[[np.sin(np.pi / 3), 0.0, np.cos(np.pi / 3)]]], dtype=torch.float32)
+    images = []
+    for n in (normal, np.broadcast_to(np.float32([0, 0, 1]), normal.shape)):
+        out = shade_ggx(chw(srgb_to_linear(resized("albedo"))), chw(n), chw(resized("roughness")), chw(resized("specular")),
+                        chw(np.zeros((size, size), np.float32)), chw(geo.position), chw(geo.normal), chw(geo.tangent),
+                        chw(geo.mask.astype(np.float32)), light, torch.full((1, 1, 3), 2.5), torch.zeros(1, 3), 0.1, s_disp=1.0)
+        images.append(linear_to_srgb(out.shaded[0].numpy().transpose(1, 2, 0)) * 255)
+    return float(np.abs(images[0] - images[1])[skin].mean())
 
 
 def _same_crop(image: np.ndarray, shape: tuple[int, ...], tinted: np.ndarray, fit, model) -> np.ndarray:

@@ -28,7 +28,8 @@ only where it removes lighting, so the albedo keeps the photo's chroma.
   (masked blurs at growing scales).
 * **homogenise**: the filled texture divided by the shading (luminance only).
 * **materials**: albedo = homogenised texture; displacement (mm) and tangent-space normal from its
-  high-frequency log-luminance detail at :data:`DETAIL_DEPTH_MM` mm per unit; roughness and
+  high-frequency log-luminance detail at :data:`DETAIL_DEPTH_MM` mm per unit (±
+  :data:`DETAIL_LIMIT_MM`); occluders never reach it (they are filled before); roughness and
   specular from facial-region priors blurred to smooth anatomical shapes (σ = S/64 texels, ~8 mm)
   and raised/lowered by the highlight evidence.
 * **upscale**: Lanczos (OpenCV ``INTER_LANCZOS4``).
@@ -53,7 +54,7 @@ from facegeo.lighting import sh_basis
 from facegeo.texturing.backend import TextureContext
 
 __all__ = ["DefaultBackend", "REGION_PRIORS", "pad_outside", "masked_blur", "gaussian_blur", "value_noise", "MAX_GAIN",
-           "GRAZING_GAIN", "SHADOW_TOLERANCE", "HIGHLIGHT_RATIO", "DETAIL_DEPTH_MM"]
+           "GRAZING_GAIN", "SHADOW_TOLERANCE", "HIGHLIGHT_RATIO", "DETAIL_DEPTH_MM", "DETAIL_LIMIT_MM"]
 
 #: (roughness, specular) priors per facial region; oily T-zone glossier, brows matte, lips smooth
 #: and less specular (values in the range of measured facial BRDF fits, e.g. Weyrich et al. 2006).
@@ -76,9 +77,14 @@ GRAZING_GAIN = 1.25
 SHADOW_TOLERANCE = 0.05
 #: (start, full): a texel is a highlight where its de-lit luminance exceeds its neighbourhood's by these ratios.
 HIGHLIGHT_RATIO = (1.15, 1.4)
-#: Displacement in mm per unit of high-frequency log-luminance detail (dark = deeper): a pore that
-#: halves the luminance (−0.69) is 0.14 mm deep at 0.2 mm per unit.
-DETAIL_DEPTH_MM = 0.2
+#: Displacement in mm per unit of high-frequency log-luminance detail (dark = deeper), clipped to
+#: ±DETAIL_LIMIT_MM: skin detail of 3 % contrast (the typical σ of a photo's fine skin detail) is
+#: 0.03 mm of relief, a crease that darkens the skin by a quarter 0.29 mm (pores are 0.05–0.1 mm
+#: deep, fine wrinkles 0.1–0.3 mm). The issue's old gain (0.5 mm, ±0.5 mm) changed a Blender
+#: render by 0.6/255 on average.
+DETAIL_DEPTH_MM = 1.0
+#: Largest displacement either way (mm).
+DETAIL_LIMIT_MM = 0.3
 #: Weight of the edge Laplacian in the screened Poisson fill (vertex data terms have weight ≤ 1).
 FILL_SMOOTHNESS = 2.0
 #: The same for the coarse base the mirrored detail is measured against (~15 mm on the ICT head).
@@ -381,7 +387,7 @@ class DefaultBackend:
             log_l = np.log(np.maximum(luminance(srgb_to_linear(T_hom)), 1e-4))
             sigma = max(0.75, ctx.size * self.detail_sigma_fraction)
             detail = np.where(cover, log_l - masked_blur(log_l, cover, sigma), 0.0).astype(np.float32)
-            displacement = self.detail_depth_mm * np.clip(detail, -1.5, 1.5)  # dark detail = deeper
+            displacement = np.clip(self.detail_depth_mm * detail, -DETAIL_LIMIT_MM, DETAIL_LIMIT_MM)  # dark = deeper
             if "displacement" in maps:
                 out["displacement"] = pad_outside(displacement.astype(np.float32), cover)
             if "normal" in maps:
