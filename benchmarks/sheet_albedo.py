@@ -53,7 +53,7 @@ def row(path: Path, model, size: int, height: int) -> tuple[np.ndarray, str]:
     return np.concatenate([photo_panel, crop, albedo, front], axis=1), note
 
 
-def relief_effect(asset, fit, model, size: int = 512) -> float:
+def relief_effect(asset, fit, model, size: int = 1024) -> float:
     """Mean |Δ| in 8-bit sRGB over the face's skin texels between ``shade_ggx`` renders (UV space,
     fitted geometry, one light 60° off the view axis from the side) with the asset's normal map
     and with flat normals: how much the relief shows."""

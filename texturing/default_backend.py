@@ -199,7 +199,7 @@ class DefaultBackend:
     depth (``detail_depth_mm``). ``report`` holds statistics of the last calls."""
 
     name: str = "default"
-    detail_sigma_fraction: float = 1.0 / 512.0  # detail = frequencies above ~S/512 texels⁻¹ (pores, fine wrinkles)
+    detail_sigma_fraction: float = 1.0 / 256.0  # detail = frequencies above ~S/256 texels⁻¹ (~1 mm at 1K: pores, wrinkles, creases)
     detail_depth_mm: float = DETAIL_DEPTH_MM
     report: dict[str, Any] = field(default_factory=dict)
     _analysis: tuple[TextureContext, _Analysis] | None = field(default=None, repr=False)
