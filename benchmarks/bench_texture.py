@@ -244,7 +244,10 @@ def sheet(model, size: int, path: Path, jpeg: Path | None) -> str:
     else:
         asset, fit = pipeline.reconstruct(photo, model, size=size)
     seconds = time.perf_counter() - t
-    t_inc, m_vis = unwrap(photo.image, fit, model, raster=rasterize_uv(model, size=size))
+    from facegeo.skin_mask import skin_mask
+
+    t_inc, m_vis = unwrap(photo.image, fit, model, raster=rasterize_uv(model, size=size),
+                          occlusion=skin_mask(photo.image, fit.landmarks).occlusion)  # as the pipeline
     maps = asset.maps
     d = maps["displacement"]
     span = max(float(np.abs(d).max()), 1e-6)

@@ -76,7 +76,7 @@ GRAZING_GAIN = 1.25
 #: Log-luminance dips (local vs neighbourhood) shallower than this are albedo, deeper ones shadow.
 SHADOW_TOLERANCE = 0.05
 #: (start, full): a texel is a highlight where its de-lit luminance exceeds its neighbourhood's by these ratios.
-HIGHLIGHT_RATIO = (1.15, 1.4)
+HIGHLIGHT_RATIO = (1.2, 1.5)
 #: Displacement in mm per unit of high-frequency log-luminance detail (dark = deeper), clipped to
 #: ±DETAIL_LIMIT_MM: skin detail of 3 % contrast (the typical σ of a photo's fine skin detail) is
 #: 0.03 mm of relief, a crease that darkens the skin by a quarter 0.29 mm (pores are 0.05–0.1 mm
@@ -251,7 +251,7 @@ class DefaultBackend:
             ref_lum = masked_blur(delit_lum, ref_weight, size / 48.0)
             ratio = delit_lum / np.maximum(ref_lum, 1e-6)
             ref_weight = ref_weight & (ratio < lo)
-        highlight = np.clip((ratio - lo) / (hi - lo), 0.0, 1.0) * (w > 0)
+        highlight = np.clip((ratio - lo) / (hi - lo), 0.0, 1.0) * (w > 0) * _skin(ctx)  # lips, lids: bright albedo, not gloss
         highlight = np.clip(gaussian_blur(highlight, max(1.0, size / 512.0)) * 2.0, 0.0, 1.0) * cover
         analysis = _Analysis(shading, highlight.astype(np.float32), (w * (1.0 - highlight)).astype(np.float32))
         self._analysis = (ctx, analysis)
@@ -396,7 +396,7 @@ class DefaultBackend:
             rough, spec = self._priors(ctx)
             evidence = np.zeros(cover.shape, np.float32)
             if self._analysis is not None and self._analysis[0] is ctx:
-                evidence = np.clip(masked_blur(self._analysis[1].highlight, cover, ctx.size / 256.0) * 3.0, 0.0, 1.0)
+                evidence = np.clip(masked_blur(self._analysis[1].highlight, cover, ctx.size / 96.0) * 2.0, 0.0, 1.0)  # ~3 mm: no blobs
             if "roughness" in maps:  # where highlights were seen the skin is glossier: up to −35 % roughness
                 out["roughness"] = pad_outside(np.clip(rough * (1.0 - 0.35 * evidence), 0.05, 1.0).astype(np.float32), cover)
             if "specular" in maps:  # and more specular: up to +50 %
