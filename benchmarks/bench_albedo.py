@@ -42,6 +42,7 @@ The current backend (``DefaultBackend`` of git commit ``BASELINE_COMMIT``, loade
 the unwrap's plain M_vis as before the skin mask) runs beside the new one on the same photos.
 
     python benchmarks/bench_albedo.py --write /tmp/albedo.md     # ~5 min on 2 cores
+    python benchmarks/bench_albedo.py --time-stages               # texture-stage times of both backends
 """
 
 from __future__ import annotations
@@ -312,6 +313,42 @@ def baseline_backend():
     return module.DefaultBackend
 
 
+def time_stages(model, Baseline, rounds: int = 3) -> list[str]:
+    """Wall time of unwrap + context + inpaint + homogenise + materials at S = 1024 on the bundled
+    photo for both backends (one fit, alternating), and of the skin mask: markdown lines."""
+    import statistics
+
+    from facegeo.assets import asset_path
+    from facegeo.photo import load_photo
+    from facegeo.skin_mask import skin_mask
+    from facegeo.texturing.context import build_context
+    from facegeo.uv import unwrap
+
+    photo = load_photo(asset_path("photos/astronaut.png"))
+    fit = facegeo.fit(photo, model)
+    raster = rasterize_uv(model, size=1024)
+    maps = geometry_maps(fit.vertices, model, raster, tangents=False)
+    times: dict[str, list[float]] = {"skin mask": [], "current": [], "new": []}
+    start = load()
+    for _ in range(rounds):
+        t = time.perf_counter()
+        mask = skin_mask(photo.image, fit.landmarks)
+        times["skin mask"].append(time.perf_counter() - t)
+        for label, backend, occlusion in (("current", Baseline(), None), ("new", DefaultBackend(), mask.occlusion)):
+            t = time.perf_counter()
+            t_inc, m_vis = unwrap(photo.image, fit, model, maps=maps, occlusion=occlusion)
+            ctx = build_context(model, fit, raster, maps)
+            full = backend.inpaint(t_inc, m_vis, ctx)
+            backend.materials(backend.homogenise(full, ctx), ctx)
+            times[label].append(time.perf_counter() - t)
+    lines = ["", f"Texture stages on `photos/astronaut.png` (S = 1024, one fit, {rounds} alternating rounds; load average "
+             f"{start} at the start, {load()} at the end):", "", "| step | min s | median s |", "|---|---|---|"]
+    for label, values in times.items():
+        name = label if label == "skin mask" else f"{label} backend: unwrap + context + inpaint + homogenise + materials"
+        lines.append(f"| {name} | {min(values):.2f} | {statistics.median(values):.2f} |")
+    return lines
+
+
 # ------------------------------------------------------------------------------------ main
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
@@ -320,6 +357,7 @@ def main(argv=None) -> int:
     ap.add_argument("--dump", type=Path, default=None, help="write photos and albedos of each scene here (PNG)")
     ap.add_argument("--scenes", default="", help="comma-separated scene indices (default all)")
     ap.add_argument("--new-only", action="store_true", help="skip the current backend (for tuning)")
+    ap.add_argument("--time-stages", action="store_true", help="only time the texture stages of both backends on the bundled photo")
     ap.add_argument("--full-resolution", action="store_true", help="compare texel by texel, without the photo-resolution blur")
     ap.add_argument("--detect", action="store_true", help="detect the landmarks on the render instead of using the true ones")
     args = ap.parse_args(argv)
@@ -332,6 +370,9 @@ def main(argv=None) -> int:
     skin = (surf.to_texels(skin_vertex_mask(model).astype(np.float32), args.size) > 0.5) & cover
     pairs = seam_pairs(model)
     Baseline = baseline_backend()
+    if args.time_stages:
+        print("\n".join(time_stages(model, Baseline)))
+        return 0
     load_start, t_start = load(), time.perf_counter()
     rows = []
     chosen = [int(i) for i in args.scenes.split(",") if i] or range(len(SCENES))

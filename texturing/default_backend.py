@@ -33,6 +33,10 @@ only where it removes lighting, so the albedo keeps the photo's chroma.
   specular from facial-region priors blurred to smooth anatomical shapes (σ = S/64 texels, ~8 mm)
   and raised/lowered by the highlight evidence.
 * **upscale**: Lanczos (OpenCV ``INTER_LANCZOS4``).
+
+The context's fitted SH lighting (``ctx.gamma``) is not used: it is fitted per RGB channel to the
+model's albedo, and dividing by it put its colour errors into the albedo (casts). The model's
+texture (``ctx.mean_texture``) is used only when no texel is seen at all.
 """
 
 from __future__ import annotations
