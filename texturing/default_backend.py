@@ -80,7 +80,7 @@ GRAZING_GAIN = 1.25
 #: Log-luminance dips (local vs neighbourhood) shallower than this are albedo, deeper ones shadow.
 SHADOW_TOLERANCE = 0.05
 #: (start, full): a texel is a highlight where its de-lit luminance exceeds its neighbourhood's by these ratios.
-HIGHLIGHT_RATIO = (1.2, 1.5)
+HIGHLIGHT_RATIO = (1.15, 1.4)
 #: Displacement in mm per unit of high-frequency log-luminance detail (dark = deeper), clipped to
 #: ±DETAIL_LIMIT_MM: skin detail of 3 % contrast (the typical σ of a photo's fine skin detail) is
 #: 0.03 mm of relief, a crease that darkens the skin by a quarter 0.29 mm (pores are 0.05–0.1 mm
