@@ -255,7 +255,7 @@ class DefaultBackend:
             ref_lum = masked_blur(delit_lum, ref_weight, size / 48.0)
             ratio = delit_lum / np.maximum(ref_lum, 1e-6)
             ref_weight = ref_weight & (ratio < lo)
-        highlight = np.clip((ratio - lo) / (hi - lo), 0.0, 1.0) * (w > 0) * _skin(ctx)  # lips, lids: bright albedo, not gloss
+        highlight = np.clip((ratio - lo) / (hi - lo), 0.0, 1.0) * (w > 0)
         highlight = np.clip(gaussian_blur(highlight, max(1.0, size / 512.0)) * 2.0, 0.0, 1.0) * cover
         analysis = _Analysis(shading, highlight.astype(np.float32), (w * (1.0 - highlight)).astype(np.float32))
         self._analysis = (ctx, analysis)
