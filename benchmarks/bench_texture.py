@@ -11,8 +11,11 @@ All on the bundled ICT-FaceKit model and real UV contexts (``build_context`` of 
    renderer, 1024² photo, 40° fov), unwrapped (M_vis), texels with M_vis < 0.5 hidden; PSNR /
    SSIM on the hidden covered texels against the truth, and the same for the trivial mean-colour
    fill (mean of the visible skin) in the same run.
-3. error against run time for every knob: map size S and the multi-band blending ``levels``.
+3. error against run time: map size S.
 4. a contact sheet of the maps of the demo photo (``--sheet``).
+
+(The multi-band blending ``levels`` knob of the first backend went with issue 14; the albedo
+benchmark with ground truth is ``benchmarks/bench_albedo.py``.)
 
 SSIM: ``kornia.metrics.ssim`` (Gaussian window 11×11, σ = 1.5, data range 1, sRGB values,
 per-channel map averaged over the selected texels; texels outside the layout are padded with the
@@ -49,7 +52,6 @@ from facegeo.uv import rasterize_uv, render, unwrap
 
 ROOT = Path(__file__).resolve().parents[1]
 SIZES = (256, 512, 1024, 2048)
-LEVELS = (1, 3, 5, 7)
 YAWS = (0.0, 30.0, 60.0)
 HOM_YAW = 20.0
 PHOTO = 1024
@@ -198,7 +200,7 @@ def homogenise_case(scene: Scene, gamma_true: np.ndarray, gamma_ctx: np.ndarray,
                 remaining=backend.report["homogenise"]["remaining_fraction"], seconds=seconds, t_hom=t_hom)
 
 
-def inpaint_case(scene: Scene, levels: int = 0, repeats: int = 1, with_ssim: bool = True) -> dict:
+def inpaint_case(scene: Scene, repeats: int = 1, with_ssim: bool = True) -> dict:
     ctx = scene.ctx
     t_inc, m_vis = scene.unwrapped()
     cover = ctx.coverage
@@ -210,7 +212,7 @@ def inpaint_case(scene: Scene, levels: int = 0, repeats: int = 1, with_ssim: boo
     has = (ctx.mirror[..., 0] >= 0) & cover
     mirror_shown = has & shown[np.maximum(ctx.mirror[..., 0], 0), np.maximum(ctx.mirror[..., 1], 0)]
     via_mirror, neither = hidden & mirror_shown, hidden & ~mirror_shown
-    out, seconds = timed(lambda: DefaultBackend(levels=levels).inpaint(t_in, m_in, ctx), repeats)
+    out, seconds = timed(lambda: DefaultBackend().inpaint(t_in, m_in, ctx), repeats)
     vis_skin = shown & scene.skin
     mean_colour = t_in[vis_skin].mean(0) if vis_skin.any() else np.full(3, 0.5, np.float32)
     trivial = np.where(shown[..., None], t_in, mean_colour).astype(np.float32)
@@ -242,7 +244,10 @@ def sheet(model, size: int, path: Path, jpeg: Path | None) -> str:
     else:
         asset, fit = pipeline.reconstruct(photo, model, size=size)
     seconds = time.perf_counter() - t
-    t_inc, m_vis = unwrap(photo.image, fit, model, raster=rasterize_uv(model, size=size))
+    from facegeo.skin_mask import skin_mask
+
+    t_inc, m_vis = unwrap(photo.image, fit, model, raster=rasterize_uv(model, size=size),
+                          occlusion=skin_mask(photo.image, fit.landmarks).occlusion)  # as the pipeline
     maps = asset.maps
     d = maps["displacement"]
     span = max(float(np.abs(d).max()), 1e-6)
@@ -285,7 +290,6 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--size", type=int, default=1024, help="map size S of tables 1 and 2")
     ap.add_argument("--sizes", default=",".join(map(str, SIZES)), help="comma-separated sizes of table 3")
-    ap.add_argument("--levels", default=",".join(map(str, LEVELS)), help="comma-separated blending levels of table 4")
     ap.add_argument("--repeats", type=int, default=3, help="timed runs per cell (median)")
     ap.add_argument("--sheet", action="store_true", help="also write the contact sheet of the demo photo")
     ap.add_argument("--sheet-path", type=Path, default=ROOT / "benchmarks/out/texture_contact_sheet.png")
@@ -294,7 +298,6 @@ def main(argv=None) -> int:
     ap.add_argument("--write", type=Path, default=None, help="also write the report (markdown) here")
     args = ap.parse_args(argv)
     sizes = [int(s) for s in args.sizes.split(",") if s]
-    levels = [int(s) for s in args.levels.split(",") if s]
     torch.set_num_threads(max(1, os.cpu_count() or 1))
     model = facegeo.load_model()
     load_start = load()
@@ -363,21 +366,8 @@ def main(argv=None) -> int:
         print(lines[-1], file=sys.stderr)
         del sc, sh, ri, rh
 
-    # 4. blending levels
-    S = 1024
-    default_levels = max(1, int(np.log2(S)) - 3)
-    lines += ["", f"### 4. error against run time: blending levels (S = {S}; default 0 → {default_levels})", "",
-              "| levels | yaw ° | inpaint s | PSNR hidden dB | SSIM hidden | PSNR via mirror dB | PSNR neither dB |", "|---|---|---|---|---|---|---|"]
-    for yaw in (30.0, 60.0):
-        sc = Scene(model, scenes[yaw], S, seed=1)
-        for lv in levels:
-            r = inpaint_case(sc, levels=lv, repeats=args.repeats)
-            lines.append(f"| {lv} | {yaw:g} | {r['seconds']:.3f} | {r['psnr']:.2f} | {r['ssim']:.4f} | {r['psnr_mirror']:.2f} | {r['psnr_neither']:.2f} |")
-            print(lines[-1], file=sys.stderr)
-        del sc
-
     if args.sheet:
-        lines += ["", "### 5. contact sheet", "", sheet(model, 1024, args.sheet_path, args.sheet_jpeg)]
+        lines += ["", "### 4. contact sheet", "", sheet(model, 1024, args.sheet_path, args.sheet_jpeg)]
 
     header = [
         "# Texture backend benchmark (DefaultBackend, issue 7 §3)", "",

@@ -221,7 +221,9 @@ def _run_reconstruct(args: argparse.Namespace) -> None:
     from facegeo.export.writers import FORMATS, export_asset
     from facegeo.model_files import load_model
     from facegeo.photo import load_photo
+    from facegeo.errors import NoFaceError
     from facegeo.pipeline import BACKENDS, STAGES, reconstruct_with_fit, relit_preview
+    from facegeo.skin_mask import skin_mask, skin_mask_image
     from facegeo.staged_output import StagedOutput
 
     maps = parse_list(args.maps, MAP_NAMES, "--maps")
@@ -239,8 +241,12 @@ def _run_reconstruct(args: argparse.Namespace) -> None:
         bar.set_postfix_str(stage)
         bar.update(1)
 
+    try:  # the skin mask needs MediaPipe's mesh; without it the pipeline builds one from the fit's landmarks
+        skin = skin_mask(photo.image, source=str(args.photo))
+    except NoFaceError:
+        skin = None
     asset, result = reconstruct_with_fit(photo, model, backend=backend, size=args.size, upscale=args.upscale,
-                                maps=maps, detector=args.landmarks, progress=progress,
+                                maps=maps, detector=args.landmarks, skin=skin, progress=progress,
                                 **({"fitter": predictor} if predictor else {}))
     timings = dict(asset.metadata["timings_s"])
     with StagedOutput(args.output, replace=True) as stage:
@@ -248,6 +254,8 @@ def _run_reconstruct(args: argparse.Namespace) -> None:
         bar.update(1)
         t = time.perf_counter()
         write_asset_files(asset, stage.staging_dir)
+        if skin is not None:
+            stage.path("skin_mask.png").write_bytes(png_bytes(skin_mask_image(skin)))
         # An 11k-vertex mesh cannot carry texel-scale displacement: at --subdiv 0 the detail
         # travels in the normal map only (the displacement map stays in the asset folder).
         carried = [m for m in asset.maps if m != "displacement" or args.subdiv > 0]

@@ -24,6 +24,7 @@ from facegeo.model_files import load_model
 from facegeo.morphable_model import MorphableModel
 from facegeo.parts import DEFAULT_IRIS_SRGB, load_parts, part_assets
 from facegeo.photo import Photo, as_rgb_uint8, load_photo
+from facegeo.skin_mask import SkinMask, skin_mask
 from facegeo.texturing.backend import TextureBackend
 from facegeo.texturing.context import build_context
 from facegeo.texturing.default_backend import DefaultBackend
@@ -68,6 +69,8 @@ def reconstruct_with_fit(
     maps: Iterable[str] = MAP_NAMES,
     detector: str = "hybrid",
     camera: Camera | None = None,
+    skin: SkinMask | None = None,
+    landmarks: np.ndarray | None = None,
     progress: Callable[[str], None] | None = None,
     parts: bool = True,
     fitter: Callable[..., Fit] = fit,
@@ -83,6 +86,10 @@ def reconstruct_with_fit(
         maps: which of albedo, normal, roughness, specular, displacement to compute; maps not
             asked for are not computed (roughness and specular fall back to constant factors).
         detector: landmark detector name. camera: intrinsics (default: 40° field of view).
+        skin: the photo's :class:`facegeo.skin_mask.SkinMask` if already computed (default: computed
+            here, from the 468-point mesh or, failing that, the fit's landmarks); its occlusion is
+            folded into M_vis. ``asset.metadata["skin_mask"]`` summarises it.
+        landmarks: optional (88, 2) pixel landmarks (skips detection, as :func:`facegeo.fit`).
         progress: called with each stage's name as it starts.
         parts: add the model's eyes and mouth interior (:mod:`facegeo.parts`; none for a model
             without parts) as ``asset.parts``, the eyeballs with the iris colour found in the
@@ -116,13 +123,15 @@ def reconstruct_with_fit(
         return time.perf_counter()
 
     t = stage("fit")
-    result = fitter(photo, model=model, detector=detector, camera=camera)
+    result = fitter(photo, model=model, landmarks=landmarks, detector=detector, camera=camera)
     timings["fit"] = time.perf_counter() - t
 
     t = stage("unwrap")
+    if skin is None:
+        skin = skin_mask(pixels, result.landmarks)
     raster = rasterize_uv(model, size=size)
     camera_maps = geometry_maps(result.vertices, model, raster, tangents=False)  # shared by both
-    t_inc, m_vis = unwrap(pixels, result, model, maps=camera_maps)
+    t_inc, m_vis = unwrap(pixels, result, model, maps=camera_maps, occlusion=skin.occlusion)
     ctx = build_context(model, result, raster, camera_maps)
     timings["unwrap"] = time.perf_counter() - t
 
@@ -181,6 +190,7 @@ def reconstruct_with_fit(
             "upscale": upscale,
             "timings_s": timings,
             "texture_report": report,
+            "skin_mask": skin.summary(),
             "landmark_rms_px": result.landmark_rms_px,
             "fit": {k: v for k, v in result.to_dict().items() if k not in ("landmarks_px", "landmarks_fitted_px")},
         },

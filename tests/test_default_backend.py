@@ -7,7 +7,7 @@ import torch
 from facegeo.colour import linear_to_srgb, srgb_to_linear
 from facegeo.lighting import sh_irradiance
 from facegeo.texturing.backend import TextureBackend, TextureContext
-from facegeo.texturing.default_backend import DefaultBackend, masked_blur, multiband_blend, pad_outside
+from facegeo.texturing.default_backend import GRAZING_GAIN, MAX_GAIN, DefaultBackend, masked_blur, pad_outside, value_noise
 
 
 def psnr(a, b, mask):
@@ -58,13 +58,13 @@ def test_protocol_is_satisfied():
     assert isinstance(DefaultBackend(), TextureBackend)
 
 
-def test_homogenise_removes_known_sh_shading():
+def test_homogenise_removes_known_white_sh_shading_and_keeps_chroma():
     gamma = np.zeros((3, 9), np.float32)
-    gamma[:, 0] = [0.9, 0.8, 0.75]
+    gamma[:, 0] = 0.9
     gamma[:, 2] = 0.35  # frontal light
     gamma[:, 3] = -0.2  # from the side
     gamma[:, 1] = 0.1
-    ctx = hemisphere_context(128, gamma)
+    ctx = hemisphere_context(128)
     albedo = skin_albedo(128)
     e = sh_irradiance(torch.from_numpy(ctx.normal_camera), torch.from_numpy(gamma)).numpy()
     shaded = linear_to_srgb(srgb_to_linear(albedo) * e)
@@ -72,11 +72,60 @@ def test_homogenise_removes_known_sh_shading():
     out = backend.homogenise(shaded, ctx)
     # compare up to the global scale the homogenised texture is defined to
     lin_out, lin_ref = srgb_to_linear(out), srgb_to_linear(albedo)
-    m = ctx.coverage
+    m = ctx.coverage & (ctx.normal_camera[..., 2] > 0.3)  # grazing texels have bounded gains
     scale = (lin_ref[m] * lin_out[m]).sum() / (lin_out[m] ** 2).sum()
-    assert psnr(linear_to_srgb(lin_out * scale), albedo, m) > 35.0
+    assert psnr(linear_to_srgb(lin_out * scale), albedo, m) > 32.0
     assert psnr(shaded, albedo, m) < 25.0  # the shading really was there
     assert backend.report["homogenise"]["remaining_fraction"] < 0.05
+    # luminance only: each texel's chromaticity r/g, b/g is the shaded texture's
+    lin_in = srgb_to_linear(shaded)
+    np.testing.assert_allclose(lin_out[m][:, [0, 2]] / lin_out[m][:, 1:2], lin_in[m][:, [0, 2]] / lin_in[m][:, 1:2], rtol=2e-3)
+
+
+def test_coloured_light_is_not_divided_out_per_channel():
+    """A warm light's cast stays (de-lighting is luminance only); the result's chroma is the photo's."""
+    ctx = hemisphere_context(64)
+    colour = np.array([0.8, 0.6, 0.5], np.float32)
+    warm = srgb_to_linear(colour) * np.array([1.0, 0.9, 0.7], np.float32)
+    shaded = np.broadcast_to(linear_to_srgb(warm), (64, 64, 3)).astype(np.float32)
+    out = DefaultBackend().homogenise(shaded, ctx)
+    lin = srgb_to_linear(out)[ctx.coverage]
+    np.testing.assert_allclose(lin[:, 0] / lin[:, 1], warm[0] / warm[1], rtol=1e-3)
+
+
+def test_highlights_are_found_removed_and_make_the_skin_glossier():
+    ctx = hemisphere_context(128)
+    albedo = np.broadcast_to(np.float32([0.75, 0.55, 0.45]), (128, 128, 3)).copy()
+    lin = srgb_to_linear(albedo)
+    r2 = ((np.arange(128)[:, None] - 40) ** 2 + (np.arange(128)[None, :] - 50) ** 2).astype(np.float32)
+    spot = 0.5 * np.exp(-r2 / (2 * 1.5**2))  # a white specular highlight, σ 1.5 texels (~4 mm at 1K)
+    photo = linear_to_srgb(lin + spot[..., None])
+    vis = ctx.coverage.astype(np.float32)
+    vis[:, 64:] = 0.0  # the mirror side of the spot is hidden: the fill must come from around it
+    backend = DefaultBackend()
+    an = backend.analyse(photo, vis, ctx)
+    assert an.highlight[40, 50] > 0.9 and an.highlight[100, 30] == 0.0
+    full = backend.inpaint(photo, vis, ctx)
+    out = backend.homogenise(full, ctx)
+    assert np.abs(photo[40, 50] - albedo[40, 50]).max() > 0.2
+    assert np.abs(out[40, 50] - albedo[40, 50]).max() < 0.04  # the highlight is gone
+    maps = backend.materials(out, ctx, maps={"roughness", "specular"})
+    assert maps["specular"][40, 50] > maps["specular"][40, 20] + 0.05
+    assert maps["roughness"][40, 50] < maps["roughness"][40, 20] - 0.05
+
+
+def test_gains_are_bounded_and_smaller_at_grazing_angles():
+    gamma = np.zeros((3, 9), np.float32)
+    gamma[:, 0], gamma[:, 3] = 0.6, -0.8  # strong side light: half the sphere nearly black
+    ctx = hemisphere_context(128)
+    e = sh_irradiance(torch.from_numpy(ctx.normal_camera), torch.from_numpy(gamma)).numpy()
+    shaded = linear_to_srgb(srgb_to_linear(skin_albedo(128)) * np.maximum(e, 0.02))
+    an = DefaultBackend().analyse(shaded, ctx.coverage.astype(np.float32), ctx)
+    gain = 1.0 / an.shading[ctx.coverage]
+    assert gain.max() <= MAX_GAIN + 1e-5 and gain.min() >= 1.0 / MAX_GAIN - 1e-5
+    bound = GRAZING_GAIN + (MAX_GAIN - GRAZING_GAIN) * np.clip(ctx.normal_camera[..., 2] / 0.5, 0, 1)
+    assert np.all(1.0 / an.shading[ctx.coverage] <= bound[ctx.coverage] + 1e-5)
+    assert np.all(an.shading[ctx.coverage] <= bound[ctx.coverage] + 1e-5)
 
 
 def test_inpaint_mirror_beats_mean_colour_fill():
@@ -84,20 +133,23 @@ def test_inpaint_mirror_beats_mean_colour_fill():
     truth = skin_albedo(128, seed=1)
     x = np.linspace(-1, 1, 128)[None, :].repeat(128, 0)
     visible = np.clip((0.2 - x) / 0.2, 0, 1).astype(np.float32)  # right part of the face hidden
-    t_inc = truth * visible[..., None]
+    t_inc = truth * (visible[..., None] > 0)  # the unwrap samples the photo wherever M_vis > 0
     backend = DefaultBackend()
     full = backend.inpaint(t_inc, visible, ctx)
+    full = backend.homogenise(full, ctx)  # the albedo (the hidden half's lighting is unknowable)
     hidden = ctx.coverage & (visible < 0.01)
     mean_fill = np.where(visible[..., None] > 0.5, t_inc, truth[ctx.coverage & (visible > 0.99)].mean(0))
     ours, trivial = psnr(full, truth, hidden), psnr(mean_fill, truth, hidden)
-    assert ours > trivial + 10.0, (ours, trivial)
+    # +6 dB, not the exact mirror copy: dark blotches deeper than SHADOW_TOLERANCE count as shadow
+    assert ours > trivial + 6.0, (ours, trivial)
     assert np.all(np.isfinite(full)) and full.min() >= 0 and full.max() <= 1
 
 
-def test_inpaint_with_nothing_visible_falls_back_to_model_texture():
+def test_inpaint_with_nothing_visible_falls_back_to_the_model_colour():
     ctx = hemisphere_context(64)
     full = DefaultBackend().inpaint(np.zeros((64, 64, 3), np.float32), np.zeros((64, 64), np.float32), ctx)
     assert np.all(np.isfinite(full))
+    np.testing.assert_allclose(np.median(full[ctx.coverage], axis=0), 0.5, atol=0.02)
 
 
 def test_materials_only_what_is_asked_and_physically_sensible():
@@ -125,11 +177,19 @@ def test_pad_outside_and_blur_helpers():
     image = np.where(inside, 1.0, 0.0).astype(np.float32)
     padded = pad_outside(image, inside)
     assert padded.min() == 1.0
-    a, b = np.ones((32, 32, 3), np.float32), np.zeros((32, 32, 3), np.float32)
-    mask = np.zeros((32, 32), np.float32)
-    mask[:, :16] = 1
-    out = multiband_blend(a, b, mask, 3)
-    assert out[16, 2, 0] == pytest.approx(1, abs=0.02) and out[16, 29, 0] == pytest.approx(0, abs=0.02)
+    image = np.zeros((32, 32), np.float32)
+    weight = np.zeros((32, 32), np.float32)
+    image[:, :16], weight[:, :16] = 2.0, 1.0
+    np.testing.assert_allclose(masked_blur(image, weight, 3.0)[:, :20], 2.0, rtol=1e-4)  # only weighted texels count
+
+
+def test_value_noise_is_bounded_deterministic_and_continuous():
+    p = np.random.default_rng(0).uniform(-50, 50, (2000, 3)).astype(np.float32)
+    n = value_noise(p, 0.5)
+    assert np.abs(n).max() <= 1.0 and n.std() > 0.1
+    np.testing.assert_array_equal(n, value_noise(p, 0.5))
+    assert np.abs(value_noise(p + 1e-3, 0.5) - n).max() < 0.05  # 1 µm moves it little
+    assert np.corrcoef(n, value_noise(p, 0.5, seed=1))[0, 1] < 0.2
 
 
 def test_upscale_lanczos():
@@ -138,15 +198,13 @@ def test_upscale_lanczos():
     assert DefaultBackend().upscale(m, 1) is m
 
 
-def test_unseen_texels_get_the_visible_skin_colour_from_a_flat_model_texture():
-    """The Lab transfer takes the model texture's statistics over the layout only (a black
-    background outside it once darkened and streaked the fill)."""
+def test_unseen_texels_get_the_visible_skin_colour_not_the_model_texture():
     ctx = hemisphere_context(64)
     colour = np.array([0.8, 0.6, 0.5], np.float32)
     t_inc = np.broadcast_to(colour, (64, 64, 3)).copy()
     x = np.linspace(-1, 1, 64)[None, :].repeat(64, 0)
     visible = (x < 0.3).astype(np.float32)
-    ctx.mirror[...] = -1  # nothing mirrors: the hidden part comes from the model texture
-    full = DefaultBackend(levels=1).inpaint(t_inc, visible, ctx)
+    ctx.mirror[...] = -1  # nothing mirrors: the hidden part comes from the seen skin alone
+    full = DefaultBackend().inpaint(t_inc, visible, ctx)
     hidden = ctx.coverage & (visible == 0)
     np.testing.assert_allclose(full[hidden].mean(axis=0), colour, atol=0.01)

@@ -34,6 +34,8 @@ def test_only_the_requested_maps_are_made(small_asset):
     assert 0.0 <= asset.maps["albedo"].min() and asset.maps["albedo"].max() <= 1.0
     report = asset.metadata["texture_report"]
     assert report["homogenise"]["remaining_fraction"] < 0.5
+    mask = asset.metadata["skin_mask"]  # hair, suit and background are out of M_vis
+    assert mask["source"] == "mediapipe" and 0.5 < mask["occluded_fraction"] < 0.98
 
 
 def test_albedo_is_skin_coloured_on_the_cheeks(small_asset):

@@ -41,6 +41,8 @@ def test_unwrap_the_bundled_photo(tmp_path, capsys):
     vis = np.asarray(Image.open(out / "visibility.png"))
     assert texture.shape == (256, 256, 3) and vis.shape == (256, 256)
     assert vis.max() == 255 and (texture[vis > 128].sum(-1) > 0).mean() > 0.9
+    skin = np.asarray(Image.open(out / "skin_mask.png"))
+    assert skin.shape == np.asarray(Image.open(PHOTO)).shape[:2] and skin.min() == 0 and skin.max() == 255
     position, normal, tangent = (read_exr(out / f"{n}.exr") for n in ("position", "normal", "tangent"))
     assert position.dtype == np.float32 and position.shape == (256, 256, 3)
     assert tangent.shape == (256, 256, 4)

@@ -13,11 +13,47 @@ Colour textures (``T_inc``, ``T_full``, ``T_hom``, the ``albedo`` map) are **sRG
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Protocol, runtime_checkable
+from typing import Any, Protocol, runtime_checkable
 
 import numpy as np
 
-__all__ = ["TextureContext", "TextureBackend"]
+__all__ = ["TextureContext", "TextureBackend", "SurfaceOperators"]
+
+
+@dataclass(eq=False)
+class SurfaceOperators:
+    """Linear maps between the mesh's vertices and the texels of the layout, so that values can be
+    smoothed or extrapolated on the surface (continuous across UV seams) instead of in UV.
+
+    texels: (N,) int64 flat indices ``row * S + col`` of the texels that have a triangle.
+    interpolation: (N, V) scipy.sparse CSR, the barycentric weights of each texel's triangle
+        corners (rows sum to 1): texel values = interpolation @ vertex values.
+    laplacian: (V, V) scipy.sparse CSR, the graph Laplacian of the mesh's edges (degree − adjacency).
+    """
+
+    texels: np.ndarray
+    interpolation: Any
+    laplacian: Any
+
+    def to_texels(self, per_vertex: np.ndarray, size: int) -> np.ndarray:
+        """(V[, C]) vertex values -> (S, S[, C]) float32 map (0 where no triangle)."""
+        values = np.asarray(self.interpolation @ per_vertex, np.float32)
+        out = np.zeros((size * size, *values.shape[1:]), np.float32)
+        out[self.texels] = values
+        return out.reshape(size, size, *values.shape[1:])
+
+    def to_vertices(self, texture: np.ndarray, weight: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Weighted average of an (S, S[, C]) map around each vertex (the transpose of the
+        interpolation): ``(values (V[, C]), weight (V,))``, the weight being the vertex's mean
+        texel weight (0 where no texel with weight > 0 touches it)."""
+        size = texture.shape[0]
+        w = weight.reshape(-1)[self.texels].astype(np.float64)
+        t = texture.reshape(size * size, -1)[self.texels].astype(np.float64)
+        num = self.interpolation.T @ (t * w[:, None])
+        den = np.asarray(self.interpolation.T @ w).ravel()
+        cnt = np.asarray(self.interpolation.sum(axis=0)).ravel()
+        values = num / np.maximum(den, 1e-12)[:, None]
+        return (values if texture.ndim == 3 else values[:, 0]), den / np.maximum(cnt, 1e-12)
 
 
 @dataclass(eq=False)
@@ -37,6 +73,7 @@ class TextureContext:
     regions: name -> (S, S) float32 soft masks in [0, 1] (``forehead``, ``nose``, ``cheeks``,
         ``lips``, ``brows``, ``chin``, ``eyes``); the priors of the material estimate.
     skin: (S, S) float32 in [0, 1], where the texture is skin (no eyes, brows, lips, hair).
+    surface: :class:`SurfaceOperators` of the mesh, or None (then backends work in UV alone).
     """
 
     coverage: np.ndarray
@@ -48,6 +85,7 @@ class TextureContext:
     mirror: np.ndarray
     regions: dict[str, np.ndarray] = field(default_factory=dict)
     skin: np.ndarray | None = None
+    surface: SurfaceOperators | None = None
 
     @property
     def size(self) -> int:

@@ -4,16 +4,17 @@ from __future__ import annotations
 
 import numpy as np
 import torch
+import scipy.sparse as sp
 from scipy.spatial import cKDTree
 
 from facegeo.colour import linear_to_srgb
 from facegeo.fitting import Fit, skin_vertex_mask
 from facegeo.morphable_model import MorphableModel
-from facegeo.texturing.backend import TextureContext
+from facegeo.texturing.backend import SurfaceOperators, TextureContext
 from facegeo.texturing.regions import vertex_regions
 from facegeo.uv import GeometryMaps, UVRaster, geometry_maps
 
-__all__ = ["build_context", "mirror_vertices"]
+__all__ = ["build_context", "mirror_vertices", "surface_operators"]
 
 #: A vertex has a mirror partner when the reflection x → −x of it lies this close to a vertex.
 MIRROR_TOLERANCE_MM = 1.0
@@ -32,6 +33,21 @@ def _per_vertex_uv(model: MorphableModel) -> np.ndarray:
     uv = np.zeros((model.n_vertices, 2), np.float32)
     uv[model.triangles[::-1].ravel()] = model.uv[model.uv_triangles[::-1].ravel()]
     return uv
+
+
+def surface_operators(model: MorphableModel, raster: UVRaster) -> SurfaceOperators:
+    """The texel <-> vertex maps and the edge Laplacian of ``model`` on ``raster``'s layout."""
+    V = model.n_vertices
+    corners = np.asarray(model.triangles)[raster.texel_triangle]  # (N, 3) vertex of each corner
+    n = len(raster.texels)
+    rows = np.repeat(np.arange(n), 3)
+    interpolation = sp.csr_matrix((raster.texel_barycentric.astype(np.float64).ravel(), (rows, corners.ravel())), shape=(n, V))
+    tri = np.asarray(model.triangles)
+    edges = np.concatenate([tri[:, [0, 1]], tri[:, [1, 2]], tri[:, [2, 0]]])
+    adjacency = sp.coo_matrix((np.ones(len(edges)), (edges[:, 0], edges[:, 1])), shape=(V, V)).tocsr()
+    adjacency = ((adjacency + adjacency.T) > 0).astype(np.float64)
+    laplacian = sp.diags(np.asarray(adjacency.sum(axis=1)).ravel()) - adjacency
+    return SurfaceOperators(np.asarray(raster.texels), interpolation, laplacian.tocsr())
 
 
 def build_context(model: MorphableModel, fit: Fit, raster: UVRaster, camera_maps: GeometryMaps | None = None) -> TextureContext:
@@ -86,4 +102,5 @@ def build_context(model: MorphableModel, fit: Fit, raster: UVRaster, camera_maps
         mirror=mirror,
         regions=regions,
         skin=skin.astype(np.float32),
+        surface=surface_operators(model, raster),
     )

@@ -1,36 +1,64 @@
 """The weight-free, deterministic default texture backend.
 
-Every heuristic is stated in one line where it lives. Colour textures are sRGB in [0, 1],
-float32, S × S, image-style rows (see :mod:`facegeo.texturing.backend`).
+Colour textures are sRGB in [0, 1], float32, S × S, image-style rows (see
+:mod:`facegeo.texturing.backend`). Every step below works on linear RGB and changes luminance
+only where it removes lighting, so the albedo keeps the photo's chroma.
 
-* inpaint: mirror texels (facial left/right symmetry in UV) fill what the photo does not see;
-  what neither side sees comes from the model's texture after a Lab colour transfer to the
-  visible skin; the two are joined by Laplacian-pyramid (multi-band) blending so no seam shows.
-* homogenise: divide out the fitted SH irradiance (normalised to mean 1 on the skin), then the
-  part of the remaining low-frequency log-luminance that is still explained by the SH basis of
-  the normals (residual shading the fit missed); chroma is kept.
-* materials: albedo = homogenised texture; displacement (mm) and tangent-space normal from its
-  high-frequency log-luminance detail; roughness and specular from facial-region priors
-  modulated by the detail.
-* upscale: Lanczos (OpenCV ``INTER_LANCZOS4``).
+* **Shading** (:meth:`DefaultBackend.analyse`): one scalar per texel. Order-2 spherical harmonics of
+  the camera-space normal are fitted to the luminance of the seen skin (iteratively trimmed least
+  squares: texels whose log-ratio to the fit is beyond 2.5 robust σ, highlights, creases, stray
+  occluders, are left out); then the cast shadows and occlusion SH cannot explain: dips of the
+  de-lit log-luminance at ~S/128 texels below the brighter of its ~S/12 and ~S/5 neighbourhoods (~25 and ~60 mm; broad shadows such as the jaw's on the neck), deeper than
+  :data:`SHADOW_TOLERANCE`. The de-lighting gain 1/shading is bounded to [1/g, g] with g =
+  :data:`MAX_GAIN` where the surface faces the camera, falling to :data:`GRAZING_GAIN` at grazing
+  angles (SH fits underestimate grazing irradiance; unbounded gains made metallic streaks).
+* **Highlights**: de-lit luminance above :data:`HIGHLIGHT_RATIO` × its neighbourhood's (Gaussian,
+  σ = S/48 texels, ~6 mm at 1K, re-estimated without the first pass's candidates); they are
+  treated as unseen (filled) and are the specular map's evidence.
+* **inpaint** (fill of what the photo does not show, and of the highlights), on the de-lit texture:
+  a smooth base colour from the subject's own seen skin, extrapolated over the mesh surface by a
+  screened Poisson problem (vertex values tied to the seen texels' weighted means, the edge
+  Laplacian spreading them; far from anything seen it settles on the seen skin's mean colour) —
+  continuous across UV seams, the mirror line and the visibility boundary because it lives on
+  the vertices; then detail: where the mirror texel is seen, its ratio to a coarse (~15 mm) base
+  around it times the coarse base here (so the hidden half of a turned face gets the seen half's
+  texture and blotches in the local tone, without its lighting); elsewhere multiplicative 3-D value noise of the model-space position (continuous
+  across seams) with the seen skin's fine-detail contrast. Seen texels are kept, blended by
+  their visibility. Without :class:`SurfaceOperators` the base is a UV-space push-pull
+  (masked blurs at growing scales).
+* **homogenise**: the filled texture divided by the shading (luminance only).
+* **materials**: albedo = homogenised texture; displacement (mm) and tangent-space normal from its
+  high-frequency log-luminance detail at :data:`DETAIL_DEPTH_MM` mm per unit (±
+  :data:`DETAIL_LIMIT_MM`); occluders never reach it (they are filled before); roughness and
+  specular from facial-region priors blurred to smooth anatomical shapes (σ = S/64 texels, ~8 mm)
+  and raised/lowered by the highlight evidence.
+* **upscale**: Lanczos (OpenCV ``INTER_LANCZOS4``).
+
+The context's fitted SH lighting (``ctx.gamma``) is not used: it is fitted per RGB channel to the
+model's albedo, and dividing by it put its colour errors into the albedo (casts). The model's
+texture (``ctx.mean_texture``) is used only when no texel is seen at all.
 """
 
 from __future__ import annotations
 
+import hashlib
 from dataclasses import dataclass, field
 from typing import Any
 
 import cv2
 import numpy as np
+import scipy.sparse as sp
+import scipy.sparse.linalg as spla
 import torch
 from scipy import ndimage
 
 from facegeo.asset import MAP_NAMES
 from facegeo.colour import linear_to_srgb, luminance, srgb_to_linear
-from facegeo.lighting import sh_basis, sh_irradiance
+from facegeo.lighting import sh_basis
 from facegeo.texturing.backend import TextureContext
 
-__all__ = ["DefaultBackend", "REGION_PRIORS", "pad_outside", "masked_blur", "multiband_blend"]
+__all__ = ["DefaultBackend", "REGION_PRIORS", "pad_outside", "masked_blur", "gaussian_blur", "value_noise", "MAX_GAIN",
+           "GRAZING_GAIN", "SHADOW_TOLERANCE", "HIGHLIGHT_RATIO", "DETAIL_DEPTH_MM", "DETAIL_LIMIT_MM"]
 
 #: (roughness, specular) priors per facial region; oily T-zone glossier, brows matte, lips smooth
 #: and less specular (values in the range of measured facial BRDF fits, e.g. Weyrich et al. 2006).
@@ -45,44 +73,93 @@ REGION_PRIORS: dict[str, tuple[float, float]] = {
 }
 #: Roughness and specular where no region mask says otherwise (skin on the head and neck).
 DEFAULT_PRIOR = (0.55, 0.45)
+#: Largest de-lighting gain (and 1/smallest) where the surface faces the camera.
+MAX_GAIN = 2.0
+#: Largest gain at grazing angles (camera-space normal z → 0).
+GRAZING_GAIN = 1.25
+#: Log-luminance dips (local vs neighbourhood) shallower than this are albedo, deeper ones shadow.
+SHADOW_TOLERANCE = 0.05
+#: (start, full): a texel is a highlight where its de-lit luminance exceeds its neighbourhood's by these ratios.
+HIGHLIGHT_RATIO = (1.15, 1.4)
+#: Displacement in mm per unit of high-frequency log-luminance detail (dark = deeper), clipped to
+#: ±DETAIL_LIMIT_MM: skin detail of 3 % contrast (the typical σ of a photo's fine skin detail) is
+#: 0.03 mm of relief, a crease that darkens the skin by a quarter 0.29 mm (pores are 0.05–0.1 mm
+#: deep, fine wrinkles 0.1–0.3 mm). The issue's old gain (0.5 mm, ±0.5 mm) changed a Blender
+#: render by 0.6/255 on average.
+DETAIL_DEPTH_MM = 1.0
+#: Largest displacement either way (mm).
+DETAIL_LIMIT_MM = 0.3
+#: Weight of the edge Laplacian in the screened Poisson fill (vertex data terms have weight ≤ 1).
+FILL_SMOOTHNESS = 2.0
+#: The same for the coarse base the mirrored detail is measured against (~15 mm on the ICT head).
+MIRROR_SMOOTHNESS = 50.0
+
+
+def gaussian_blur(image: np.ndarray, sigma: float) -> np.ndarray:
+    """Gaussian blur (reflected borders) of an (H, W[, C]) float32 image. Above σ = 8 texels it
+    runs on a copy downsampled by a power of two (area averaging) and is upsampled bilinearly:
+    the result is smooth at that scale anyway, and a direct 6σ kernel at σ = S/5 costs seconds."""
+    image = np.asarray(image, np.float32)
+    factor = 1
+    while sigma / (factor * 2) >= 4.0 and min(image.shape[:2]) // (factor * 2) >= 8:
+        factor *= 2
+    if factor == 1:
+        return cv2.GaussianBlur(image, (0, 0), sigma, borderType=cv2.BORDER_REFLECT)
+    h, w = image.shape[:2]
+    small = cv2.resize(image, (max(1, w // factor), max(1, h // factor)), interpolation=cv2.INTER_AREA)
+    small = cv2.GaussianBlur(small, (0, 0), sigma / factor, borderType=cv2.BORDER_REFLECT)
+    out = cv2.resize(small, (w, h), interpolation=cv2.INTER_LINEAR)
+    return out.reshape(image.shape)
 
 
 def masked_blur(image: np.ndarray, weight: np.ndarray, sigma: float) -> np.ndarray:
     """Gaussian blur of ``image`` (S, S[, C]) that only averages texels with ``weight`` (S, S) >
     0: blur(w·x) / blur(w). Texels with no weighted neighbour within ~3σ get 0."""
     w = weight.astype(np.float32)
-    num = cv2.GaussianBlur(image * (w[..., None] if image.ndim == 3 else w), (0, 0), sigma, borderType=cv2.BORDER_REFLECT)
-    den = cv2.GaussianBlur(w, (0, 0), sigma, borderType=cv2.BORDER_REFLECT)
+    num = gaussian_blur(image * (w[..., None] if image.ndim == 3 else w), sigma)
+    den = gaussian_blur(w, sigma)
     den = np.maximum(den, 1e-6)
     return num / (den[..., None] if image.ndim == 3 else den)
 
 
+_NEAREST_CACHE: dict[bytes, tuple[np.ndarray, np.ndarray]] = {}
+
+
 def pad_outside(image: np.ndarray, inside: np.ndarray) -> np.ndarray:
     """Give every texel outside ``inside`` (S, S) bool the value of the nearest inside texel
-    (seam padding: bilinear sampling and mip-maps never see the background)."""
+    (seam padding: bilinear sampling and mip-maps never see the background). The nearest-texel
+    table is cached per mask (a layout pads all its maps with the same one)."""
     if inside.all() or not inside.any():
         return image
-    _, (rows, cols) = ndimage.distance_transform_edt(~inside, return_indices=True)
+    key = hashlib.blake2b(np.packbits(inside).tobytes() + str(inside.shape).encode(), digest_size=16).digest()
+    if key not in _NEAREST_CACHE:
+        if len(_NEAREST_CACHE) >= 4:
+            _NEAREST_CACHE.clear()
+        _, (rows, cols) = ndimage.distance_transform_edt(~inside, return_indices=True)
+        _NEAREST_CACHE[key] = (rows.astype(np.int32), cols.astype(np.int32))
+    rows, cols = _NEAREST_CACHE[key]
     return image[rows, cols]
 
 
-def multiband_blend(a: np.ndarray, b: np.ndarray, mask: np.ndarray, levels: int) -> np.ndarray:
-    """Laplacian-pyramid blend of ``a`` where ``mask`` → 1 and ``b`` where it → 0 (Burt &
-    Adelson 1983): each frequency band is mixed with a mask blurred to that band's scale."""
-    levels = max(1, levels)
-    m = mask.astype(np.float32)[..., None]
-    ga, gb, gm = [a.astype(np.float32)], [b.astype(np.float32)], [m]
-    for _ in range(levels - 1):
-        ga.append(cv2.pyrDown(ga[-1]))
-        gb.append(cv2.pyrDown(gb[-1]))
-        gm.append(cv2.pyrDown(gm[-1])[..., None] if gm[-1].shape[-1] == 1 else cv2.pyrDown(gm[-1]))
-    out = gm[-1] * ga[-1] + (1 - gm[-1]) * gb[-1]
-    for k in range(levels - 2, -1, -1):
-        size = (ga[k].shape[1], ga[k].shape[0])
-        la = ga[k] - cv2.pyrUp(ga[k + 1], dstsize=size)
-        lb = gb[k] - cv2.pyrUp(gb[k + 1], dstsize=size)
-        band = gm[k] * la + (1 - gm[k]) * lb
-        out = cv2.pyrUp(out, dstsize=size) + band
+def value_noise(position_mm: np.ndarray, cell_mm: float, seed: int = 0) -> np.ndarray:
+    """3-D value noise (trilinear interpolation of hashed lattice values in [−1, 1], smoothstep
+    weights) at (N, 3) points in mm on a lattice of ``cell_mm``: (N,) float32. A function of
+    the surface position, so it is continuous across UV seams."""
+    g = position_mm.astype(np.float32) / np.float32(cell_mm)
+    base = np.floor(g)
+    f = g - base
+    f = f * f * (3 - 2 * f)
+    base = base.astype(np.int32)
+    out = np.zeros(len(g), np.float32)
+    for corner in range(8):
+        o = ((corner >> 2) & 1, (corner >> 1) & 1, corner & 1)
+        # integer hash of the lattice point (a xorshift-multiply mix), then to [−1, 1]
+        h = ((base[:, 0] + o[0]) * 73856093) ^ ((base[:, 1] + o[1]) * 19349663) ^ ((base[:, 2] + o[2]) * 83492791) ^ (seed * 2654435)
+        h = (h ^ (h >> 13)) * 1274126177
+        h = h ^ (h >> 16)
+        value = (h & 0xFFFF).astype(np.float32) * np.float32(2.0 / 65535.0) - 1.0
+        weight = (f[:, 0] if o[0] else 1 - f[:, 0]) * (f[:, 1] if o[1] else 1 - f[:, 1]) * (f[:, 2] if o[2] else 1 - f[:, 2])
+        out += weight * value
     return out
 
 
@@ -92,120 +169,207 @@ def _subsample(rows: np.ndarray, limit: int = 65536) -> np.ndarray:
     return rows if len(rows) <= limit else rows[:: int(np.ceil(len(rows) / limit))]
 
 
-def _weighted_stats(lab: np.ndarray, weight: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Per-channel weighted mean and standard deviation of an (S, S, 3) image."""
-    w = weight.astype(np.float64)[..., None]
-    total = max(float(w.sum()), 1e-9)
-    mean = (lab * w).reshape(-1, 3).sum(0) / total
-    return mean, np.sqrt(((lab - mean) ** 2 * w).reshape(-1, 3).sum(0) / total)
+def _skin(ctx: TextureContext) -> np.ndarray:
+    return ctx.coverage if ctx.skin is None else ctx.coverage & (ctx.skin > 0.5)
 
 
-def _lab_transfer(source: np.ndarray, source_weight: np.ndarray, target_srgb: np.ndarray, target_weight: np.ndarray) -> np.ndarray:
-    """Reinhard colour transfer in CIELAB: shift/scale ``source`` (S, S, 3) sRGB so its mean and
-    standard deviation over ``source_weight`` match those of ``target_srgb`` over
-    ``target_weight`` (both (S, S) weights; e.g. the layout and the visible skin)."""
-    src = cv2.cvtColor(source.astype(np.float32), cv2.COLOR_RGB2Lab)
-    tgt = cv2.cvtColor(target_srgb.astype(np.float32), cv2.COLOR_RGB2Lab)
-    mean_t, std_t = _weighted_stats(tgt, target_weight)
-    mean_s, std_s = _weighted_stats(src, source_weight)
-    gain = np.where(std_s > 1e-3, std_t / np.maximum(std_s, 1e-3), 0.0)  # a flat source stays flat
-    out = (src - mean_s) * gain + mean_t
-    return np.clip(cv2.cvtColor(out.astype(np.float32), cv2.COLOR_Lab2RGB), 0.0, 1.0)
+def _push_pull(values: np.ndarray, weight: np.ndarray, size: int, finest: float, mean: np.ndarray) -> np.ndarray:
+    """UV-space extrapolation of (S, S, C) ``values`` known with ``weight``: ``mean`` (C,), then
+    masked blurs from S/2 texels down to ``finest`` by factors of 4, each finer level kept where
+    it has support."""
+    out = np.broadcast_to(np.asarray(mean, np.float32), values.shape)
+    sigmas = [size / 2.0]
+    while sigmas[-1] / 4 >= max(finest, 0.5):
+        sigmas.append(sigmas[-1] / 4)
+    for sigma in sigmas:
+        blurred = masked_blur(values, weight, sigma)
+        support = np.clip(gaussian_blur(weight, sigma) * 4.0, 0.0, 1.0)[..., None]
+        out = support * blurred + (1 - support) * out
+    return out
+
+
+@dataclass
+class _Analysis:
+    """Per-texel results of :meth:`DefaultBackend.analyse` (all (S, S) float32)."""
+
+    shading: np.ndarray
+    highlight: np.ndarray
+    weight: np.ndarray  # visibility × (1 − highlight): how much of each texel is kept as seen
 
 
 @dataclass
 class DefaultBackend:
-    """Weight-free texture backend; knobs are the blending ``levels`` (0: from the size) and the
-    detail scale. ``report`` holds statistics of the last calls (e.g. remaining shading)."""
+    """Weight-free texture backend. Knobs: the detail band (``detail_sigma_fraction`` of S) and
+    depth (``detail_depth_mm``). ``report`` holds statistics of the last calls."""
 
     name: str = "default"
-    levels: int = 0
-    detail_sigma_fraction: float = 1.0 / 512.0  # detail = frequencies above ~S/512 texels⁻¹ (pores, fine wrinkles)
-    displacement_gain_mm: float = 0.5  # mm of depth per unit of log-luminance detail (dark = deeper)
+    detail_sigma_fraction: float = 1.0 / 256.0  # detail = frequencies above ~S/256 texels⁻¹ (~1 mm at 1K: pores, wrinkles, creases)
+    detail_depth_mm: float = DETAIL_DEPTH_MM
     report: dict[str, Any] = field(default_factory=dict)
-    _shading_cache: tuple[TextureContext, np.ndarray] | None = field(default=None, repr=False)
+    _analysis: tuple[TextureContext, _Analysis] | None = field(default=None, repr=False)
+    _filled: tuple[np.ndarray, np.ndarray] | None = field(default=None, repr=False)
 
-    # ---------------------------------------------------------------------------------- shading
-    def shading(self, ctx: TextureContext) -> np.ndarray:
-        """(S, S, 3) the fitted SH irradiance of each texel's normal divided by its mean over the
-        skin, clipped to [0.5, 2]; 1 outside the layout. Computed once per context. The clip:
-        SH fits to photos underestimate grazing irradiance (measured: with [0.25, 4], 12 % of
-        the astronaut's skin texels sat at the ×4 floor and looked metallic)."""
-        if self._shading_cache is not None and self._shading_cache[0] is ctx:
-            return self._shading_cache[1]
+    # ---------------------------------------------------------------------------------- analysis
+    def analyse(self, T_inc: np.ndarray, M_vis: np.ndarray, ctx: TextureContext) -> _Analysis:
+        """Shading, highlights and kept weight of a photo texture (module docstring); cached for
+        ``ctx`` until the next call."""
         cover = ctx.coverage
-        skin = cover if ctx.skin is None else cover & (ctx.skin > 0.5)
-        irradiance = np.ones((*cover.shape, 3), np.float32)
-        normals = torch.from_numpy(ctx.normal_camera[cover].astype(np.float32))
-        irradiance[cover] = sh_irradiance(normals, torch.from_numpy(ctx.gamma.astype(np.float32))).numpy()
-        mean_e = irradiance[skin].mean(axis=0) if skin.any() else np.ones(3, np.float32)
-        shading = np.where(cover[..., None], np.clip(irradiance / np.maximum(mean_e, 1e-6), 0.5, 2.0), 1.0)
-        self._shading_cache = (ctx, shading.astype(np.float32))
-        return self._shading_cache[1]
+        size = ctx.size
+        lin = srgb_to_linear(T_inc)
+        w = np.clip(M_vis, 0.0, 1.0).astype(np.float32) * cover
+        lum = luminance(lin)
+        fit_mask = _skin(ctx) & (w > 0.5) & (lum > 1e-4)
+        normals = ctx.normal_camera
+        shading = np.ones(cover.shape, np.float32)
+        n_fit = int(fit_mask.sum())
+        if n_fit >= 100:
+            rows = _subsample(np.flatnonzero(fit_mask.ravel()))
+            basis = sh_basis(torch.from_numpy(normals.reshape(-1, 3)[rows].astype(np.float32))).numpy().astype(np.float64)
+            y = lum.ravel()[rows].astype(np.float64)
+            keep = np.ones(len(rows), bool)
+            for _ in range(4):  # trimmed least squares on the log-ratio
+                coeffs, *_ = np.linalg.lstsq(basis[keep], y[keep], rcond=None)
+                r = np.log(y / np.maximum(basis @ coeffs, 1e-6))
+                med = np.median(r[keep])
+                keep = np.abs(r - med) < 2.5 * 1.4826 * np.median(np.abs(r[keep] - med)) + 1e-6
+            flat = np.flatnonzero(cover.ravel())
+            e = np.zeros(cover.size)
+            e[flat] = sh_basis(torch.from_numpy(normals.reshape(-1, 3)[flat].astype(np.float32))).numpy() @ coeffs
+            e = e.reshape(cover.shape)
+            ref = float(np.median(e[fit_mask]))
+            shading = np.where(cover, np.maximum(e / max(ref, 1e-6), 1e-3), 1.0).astype(np.float32)
+            # cast shadows / occlusion: local dips of the de-lit log-luminance below the neighbourhood
+            log_a = np.log(np.maximum(lum / shading, 1e-4))
+            local = masked_blur(log_a, fit_mask, size / 128.0)
+            region = np.maximum(masked_blur(log_a, fit_mask, size / 12.0), masked_blur(log_a, fit_mask, size / 5.0))
+            support = np.clip(gaussian_blur(fit_mask, size / 128.0) * 2.0, 0.0, 1.0)
+            dip = np.clip(local - region + SHADOW_TOLERANCE, -0.7, 0.0) * support  # no evidence, no shadow
+            shading = shading * np.exp(np.where(cover, dip, 0.0))
+        facing = np.clip(normals[..., 2] / 0.5, 0.0, 1.0)
+        bound = GRAZING_GAIN + (MAX_GAIN - GRAZING_GAIN) * facing
+        shading = np.where(cover, np.clip(shading, 1.0 / bound, bound), 1.0).astype(np.float32)
+        delit_lum = lum / shading
+        lo, hi = HIGHLIGHT_RATIO
+        ref_weight = fit_mask if n_fit else cover
+        for _ in range(2):  # the neighbourhood's mean without the highlight candidates of the first pass
+            ref_lum = masked_blur(delit_lum, ref_weight, size / 48.0)
+            ratio = delit_lum / np.maximum(ref_lum, 1e-6)
+            ref_weight = ref_weight & (ratio < lo)
+        highlight = np.clip((ratio - lo) / (hi - lo), 0.0, 1.0) * (w > 0)
+        highlight = np.clip(gaussian_blur(highlight, max(1.0, size / 512.0)) * 2.0, 0.0, 1.0) * cover
+        analysis = _Analysis(shading, highlight.astype(np.float32), (w * (1.0 - highlight)).astype(np.float32))
+        self._analysis = (ctx, analysis)
+        self.report["analyse"] = {
+            "fit_texels": n_fit,
+            "gain_p05_p95": [float(x) for x in np.percentile(1.0 / shading[fit_mask], [5, 95])] if n_fit else [1.0, 1.0],
+            "highlight_fraction_of_seen_skin": float(highlight[fit_mask].mean()) if n_fit else 0.0,
+        }
+        return analysis
 
     # ---------------------------------------------------------------------------------- inpaint
     def inpaint(self, T_inc: np.ndarray, M_vis: np.ndarray, ctx: TextureContext) -> np.ndarray:
         """(S, S, 3) sRGB + (S, S) visibility -> (S, S, 3) sRGB, every texel filled, under the
-        fitted lighting. The filling happens on the de-lit texture (each texel divided by the
-        shading of its own normal), so a mirror texel brings its colour, not its lighting."""
+        photo's lighting (the estimated shading applied to the filled albedo)."""
         cover = ctx.coverage
-        shading = self.shading(ctx)
-        delit = linear_to_srgb(srgb_to_linear(T_inc) / shading)
-        w = np.clip(M_vis, 0.0, 1.0).astype(np.float32) * cover
+        size = ctx.size
+        an = self.analyse(T_inc, M_vis, ctx)
+        lin = srgb_to_linear(T_inc)
+        delit = lin / an.shading[..., None]
+        w = an.weight
+        skin = _skin(ctx)
+        seen_skin = skin & (w > 0.5)
+        if seen_skin.sum() >= 10:
+            mean = (delit[seen_skin] * w[seen_skin, None]).sum(0) / w[seen_skin].sum()
+        elif (w > 0).any():
+            mean = (delit * w[..., None]).reshape(-1, 3).sum(0) / w.sum()
+        else:  # nothing seen at all: the model's texture
+            mean = srgb_to_linear(ctx.mean_texture)[cover].mean(0)
+        base = self._base(delit, w, mean, ctx, FILL_SMOOTHNESS)
+        # detail through the mirror: the mirror texel's ratio to a coarse (~15 mm) base around it,
+        # times the coarse base here: the mirror brings everything finer, the local side the tone
+        coarse = self._base(delit, w, mean, ctx, MIRROR_SMOOTHNESS)
         has = (ctx.mirror[..., 0] >= 0) & cover
-        rows, cols = np.where(has, ctx.mirror[..., 0], 0), np.where(has, ctx.mirror[..., 1], 0)
-        w_m = np.where(has, w[rows, cols], 0.0)
-        t_m = delit[rows, cols]
-        confidence = w + (1 - w) * w_m  # seen directly, else through the mirror texel
-        fill = (w[..., None] * delit + ((1 - w) * w_m)[..., None] * t_m) / np.maximum(confidence, 1e-6)[..., None]
-        skin = cover if ctx.skin is None else cover * (ctx.skin > 0.5)
-        base = _lab_transfer(ctx.mean_texture, skin, delit, w * skin)
-        fill = np.where(confidence[..., None] > 1e-6, fill, base)
-        levels = self.levels or max(1, int(np.log2(ctx.size)) - 3)  # bands down to ~8 texels
-        blended = multiband_blend(fill, base, confidence, levels)
-        # multi-band blending hides the seam but also pulls the model's coarse bands into what the
-        # photo saw; keep the seen texels as seen (confidence 1) and blend only towards the holes
-        out = np.clip(confidence[..., None] * fill + (1 - confidence[..., None]) * blended, 0.0, 1.0)
+        mr, mc = np.where(has, ctx.mirror[..., 0], 0), np.where(has, ctx.mirror[..., 1], 0)
+        w_m = np.where(has, w[mr, mc], 0.0)
+        ratio = np.clip(delit[mr, mc] / np.maximum(coarse[mr, mc], 1e-4), 0.25, 4.0)
+        mirrored = coarse * ratio
+        # detail elsewhere: value noise with the seen skin's fine-detail contrast
+        amp = self._detail_contrast(delit, w, skin, size)
+        need = cover & ((1 - w) * (1 - w_m) > 1e-3)
+        noise = np.zeros(cover.shape, np.float32)
+        if need.any() and amp > 0:
+            pos = ctx.position[need]
+            n = value_noise(pos, 0.35) + 0.7 * value_noise(pos, 0.7, seed=1) + 0.4 * value_noise(pos, 1.5, seed=2)
+            noise[need] = amp * n / max(float(n.std()), 1e-6)
+        synthetic = base * np.exp(noise)[..., None]
+        unseen = w_m[..., None] * mirrored + (1 - w_m[..., None]) * synthetic
+        out = w[..., None] * delit + (1 - w[..., None]) * unseen
+        out = np.where(cover[..., None], out, 0.0)
+        peak = out.max(axis=-1, keepdims=True)
+        out = np.where(peak > 1.0, out / np.maximum(peak, 1e-6), out).astype(np.float32)  # keeps chroma
         self.report["inpaint"] = {
-            "seen": float(w[cover].mean()),
-            "seen_or_mirrored": float(confidence[cover].mean()),
-            "levels": levels,
+            "seen": float(M_vis[cover].mean()) if cover.any() else 0.0,
+            "kept_as_seen": float(w[cover].mean()) if cover.any() else 0.0,
+            "via_mirror": float(((1 - w) * w_m)[cover].mean()) if cover.any() else 0.0,
+            "detail_contrast": amp,
         }
-        relit = linear_to_srgb(srgb_to_linear(out) * shading)
-        return pad_outside(relit.astype(np.float32), cover)
+        relit = linear_to_srgb(out * an.shading[..., None])
+        result = pad_outside(relit.astype(np.float32), cover)
+        self._filled = (result, out)
+        return result
+
+    def _base(self, delit: np.ndarray, w: np.ndarray, mean: np.ndarray, ctx: TextureContext, smoothness: float) -> np.ndarray:
+        """(S, S, 3) smooth linear base colour: the seen colours extrapolated over the surface,
+        ``smoothness`` the Laplacian's weight (its scale grows as its square root, in edges)."""
+        size = ctx.size
+        if ctx.surface is None:
+            return _push_pull(delit, w, size, size / 64.0 * np.sqrt(smoothness / FILL_SMOOTHNESS), mean)
+        surf = ctx.surface
+        values, vw = surf.to_vertices(delit, w)
+        eps = 1e-3
+        system = (sp.diags(vw + eps) + smoothness * surf.laplacian).tocsc()
+        rhs = vw[:, None] * np.nan_to_num(values) + eps * np.asarray(mean, np.float64)[None, :]
+        x = spla.splu(system).solve(rhs)
+        return surf.to_texels(x, size)
+
+    def _detail_contrast(self, delit: np.ndarray, w: np.ndarray, skin: np.ndarray, size: int) -> float:
+        """Standard deviation of the seen skin's fine log-luminance detail (above ~S/256 texels⁻¹)."""
+        seen = skin & (w > 0.9)
+        if seen.sum() < 100:
+            return 0.0
+        log_l = np.log(np.maximum(luminance(delit), 1e-4))
+        detail = log_l - masked_blur(log_l, seen, max(1.0, size / 256.0))
+        d = detail[seen]
+        return float(1.4826 * np.median(np.abs(d - np.median(d))))
 
     # ---------------------------------------------------------------------------------- homogenise
     def homogenise(self, T_full: np.ndarray, ctx: TextureContext) -> np.ndarray:
-        """(S, S, 3) sRGB -> (S, S, 3) sRGB under uniform white light."""
+        """(S, S, 3) sRGB -> (S, S, 3) sRGB albedo: divided by the shading (luminance only)."""
         cover = ctx.coverage
-        skin = cover if ctx.skin is None else cover & (ctx.skin > 0.5)
+        skin = _skin(ctx)
+        if self._filled is not None and self._filled[0] is T_full and self._analysis is not None and self._analysis[0] is ctx:
+            shading, albedo = self._analysis[1].shading, self._filled[1]
+        else:  # called on its own: analyse the texture as if everything were seen
+            shading = self.analyse(T_full, cover.astype(np.float32), ctx).shading
+            albedo = srgb_to_linear(T_full) / shading[..., None]
+            peak = albedo.max(axis=-1, keepdims=True)
+            albedo = np.where(peak > 1.0, albedo / np.maximum(peak, 1e-6), albedo)
         linear = srgb_to_linear(T_full)
         before = self._shading_variance(linear, ctx.normal_camera, skin)
-        delit = linear / self.shading(ctx)
-        # residual: the low-frequency log-luminance that the SH basis of the normals still explains
-        log_l = np.log(np.maximum(luminance(delit), 1e-4))
-        low = masked_blur(log_l, skin, sigma=ctx.size / 64.0)  # shading is smooth at ≥ S/64 texels
-        fit_rows = _subsample(np.flatnonzero(skin.ravel()))
-        flat_normals = ctx.normal_camera.reshape(-1, 3)
-        basis = sh_basis(torch.from_numpy(flat_normals[fit_rows].astype(np.float32))).numpy()
-        coeffs, *_ = np.linalg.lstsq(basis, low.ravel()[fit_rows] - low.ravel()[fit_rows].mean(), rcond=None)
-        residual = np.zeros(cover.size, np.float32)
-        residual[cover.ravel()] = sh_basis(torch.from_numpy(flat_normals[cover.ravel()].astype(np.float32))).numpy() @ coeffs
-        residual = residual.reshape(cover.shape)
-        residual -= residual[skin].mean()
-        delit = delit * np.exp(-np.clip(residual, -0.7, 0.7))[..., None]  # at most a factor 2 either way
-        after = self._shading_variance(delit, ctx.normal_camera, skin)
+        after = self._shading_variance(albedo, ctx.normal_camera, skin)
         self.report["homogenise"] = {
             "shading_variance_before": before,
             "shading_variance_after": after,
             "remaining_fraction": after / max(before, 1e-12),
         }
-        return pad_outside(linear_to_srgb(np.where(cover[..., None], delit, linear)), cover)
+        return pad_outside(linear_to_srgb(np.where(cover[..., None], albedo, linear)), cover)
 
     @staticmethod
     def _shading_variance(linear: np.ndarray, normals: np.ndarray, skin: np.ndarray) -> float:
         """Variance of the skin's log-luminance explained by the SH basis of the normals."""
         rows = _subsample(np.flatnonzero(skin.ravel()))
+        if len(rows) < 10:
+            return 0.0
         log_l = np.log(np.maximum(luminance(linear.reshape(-1, 3)[rows]), 1e-4))
         basis = sh_basis(torch.from_numpy(normals.reshape(-1, 3)[rows].astype(np.float32))).numpy()
         coeffs, *_ = np.linalg.lstsq(basis, log_l - log_l.mean(), rcond=None)
@@ -221,25 +385,26 @@ class DefaultBackend:
         out: dict[str, np.ndarray] = {}
         if "albedo" in maps:
             out["albedo"] = T_hom.astype(np.float32)
-        needs_detail = bool({"normal", "displacement", "roughness", "specular"} & set(maps))
-        if not needs_detail:
+        if not {"normal", "displacement", "roughness", "specular"} & set(maps):
             return out
-        log_l = np.log(np.maximum(luminance(srgb_to_linear(T_hom)), 1e-4))
-        sigma = max(0.75, ctx.size * self.detail_sigma_fraction)
-        detail = np.where(cover, log_l - masked_blur(log_l, cover, sigma), 0.0).astype(np.float32)
         if {"normal", "displacement"} & set(maps):
-            displacement = self.displacement_gain_mm * np.clip(detail, -1.0, 1.0)  # dark detail = deeper
+            log_l = np.log(np.maximum(luminance(srgb_to_linear(T_hom)), 1e-4))
+            sigma = max(0.75, ctx.size * self.detail_sigma_fraction)
+            detail = np.where(cover, log_l - masked_blur(log_l, cover, sigma), 0.0).astype(np.float32)
+            displacement = np.clip(self.detail_depth_mm * detail, -DETAIL_LIMIT_MM, DETAIL_LIMIT_MM)  # dark = deeper
             if "displacement" in maps:
                 out["displacement"] = pad_outside(displacement.astype(np.float32), cover)
             if "normal" in maps:
                 out["normal"] = pad_outside(self._normal_from_height(displacement, ctx), cover)
         if {"roughness", "specular"} & set(maps):
             rough, spec = self._priors(ctx)
-            strength = np.tanh(np.abs(masked_blur(np.abs(detail), cover, 2 * sigma)) * 10.0)
-            if "roughness" in maps:  # fine relief scatters: more detail, rougher (up to +0.15)
-                out["roughness"] = pad_outside(np.clip(rough + 0.15 * strength, 0.05, 1.0).astype(np.float32), cover)
-            if "specular" in maps:  # pores and wrinkles hold less sebum film: up to −30 % specular
-                out["specular"] = pad_outside(np.clip(spec * (1.0 - 0.3 * strength), 0.0, 1.0).astype(np.float32), cover)
+            evidence = np.zeros(cover.shape, np.float32)
+            if self._analysis is not None and self._analysis[0] is ctx:
+                evidence = np.clip(masked_blur(self._analysis[1].highlight, cover, ctx.size / 96.0) * 2.0, 0.0, 1.0)  # ~3 mm: no blobs
+            if "roughness" in maps:  # where highlights were seen the skin is glossier: up to −35 % roughness
+                out["roughness"] = pad_outside(np.clip(rough * (1.0 - 0.35 * evidence), 0.05, 1.0).astype(np.float32), cover)
+            if "specular" in maps:  # and more specular: up to +50 %
+                out["specular"] = pad_outside(np.clip(spec * (1.0 + 0.5 * evidence), 0.0, 1.0).astype(np.float32), cover)
         return out
 
     @staticmethod
@@ -255,8 +420,10 @@ class DefaultBackend:
 
     @staticmethod
     def _priors(ctx: TextureContext) -> tuple[np.ndarray, np.ndarray]:
-        """Region-weighted (roughness, specular) priors, (S, S) each."""
-        shape = ctx.coverage.shape
+        """Region-weighted (roughness, specular) priors, (S, S) each, blurred over S/64 texels
+        (~8 mm at 1K) so region borders are smooth anatomical gradients, not landmark discs."""
+        cover = ctx.coverage
+        shape = cover.shape
         total = np.zeros(shape, np.float32)
         rough = np.zeros(shape, np.float32)
         spec = np.zeros(shape, np.float32)
@@ -268,7 +435,10 @@ class DefaultBackend:
                 spec += w * s
         rest = np.clip(1.0 - total, 0.0, 1.0)
         norm = np.maximum(total + rest, 1e-6)
-        return (rough + rest * DEFAULT_PRIOR[0]) / norm, (spec + rest * DEFAULT_PRIOR[1]) / norm
+        rough = (rough + rest * DEFAULT_PRIOR[0]) / norm
+        spec = (spec + rest * DEFAULT_PRIOR[1]) / norm
+        sigma = ctx.size / 64.0
+        return masked_blur(rough, cover, sigma), masked_blur(spec, cover, sigma)
 
     # ---------------------------------------------------------------------------------- upscale
     def upscale(self, map_: np.ndarray, factor: int) -> np.ndarray:

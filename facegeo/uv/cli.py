@@ -5,7 +5,8 @@ Writes (atomically, through :class:`facegeo.staged_output.StagedOutput`):
 | file | content |
 |---|---|
 | ``texture_incomplete.png`` | T_inc, 8-bit sRGB RGB (the photo's values; black where M_vis = 0) |
-| ``visibility.png`` | M_vis, 8-bit grey (255 = fully visible) |
+| ``visibility.png`` | M_vis, 8-bit grey (255 = fully visible; the skin mask folded in) |
+| ``skin_mask.png`` | the photo's skin mask (:mod:`facegeo.skin_mask`), 8-bit grey, photo size: 255 = the face's own surface, 0 = hair, glasses, clothing, eye interiors, mouth opening |
 | ``position.exr`` | position map, float32 RGB = camera-space x, y, z in mm |
 | ``normal.exr`` | normal map, float32 RGB = unit camera-space normal (0 where no surface) |
 | ``tangent.exr`` | float32 RGBA = MikkTSpace tangent x, y, z and bitangent sign (±1) |
@@ -36,7 +37,7 @@ from facegeo.errors import InputError  # noqa: E402
 __all__ = ["register", "run_unwrap", "encode_exr", "OUTPUT_FILES"]
 
 #: The files ``facegeo unwrap`` writes.
-OUTPUT_FILES = ("texture_incomplete.png", "visibility.png", "position.exr", "normal.exr", "tangent.exr", "unwrap.json")
+OUTPUT_FILES = ("texture_incomplete.png", "visibility.png", "skin_mask.png", "position.exr", "normal.exr", "tangent.exr", "unwrap.json")
 
 
 def register(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParser:
@@ -53,7 +54,8 @@ def register(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParser:
     add_fit_arguments(p)
     p.add_argument("--size", type=int, default=1024, help="UV map size in texels (default 1024)")
     p.add_argument("--padding", type=int, default=None, help="seam padding in texels (default size/128, at least 2)")
-    p.add_argument("--occlusion", type=Path, default=None, help="optional image-space mask, same size as the photo: white where hair, glasses or hands cover the face")
+    p.add_argument("--occlusion", type=Path, default=None, help="optional image-space mask, same size as the photo: white where hair, glasses or hands cover the face (added to the skin mask's occlusion)")
+    p.add_argument("--no-skin-mask", action="store_true", help="do not compute the skin mask (M_vis is then geometric visibility only, times --occlusion)")
     p.set_defaults(run=run_unwrap, output_folder=True)
     return p
 
@@ -67,6 +69,7 @@ def run_unwrap(args: argparse.Namespace) -> None:
     from facegeo.fitting import fit
     from facegeo.model_files import load_model
     from facegeo.photo import load_photo
+    from facegeo.skin_mask import skin_mask, skin_mask_image
     from facegeo.staged_output import StagedOutput
     from facegeo.uv.maps import geometry_maps
     from facegeo.uv.raster import MAX_SIZE, rasterize_uv
@@ -94,6 +97,13 @@ def run_unwrap(args: argparse.Namespace) -> None:
     t = time.perf_counter()
     result = fit(photo, model=model, detector=args.landmarks, camera=camera)
     timings["fit"] = time.perf_counter() - t
+
+    skin = None
+    if not args.no_skin_mask:
+        t = time.perf_counter()
+        skin = skin_mask(photo.image, result.landmarks, source=str(args.photo))
+        occlusion = skin.occlusion if occlusion is None else np.maximum(occlusion, skin.occlusion)
+        timings["skin_mask"] = time.perf_counter() - t
 
     t = time.perf_counter()
     raster = rasterize_uv(model, size=args.size, padding=args.padding)
@@ -124,12 +134,15 @@ def run_unwrap(args: argparse.Namespace) -> None:
         "texels_visible": int((unwrapped.visible & inside).sum()),
         "mean_visibility_inside": float(vis[inside].mean()) if inside.any() else 0.0,
         "landmark_rms_px": float(result.landmark_rms_px),
+        "skin_mask": skin.summary() if skin is not None else None,
     }
     t = time.perf_counter()
     with StagedOutput(args.output, replace=True) as stage:
         rgb8 = np.clip(np.round(texture * 255.0), 0, 255).astype(np.uint8)
         stage.path("texture_incomplete.png").write_bytes(_png(cv2, rgb8[..., ::-1]))
         stage.path("visibility.png").write_bytes(_png(cv2, np.clip(np.round(vis * 255.0), 0, 255).astype(np.uint8)))
+        if skin is not None:
+            stage.path("skin_mask.png").write_bytes(_png(cv2, skin_mask_image(skin)))
         stage.path("position.exr").write_bytes(encode_exr(maps.position))
         stage.path("normal.exr").write_bytes(encode_exr(maps.normal))
         tangent = np.concatenate([maps.tangent, maps.bitangent_sign[..., None]], axis=-1)
@@ -141,7 +154,7 @@ def run_unwrap(args: argparse.Namespace) -> None:
     print(f"unwrapped {args.photo} at {raster.size}x{raster.size}: "
           f"{info['texels_visible']} of {info['texels_inside']} texels visible, landmark RMS {result.landmark_rms_px:.2f} px")
     print("timings: " + ", ".join(f"{k} {v:.3f} s" for k, v in timings.items()))
-    print(f"wrote {args.output}/" + ", ".join(OUTPUT_FILES))
+    print(f"wrote {args.output}/" + ", ".join(f for f in OUTPUT_FILES if skin is not None or f != "skin_mask.png"))
 
 
 def encode_exr(image: np.ndarray) -> bytes:

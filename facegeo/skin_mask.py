@@ -1,0 +1,253 @@
+"""Where a photo shows the face's own surface: a per-pixel mask that keeps hair, headwear,
+glasses, clothing, eye interiors and teeth out of the texture.
+
+The mask is built from what runs offline here, in three parts:
+
+1. **Face regions** from MediaPipe's 468-point face mesh (:mod:`facegeo.landmarks.mediapipe_mesh`):
+   the face oval, eyes (the lid contour: inside it is eyeball, never albedo), brows, lips and the
+   mouth opening (inner lip contour: teeth, tongue). When MediaPipe finds no face, the same
+   regions come from the 68 iBUG points of the fit (:meth:`FaceRegions.from_ibug68`).
+2. **A skin-colour model fitted to this photo** on the skin that is reliably visible: the cheeks
+   and nose between the lower eyelids and the upper lip, inside the face oval and away from the
+   features. The colour feature is the log-chromaticity (log R/G, log B/G) of linear RGB, which is
+   invariant to the shading's intensity. A robust Gaussian (trimmed re-estimation at the 97.5 %
+   χ² quantile, three rounds) is fitted there; a pixel's sensor noise widens the Gaussian by
+   (σ_noise / value)² per axis, so dark skin in shadow is not mistaken for an occluder, while black
+   hair, glasses frames, collars and most headwear (chroma or brightness unlike the skin) are.
+   Pixels darker than :data:`DARK_FRACTION` of the median skin luminance are not skin either.
+3. **Structure**: lips and brows are facial features, kept whatever their colour; eye interiors
+   and the mouth opening are always occluded, and so is everything outside the face oval (dilated
+   by 10 % of the inter-ocular distance) above the upper eyelids: the temples and scalp, where
+   hair and headwear are (blond hair has skin's chroma). Thin dark structures (glasses frames,
+   strands) are pixels darker than :data:`LOCAL_DARK` of their neighbourhood. Colour-occluded specks thinner than ~3 % of the
+   inter-ocular distance (pores, freckles) are dropped by a morphological opening, the rest is
+   dilated by :data:`HALO_FRACTION` of the inter-ocular distance (the soft fringe of hair strands
+   and frames) and feathered.
+
+Hands: MediaPipe's hand models are not used. A hand in front of a face is skin-coloured, so the
+colour model lets it through; it is the one occluder this mask does not remove (measured in
+``benchmarks/bench_albedo.py``).
+
+:func:`skin_mask` returns a :class:`SkinMask`; its ``occlusion`` (1 = something other than the
+face's surface is seen) is what :func:`facegeo.uv.unwrap` folds into M_vis; ``facegeo unwrap``
+and ``facegeo reconstruct`` save it as ``skin_mask.png`` (:func:`skin_mask_image`: 255 = the face's
+own surface, 0 = occluded).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from facegeo.colour import luminance, srgb_to_linear
+from facegeo.errors import NoFaceError
+from facegeo.photo import as_rgb_uint8
+
+__all__ = ["SkinMask", "FaceRegions", "skin_mask", "skin_mask_image", "DARK_FRACTION", "HALO_FRACTION", "LOCAL_DARK"]
+
+# MediaPipe face-mesh contours (vertex indices of the 468-point canonical mesh, in order).
+FACE_OVAL = [10, 338, 297, 332, 284, 251, 389, 356, 454, 323, 361, 288, 397, 365, 379, 378, 400, 377, 152, 148,
+             176, 149, 150, 136, 172, 58, 132, 93, 234, 127, 162, 21, 54, 103, 67, 109]
+RIGHT_EYE = [33, 7, 163, 144, 145, 153, 154, 155, 133, 173, 157, 158, 159, 160, 161, 246]
+LEFT_EYE = [263, 249, 390, 373, 374, 380, 381, 382, 362, 398, 384, 385, 386, 387, 388, 466]
+RIGHT_BROW = [70, 63, 105, 66, 107, 55, 65, 52, 53, 46]
+LEFT_BROW = [300, 293, 334, 296, 336, 285, 295, 282, 283, 276]
+LIPS_OUTER = [61, 146, 91, 181, 84, 17, 314, 405, 321, 375, 291, 409, 270, 269, 267, 0, 37, 39, 40, 185]
+LIPS_INNER = [78, 95, 88, 178, 87, 14, 317, 402, 318, 324, 308, 415, 310, 311, 312, 13, 82, 81, 80, 191]
+
+#: Pixels darker than this fraction of the sampled skin's median luminance are not skin.
+DARK_FRACTION = 0.2
+#: Occlusion is dilated by this fraction of the inter-ocular distance (hair strands, frame edges).
+HALO_FRACTION = 0.04
+#: Mahalanobis distances (σ) of the skin-colour model: skin below the first, occluder above the second.
+SKIN_SIGMAS = (2.5, 4.0)
+#: A pixel darker than this fraction of its neighbourhood's mean luminance (Gaussian, σ = 12 % of the
+#: inter-ocular distance) is a thin occluder (frame, strand).
+LOCAL_DARK = 0.15
+#: Sensor noise in linear RGB assumed when widening the colour model for dark pixels.
+NOISE_LINEAR = 0.006
+
+
+@dataclass
+class FaceRegions:
+    """Face-feature polygons in pixels (pixel-centre convention: the top-left pixel's centre is
+    (0, 0)), each an (n, 2) float32 array."""
+
+    oval: np.ndarray
+    eyes: tuple[np.ndarray, np.ndarray]
+    brows: tuple[np.ndarray, np.ndarray]
+    lips: np.ndarray
+    mouth: np.ndarray
+
+    @classmethod
+    def from_mesh468(cls, mesh: np.ndarray) -> FaceRegions:
+        """From MediaPipe's (468, 2|3) mesh in pixels (pixel-centre convention)."""
+        p = np.asarray(mesh, np.float32)[:, :2]
+        return cls(p[FACE_OVAL], (p[RIGHT_EYE], p[LEFT_EYE]), (p[RIGHT_BROW], p[LEFT_BROW]), p[LIPS_OUTER], p[LIPS_INNER])
+
+    @classmethod
+    def from_ibug68(cls, points: np.ndarray) -> FaceRegions:
+        """From 68 (or the hybrid 88) iBUG points in pixels, corner-origin convention (the fit's
+        ``landmarks``). The oval's upper half is the brows raised by 60 % of the brow-to-chin
+        height (no forehead points exist)."""
+        p = np.asarray(points, np.float32)[:68] - 0.5
+        up = 0.6 * (p[8, 1] - p[17:27, 1].mean())
+        forehead = p[26:16:-1] - np.array([0.0, up], np.float32)
+        brow_band = lambda b: np.concatenate([b - [0.0, 0.04 * up], b[::-1] + [0.0, 0.04 * up]])  # noqa: E731
+        return cls(np.concatenate([p[0:17], forehead]), (p[36:42], p[42:48]), (brow_band(p[17:22]), brow_band(p[22:27])),
+                   p[48:60], p[60:68])
+
+    @property
+    def interocular(self) -> float:
+        """Distance between the eye centres in pixels."""
+        return float(np.linalg.norm(self.eyes[0].mean(0) - self.eyes[1].mean(0)))
+
+
+@dataclass
+class SkinMask:
+    """The mask of one photo, all (H, W) float32 in [0, 1] except where stated.
+
+    occlusion: 1 where the pixel shows something other than the face's own surface (hair,
+        glasses, clothing, eye interiors, the mouth opening); what :func:`facegeo.uv.unwrap`'s
+        ``occlusion`` takes.
+    skin_probability: the colour model's verdict before the structural rules (1 = skin colour).
+    sample: bool, the pixels the colour model was fitted on.
+    mean, covariance: (2,) and (2, 2) float64, the robust Gaussian of (log R/G, log B/G).
+    source: ``"mediapipe"`` or ``"ibug68"`` (where the regions came from).
+    """
+
+    occlusion: np.ndarray
+    skin_probability: np.ndarray
+    sample: np.ndarray
+    mean: np.ndarray
+    covariance: np.ndarray
+    source: str
+
+    def summary(self) -> dict[str, float | str]:
+        """JSON-ready statistics (for reports)."""
+        return {"source": self.source, "occluded_fraction": float(self.occlusion.mean()),
+                "sample_pixels": int(self.sample.sum()), "chroma_mean": self.mean.tolist(),
+                "chroma_sigma": np.sqrt(np.diag(self.covariance)).tolist()}
+
+
+def _fill(shape: tuple[int, int], polygons, value: float = 1.0) -> np.ndarray:
+    out = np.zeros(shape, np.uint8)
+    for poly in polygons:
+        cv2.fillPoly(out, [np.round(np.asarray(poly) * 16).astype(np.int32)], 1, lineType=cv2.LINE_8, shift=4)
+    return out.astype(bool)
+
+
+def _disc(radius: float) -> np.ndarray:
+    r = max(1, int(round(radius)))
+    return cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1, 2 * r + 1))
+
+
+def _chroma(linear: np.ndarray) -> np.ndarray:
+    """(..., 3) linear RGB -> (..., 2) float64 log-chromaticity (log R/G, log B/G)."""
+    x = np.maximum(linear.astype(np.float64), 1e-3)
+    return np.stack([np.log(x[..., 0] / x[..., 1]), np.log(x[..., 2] / x[..., 1])], axis=-1)
+
+
+def _robust_gaussian(samples: np.ndarray, rounds: int = 3) -> tuple[np.ndarray, np.ndarray]:
+    """Mean and covariance of (N, 2) samples, re-estimated on the points inside the 97.5 % χ²
+    ellipse (7.38) of the previous estimate, starting from the median and the MAD."""
+    mean = np.median(samples, axis=0)
+    mad = 1.4826 * np.median(np.abs(samples - mean), axis=0)
+    cov = np.diag(np.maximum(mad, 1e-3) ** 2)
+    for _ in range(rounds):
+        d = samples - mean
+        d2 = np.einsum("ni,ij,nj->n", d, np.linalg.inv(cov), d)
+        inl = samples[d2 < 7.38]
+        if len(inl) < 10:
+            break
+        mean = inl.mean(axis=0)
+        cov = np.cov(inl.T) / 0.85 + np.eye(2) * 1e-6  # 0.85: variance kept inside a 97.5 % truncation in 2-D
+    return mean, cov
+
+
+def skin_mask(image: np.ndarray, landmarks: np.ndarray | None = None, *, regions: FaceRegions | None = None,
+              source: str = "<array>") -> SkinMask:
+    """The skin mask of an (H, W, 3) uint8 RGB photo (see the module docstring).
+
+    Args:
+        image: the photo (any input :func:`facegeo.photo.as_rgb_uint8` accepts).
+        landmarks: optional (68 or 88, 2) iBUG points (corner-origin pixels, e.g. a fit's
+            ``landmarks``), used when MediaPipe finds no face.
+        regions: face regions already known (skips MediaPipe).
+        source: the photo's name for error messages.
+    Raises:
+        NoFaceError: MediaPipe finds no face and no ``landmarks`` were given.
+    """
+    rgb = as_rgb_uint8(image, source)
+    origin = "given"
+    if regions is None:
+        from facegeo.landmarks.detectors import get_detector
+
+        faces = get_detector("mediapipe").mesh(rgb)
+        if faces:
+            regions, origin = FaceRegions.from_mesh468(faces[0].mesh), "mediapipe"
+        elif landmarks is not None:
+            regions, origin = FaceRegions.from_ibug68(landmarks), "ibug68"
+        else:
+            raise NoFaceError(source, "face", "a face for the skin mask (MediaPipe found none)")
+    H, W = rgb.shape[:2]
+    iod = max(regions.interocular, 4.0)
+    linear = srgb_to_linear(rgb.astype(np.float32) / 255.0)
+    lum = luminance(linear)
+
+    oval = _fill((H, W), [regions.oval])
+    eyes = _fill((H, W), regions.eyes)
+    mouth = _fill((H, W), [regions.mouth])
+    lips = _fill((H, W), [regions.lips]) & ~mouth
+    brows = _fill((H, W), regions.brows)
+    features = cv2.dilate((eyes | brows | lips | mouth).astype(np.uint8), _disc(0.12 * iod)).astype(bool)
+    # reliably visible skin: cheeks and nose between the lower lids and the upper lip
+    eye_bottom = max(float(e[:, 1].max()) for e in regions.eyes) + 0.1 * iod
+    lip_top = float(regions.lips[:, 1].min()) - 0.05 * iod
+    rows = np.arange(H, dtype=np.float32)[:, None]
+    sample = oval & ~features & (rows > eye_bottom) & (rows < lip_top) & (lum > 1e-3)
+    if sample.sum() < 50:  # tiny or odd faces: the whole oval minus the features
+        sample = oval & ~features
+    if sample.sum() < 10:
+        raise NoFaceError(source, "skin", "at least 10 visible skin pixels inside the face", f"{int(sample.sum())}")
+
+    chroma = _chroma(linear)
+    mean, cov = _robust_gaussian(chroma[sample])
+    # per-pixel Mahalanobis distance with the sensor noise of dark pixels added to the covariance
+    g = np.maximum(linear[..., 1].astype(np.float64), 1e-3)
+    noise_rg = (NOISE_LINEAR / np.maximum(linear[..., 0], 1e-3)) ** 2 + (NOISE_LINEAR / g) ** 2
+    noise_bg = (NOISE_LINEAR / np.maximum(linear[..., 2], 1e-3)) ** 2 + (NOISE_LINEAR / g) ** 2
+    d = chroma - mean
+    a, b, c = cov[0, 0] + noise_rg, cov[0, 1], cov[1, 1] + noise_bg
+    det = np.maximum(a * c - b * b, 1e-12)
+    d2 = (c * d[..., 0] ** 2 - 2 * b * d[..., 0] * d[..., 1] + a * d[..., 1] ** 2) / det
+    lo, hi = SKIN_SIGMAS
+    prob = np.clip((hi - np.sqrt(d2)) / (hi - lo), 0.0, 1.0)
+    skin_lum = float(np.median(lum[sample]))
+    prob *= np.clip((lum / max(skin_lum, 1e-4) - DARK_FRACTION * 0.5) / (DARK_FRACTION * 0.5), 0.0, 1.0)
+    prob = prob.astype(np.float32)
+
+    # outside the face oval and above the eyes is where hair and headwear are: occluded outright
+    eye_top = min(float(e[:, 1].min()) for e in regions.eyes)
+    near_oval = cv2.dilate(oval.astype(np.uint8), _disc(0.1 * iod)).astype(bool)
+    occluded = ((prob < 0.5) | (~near_oval & (rows < eye_top))) & ~(lips | brows)
+    occluded = cv2.morphologyEx(occluded.astype(np.uint8), cv2.MORPH_OPEN, _disc(0.015 * iod)).astype(bool)
+    # thin dark structures on the face (glasses frames, strands of hair): much darker than their
+    # neighbourhood, where skin creases and shadows are only somewhat darker
+    local = cv2.GaussianBlur(lum, (0, 0), 0.12 * iod)
+    occluded |= (lum < LOCAL_DARK * local) & ~(lips | brows | eyes)
+    occluded = cv2.dilate(occluded.astype(np.uint8), _disc(HALO_FRACTION * iod)).astype(bool)
+    occluded |= cv2.dilate((eyes | mouth).astype(np.uint8), _disc(0.02 * iod)).astype(bool)  # lashes, lip edge
+    occluded = occluded.astype(np.float32)
+    sigma = max(0.5, 0.02 * iod)
+    occlusion = np.clip(cv2.GaussianBlur(occluded, (0, 0), sigma) * 1.5, 0.0, 1.0)  # feathered, 1 on the occluder
+    occlusion = np.maximum(occlusion, (eyes | mouth).astype(np.float32))
+    return SkinMask(occlusion.astype(np.float32), prob, sample, mean, cov, origin)
+
+
+def skin_mask_image(mask: SkinMask) -> np.ndarray:
+    """(H, W) uint8 picture of the mask as saved (``skin_mask.png``): 255 where the photo shows
+    the face's own surface, 0 where an occluder (or an eye interior, the mouth opening) covers it."""
+    return np.clip(np.round((1.0 - mask.occlusion) * 255.0), 0, 255).astype(np.uint8)
