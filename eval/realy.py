@@ -118,7 +118,8 @@ class RealyResult:
     ``text``: the same values as written to REALY_error.txt (9 characters);
     ``summary``: {region: {"mean", "median", "std"}, "all": mean of the four region means,
     "n": number of predictions}, computed from ``text`` as the official code does;
-    ``seconds``: processing time per subject (its four regions, whichever process ran them);
+    ``seconds``: processing time per subject (reading its files, and its four regions in
+    whichever process ran them);
     ``details``: per subject and region, the rigid ICP updates, the non-rigid ICP's solves,
     factorisations and PCG iterations per solve, and seconds (``factor_seconds``,
     ``solve_seconds``, ``closest_seconds``, ``nearest_seconds``);
@@ -274,17 +275,17 @@ def _predictions(pred_dir: str | Path) -> list[tuple[str, int, Path]]:
 # ------------------------------------------------------------------------------------------ work
 @dataclass(frozen=True)
 class _Task:
-    """One region of one prediction: the unit of work, whatever the number of workers."""
+    """One region of one prediction, with its inputs read: the unit of work, whatever the
+    number of workers (sent to a worker process by pickling, about 1 MB)."""
 
     name: str
-    subject_id: int
-    prediction: Path
-    layout: _Layout
+    region: str
+    prepared: "_Prepared"
+    region_mesh: Mesh
     topology: Topology
     scale: float
-    mask: np.ndarray | None
-    region: str
     settings: Settings
+    source: str
 
 
 def _subject_files(layout: _Layout, subject_id: int) -> tuple[Path, dict[str, Path]]:
@@ -367,31 +368,12 @@ def evaluate_subject(prediction: Mesh, scan_keypoints: np.ndarray, regions: dict
     return errors, details
 
 
-#: the prepared predictions of this process (a worker serves several regions of one subject)
-_PREPARED: dict[tuple[str, str], _Prepared] = {}
-
-
-def _prepared_for(task: _Task) -> _Prepared:
-    kp_path, _ = _subject_files(task.layout, task.subject_id)
-    key = (str(task.prediction), str(kp_path))
-    if key not in _PREPARED:
-        prediction = read_obj(task.prediction, "prediction")
-        scan_keypoints = read_points_obj(kp_path, "REALY keypoints", count=85)
-        if len(_PREPARED) >= 4:
-            _PREPARED.pop(next(iter(_PREPARED)))
-        _PREPARED[key] = _prepare(prediction, scan_keypoints, task.topology, task.mask, str(task.prediction))
-    return _PREPARED[key]
-
-
 def _run(task: _Task) -> tuple[str, str, Any, Any, float]:
     """(name, region, error in mm or None, details or the error's payload, seconds)."""
     start = time.perf_counter()
     try:
-        prepared = _prepared_for(task)
-        _, region_paths = _subject_files(task.layout, task.subject_id)
-        mesh = read_obj(region_paths[task.region], f"{task.region} region")
-        value, details = _evaluate_region(prepared, task.region, mesh, task.topology, task.settings,
-                                          str(task.prediction))
+        value, details = _evaluate_region(task.prepared, task.region, task.region_mesh, task.topology,
+                                          task.settings, task.source)
     except InputError as exc:  # re-raised in the parent (InputError's own pickling loses fields)
         failure = ("input", (exc.source, exc.field, exc.expected, exc.found))
         return task.name, task.region, None, failure, time.perf_counter() - start
@@ -454,7 +436,6 @@ def evaluate(
     mask = _read_mask(template_mask, topo.n_vertices)
     scales = read_metrical_scales(layout.scale_file)
     items = _predictions(pred_dir)
-    tasks = []
     for name, subject_id, path in items:
         if not 1 <= subject_id <= len(scales):
             raise InputError(path, "subject id", f"1..{len(scales)} (the lines of {layout.scale_file.name})", str(subject_id))
@@ -462,15 +443,25 @@ def evaluate(
         for p in (kp_path, *region_paths.values()):
             if not p.is_file():
                 raise InputError(p, f"REALY data of subject {subject_id} (for {path.name})", "an existing file", "missing")
+    # every input is read and checked here first (a bad file fails at once, in the official order)
+    tasks = []
+    read_seconds: dict[str, float] = {}
+    for name, subject_id, path in items:
+        begin = time.perf_counter()
+        kp_path, region_paths = _subject_files(layout, subject_id)
+        prediction = read_obj(path, "prediction")
+        scan_keypoints = read_points_obj(kp_path, "REALY keypoints", count=85)
+        regions = {r: read_obj(region_paths[r], f"{r} region") for r in ICP_ORDER}
+        prepared = _prepare(prediction, scan_keypoints, topo, mask, str(path))
         for region in ICP_ORDER:
-            tasks.append(_Task(name, subject_id, path, layout, topo, float(scales[subject_id - 1]), mask, region,
-                               settings))
+            tasks.append(_Task(name, region, prepared, regions[region], topo, float(scales[subject_id - 1]),
+                               settings, str(path)))
+        read_seconds[name] = time.perf_counter() - begin
     # largest regions first, so that the last ones to finish are short (the order changes no number)
-    tasks.sort(key=lambda t: -(t.layout.regions_dir / str(t.subject_id) / f"{t.region}.obj").stat().st_size)
+    tasks.sort(key=lambda t: -len(t.region_mesh.vertices))
 
     results: dict[tuple[str, str], tuple[float, dict, float]] = {}
     bar = _progress_bar(len(tasks), progress)
-    _PREPARED.clear()
     if workers > 1 and len(tasks) > 1 and topo.triangles is not None:
         SurfaceQuery(topo.triangles).rings()  # once here, inherited by the forked workers
     try:
@@ -491,7 +482,6 @@ def evaluate(
                         fut.cancel()
                     raise
     finally:
-        _PREPARED.clear()
         bar.close()
 
     per_subject = {name: {r: results[name, r][0] for r in REGIONS} for name, _, _ in items}
@@ -502,7 +492,7 @@ def evaluate(
         text=text,
         summary=summary,
         topology=topo.name,
-        seconds={name: sum(results[name, r][2] for r in REGIONS) for name in per_subject},
+        seconds={name: read_seconds[name] + sum(results[name, r][2] for r in REGIONS) for name in per_subject},
         details={name: {r: results[name, r][1] for r in REGIONS} for name in per_subject},
         uncertainty={name: {r: results[name, r][1]["uncertainty"] for r in REGIONS} for name in per_subject},
         settings=settings,

@@ -38,15 +38,14 @@ from facegeo.errors import FacegeoError
 from facegeo.eval.realy_align import EXACT, Settings
 from facegeo.eval.realy_geometry import SurfaceQuery, merge_vertices
 
-__all__ = ["region_error", "NonRigidICP", "MAX_STEPS_WITHOUT_KEYPOINTS", "UNCERTAINTY_SCALE", "UNCERTAINTY_TRIALS"]
+__all__ = ["region_error", "NonRigidICP", "MAX_STEPS_WITHOUT_KEYPOINTS", "UNCERTAINTY_SCALE"]
 
 #: The official loop for the cheek has no step limit; facegeo stops with an error after this many.
 MAX_STEPS_WITHOUT_KEYPOINTS = 1000
 
-#: Relative size (of the region) of the round-off perturbations behind ``uncertainty``.
-UNCERTAINTY_SCALE = 1e-10
-#: Perturbed re-evaluations of the error step per region.
-UNCERTAINTY_TRIALS = 3
+#: Round-off of the deformed vertices assumed for ``uncertainty``, relative to the region's size
+#: (solvers differ by about 1e-11 here; the CG tolerance is 1e-10).
+UNCERTAINTY_SCALE = 1e-9
 
 _EPSILON = 1.0
 _ALPHA = 50.0
@@ -207,7 +206,9 @@ def _pattern(n: int, triangles: np.ndarray) -> _Pattern:
     e = np.concatenate([triangles[:, [0, 1]], triangles[:, [0, 2]], triangles[:, [1, 2]]])
     e = np.sort(e, axis=1)
     e = e[e[:, 0] != e[:, 1]]
-    e = np.unique(e, axis=0)
+    code = np.sort(e[:, 0] * n + e[:, 1])  # unique rows, sorted, through one int64 key
+    code = code[np.concatenate([[True], code[1:] != code[:-1]])]
+    e = np.column_stack([code // n, code % n])
     order = _nested_dissection(n, e)
     rank = np.empty(n, dtype=np.int64)
     rank[order] = np.arange(n)
@@ -225,8 +226,12 @@ def _pattern(n: int, triangles: np.ndarray) -> _Pattern:
     cols = np.concatenate([k_cols, b_cols])
     size = 4 * n
     key = cols.astype(np.int64) * size + rows  # column-major (CSC)
-    uniq, inverse = np.unique(key, return_inverse=True)
-    inverse = inverse.reshape(-1)
+    order_k = np.argsort(key, kind="stable")
+    sorted_key = key[order_k]
+    first = np.concatenate([[True], sorted_key[1:] != sorted_key[:-1]])
+    uniq = sorted_key[first]
+    inverse = np.empty(len(key), dtype=np.int64)
+    inverse[order_k] = np.cumsum(first) - 1
     indices = (uniq % size).astype(np.int32)
     col_of = uniq // size
     indptr = np.searchsorted(col_of, np.arange(size + 1)).astype(np.int32)
@@ -367,7 +372,6 @@ def region_error(
     keypoints: np.ndarray | None,
     scan_keypoints: np.ndarray | None,
     settings: Settings = EXACT,
-    perturbations: int = UNCERTAINTY_TRIALS,
 ) -> tuple[float, dict]:
     """REALY's error of one region in scan units, and details (see below).
 
@@ -377,10 +381,13 @@ def region_error(
     error-step keypoints on the prediction (float64) and the scan (float32), or None (cheek).
 
     Details: the solver's counts and seconds (:meth:`NonRigidICP.details`), ``vertices`` (merged
-    count), ``nearest_seconds`` (its nearest-neighbour queries) and ``uncertainty``: the largest
-    relative change of the error when the deformed vertices are moved at random by
-    ``UNCERTAINTY_SCALE`` times the region's size, over ``perturbations`` seeded trials (closest
-    points near a tie can jump; the official code's own rounding moves its numbers that way).
+    count), ``nearest_seconds`` (its nearest-neighbour queries) and ``uncertainty``: how much
+    the error (relative) can move when the final deformed vertices move by round-off,
+    ``UNCERTAINTY_SCALE`` times the region's size: the closest points of the vertices that are
+    that near one of trimesh's tie decisions may jump to the other candidate, and the sum of
+    those jumps' effects on the mean distance is the bound reported (the official code's own
+    rounding moves its numbers that way; a smooth move of the points changes the error by
+    about ``UNCERTAINTY_SCALE``, far less).
     """
     gt_vertices, gt_triangles = merge_vertices(scan_vertices, scan_triangles)
     on_prediction = surface(pred_vertices, gt_vertices)
@@ -391,18 +398,17 @@ def region_error(
         nicp = NonRigidICP(gt_vertices, gt_triangles, on_prediction, settings=settings)
     deformed = nicp.run()
 
-    def error_of(points: np.ndarray) -> float:
-        updated = surface(pred_vertices, points)
-        return float(np.sqrt(np.sum((updated - gt_vertices) ** 2, axis=-1)).mean())
-
-    error = error_of(deformed)
+    size = float(np.ptp(deformed, axis=0).max())
+    updated = surface(pred_vertices, deformed, jitter=UNCERTAINTY_SCALE * size)
+    distances = np.sqrt(np.sum((updated - gt_vertices) ** 2, axis=-1))
+    error = float(distances.mean())
     if not math.isfinite(error):
         raise FacegeoError("the error step produced a non-finite value")
-    rng = np.random.default_rng(len(deformed))  # seeded: the same trials in every run
-    size = float(np.ptp(deformed, axis=0).max())
-    moved = [error_of(deformed + rng.uniform(-1.0, 1.0, deformed.shape) * (UNCERTAINTY_SCALE * size))
-             for _ in range(perturbations)]
-    uncertainty = max((abs(m - error) for m in moved), default=0.0) / max(error, 1e-300)
+    # near-ties: the other of the two nearest candidates could be picked under round-off
+    near = surface.near_ties
+    other = np.sqrt(np.sum((surface.alternatives[near] - gt_vertices[near, None]) ** 2, axis=-1))
+    jump = np.nan_to_num(np.abs(other - distances[near, None]), nan=0.0).max(axis=1, initial=0.0)
+    uncertainty = float(jump.sum()) / len(distances) / max(error, 1e-300)
     info = nicp.details()
     info.update(vertices=len(gt_vertices), nearest_seconds=nicp.nearest_seconds, uncertainty=uncertainty)
     return error, info

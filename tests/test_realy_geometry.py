@@ -179,3 +179,19 @@ def test_pruned_ring_search_equals_the_full_one(head):
     assert np.array_equal(pruned(v, q), full(v, q))
     moved = (v * 1.01 + [0.5, 0.0, -0.2]).astype(np.float32)  # another frame: a new tree, the same rule
     assert np.array_equal(pruned(moved, q), full(moved, q))
+
+
+def test_near_ties_are_the_queries_round_off_could_flip():
+    # a unit square in z = 0 split along its diagonal; queries one unit above it
+    v = np.array([[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0]], dtype=np.float64)
+    f = np.array([[0, 1, 2], [0, 2, 3]])
+    off = 1e-4 / np.sqrt(2)  # 1e-4 from the diagonal: squared distances 1 and 1 + 1e-8
+    q = np.array([[0.9, 0.1, 1.0], [0.5, 0.5, 1.0], [0.5 + off, 0.5 - off, 1.0]])
+    query = SurfaceQuery(f)
+    points = query(v, q, jitter=1e-9)
+    assert np.allclose(points[0], [0.9, 0.1, 0.0]) and np.allclose(points[1], [0.5, 0.5, 0.0])
+    assert query.near_ties.tolist() == [False, True, True]
+    # the two nearest candidates of the last query: its foot in the first triangle, the diagonal point
+    assert np.allclose(np.sort(query.alternatives[2, :, 0]), [0.5, 0.5 + off], atol=1e-12)
+    query(v, q)  # without jitter nothing is looked for
+    assert not query.near_ties.any()
