@@ -3,13 +3,22 @@
 :func:`evaluate` gives, for every prediction in a folder, the error (mm) on the four scan regions
 nose, mouth, forehead and cheek, with the same numbers as the official REALY code
 (github czh-98/REALY, ``main.py``; equal to 1e-6 relative on the synthetic subjects of
-tests/test_realy.py, the rigid alignments bit for bit). Closest points come from one AABB tree
-(libigl) per prediction instead of an R-tree per ICP step and per-point queries in Python, with
-trimesh's tie rule reproduced; the non-rigid ICP's normal equations are assembled block by block,
-in METIS' nested-dissection order, and factored by SuperLU (the official code uses CHOLMOD).
-Those ~50-60 sparse factorisations per subject are needed to reproduce the official numbers and
-are most of the time left (benchmarks/RESULTS.md). Subjects run in parallel processes with
-``workers``, one BLAS thread each.
+tests/test_realy.py wherever the reported uncertainty is below 1e-7, to 1e-5 everywhere; the
+rigid alignments bit for bit). Closest points come from one AABB tree (libigl) per region
+instead of an R-tree per ICP step and per-point queries in Python, with trimesh's tie rule
+reproduced; the non-rigid ICP's normal equations are assembled block by block, in METIS'
+nested-dissection order, factored by SuperLU at the start of each stiffness stage and solved by
+conjugate gradients preconditioned by that factor in the stage's later steps (the official code
+factors every system with CHOLMOD). The regions of all subjects are shared among ``workers``
+processes, one BLAS thread each; each region is computed the same way in any process, so the
+numbers do not depend on ``workers``.
+
+Every value comes with its numerical uncertainty (``RealyResult.uncertainty``): how much
+round-off in the final deformed vertices can move it, through closest points near one of
+trimesh's tie decisions (:func:`~facegeo.eval.realy_error.region_error`); values above
+``UNCERTAINTY_FLAG`` (1e-6 relative) are flagged in the summary. ``settings``
+(:class:`~facegeo.eval.realy_align.Settings`) loosens the protocol's stopping rules and the
+solver's tolerance for speed; the default is exact.
 
 Per subject (see :mod:`facegeo.eval.realy_align` and :mod:`facegeo.eval.realy_error`):
 the 85 keypoints of the prediction from the topology's barycentric keypoint file; a similarity
