@@ -17,9 +17,9 @@ that the machine's load is shared alike:
   time per subject is (time of main.py on all subjects - time to start Python and import
   main.py's modules) / subjects, and the largest relative difference of REALY_error.txt is given
   with the largest numerical uncertainty facegeo reports;
-* with ``--knobs``, the error against time of the speed knobs (facegeo.eval.realy_align.Settings)
-  on the first set: the largest and mean relative deviation from the exact numbers and the time
-  per subject of each setting, as a table and a text plot.
+* with ``--knobs``, instead, the error against time of the speed knobs
+  (facegeo.eval.realy_align.Settings) on the first set: the largest and mean relative deviation
+  from the exact numbers and the time per subject of each setting, as a table and a text plot.
 
 Every timing is repeated ``--repeat`` times; the tables give the minimum and the median.
 
@@ -199,7 +199,8 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--workers", type=int, default=2)
     parser.add_argument("--baseline-eval", type=Path, default=None, metavar="DIR",
                         help="an older eval/ folder to split the time of, for comparison")
-    parser.add_argument("--knobs", action="store_true", help="error against time of the speed knobs (first set)")
+    parser.add_argument("--knobs", action="store_true",
+                        help="instead: the error against time of the speed knobs, on the first set")
     parser.add_argument("--official-src", type=Path, default=Path(os.environ.get("REALY_OFFICIAL_SRC", "/tmp/realy_src")))
     parser.add_argument("--official-python", type=Path,
                         default=Path(os.environ.get("REALY_OFFICIAL_PYTHON", "/tmp/realy_env/bin/python")))
@@ -227,7 +228,7 @@ def main(argv: list[str] | None = None) -> None:
             sizes = [len(read_obj(p).vertices) for p in sorted((data.realy_root / "data" / "REALY_scan_region").rglob("*.obj"))]
             row = {"sub": sub, "vertices": f"{min(sizes)}-{max(sizes)}", "one": [], "many": [], "split": [],
                    "base": [], "base_split": [], "official": [], "diff": 0.0, "unc": 0.0, "loads": []}
-            for run in range(args.repeat):
+            for run in range(0 if args.knobs else args.repeat):
                 row["loads"].append(os.getloadavg()[0])
                 ours = evaluate(data.pred_dir, data.realy_root, workers=1)
                 row["one"].append(ours.wall_seconds / n)
@@ -247,8 +248,9 @@ def main(argv: list[str] | None = None) -> None:
                     row["diff"] = max(abs(float(ours.text[k][r]) - v) / v
                                       for k, vals in values.items() for r, v in zip(REGIONS, vals))
                     row["diff_full"] = ours.per_subject
-            rows.append(row)
-            print(f"done: subdivisions {sub}: {json.dumps(row, default=str)[:2000]}", file=sys.stderr)
+            if not args.knobs:
+                rows.append(row)
+                print(f"done: subdivisions {sub}: {json.dumps(row, default=str)[:2000]}", file=sys.stderr)
             if args.knobs and index == 0:
                 exact = None
                 for name, kwargs in KNOBS:
@@ -267,6 +269,9 @@ def main(argv: list[str] | None = None) -> None:
     print(f"load average (1, 5, 15 min) before: {load_before[0]:.2f} {load_before[1]:.2f} {load_before[2]:.2f}; "
           f"after: {load_after[0]:.2f} {load_after[1]:.2f} {load_after[2]:.2f}; {os.cpu_count()} CPUs; "
           f"{args.repeat} run(s) of each timing, cells min / median\n")
+    if not rows:
+        _print_knobs(args, knob_rows)
+        return
     print(f"| synthetic set | region vertices | official (s/subject) | facegeo, 1 worker | facegeo, {args.workers} workers | "
           f"speed-up, 1 worker | speed-up, {args.workers} workers | max rel. diff of REALY_error.txt | "
           "largest reported uncertainty |")
@@ -285,6 +290,10 @@ def main(argv: list[str] | None = None) -> None:
         if r["base_split"]:
             print(f"| subdivisions {r['sub']} | before ({args.baseline_eval}) | {_split_cells(r['base_split'])} |")
         print(f"| subdivisions {r['sub']} | now | {_split_cells(r['split'])} |")
+
+
+
+def _print_knobs(args, knob_rows) -> None:
     if knob_rows:
         print(f"\nSpeed knobs, subdivisions {args.subdivisions[0]}, 1 worker: deviation from the exact numbers "
               "(relative, over all values) against time\n")
