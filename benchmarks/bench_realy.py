@@ -21,7 +21,9 @@ that the machine's load is shared alike:
   (facegeo.eval.realy_align.Settings) on the first set: the largest and mean relative deviation
   from the exact numbers and the time per subject of each setting, as a table and a text plot.
 
-Every timing is repeated ``--repeat`` times; the tables give the minimum and the median.
+Every timing is repeated ``--repeat`` times; the tables give the minimum and the median. Wall
+times count the machine's other load; CPU times (facegeo's own process with one worker, the
+official process's user + system time, the split from facegeo's ``details``) much less.
 
     python benchmarks/bench_realy.py [--subdivisions 0 1] [--subjects 3] [--repeat 3] [--workers 2]
                                      [--baseline-eval DIR] [--knobs]
@@ -59,24 +61,37 @@ KNOBS = (
 )
 
 
+def _children_cpu() -> float:
+    """CPU seconds (user + system) of this process's finished child processes."""
+    import resource
+
+    usage = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return usage.ru_utime + usage.ru_stime
+
+
 def _official(src: Path, python: Path, data_root: Path, pred: Path, out: Path) -> tuple[float, float, dict]:
-    """(seconds for all subjects, seconds to start and import, {subject: [4 values]})."""
+    """(wall seconds for all subjects, CPU seconds for all subjects, {subject: [4 values]}), both
+    less the time to start Python and import main.py's modules."""
     cmd = [str(python), str(src / "main.py"),
            "--REALY_HIFI3D_keypoints", "data/REALY_HIFI3D_keypoints", "--REALY_scan_region", "data/REALY_scan_region",
            "--prediction", str(pred), "--template_topology", "ICT-FaceKit",
            "--scale_path", "data/metrical_scale.txt", "--save", str(out)]
+    cpu = _children_cpu()
     start = time.perf_counter()
     subprocess.run(cmd, cwd=data_root, check=True, capture_output=True)
     total = time.perf_counter() - start
+    total_cpu = _children_cpu() - cpu
     imports = f"import sys; sys.path.insert(0, {str(src)!r}); import main"
+    cpu = _children_cpu()
     start = time.perf_counter()
     subprocess.run([str(python), "-c", imports], cwd=data_root, check=True, capture_output=True)
     startup = time.perf_counter() - start
+    startup_cpu = _children_cpu() - cpu
     values = {}
     for line in (out / "REALY_error.txt").read_text().splitlines():
         fields = line.split("\t")
         values[fields[0]] = [float(x) for x in fields[2:]]
-    return total, startup, values
+    return total - startup, total_cpu - startup_cpu, values
 
 
 def _split(result, subjects: int) -> dict[str, float]:
@@ -110,30 +125,30 @@ def _baseline_child(eval_dir: str, pred: str, realy_root: str) -> None:
             self.lu = lu
 
         def solve(self, b):
-            start = time.perf_counter()
+            start = time.process_time()
             x = self.lu.solve(b)
-            acc["solve"] += time.perf_counter() - start
+            acc["solve"] += time.process_time() - start
             return x
 
     def timed_splu(*args, **kwargs):
-        start = time.perf_counter()
+        start = time.process_time()
         lu = splu(*args, **kwargs)
-        acc["factor"] += time.perf_counter() - start
+        acc["factor"] += time.process_time() - start
         return Timed(lu)
 
     sla.splu = timed_splu
     call = realy_geometry.SurfaceQuery.__call__
 
     def timed_call(self, vertices, queries):
-        start = time.perf_counter()
+        start = time.process_time()
         out = call(self, vertices, queries)
-        acc["closest"] += time.perf_counter() - start
+        acc["closest"] += time.process_time() - start
         return out
 
     realy_geometry.SurfaceQuery.__call__ = timed_call
-    start = time.perf_counter()
+    start = time.process_time()
     result = evaluate(pred, realy_root, workers=1)
-    acc["total"] = time.perf_counter() - start
+    acc["total"] = time.process_time() - start
     acc["values"] = result.per_subject
     print(json.dumps(acc))
 
@@ -227,10 +242,13 @@ def main(argv: list[str] | None = None) -> None:
             data = make_dataset(Path(tmp) / f"sub{sub}", n, seed=0, subdivisions=sub)
             sizes = [len(read_obj(p).vertices) for p in sorted((data.realy_root / "data" / "REALY_scan_region").rglob("*.obj"))]
             row = {"sub": sub, "vertices": f"{min(sizes)}-{max(sizes)}", "one": [], "many": [], "split": [],
-                   "base": [], "base_split": [], "official": [], "diff": 0.0, "unc": 0.0, "loads": []}
+                   "base": [], "base_split": [], "official": [], "diff": 0.0, "unc": 0.0, "loads": [],
+                   "one_cpu": [], "official_cpu": []}
             for run in range(0 if args.knobs else args.repeat):
                 row["loads"].append(os.getloadavg()[0])
+                cpu = time.process_time()
                 ours = evaluate(data.pred_dir, data.realy_root, workers=1)
+                row["one_cpu"].append((time.process_time() - cpu) / n)
                 row["one"].append(ours.wall_seconds / n)
                 row["split"].append(_split(ours, n))
                 many = evaluate(data.pred_dir, data.realy_root, workers=args.workers)
@@ -242,9 +260,10 @@ def main(argv: list[str] | None = None) -> None:
                     row["base"].append(split["total"])
                     row["base_split"].append(split)
                 if have_official:
-                    total, startup, values = _official(args.official_src, args.official_python, data.realy_root,
-                                                       data.pred_dir, Path(tmp) / f"official{sub}_{run}")
-                    row["official"].append((total - startup) / n)
+                    wall, cpu, values = _official(args.official_src, args.official_python, data.realy_root,
+                                                  data.pred_dir, Path(tmp) / f"official{sub}_{run}")
+                    row["official"].append(wall / n)
+                    row["official_cpu"].append(cpu / n)
                     row["diff"] = max(abs(float(ours.text[k][r]) - v) / v
                                       for k, vals in values.items() for r, v in zip(REGIONS, vals))
                     row["diff_full"] = ours.per_subject
@@ -272,6 +291,14 @@ def main(argv: list[str] | None = None) -> None:
     if not rows:
         _print_knobs(args, knob_rows)
         return
+    print("\nCPU time per subject (s; wall time counts the other agents' load, CPU time much less), "
+          "1 worker, min / median:\n")
+    print("| synthetic set | official | facegeo | ratio (min / min) |")
+    print("|---|---:|---:|---:|")
+    for r in rows:
+        ratio = f"{min(r['official_cpu']) / min(r['one_cpu']):.1f}x" if r["official_cpu"] else "n/a"
+        print(f"| subdivisions {r['sub']} | {_stats(r['official_cpu'])} | {_stats(r['one_cpu'])} | {ratio} |")
+    print("\nWall time per subject (s), min / median:\n")
     print(f"| synthetic set | region vertices | official (s/subject) | facegeo, 1 worker | facegeo, {args.workers} workers | "
           f"speed-up, 1 worker | speed-up, {args.workers} workers | max rel. diff of REALY_error.txt | "
           "largest reported uncertainty |")
@@ -283,7 +310,7 @@ def main(argv: list[str] | None = None) -> None:
         diff = f"{r['diff']:.1e}" if r["official"] else "n/a"
         print(f"| {n} subjects, subdivisions {r['sub']} | {r['vertices']} | {_stats(r['official'])} | {_stats(r['one'])} | "
               f"{_stats(r['many'])} | {one} | {many} | {diff} | {r['unc']:.1e} |")
-    print("\nPer subject, 1 worker, fastest run (s): factorisations | solves | closest points | rest | total\n")
+    print("\nPer subject, 1 worker, fastest run (CPU s): factorisations | solves | closest points | rest | total\n")
     print("| synthetic set | code | factorisations | solves | closest points | rest | total |")
     print("|---|---|---:|---:|---:|---:|---:|")
     for r in rows:

@@ -127,14 +127,15 @@ class RealyResult:
     ``text``: the same values as written to REALY_error.txt (9 characters);
     ``summary``: {region: {"mean", "median", "std"}, "all": mean of the four region means,
     "n": number of predictions}, computed from ``text`` as the official code does;
-    ``seconds``: processing time per subject (reading its files, and its four regions in
-    whichever process ran them);
+    ``seconds``: CPU time per subject (reading its files, and its four regions in whichever
+    process ran them; CPU time, so that it means the same on a busy machine);
     ``details``: per subject and region, the rigid ICP updates, the non-rigid ICP's solves,
-    factorisations and PCG iterations per solve, and seconds (``factor_seconds``,
+    factorisations and PCG iterations per solve, and CPU seconds (``factor_seconds``,
     ``solve_seconds``, ``closest_seconds``, ``nearest_seconds``);
     ``uncertainty``: per subject and region, the relative change of the error under round-off
     perturbations of the final deformed vertices (see :func:`~facegeo.eval.realy_error.region_error`);
-    ``settings``: the knobs used; ``wall_seconds``: the whole evaluation; ``workers``: processes.
+    ``settings``: the knobs used; ``wall_seconds``: the whole evaluation (wall clock);
+    ``workers``: processes.
     """
 
     per_subject: dict[str, dict[str, float]]
@@ -379,16 +380,16 @@ def evaluate_subject(prediction: Mesh, scan_keypoints: np.ndarray, regions: dict
 
 def _run(task: _Task) -> tuple[str, str, Any, Any, float]:
     """(name, region, error in mm or None, details or the error's payload, seconds)."""
-    start = time.perf_counter()
+    start = time.process_time()
     try:
         value, details = _evaluate_region(task.prepared, task.region, task.region_mesh, task.topology,
                                           task.settings, task.source)
     except InputError as exc:  # re-raised in the parent (InputError's own pickling loses fields)
         failure = ("input", (exc.source, exc.field, exc.expected, exc.found))
-        return task.name, task.region, None, failure, time.perf_counter() - start
+        return task.name, task.region, None, failure, time.process_time() - start
     except FacegeoError as exc:
-        return task.name, task.region, None, ("other", str(exc)), time.perf_counter() - start
-    return task.name, task.region, value * task.scale, details, time.perf_counter() - start
+        return task.name, task.region, None, ("other", str(exc)), time.process_time() - start
+    return task.name, task.region, value * task.scale, details, time.process_time() - start
 
 
 def _read_mask(path: str | Path | np.ndarray | None, n_vertices: int | None) -> np.ndarray | None:
@@ -456,7 +457,7 @@ def evaluate(
     tasks = []
     read_seconds: dict[str, float] = {}
     for name, subject_id, path in items:
-        begin = time.perf_counter()
+        begin = time.process_time()
         kp_path, region_paths = _subject_files(layout, subject_id)
         prediction = read_obj(path, "prediction")
         scan_keypoints = read_points_obj(kp_path, "REALY keypoints", count=85)
@@ -465,7 +466,7 @@ def evaluate(
         for region in ICP_ORDER:
             tasks.append(_Task(name, region, prepared, regions[region], topo, float(scales[subject_id - 1]),
                                settings, str(path)))
-        read_seconds[name] = time.perf_counter() - begin
+        read_seconds[name] = time.process_time() - begin
     # largest regions first, so that the last ones to finish are short (the order changes no number)
     tasks.sort(key=lambda t: -len(t.region_mesh.vertices))
 

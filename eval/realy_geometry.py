@@ -79,7 +79,7 @@ class SurfaceQuery:
         self._tree_vertices: np.ndarray | None = None
         self._tree_size = 0.0  # largest extent of the tree's vertices
         self.trees_built = 0
-        self.seconds = 0.0  # time spent answering queries (trees included)
+        self.seconds = 0.0  # CPU time spent answering queries (trees included)
         self.prune = True  # False: the exact point on every ring face (the reference in the tests)
         self._jitter = 0.0
         self.near_ties = np.zeros(0, dtype=bool)  # of the last call (see __call__)
@@ -144,7 +144,7 @@ class SurfaceQuery:
         them and :attr:`alternatives` (Q, 2, 3) holds the two nearest candidate points of each
         query (NaN where there is no second candidate).
         """
-        start = time.perf_counter()
+        start = time.process_time()
         self.near_ties = np.zeros(len(queries), dtype=bool)
         self.alternatives = np.full((len(queries), 2, 3), np.nan)
         self._jitter = float(jitter)
@@ -155,7 +155,7 @@ class SurfaceQuery:
         # the exact point among the faces around the nearest one, where trimesh may also prefer
         # a rival within 1e-8 in squared distance (across a nearby edge or nearly coplanar)
         result = self._trimesh_pick(vertices, queries, np.asarray(face, dtype=np.int64).reshape(-1))
-        self.seconds += time.perf_counter() - start
+        self.seconds += time.process_time() - start
         return result
 
     def _trimesh_pick(self, vertices: np.ndarray, queries: np.ndarray, faces: np.ndarray) -> np.ndarray:
