@@ -164,7 +164,7 @@ class SurfaceQuery:
         # Only the ring faces that can be within trimesh's tie window of the nearest one need the
         # exact point: a face is skipped when a lower bound of its squared distance (its plane and
         # its three edge lines) exceeds the tree face's squared distance plus the window, with a
-        # margin for rounding. That leaves 1-3 of the 10-20 ring faces per query.
+        # margin for rounding. That leaves 1.4 of the 13 ring faces per query on average (small subject 1).
         tri0 = vertices[self.triangles[faces]]
         vec0 = queries - _closest_tolerant(queries, tri0[:, 0], tri0[:, 1], tri0[:, 2])
         d0 = np.dot(vec0 * vec0, _ONES)
