@@ -1,26 +1,41 @@
 """REALY evaluation: time per subject of facegeo against the official REALY code, same inputs.
 
 Builds synthetic REALY data sets (facegeo.eval.realy_synthetic: 3 subjects each, regions of
-about 600-1600 vertices with ``--subdivisions 0`` and 2300-6200 with ``1``), times
-``facegeo.eval.realy.evaluate`` with one worker (and with two), then runs the official code's
-``main.py`` on the same folders as a subprocess and prints a Markdown table.
+about 600-1600 vertices with ``--subdivisions 0`` and 2300-6200 with ``1``) and, in one run so
+that the machine's load is shared alike:
 
-The official code is not part of facegeo. Point the benchmark at a checkout of
-github czh-98/REALY and at a Python environment where it runs (NumPy < 2, trimesh 3.12, rtree,
-scikit-sparse or a stand-in, opencv, tqdm) with ``--official-src`` / ``--official-python`` or
-the environment variables REALY_OFFICIAL_SRC / REALY_OFFICIAL_PYTHON; without them that part is
-skipped with a message. The official time per subject is (time of main.py on all subjects -
-time to start Python and import main.py's modules) / subjects. The table also gives the time
-facegeo spends in its sparse factorisations and solves, and the speed-up it would have if
-everything else took no time: the ceiling that the sparse solver sets.
+* times ``facegeo.eval.realy.evaluate`` with one worker and with ``--workers`` (default 2), and
+  splits facegeo's time per subject into sparse factorisations, solves (triangular solves and
+  conjugate gradients), closest-point queries on the prediction, and the rest;
+* with ``--baseline-eval DIR`` (an older ``eval/`` folder, e.g. ``git archive <commit> eval``
+  unpacked), the same split for that code, run in a child process in which ``facegeo.eval`` is
+  that folder (its factorisations, solves and queries timed by wrapping them);
+* runs the official code's ``main.py`` on the same folders (``--official-src`` /
+  ``--official-python`` or the environment variables REALY_OFFICIAL_SRC /
+  REALY_OFFICIAL_PYTHON: a checkout of github czh-98/REALY and a Python with NumPy < 2,
+  trimesh 3.12, rtree, scikit-sparse, opencv, tqdm; skipped with a message without them); its
+  time per subject is (time of main.py on all subjects - time to start Python and import
+  main.py's modules) / subjects, and the largest relative difference of REALY_error.txt is given
+  with the largest numerical uncertainty facegeo reports;
+* with ``--knobs``, instead, the error against time of the speed knobs
+  (facegeo.eval.realy_align.Settings) on the first set: the largest and mean relative deviation
+  from the exact numbers and the time per subject of each setting, as a table and a text plot.
 
-    python benchmarks/bench_realy.py [--subdivisions 0 1] [--subjects 3] [--repeat 3]
+Every timing is repeated ``--repeat`` times; the tables give the minimum and the median. Wall
+times count the machine's other load; CPU times (facegeo's own process with one worker, the
+official process's user + system time, the split from facegeo's ``details``) much less.
+
+    python benchmarks/bench_realy.py [--subdivisions 0 1] [--subjects 3] [--repeat 3] [--workers 2]
+                                     [--baseline-eval DIR] [--knobs]
 """
 
 from __future__ import annotations
 
 import argparse
+import json
+import math
 import os
+import statistics
 import subprocess
 import sys
 import tempfile
@@ -29,89 +44,294 @@ from pathlib import Path
 
 REGIONS = ("nose", "mouth", "forehead", "cheek")
 
+#: the knob settings of ``--knobs`` (name, Settings keyword arguments)
+KNOBS = (
+    ("exact (default)", {}),
+    ("no factor reuse", {"factor_reuse": False}),
+    ("solver rtol 1e-6", {"solver_rtol": 1e-6}),
+    ("solver rtol 1e-3", {"solver_rtol": 1e-3}),
+    ("nicp epsilon x4", {"nicp_epsilon_scale": 4.0}),
+    ("nicp epsilon x16", {"nicp_epsilon_scale": 16.0}),
+    ("nicp max 4 steps / stage", {"nicp_max_steps": 4}),
+    ("nicp max 2 steps / stage", {"nicp_max_steps": 2}),
+    ("rigid tol 1e-4", {"rigid_tolerance": 1e-4}),
+    ("rigid max 5 updates", {"rigid_max_updates": 5}),
+    ("all fast: rigid 1e-4, eps x4, 4 steps, rtol 1e-6",
+     {"rigid_tolerance": 1e-4, "nicp_epsilon_scale": 4.0, "nicp_max_steps": 4, "solver_rtol": 1e-6}),
+)
+
+
+def _children_cpu() -> float:
+    """CPU seconds (user + system) of this process's finished child processes."""
+    import resource
+
+    usage = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return usage.ru_utime + usage.ru_stime
+
 
 def _official(src: Path, python: Path, data_root: Path, pred: Path, out: Path) -> tuple[float, float, dict]:
-    """(seconds for all subjects, seconds to start and import, {subject: [4 values]})."""
+    """(wall seconds for all subjects, CPU seconds for all subjects, {subject: [4 values]}), both
+    less the time to start Python and import main.py's modules."""
     cmd = [str(python), str(src / "main.py"),
            "--REALY_HIFI3D_keypoints", "data/REALY_HIFI3D_keypoints", "--REALY_scan_region", "data/REALY_scan_region",
            "--prediction", str(pred), "--template_topology", "ICT-FaceKit",
            "--scale_path", "data/metrical_scale.txt", "--save", str(out)]
+    cpu = _children_cpu()
     start = time.perf_counter()
     subprocess.run(cmd, cwd=data_root, check=True, capture_output=True)
     total = time.perf_counter() - start
+    total_cpu = _children_cpu() - cpu
     imports = f"import sys; sys.path.insert(0, {str(src)!r}); import main"
+    cpu = _children_cpu()
     start = time.perf_counter()
     subprocess.run([str(python), "-c", imports], cwd=data_root, check=True, capture_output=True)
     startup = time.perf_counter() - start
+    startup_cpu = _children_cpu() - cpu
     values = {}
     for line in (out / "REALY_error.txt").read_text().splitlines():
         fields = line.split("\t")
         values[fields[0]] = [float(x) for x in fields[2:]]
-    return total, startup, values
+    return total - startup, total_cpu - startup_cpu, values
 
 
-def _best(times: list[float]) -> str:
-    return f"{min(times):.2f}" if len(times) == 1 else f"{min(times):.2f} ({min(times):.2f}-{max(times):.2f})"
+def _split(result, subjects: int) -> dict[str, float]:
+    """Seconds per subject: factorisations, solves, closest points, rest, total (processing)."""
+    details = [d[r] for d in result.details.values() for r in REGIONS]
+    row = {"factor": sum(d["factor_seconds"] for d in details) / subjects,
+           "solve": sum(d["solve_seconds"] for d in details) / subjects,
+           "closest": sum(d["closest_seconds"] for d in details) / subjects,
+           "total": sum(result.seconds.values()) / subjects}
+    row["rest"] = row["total"] - row["factor"] - row["solve"] - row["closest"]
+    return row
+
+
+def _baseline_child(eval_dir: str, pred: str, realy_root: str) -> None:
+    """Child-process mode: evaluate with an older facegeo.eval, print the split as JSON."""
+    import facegeo.eval
+
+    facegeo.eval.__path__[:] = [eval_dir]
+    import scipy.sparse.linalg as sla
+    from threadpoolctl import threadpool_limits
+
+    from facegeo.eval import realy_geometry
+    from facegeo.eval.realy import evaluate
+
+    threadpool_limits(1)
+    acc = {"factor": 0.0, "solve": 0.0, "closest": 0.0}
+    splu = sla.splu
+
+    class Timed:
+        def __init__(self, lu):
+            self.lu = lu
+
+        def solve(self, b):
+            start = time.process_time()
+            x = self.lu.solve(b)
+            acc["solve"] += time.process_time() - start
+            return x
+
+    def timed_splu(*args, **kwargs):
+        start = time.process_time()
+        lu = splu(*args, **kwargs)
+        acc["factor"] += time.process_time() - start
+        return Timed(lu)
+
+    sla.splu = timed_splu
+    call = realy_geometry.SurfaceQuery.__call__
+
+    def timed_call(self, vertices, queries):
+        start = time.process_time()
+        out = call(self, vertices, queries)
+        acc["closest"] += time.process_time() - start
+        return out
+
+    realy_geometry.SurfaceQuery.__call__ = timed_call
+    start = time.process_time()
+    result = evaluate(pred, realy_root, workers=1)
+    acc["total"] = time.process_time() - start
+    acc["values"] = result.per_subject
+    print(json.dumps(acc))
+
+
+def _baseline(eval_dir: Path, pred: Path, realy_root: Path, subjects: int) -> tuple[dict[str, float], dict]:
+    out = subprocess.run([sys.executable, __file__, "--_baseline-child", str(eval_dir), str(pred), str(realy_root)],
+                         check=True, capture_output=True, text=True, env={**os.environ, "OMP_NUM_THREADS": "1"})
+    acc = json.loads(out.stdout.strip().splitlines()[-1])
+    row = {k: acc[k] / subjects for k in ("factor", "solve", "closest", "total")}
+    row["rest"] = row["total"] - row["factor"] - row["solve"] - row["closest"]
+    return row, acc["values"]
+
+
+def _stats(times: list[float]) -> str:
+    if not times:
+        return "n/a"
+    if len(times) == 1:
+        return f"{times[0]:.2f}"
+    return f"{min(times):.2f} / {statistics.median(times):.2f}"
+
+
+def _split_cells(rows: list[dict[str, float]]) -> str:
+    best = min(rows, key=lambda r: r["total"])
+    return " | ".join(f"{best[k]:.2f}" for k in ("factor", "solve", "closest", "rest", "total"))
+
+
+def _deviation(values: dict, exact: dict) -> tuple[float, float]:
+    devs = [abs(values[n][r] - exact[n][r]) / exact[n][r] for n in exact for r in REGIONS]
+    return max(devs), sum(devs) / len(devs)
+
+
+def _text_plot(points: list[tuple[str, float, float]], width: int = 60, height: int = 16) -> str:
+    """A scatter plot in text: x = seconds per subject, y = log10 of the largest deviation."""
+    floor = 1e-12
+    xs = [p[1] for p in points]
+    ys = [math.log10(max(p[2], floor)) for p in points]
+    x0, x1 = 0.0, max(xs) * 1.05
+    y0, y1 = math.floor(min(ys)), math.ceil(max(ys)) if max(ys) > math.floor(min(ys)) else math.floor(min(ys)) + 1
+    grid = [[" "] * width for _ in range(height)]
+    for k, (x, y) in enumerate(zip(xs, ys)):
+        col = min(width - 1, int((x - x0) / (x1 - x0) * (width - 1)))
+        row = min(height - 1, int((y1 - y) / (y1 - y0) * (height - 1)))
+        grid[row][col] = chr(ord("A") + k)
+    lines = []
+    for r, cells in enumerate(grid):
+        label = y1 - r * (y1 - y0) / (height - 1)
+        lines.append(f"1e{label:+5.1f} |" + "".join(cells))
+    lines.append(" " * 8 + "+" + "-" * width)
+    lines.append(" " * 9 + f"0 s{'':{width - 16}}{x1:.2f} s/subject")
+    legend = [f"{chr(ord('A') + k)}: {name}" for k, (name, _, _) in enumerate(points)]
+    return "\n".join(lines + legend) + f"\n(deviations below {floor:g} drawn at {floor:g})"
 
 
 def main(argv: list[str] | None = None) -> None:
+    argv = sys.argv[1:] if argv is None else argv
+    if argv[:1] == ["--_baseline-child"]:
+        _baseline_child(*argv[1:4])
+        return
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--subdivisions", type=int, nargs="+", default=[0, 1])
     parser.add_argument("--subjects", type=int, default=3)
-    parser.add_argument("--repeat", type=int, default=1, help="runs of each timing; the table gives the best and the range")
+    parser.add_argument("--repeat", type=int, default=1, help="runs of each timing; the tables give min / median")
+    parser.add_argument("--workers", type=int, default=2)
+    parser.add_argument("--baseline-eval", type=Path, default=None, metavar="DIR",
+                        help="an older eval/ folder to split the time of, for comparison")
+    parser.add_argument("--knobs", action="store_true",
+                        help="instead: the error against time of the speed knobs, on the first set")
     parser.add_argument("--official-src", type=Path, default=Path(os.environ.get("REALY_OFFICIAL_SRC", "/tmp/realy_src")))
     parser.add_argument("--official-python", type=Path,
                         default=Path(os.environ.get("REALY_OFFICIAL_PYTHON", "/tmp/realy_env/bin/python")))
     args = parser.parse_args(argv)
 
+    from threadpoolctl import threadpool_limits
+
     from facegeo.eval.realy import evaluate
+    from facegeo.eval.realy_align import Settings
     from facegeo.eval.realy_io import read_obj
     from facegeo.eval.realy_synthetic import make_dataset
 
+    threadpool_limits(1)  # one core per worker, in the 1-worker run too
     have_official = (args.official_src / "main.py").is_file() and args.official_python.is_file()
     if not have_official:
         print(f"note: official REALY code not found ({args.official_src}/main.py with {args.official_python}); "
               "timing facegeo only", file=sys.stderr)
-    print(f"load average before: {os.getloadavg()[0]:.2f}; {os.cpu_count()} CPUs", file=sys.stderr)
-
+    load_before = os.getloadavg()
+    n = args.subjects
     rows = []
+    knob_rows = []
     with tempfile.TemporaryDirectory() as tmp:
-        for sub in args.subdivisions:
-            data = make_dataset(Path(tmp) / f"sub{sub}", args.subjects, seed=0, subdivisions=sub)
+        for index, sub in enumerate(args.subdivisions):
+            data = make_dataset(Path(tmp) / f"sub{sub}", n, seed=0, subdivisions=sub)
             sizes = [len(read_obj(p).vertices) for p in sorted((data.realy_root / "data" / "REALY_scan_region").rglob("*.obj"))]
-            row = {"sub": sub, "vertices": f"{min(sizes)}-{max(sizes)}", "ours_1": [], "ours_2": [], "solve": [],
-                   "official": []}
-            for run in range(args.repeat):
-                start = time.perf_counter()
-                ours = evaluate(data.pred_dir, data.realy_root, workers=1, progress=False)
-                row["ours_1"].append((time.perf_counter() - start) / args.subjects)
-                row["solve"].append(sum(d[r]["solve_seconds"] for d in ours.details.values() for r in REGIONS)
-                                    / args.subjects)
-                start = time.perf_counter()
-                evaluate(data.pred_dir, data.realy_root, workers=2, progress=False)
-                row["ours_2"].append((time.perf_counter() - start) / args.subjects)
+            row = {"sub": sub, "vertices": f"{min(sizes)}-{max(sizes)}", "one": [], "many": [], "split": [],
+                   "base": [], "base_split": [], "official": [], "diff": 0.0, "unc": 0.0, "loads": [],
+                   "one_cpu": [], "official_cpu": []}
+            for run in range(0 if args.knobs else args.repeat):
+                row["loads"].append(os.getloadavg()[0])
+                cpu = time.process_time()
+                ours = evaluate(data.pred_dir, data.realy_root, workers=1)
+                row["one_cpu"].append((time.process_time() - cpu) / n)
+                row["one"].append(ours.wall_seconds / n)
+                row["split"].append(_split(ours, n))
+                many = evaluate(data.pred_dir, data.realy_root, workers=args.workers)
+                row["many"].append(many.wall_seconds / n)
+                assert many.per_subject == ours.per_subject, "the numbers depend on the number of workers"
+                row["unc"] = max(u for d in ours.uncertainty.values() for u in d.values())
+                if args.baseline_eval is not None:
+                    split, _ = _baseline(args.baseline_eval, data.pred_dir, data.realy_root, n)
+                    row["base"].append(split["total"])
+                    row["base_split"].append(split)
                 if have_official:
-                    total, startup, values = _official(args.official_src, args.official_python, data.realy_root,
-                                                       data.pred_dir, Path(tmp) / f"official{sub}_{run}")
-                    row["official"].append((total - startup) / args.subjects)
+                    wall, cpu, values = _official(args.official_src, args.official_python, data.realy_root,
+                                                  data.pred_dir, Path(tmp) / f"official{sub}_{run}")
+                    row["official"].append(wall / n)
+                    row["official_cpu"].append(cpu / n)
                     row["diff"] = max(abs(float(ours.text[k][r]) - v) / v
                                       for k, vals in values.items() for r, v in zip(REGIONS, vals))
-            rows.append(row)
-            print(f"done: subdivisions {sub}: {row}", file=sys.stderr)
-    print(f"load average after: {os.getloadavg()[0]:.2f}", file=sys.stderr)
+                    row["diff_full"] = ours.per_subject
+            if not args.knobs:
+                rows.append(row)
+                print(f"done: subdivisions {sub}: {json.dumps(row, default=str)[:2000]}", file=sys.stderr)
+            if args.knobs and index == 0:
+                exact = None
+                for name, kwargs in KNOBS:
+                    times = []
+                    for _ in range(args.repeat):
+                        res = evaluate(data.pred_dir, data.realy_root, workers=1, settings=Settings(**kwargs))
+                        times.append(res.wall_seconds / n)
+                    if exact is None:
+                        exact = res.per_subject
+                    solves = sum(d[r]["solves"] for d in res.details.values() for r in REGIONS) / n
+                    factors = sum(d[r]["factorisations"] for d in res.details.values() for r in REGIONS) / n
+                    knob_rows.append((name, times, *_deviation(res.per_subject, exact), solves, factors))
+                    print(f"knob {name}: {knob_rows[-1]}", file=sys.stderr)
+    load_after = os.getloadavg()
 
-    print("| synthetic set | region vertices | official (s/subject) | facegeo, 1 worker (s/subject) | speed-up | "
-          "of which sparse factorisations (s/subject) | speed-up if all else were free | "
-          "facegeo, 2 workers (s/subject) | max rel. difference of REALY_error.txt |")
+    print(f"load average (1, 5, 15 min) before: {load_before[0]:.2f} {load_before[1]:.2f} {load_before[2]:.2f}; "
+          f"after: {load_after[0]:.2f} {load_after[1]:.2f} {load_after[2]:.2f}; {os.cpu_count()} CPUs; "
+          f"{args.repeat} run(s) of each timing, cells min / median\n")
+    if not rows:
+        _print_knobs(args, knob_rows)
+        return
+    print("\nCPU time per subject (s; wall time counts the other agents' load, CPU time much less), "
+          "1 worker, min / median:\n")
+    print("| synthetic set | official | facegeo | ratio (min / min) |")
+    print("|---|---:|---:|---:|")
+    for r in rows:
+        ratio = f"{min(r['official_cpu']) / min(r['one_cpu']):.1f}x" if r["official_cpu"] else "n/a"
+        print(f"| subdivisions {r['sub']} | {_stats(r['official_cpu'])} | {_stats(r['one_cpu'])} | {ratio} |")
+    print("\nWall time per subject (s), min / median:\n")
+    print(f"| synthetic set | region vertices | official (s/subject) | facegeo, 1 worker | facegeo, {args.workers} workers | "
+          f"speed-up, 1 worker | speed-up, {args.workers} workers | max rel. diff of REALY_error.txt | "
+          "largest reported uncertainty |")
     print("|---|---|---:|---:|---:|---:|---:|---:|---:|")
     for r in rows:
         official = min(r["official"]) if r["official"] else None
-        off = _best(r["official"]) if official else "n/a"
-        speed = f"{official / min(r['ours_1']):.1f}x" if official else "n/a"
-        ceiling = f"{official / min(r['solve']):.1f}x" if official else "n/a"
-        diff = f"{r['diff']:.1e}" if "diff" in r else "n/a"
-        print(f"| {args.subjects} subjects, subdivisions {r['sub']} | {r['vertices']} | {off} | {_best(r['ours_1'])} | "
-              f"{speed} | {_best(r['solve'])} | {ceiling} | {_best(r['ours_2'])} | {diff} |")
+        one = f"{official / min(r['one']):.1f}x" if official else "n/a"
+        many = f"{official / min(r['many']):.1f}x" if official else "n/a"
+        diff = f"{r['diff']:.1e}" if r["official"] else "n/a"
+        print(f"| {n} subjects, subdivisions {r['sub']} | {r['vertices']} | {_stats(r['official'])} | {_stats(r['one'])} | "
+              f"{_stats(r['many'])} | {one} | {many} | {diff} | {r['unc']:.1e} |")
+    print("\nPer subject, 1 worker, fastest run (CPU s): factorisations | solves | closest points | rest | total\n")
+    print("| synthetic set | code | factorisations | solves | closest points | rest | total |")
+    print("|---|---|---:|---:|---:|---:|---:|")
+    for r in rows:
+        if r["base_split"]:
+            print(f"| subdivisions {r['sub']} | before ({args.baseline_eval}) | {_split_cells(r['base_split'])} |")
+        print(f"| subdivisions {r['sub']} | now | {_split_cells(r['split'])} |")
+
+
+
+def _print_knobs(args, knob_rows) -> None:
+    if knob_rows:
+        print(f"\nSpeed knobs, subdivisions {args.subdivisions[0]}, 1 worker: deviation from the exact numbers "
+              "(relative, over all values) against time\n")
+        print("| setting | s/subject (min / median) | max deviation | mean deviation | solves / subject | "
+              "factorisations / subject |")
+        print("|---|---:|---:|---:|---:|---:|")
+        for name, times, worst, mean, solves, factors in knob_rows:
+            print(f"| {name} | {_stats(times)} | {worst:.1e} | {mean:.1e} | {solves:.0f} | {factors:.0f} |")
+        print("\n```text")
+        print(_text_plot([(name, min(times), worst) for name, times, worst, _, _, _ in knob_rows]))
+        print("```")
 
 
 if __name__ == "__main__":

@@ -30,6 +30,12 @@ Usage (about 1 s)::
 
 The OBJ written with ``--obj`` (mean shape in mm, triangles in facegeo's order) together with the
 ``.txt`` is what the official REALY code needs as ``data/ICT-FaceKit.{obj,txt}``.
+
+``--measure REALY_DATA`` measures the table anew from one's own REALY download (its
+``data/{HIFI3D,BFM09,FLAME}.{obj,txt}``: the eye-frame position of each extra point, averaged
+over the three, symmetrised, rounded to 0.01) and prints it beside :data:`EXTRA_POINTS`::
+
+    python -m facegeo.eval.make_ict_keypoints --measure /path/to/REALY/data
 """
 
 from __future__ import annotations
@@ -133,11 +139,67 @@ def ict_keypoints(vertices: np.ndarray, triangles: np.ndarray, landmark68: np.nd
     return rows
 
 
+#: Symmetric pairs (subject's right, left) among the extra points, and the centre point.
+_PAIRS = ((68, 69), (70, 71), (72, 73), (74, 75), (76, 77), (78, 80), (81, 82), (83, 84))
+_CENTRE = 79
+#: The official topologies the table was measured on (REALY's data/<NAME>.{obj,txt}).
+MEASURED_ON = ("HIFI3D", "BFM09", "FLAME")
+
+
+def extra_point_positions(vertices: np.ndarray, triangles: np.ndarray, rows: list) -> np.ndarray:
+    """(17, 2) eye-frame (x, y) of keypoints 68..84 of a topology given by its 85 barycentric rows."""
+    from facegeo.eval.realy_io import barycentric_points
+
+    rows_array = np.asarray(rows, dtype=np.float64)
+    tri = rows_array[:, 0].astype(np.int64)
+    weights = np.column_stack([rows_array[:, 1], rows_array[:, 2], 1.0 - rows_array[:, 1] - rows_array[:, 2]])
+    points = barycentric_points(np.asarray(vertices, dtype=np.float64), np.asarray(triangles), tri, weights)
+    origin, unit, axes = eye_frame(points[:68])
+    return ((points[68:] - origin) @ axes.T / unit)[:, :2]
+
+
+def averaged_table(positions: list[np.ndarray]) -> dict[int, tuple[float, float]]:
+    """{index: (x, y)} of the 17 extra points averaged over topologies, symmetrised, rounded to 0.01."""
+    mean = np.mean(positions, axis=0)  # (17, 2)
+    table = {}
+    for right, left in _PAIRS:
+        x = round((abs(mean[right - 68, 0]) + abs(mean[left - 68, 0])) / 2, 2)
+        y = round((mean[right - 68, 1] + mean[left - 68, 1]) / 2, 2)
+        table[right], table[left] = (-x, y), (x, y)
+    table[_CENTRE] = (0.0, round(float(mean[_CENTRE - 68, 1]), 2))
+    return table
+
+
+def measure(data_dir: Path, names: tuple[str, ...] = MEASURED_ON) -> dict[int, tuple[float, float]]:
+    """The table :data:`EXTRA_POINTS` measured anew on REALY's official topology files in ``data_dir``."""
+    from facegeo.eval.realy_io import read_keypoint_file, read_obj
+
+    positions = []
+    for name in names:
+        mesh = read_obj(data_dir / f"{name}.obj", f"{name} template")
+        read_keypoint_file(data_dir / f"{name}.txt", len(mesh.triangles))  # checks the file
+        rows = json.loads((data_dir / f"{name}.txt").read_text())
+        positions.append(extra_point_positions(mesh.vertices, mesh.triangles, rows))
+    return averaged_table(positions)
+
+
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("-o", "--output", type=Path, default=DEFAULT_OUT, help="keypoint file to write")
     parser.add_argument("--obj", type=Path, default=None, help="also write the template OBJ here")
+    parser.add_argument("--measure", type=Path, default=None, metavar="REALY_DATA",
+                        help="measure the extra points' table on REALY's data/{HIFI3D,BFM09,FLAME}.{obj,txt} "
+                        "and compare it with EXTRA_POINTS (writes nothing)")
     args = parser.parse_args(argv)
+    if args.measure is not None:
+        table = measure(args.measure)
+        worst = 0.0
+        for index, name, x, y in EXTRA_POINTS:
+            mx, my = table[index]
+            worst = max(worst, abs(mx - x), abs(my - y))
+            print(f"{index} {name}: measured ({mx:+.2f}, {my:+.2f}), EXTRA_POINTS ({x:+.2f}, {y:+.2f})")
+        print(f"largest difference from EXTRA_POINTS: {worst:.2f} (eye-corner distances)")
+        return
 
     from facegeo.eval.realy_io import obj_text
     from facegeo.model_files import load_model

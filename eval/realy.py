@@ -3,13 +3,22 @@
 :func:`evaluate` gives, for every prediction in a folder, the error (mm) on the four scan regions
 nose, mouth, forehead and cheek, with the same numbers as the official REALY code
 (github czh-98/REALY, ``main.py``; equal to 1e-6 relative on the synthetic subjects of
-tests/test_realy.py, the rigid alignments bit for bit). Closest points come from one AABB tree
-(libigl) per prediction instead of an R-tree per ICP step and per-point queries in Python, with
-trimesh's tie rule reproduced; the non-rigid ICP's normal equations are assembled block by block,
-in METIS' nested-dissection order, and factored by SuperLU (the official code uses CHOLMOD).
-Those ~50-60 sparse factorisations per subject are needed to reproduce the official numbers and
-are most of the time left (benchmarks/RESULTS.md). Subjects run in parallel processes with
-``workers``, one BLAS thread each.
+tests/test_realy.py wherever the reported uncertainty is below 1e-7, to 1e-5 everywhere; the
+rigid alignments bit for bit). Closest points come from one AABB tree (libigl) per region
+instead of an R-tree per ICP step and per-point queries in Python, with trimesh's tie rule
+reproduced; the non-rigid ICP's normal equations are assembled block by block, in METIS'
+nested-dissection order, factored by SuperLU at the start of each stiffness stage and solved by
+conjugate gradients preconditioned by that factor in the stage's later steps (the official code
+factors every system with CHOLMOD). The regions of all subjects are shared among ``workers``
+processes, one BLAS thread each; each region is computed the same way in any process, so the
+numbers do not depend on ``workers``.
+
+Every value comes with its numerical uncertainty (``RealyResult.uncertainty``): how much
+round-off in the final deformed vertices can move it, through closest points near one of
+trimesh's tie decisions (:func:`~facegeo.eval.realy_error.region_error`); values above
+``UNCERTAINTY_FLAG`` (1e-6 relative) are flagged in the summary. ``settings``
+(:class:`~facegeo.eval.realy_align.Settings`) loosens the protocol's stopping rules and the
+solver's tolerance for speed; the default is exact.
 
 Per subject (see :mod:`facegeo.eval.realy_align` and :mod:`facegeo.eval.realy_error`):
 the 85 keypoints of the prediction from the topology's barycentric keypoint file; a similarity
@@ -50,9 +59,11 @@ import numpy as np
 from facegeo.errors import FacegeoError, InputError
 from facegeo.eval.realy_align import (
     ERROR_KEYPOINTS,
+    EXACT,
     ICP_ORDER,
     REGIONS,
     RIGID_KEYPOINTS,
+    Settings,
     global_alignment,
     regional_icp,
 )
@@ -71,6 +82,9 @@ __all__ = [
     "evaluate",
     "evaluate_subject",
     "RealyResult",
+    "Settings",
+    "EXACT",
+    "UNCERTAINTY_FLAG",
     "Topology",
     "load_topology",
     "DEFAULT_TOPOLOGY",
@@ -81,6 +95,9 @@ __all__ = [
 
 #: facegeo's default model topology; its keypoint file is bundled (assets/realy/ICT-FaceKit.txt).
 DEFAULT_TOPOLOGY = "ICT-FaceKit"
+
+#: A region's numerical uncertainty (relative) above which the summary flags it.
+UNCERTAINTY_FLAG = 1e-6
 
 _NAME = re.compile(r"^[0-9]+(_[0-9]+)*$")
 
@@ -110,7 +127,15 @@ class RealyResult:
     ``text``: the same values as written to REALY_error.txt (9 characters);
     ``summary``: {region: {"mean", "median", "std"}, "all": mean of the four region means,
     "n": number of predictions}, computed from ``text`` as the official code does;
-    ``seconds``: wall time per subject; ``details``: per subject, ICP updates and solves.
+    ``seconds``: CPU time per subject (reading its files, and its four regions in whichever
+    process ran them; CPU time, so that it means the same on a busy machine);
+    ``details``: per subject and region, the rigid ICP updates, the non-rigid ICP's solves,
+    factorisations and PCG iterations per solve, and CPU seconds (``factor_seconds``,
+    ``solve_seconds``, ``closest_seconds``, ``nearest_seconds``);
+    ``uncertainty``: per subject and region, the relative change of the error under round-off
+    perturbations of the final deformed vertices (see :func:`~facegeo.eval.realy_error.region_error`);
+    ``settings``: the knobs used; ``wall_seconds``: the whole evaluation (wall clock);
+    ``workers``: processes.
     """
 
     per_subject: dict[str, dict[str, float]]
@@ -119,6 +144,14 @@ class RealyResult:
     topology: str
     seconds: dict[str, float] = field(default_factory=dict)
     details: dict[str, dict[str, Any]] = field(default_factory=dict)
+    uncertainty: dict[str, dict[str, float]] = field(default_factory=dict)
+    settings: Settings = EXACT
+    wall_seconds: float = 0.0
+    workers: int = 1
+
+    def uncertain(self, threshold: float = UNCERTAINTY_FLAG) -> list[tuple[str, str, float]]:
+        """(name, region, relative uncertainty) of the values whose uncertainty exceeds ``threshold``."""
+        return [(name, r, u) for name, values in self.uncertainty.items() for r, u in values.items() if u > threshold]
 
     def error_txt(self) -> str:
         """REALY_error.txt in the official format: name, an empty field, nose, mouth, forehead, cheek."""
@@ -252,13 +285,17 @@ def _predictions(pred_dir: str | Path) -> list[tuple[str, int, Path]]:
 # ------------------------------------------------------------------------------------------ work
 @dataclass(frozen=True)
 class _Task:
+    """One region of one prediction, with its inputs read: the unit of work, whatever the
+    number of workers (sent to a worker process by pickling, about 1 MB)."""
+
     name: str
-    subject_id: int
-    prediction: Path
-    layout: _Layout
+    region: str
+    prepared: "_Prepared"
+    region_mesh: Mesh
     topology: Topology
     scale: float
-    mask: np.ndarray | None
+    settings: Settings
+    source: str
 
 
 def _subject_files(layout: _Layout, subject_id: int) -> tuple[Path, dict[str, Path]]:
@@ -267,10 +304,19 @@ def _subject_files(layout: _Layout, subject_id: int) -> tuple[Path, dict[str, Pa
     return kp, regions
 
 
-def evaluate_subject(prediction: Mesh, scan_keypoints: np.ndarray, regions: dict[str, Mesh],
-                     topology: Topology, scale: float = 1.0, mask: np.ndarray | None = None,
-                     source: str = "<prediction>") -> tuple[dict[str, float], dict[str, Any]]:
-    """Errors (mm) of one prediction against one scan: {region: value}, and per-region details."""
+@dataclass(frozen=True)
+class _Prepared:
+    """A prediction after the global alignment: what each of its regions starts from."""
+
+    triangles: np.ndarray  # (F, 3)
+    aligned: np.ndarray  # (V, 3) float64, globally aligned vertices
+    aligned_keypoints: np.ndarray  # (85, 3) float64
+    scan_keypoints: np.ndarray  # (85, 3) float32
+    error_triangles: np.ndarray  # (F', 3) triangles of the error step (template mask applied)
+
+
+def _prepare(prediction: Mesh, scan_keypoints: np.ndarray, topology: Topology, mask: np.ndarray | None,
+             source: str) -> _Prepared:
     if topology.n_vertices is not None and len(prediction.vertices) != topology.n_vertices:
         raise InputError(source, "vertices", f"{topology.n_vertices} (the {topology.name} topology)",
                          str(len(prediction.vertices)))
@@ -280,54 +326,70 @@ def evaluate_subject(prediction: Mesh, scan_keypoints: np.ndarray, regions: dict
     tris = prediction.triangles
     pred_kp = topology.keypoints(prediction.vertices, tris)
     aligned = global_alignment(prediction.vertices, pred_kp, scan_keypoints)
-    aligned_kp = topology.keypoints(aligned, tris)
     error_tris = tris if mask is None else tris[mask[tris].all(axis=1)]
     if len(error_tris) == 0:
         raise InputError(source, "template mask", "a mask that keeps some triangles", "none kept")
+    return _Prepared(tris, aligned, topology.keypoints(aligned, tris), scan_keypoints, error_tris)
+
+
+def _evaluate_region(prepared: _Prepared, region: str, region_mesh: Mesh, topology: Topology,
+                     settings: Settings, source: str) -> tuple[float, dict[str, Any]]:
+    """One region's error (scan units) and details: the same computation in any process.
+
+    Each region gets its own closest-point trees, so that its numbers do not depend on which
+    regions ran before it in the same process (``workers`` changes nothing).
+    """
+    tris = prepared.triangles
     surface = SurfaceQuery(tris)
-    error_surface = surface if mask is None else SurfaceQuery(error_tris)
-    per_region: dict[str, np.ndarray] = {}
-    details: dict[str, Any] = {}
-    for region in ICP_ORDER:
-        idx = list(RIGID_KEYPOINTS[region])
-        try:
-            per_region[region], updates = regional_icp(
-                aligned, surface, regions[region].vertices, aligned_kp[idx], scan_keypoints[idx], region)
-        except ValueError as exc:
-            raise InputError(source, f"{region} region", "more vertices than keypoints", str(exc)) from None
-        details[region] = {"icp_updates": updates}
+    idx = list(RIGID_KEYPOINTS[region])
+    try:
+        vertices, updates = regional_icp(prepared.aligned, surface, region_mesh.vertices,
+                                         prepared.aligned_keypoints[idx], prepared.scan_keypoints[idx], region,
+                                         settings)
+    except ValueError as exc:
+        raise InputError(source, f"{region} region", "more vertices than keypoints", str(exc)) from None
+    subset = ERROR_KEYPOINTS[region]
+    if subset is None:
+        kp, scan_kp = None, None
+    else:
+        kp = topology.keypoints(vertices, tris)[list(subset)]
+        scan_kp = prepared.scan_keypoints[list(subset)]
+    error_surface = surface if prepared.error_triangles is tris else SurfaceQuery(prepared.error_triangles)
+    try:
+        value, info = region_error(vertices, error_surface, region_mesh.vertices, region_mesh.triangles, kp,
+                                   scan_kp, settings)
+    except FacegeoError as exc:
+        raise FacegeoError(f"{source}: {region}: {exc}") from None
+    info["closest_seconds"] = surface.seconds + (error_surface.seconds if error_surface is not surface else 0.0)
+    return value, {"icp_updates": updates, **info}
+
+
+def evaluate_subject(prediction: Mesh, scan_keypoints: np.ndarray, regions: dict[str, Mesh],
+                     topology: Topology, scale: float = 1.0, mask: np.ndarray | None = None,
+                     source: str = "<prediction>", settings: Settings = EXACT,
+                     ) -> tuple[dict[str, float], dict[str, Any]]:
+    """Errors (mm) of one prediction against one scan: {region: value}, and per-region details."""
+    prepared = _prepare(prediction, scan_keypoints, topology, mask, source)
     errors: dict[str, float] = {}
+    details: dict[str, Any] = {}
     for region in REGIONS:
-        vertices = per_region[region]
-        subset = ERROR_KEYPOINTS[region]
-        if subset is None:
-            kp, scan_kp = None, None
-        else:
-            kp = topology.keypoints(vertices, tris)[list(subset)]
-            scan_kp = scan_keypoints[list(subset)]
-        try:
-            value, info = region_error(vertices, error_surface, regions[region].vertices, regions[region].triangles, kp, scan_kp)
-        except FacegeoError as exc:
-            raise FacegeoError(f"{source}: {region}: {exc}") from None
+        value, details[region] = _evaluate_region(prepared, region, regions[region], topology, settings, source)
         errors[region] = value * scale
-        details[region].update(info)
     return errors, details
 
 
-def _run(task: _Task) -> tuple[str, Any, Any, float]:
-    start = time.perf_counter()
+def _run(task: _Task) -> tuple[str, str, Any, Any, float]:
+    """(name, region, error in mm or None, details or the error's payload, seconds)."""
+    start = time.process_time()
     try:
-        prediction = read_obj(task.prediction, "prediction")
-        kp_path, region_paths = _subject_files(task.layout, task.subject_id)
-        scan_keypoints = read_points_obj(kp_path, "REALY keypoints", count=85)
-        regions = {r: read_obj(p, f"{r} region") for r, p in region_paths.items()}
-        errors, details = evaluate_subject(prediction, scan_keypoints, regions, task.topology, task.scale,
-                                           task.mask, str(task.prediction))
+        value, details = _evaluate_region(task.prepared, task.region, task.region_mesh, task.topology,
+                                          task.settings, task.source)
     except InputError as exc:  # re-raised in the parent (InputError's own pickling loses fields)
-        return task.name, None, ("input", (exc.source, exc.field, exc.expected, exc.found)), time.perf_counter() - start
+        failure = ("input", (exc.source, exc.field, exc.expected, exc.found))
+        return task.name, task.region, None, failure, time.process_time() - start
     except FacegeoError as exc:
-        return task.name, None, ("other", str(exc)), time.perf_counter() - start
-    return task.name, errors, details, time.perf_counter() - start
+        return task.name, task.region, None, ("other", str(exc)), time.process_time() - start
+    return task.name, task.region, value * task.scale, details, time.process_time() - start
 
 
 def _read_mask(path: str | Path | np.ndarray | None, n_vertices: int | None) -> np.ndarray | None:
@@ -359,15 +421,18 @@ def evaluate(
     regions_dir: str | Path | None = None,
     scale_path: str | Path | None = None,
     template_mask: str | Path | np.ndarray | None = None,
+    settings: Settings = EXACT,
     progress: bool | None = False,
 ) -> RealyResult:
     """Evaluate every ``PRED_DIR/*.obj`` with the REALY protocol (see the module doc).
 
     ``topology`` names the prediction topology (``data/<NAME>.{obj,txt}``; default: facegeo's
     ICT-FaceKit); ``keypoints`` gives a barycentric keypoint file instead (triangles from
-    ``template`` or the ``.obj`` beside it). ``workers`` > 1 evaluates subjects in that many
-    processes. ``template_mask``: the official ``--template_mask`` (0/1 per vertex, comma
-    separated; only triangles whose three vertices are 1 are used in the error step).
+    ``template`` or the ``.obj`` beside it). ``workers`` > 1 evaluates the regions of all
+    subjects in that many processes (the numbers do not depend on it). ``template_mask``: the
+    official ``--template_mask`` (0/1 per vertex, comma separated; only triangles whose three
+    vertices are 1 are used in the error step). ``settings``: the speed / exactness knobs
+    (:class:`~facegeo.eval.realy_align.Settings`; the default is the official protocol).
     ``progress``: a tqdm bar (None: only on a terminal).
 
     Raises:
@@ -375,12 +440,12 @@ def evaluate(
             vertex count, NaN coordinates, a topology without a keypoint file, ...
         FacegeoError: a subject whose computation failed (the message names it).
     """
+    start = time.perf_counter()
     layout = _layout(realy_root, keypoints_dir, regions_dir, scale_path)
     topo = load_topology(realy_root, topology, keypoints, template)
     mask = _read_mask(template_mask, topo.n_vertices)
     scales = read_metrical_scales(layout.scale_file)
     items = _predictions(pred_dir)
-    tasks = []
     for name, subject_id, path in items:
         if not 1 <= subject_id <= len(scales):
             raise InputError(path, "subject id", f"1..{len(scales)} (the lines of {layout.scale_file.name})", str(subject_id))
@@ -388,10 +453,27 @@ def evaluate(
         for p in (kp_path, *region_paths.values()):
             if not p.is_file():
                 raise InputError(p, f"REALY data of subject {subject_id} (for {path.name})", "an existing file", "missing")
-        tasks.append(_Task(name, subject_id, path, layout, topo, float(scales[subject_id - 1]), mask))
+    # every input is read and checked here first (a bad file fails at once, in the official order)
+    tasks = []
+    read_seconds: dict[str, float] = {}
+    for name, subject_id, path in items:
+        begin = time.process_time()
+        kp_path, region_paths = _subject_files(layout, subject_id)
+        prediction = read_obj(path, "prediction")
+        scan_keypoints = read_points_obj(kp_path, "REALY keypoints", count=85)
+        regions = {r: read_obj(region_paths[r], f"{r} region") for r in ICP_ORDER}
+        prepared = _prepare(prediction, scan_keypoints, topo, mask, str(path))
+        for region in ICP_ORDER:
+            tasks.append(_Task(name, region, prepared, regions[region], topo, float(scales[subject_id - 1]),
+                               settings, str(path)))
+        read_seconds[name] = time.process_time() - begin
+    # largest regions first, so that the last ones to finish are short (the order changes no number)
+    tasks.sort(key=lambda t: -len(t.region_mesh.vertices))
 
-    results: dict[str, tuple[dict, dict, float]] = {}
+    results: dict[tuple[str, str], tuple[float, dict, float]] = {}
     bar = _progress_bar(len(tasks), progress)
+    if workers > 1 and len(tasks) > 1 and topo.triangles is not None:
+        SurfaceQuery(topo.triangles).rings()  # once here, inherited by the forked workers
     try:
         if workers <= 1 or len(tasks) == 1:
             for task in tasks:
@@ -401,13 +483,18 @@ def evaluate(
             with ProcessPoolExecutor(max_workers=min(workers, len(tasks)), mp_context=_context(),
                                      initializer=_one_blas_thread) as pool:
                 futures = [pool.submit(_run, t) for t in tasks]
-                for fut in as_completed(futures):
-                    _collect(results, fut.result())
-                    bar.update(1)
+                try:
+                    for fut in as_completed(futures):
+                        _collect(results, fut.result())
+                        bar.update(1)
+                except BaseException:
+                    for fut in futures:
+                        fut.cancel()
+                    raise
     finally:
         bar.close()
 
-    per_subject = {name: results[name][0] for name, _, _ in items}
+    per_subject = {name: {r: results[name, r][0] for r in REGIONS} for name, _, _ in items}
     text = {name: {r: format_value(v[r]) for r in REGIONS} for name, v in per_subject.items()}
     summary = summarize({name: {r: float(t[r]) for r in REGIONS} for name, t in text.items()})
     return RealyResult(
@@ -415,17 +502,22 @@ def evaluate(
         text=text,
         summary=summary,
         topology=topo.name,
-        seconds={name: results[name][2] for name in per_subject},
-        details={name: results[name][1] for name in per_subject},
+        seconds={name: read_seconds[name] + sum(results[name, r][2] for r in REGIONS) for name in per_subject},
+        details={name: {r: results[name, r][1] for r in REGIONS} for name in per_subject},
+        uncertainty={name: {r: results[name, r][1]["uncertainty"] for r in REGIONS} for name in per_subject},
+        settings=settings,
+        wall_seconds=time.perf_counter() - start,
+        workers=workers,
     )
 
 
-def _collect(results: dict, outcome: tuple[str, Any, Any, float]) -> None:
-    name, errors, details, seconds = outcome
-    if errors is None:
+def _collect(results: dict, outcome: tuple[str, str, Any, Any, float]) -> None:
+    name, region, value, details, seconds = outcome
+    if value is None:
         kind, payload = details
         raise InputError(*payload) if kind == "input" else FacegeoError(payload)
-    results[name] = (errors, details, seconds)
+    results[name, region] = (value, details, seconds)
+
 
 
 def _context():

@@ -20,11 +20,15 @@ float32).
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
 from facegeo.eval.realy_geometry import SurfaceQuery
 
 __all__ = [
+    "Settings",
+    "EXACT",
     "SEVEN_KEYPOINTS",
     "RIGID_KEYPOINTS",
     "ERROR_KEYPOINTS",
@@ -39,6 +43,42 @@ _MOUTH = (48, 49, 50, 51, 52, 53, 54, 55, 56, 57, 58, 59, 60, 64)
 _NOSE = (27, 28, 29, 30, 31, 32, 33, 34, 35)
 _NOSE_RIGID = (27, 28, 29, 30, 31, 35, 32, 33, 34, 70, 71)
 _CHEEK = (48, 49, 50, 51, 52, 53, 54, 55, 56, 57, 58, 59, 60, 64, 76, 77, 36, 41, 40, 39, 42, 47, 46, 45, 7, 8, 9)
+
+@dataclass(frozen=True)
+class Settings:
+    """The knobs that trade the official numbers for speed. The defaults (:data:`EXACT`) are the
+    official protocol, with the linear systems solved to 1e-10 relative residual.
+
+    * ``rigid_tolerance``: a regional rigid ICP stops when its mean squared residual changes by
+      less than this (scan units squared; official 1e-6);
+    * ``rigid_max_updates``: at most this many rigid updates per region (official 100);
+    * ``nicp_epsilon_scale``: multiplies the non-rigid ICP's stopping thresholds ``0.5 ** k``
+      (official 1);
+    * ``nicp_max_steps``: at most this many solves per stiffness stage (None: the official 11
+      with keypoints, no limit for the cheek);
+    * ``solver_rtol``: relative residual of the factor-preconditioned conjugate gradients
+      (1e-10 keeps the official numbers);
+    * ``factor_reuse``: False factors every system (slower, the same numbers to rounding).
+    """
+
+    rigid_tolerance: float = 1e-6
+    rigid_max_updates: int = 100
+    nicp_epsilon_scale: float = 1.0
+    nicp_max_steps: int | None = None
+    solver_rtol: float = 1e-10
+    factor_reuse: bool = True
+
+    def __post_init__(self) -> None:
+        for name in ("rigid_tolerance", "nicp_epsilon_scale", "solver_rtol"):
+            value = getattr(self, name)
+            if not (isinstance(value, (int, float)) and np.isfinite(value) and value > 0):
+                raise ValueError(f"{name} must be a positive finite number, not {value!r}")
+        if self.rigid_max_updates < 0 or (self.nicp_max_steps is not None and self.nicp_max_steps < 1):
+            raise ValueError("rigid_max_updates must be >= 0 and nicp_max_steps >= 1")
+
+
+#: The official protocol (the default everywhere).
+EXACT = Settings()
 
 #: Keypoints of the global similarity alignment.
 SEVEN_KEYPOINTS = (36, 39, 42, 45, 33, 48, 54)
@@ -92,14 +132,15 @@ def regional_icp(
     keypoints: np.ndarray,
     scan_keypoints: np.ndarray,
     region: str,
-    max_iteration: int = 100,
+    settings: Settings = EXACT,
 ) -> tuple[np.ndarray, int]:
     """Rigid ICP of the globally aligned prediction onto one scan region.
 
     ``vertices`` (V, 3) float64 from :func:`global_alignment`; ``surface`` the closest-point
     query of the prediction's triangles; ``scan_vertices`` (N, 3) float32 as
     read from the region file (all of its vertices); ``keypoints`` / ``scan_keypoints`` the
-    region's keypoint subsets (prediction float64, scan float32). Returns the aligned vertices
+    region's keypoint subsets (prediction float64, scan float32); ``settings`` its stopping
+    rule (``rigid_tolerance``, ``rigid_max_updates``). Returns the aligned vertices
     (float32 after at least one update, else the input) and the number of updates applied.
     """
     per = scan_vertices.shape[0] / scan_keypoints.shape[0]
@@ -122,7 +163,7 @@ def regional_icp(
         # NumPy 1 scalar rules: float32 - 0.0 is float64; float32 - float32 stays float32;
         # the comparison with 1e-6 is made in float64
         change = abs(float(error)) if previous is None else float(abs(error - previous))
-        if change < 1e-6 or updates >= max_iteration:
+        if change < settings.rigid_tolerance or updates >= settings.rigid_max_updates:
             break
         updates += 1
         previous = error

@@ -7,6 +7,8 @@ import sys
 import time
 from pathlib import Path
 
+from facegeo.eval.realy_align import EXACT, Settings
+
 __all__ = ["register", "run"]
 
 
@@ -38,7 +40,22 @@ def register(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParser:
                    help="override data/REALY_HIFI3D_keypoints")
     p.add_argument("--regions-dir", type=Path, default=None, metavar="DIR", help="override data/REALY_scan_region")
     p.add_argument("--scale-path", type=Path, default=None, metavar="FILE", help="override data/metrical_scale.txt")
-    p.add_argument("--workers", type=int, default=1, metavar="N", help="subjects evaluated in parallel (processes)")
+    p.add_argument("--workers", type=int, default=1, metavar="N",
+                   help="processes; the regions of all subjects are shared among them (the numbers do not change)")
+    knobs = p.add_argument_group(
+        "speed against exactness", "Loosen the official protocol for speed (the defaults are exact; "
+        "benchmarks/RESULTS.md has the error against time of each)")
+    knobs.add_argument("--rigid-tol", type=float, default=EXACT.rigid_tolerance, metavar="T",
+                       help="rigid ICP stops when its mean squared residual changes by less (default %(default)g)")
+    knobs.add_argument("--rigid-max-updates", type=int, default=EXACT.rigid_max_updates, metavar="N",
+                       help="at most N rigid ICP updates per region (default %(default)d)")
+    knobs.add_argument("--nicp-epsilon-scale", type=float, default=EXACT.nicp_epsilon_scale, metavar="S",
+                       help="multiply the non-rigid ICP's stopping thresholds (default %(default)g)")
+    knobs.add_argument("--nicp-max-steps", type=int, default=None, metavar="N",
+                       help="at most N solves per stiffness stage (default: official, 11 with keypoints, no limit for the cheek)")
+    knobs.add_argument("--solver-rtol", type=float, default=EXACT.solver_rtol, metavar="R",
+                       help="relative residual of the factor-preconditioned CG solves (default %(default)g)")
+    knobs.add_argument("--no-factor-reuse", action="store_true", help="factor every linear system (slower)")
     p.add_argument("-o", "--output", type=Path, default=None, metavar="OUT",
                    help="output folder (default: PRED_DIR/realy_eval)")
     p.set_defaults(run=run)
@@ -54,6 +71,11 @@ def run(args: argparse.Namespace) -> None:
         raise InputError("--workers", "value", "a positive number of processes", str(args.workers))
     if args.template is not None and args.keypoints is None:
         raise InputError(args.template, "--template", "to be used with --keypoints FILE")
+    try:
+        settings = Settings(args.rigid_tol, args.rigid_max_updates, args.nicp_epsilon_scale, args.nicp_max_steps,
+                            args.solver_rtol, not args.no_factor_reuse)
+    except ValueError as exc:
+        raise InputError("<arguments>", "speed / exactness options", "positive values", str(exc)) from None
     start = time.perf_counter()
     result = evaluate(
         args.pred_dir,
@@ -66,6 +88,7 @@ def run(args: argparse.Namespace) -> None:
         regions_dir=args.regions_dir,
         scale_path=args.scale_path,
         template_mask=args.template_mask,
+        settings=settings,
         progress=None if sys.stderr.isatty() else False,
     )
     out = args.output if args.output is not None else args.pred_dir / "realy_eval"

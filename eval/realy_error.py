@@ -18,9 +18,13 @@ Written from the protocol of the official REALY code (``utils/eval.py``, ``utils
    multiplies by the subject's metrical scale).
 
 Each least-squares step solves the normal equations ``A^T A X = A^T B`` (the official code
-factors ``A^T A`` with CHOLMOD); here ``A^T A`` is assembled directly, block by block, with the
-vertices in METIS' nested-dissection order, and factored by SciPy's SuperLU. A singular
-system (a part of the region that nothing holds, where the official CHOLMOD call fails) raises
+factors ``A^T A`` with CHOLMOD at every step); here ``A^T A`` is assembled directly, block by
+block, with the vertices in METIS' nested-dissection order. The first system of each stiffness
+stage is factored by SciPy's SuperLU; the stage's later systems are solved by conjugate
+gradients from the previous solution, preconditioned by that factor, to 1e-10 relative residual
+(a system that needs more than 12 iterations is factored anew): about two thirds of the
+factorisations are skipped, and the numbers move by about 1e-10 relative. A singular system (a
+part of the region that nothing holds, where the official CHOLMOD call fails) raises
 :class:`~facegeo.errors.FacegeoError` instead of giving a number.
 """
 
@@ -35,12 +39,17 @@ import scipy.sparse as sp
 from scipy.spatial import cKDTree
 
 from facegeo.errors import FacegeoError
+from facegeo.eval.realy_align import EXACT, Settings
 from facegeo.eval.realy_geometry import SurfaceQuery, merge_vertices
 
-__all__ = ["region_error", "NonRigidICP", "MAX_STEPS_WITHOUT_KEYPOINTS"]
+__all__ = ["region_error", "NonRigidICP", "MAX_STEPS_WITHOUT_KEYPOINTS", "UNCERTAINTY_SCALE"]
 
 #: The official loop for the cheek has no step limit; facegeo stops with an error after this many.
 MAX_STEPS_WITHOUT_KEYPOINTS = 1000
+
+#: Round-off of the deformed vertices assumed for ``uncertainty``, relative to the region's size
+#: (solvers differ by about 1e-11 here; the CG tolerance is 1e-10).
+UNCERTAINTY_SCALE = 1e-9
 
 _EPSILON = 1.0
 _ALPHA = 50.0
@@ -54,8 +63,8 @@ _SINGULAR = ("the non-rigid ICP's linear system is singular: a part of the regio
              "or matches to fix it (the official code fails here too)")
 
 
-def _solve(matrix: sp.csc_matrix, rhs: np.ndarray) -> np.ndarray:
-    """Solve the SPD system (rows already in nested-dissection order), or raise FacegeoError.
+def _factor(matrix: sp.csc_matrix):
+    """SuperLU factor of the SPD system (rows already in nested-dissection order), or FacegeoError.
 
     SciPy's SuperLU with the given order kept (``NATURAL``), no pivoting and symmetric mode: a
     Cholesky-like LU. With METIS' nested dissection of the vertex graph it factors these systems
@@ -66,14 +75,98 @@ def _solve(matrix: sp.csc_matrix, rhs: np.ndarray) -> np.ndarray:
 
     try:
         # SuperLU's default relax / panel_size: larger ones (16 / 24) corrupted the heap here
-        x = splu(matrix, permc_spec="NATURAL", diag_pivot_thresh=0.0, options={"SymmetricMode": True}).solve(rhs)
+        return splu(matrix, permc_spec="NATURAL", diag_pivot_thresh=0.0, options={"SymmetricMode": True})
     except RuntimeError as exc:  # "Factor is exactly singular"
         raise FacegeoError(f"{_SINGULAR} ({exc})") from None
-    rhs_norm = max(float(np.linalg.norm(rhs)), 1e-300)
-    residual = float(np.linalg.norm(matrix @ x - rhs))
-    if not np.isfinite(residual) or residual > 1e-6 * rhs_norm:
-        raise FacegeoError(f"{_SINGULAR} (relative residual {residual / rhs_norm:.1e})")
-    return x
+
+
+def _column_norms(a: np.ndarray) -> np.ndarray:
+    """(k,) Euclidean norms of the columns of a (n, k) array (one pass; np.linalg.norm per column is slower)."""
+    return np.sqrt(np.einsum("ij,ij->j", a, a))
+
+
+def _pcg(matrix: sp.csc_matrix, rhs: np.ndarray, x0: np.ndarray, precondition, rtol: float,
+         max_iterations: int) -> tuple[np.ndarray, int] | None:
+    """Conjugate gradients on the (n, k) columns of ``rhs`` at once, from ``x0``, preconditioned.
+
+    Written here because SciPy's ``cg`` takes one right-hand side at a time: the three columns
+    share each preconditioner call (one triangular solve with three columns). Returns the
+    solution and the iterations once every column's true residual is at most ``rtol`` times its
+    right-hand side's norm, or None after ``max_iterations``.
+    """
+    x = x0.copy()
+    r = rhs - matrix @ x
+    goal = rtol * np.maximum(_column_norms(rhs), 1e-300)
+    if np.all(_column_norms(r) <= goal):
+        return x, 0
+    z = precondition(r)
+    p = z.copy()
+    rz = np.einsum("ij,ij->j", r, z)
+    for iteration in range(1, max_iterations + 1):
+        ap = matrix @ p
+        pap = np.einsum("ij,ij->j", p, ap)
+        alpha = np.divide(rz, pap, out=np.zeros_like(rz), where=pap != 0)
+        x += alpha * p
+        r -= alpha * ap
+        if np.all(_column_norms(r) <= goal):
+            # the recurrence's residual drifts from the true one: confirm with the true residual
+            if np.all(_column_norms(rhs - matrix @ x) <= goal):
+                return x, iteration
+            return None
+        z = precondition(r)
+        rz_new = np.einsum("ij,ij->j", r, z)
+        beta = np.divide(rz_new, rz, out=np.zeros_like(rz), where=rz != 0)
+        p = z + beta * p
+        rz = rz_new
+    return None
+
+
+class _StageSolver:
+    """The ICP's linear solves, reusing a factor within a stiffness stage.
+
+    The first system of a stage is factored (SuperLU) and solved directly. Later systems of the
+    stage differ from it only in their match weights and the deformed vertices, so they are
+    solved by conjugate gradients warm-started from the previous solution and preconditioned by
+    that factor, to ``rtol`` relative residual; a system that needs more than
+    ``max_iterations`` is factored anew (and its factor preconditions the next ones).
+    ``reuse=False`` factors every system. Counts and CPU times are kept for the details.
+    """
+
+    def __init__(self, reuse: bool = True, rtol: float = 1e-10, max_iterations: int = 12):
+        self.reuse = reuse
+        self.rtol = rtol
+        self.max_iterations = max_iterations
+        self._lu = None
+        self.factorisations = 0
+        self.iterations: list[int] = []  # per solve: PCG iterations, 0 for a direct solve
+        self.factor_seconds = 0.0
+        self.solve_seconds = 0.0
+
+    def start_stage(self) -> None:
+        self._lu = None
+
+    def solve(self, matrix: sp.csc_matrix, rhs: np.ndarray, x0: np.ndarray | None) -> np.ndarray:
+        """(n, k) solution of ``matrix @ x = rhs`` (SPD); FacegeoError when it is singular."""
+        start = time.process_time()
+        if self.reuse and self._lu is not None and x0 is not None:
+            found = _pcg(matrix, rhs, x0, self._lu.solve, self.rtol, self.max_iterations)
+            if found is not None:
+                self.solve_seconds += time.process_time() - start
+                self.iterations.append(found[1])
+                return found[0]
+        mid = time.process_time()
+        self._lu = _factor(matrix)
+        done = time.process_time()
+        self.factor_seconds += done - mid
+        self.factorisations += 1
+        x = self._lu.solve(rhs)
+        residual = _column_norms(matrix @ x - rhs)
+        bound = 1e-6 * max(float(np.sqrt(np.sum(rhs * rhs))), 1e-300)
+        self.solve_seconds += (mid - start) + (time.process_time() - done)
+        if not np.all(np.isfinite(residual)) or float(np.sqrt(np.sum(residual**2))) > bound:
+            raise FacegeoError(f"{_SINGULAR} (relative residual {float(np.sqrt(np.sum(residual**2))) / bound * 1e-6:.1e})")
+        self.iterations.append(0)
+        return x
 
 
 def _nested_dissection(n: int, edges: np.ndarray) -> np.ndarray:
@@ -117,7 +210,9 @@ def _pattern(n: int, triangles: np.ndarray) -> _Pattern:
     e = np.concatenate([triangles[:, [0, 1]], triangles[:, [0, 2]], triangles[:, [1, 2]]])
     e = np.sort(e, axis=1)
     e = e[e[:, 0] != e[:, 1]]
-    e = np.unique(e, axis=0)
+    code = np.sort(e[:, 0] * n + e[:, 1])  # unique rows, sorted, through one int64 key
+    code = code[np.concatenate([[True], code[1:] != code[:-1]])]
+    e = np.column_stack([code // n, code % n])
     order = _nested_dissection(n, e)
     rank = np.empty(n, dtype=np.int64)
     rank[order] = np.arange(n)
@@ -135,8 +230,12 @@ def _pattern(n: int, triangles: np.ndarray) -> _Pattern:
     cols = np.concatenate([k_cols, b_cols])
     size = 4 * n
     key = cols.astype(np.int64) * size + rows  # column-major (CSC)
-    uniq, inverse = np.unique(key, return_inverse=True)
-    inverse = inverse.reshape(-1)
+    order_k = np.argsort(key, kind="stable")
+    sorted_key = key[order_k]
+    first = np.concatenate([[True], sorted_key[1:] != sorted_key[:-1]])
+    uniq = sorted_key[first]
+    inverse = np.empty(len(key), dtype=np.int64)
+    inverse[order_k] = np.cumsum(first) - 1
     indices = (uniq % size).astype(np.int32)
     col_of = uniq // size
     indptr = np.searchsorted(col_of, np.arange(size + 1)).astype(np.int32)
@@ -156,10 +255,15 @@ def _pattern(n: int, triangles: np.ndarray) -> _Pattern:
 
 
 class NonRigidICP:
-    """The official optimal-step non-rigid ICP of a region towards points on the prediction."""
+    """The official optimal-step non-rigid ICP of a region towards points on the prediction.
+
+    ``settings`` can loosen the stopping rule (``nicp_epsilon_scale``, ``nicp_max_steps``) and
+    the solver (``solver_rtol``, ``factor_reuse``); the defaults are the official protocol.
+    """
 
     def __init__(self, vertices: np.ndarray, triangles: np.ndarray, targets: np.ndarray,
-                 keypoint_index: np.ndarray | None = None, keypoint_targets: np.ndarray | None = None):
+                 keypoint_index: np.ndarray | None = None, keypoint_targets: np.ndarray | None = None,
+                 settings: Settings = EXACT):
         self.vertices = np.asarray(vertices, dtype=np.float64)
         self.targets = np.asarray(targets, dtype=np.float64)
         self.n = len(self.vertices)
@@ -167,8 +271,13 @@ class NonRigidICP:
         self.tree = cKDTree(self.targets, leafsize=100)
         self.keypoint_index = None if keypoint_index is None else np.asarray(keypoint_index)
         self.keypoint_targets = keypoint_targets
-        self.solves = 0
-        self.solve_seconds = 0.0  # time in the sparse factorisations and solves
+        self.settings = settings
+        self.solver = _StageSolver(settings.factor_reuse, settings.solver_rtol)
+        self.nearest_seconds = 0.0  # CPU time in the nearest-neighbour queries
+
+    @property
+    def solves(self) -> int:
+        return len(self.solver.iterations)
 
     def _system(self, cur: np.ndarray, alpha: float, stiffness: np.ndarray,
                 weight2: np.ndarray, rhs_parts: list[tuple[np.ndarray, np.ndarray]]):
@@ -176,8 +285,8 @@ class NonRigidICP:
         d = np.empty((self.n, 4), dtype=np.float64)
         d[:, :3] = cur.astype(np.float32)  # the official D matrix is float32
         d[:, 3] = 1.0
-        data = np.zeros(p.size)
-        np.add.at(data, p.lap_slot, (alpha * alpha) * p.lap_value * stiffness[p.lap_comp])
+        data = np.bincount(p.lap_slot, weights=(alpha * alpha) * p.lap_value * stiffness[p.lap_comp],
+                           minlength=p.size)
         block = (weight2[:, None, None] * d[:, :, None] * d[:, None, :]).reshape(self.n, 16)
         data += np.bincount(p.block_slot.ravel(), weights=block.ravel(), minlength=p.size)
         matrix = sp.csc_matrix((data, p.indices, p.indptr), shape=(4 * self.n, 4 * self.n))
@@ -186,8 +295,10 @@ class NonRigidICP:
             rhs += (w2[:, None, None] * d[:, :, None]) * target[:, None, :]
         return d, matrix, rhs[p.order].reshape(4 * self.n, 3)
 
-    def _step(self, cur, alpha, stiffness, stage0, kp_weight):
+    def _step(self, cur, alpha, stiffness, stage0, kp_weight, x0):
+        start = time.process_time()
         dist, idx = self.tree.query(cur, 1)
+        self.nearest_seconds += time.process_time() - start
         dist32 = np.asarray(dist, dtype=np.float32)
         nearest = self.targets[np.asarray(idx, dtype=np.int32)]
         threshold = max(np.mean(dist32) * 2, 1)
@@ -205,20 +316,22 @@ class NonRigidICP:
             weight2 += kpw * kpw
             parts.append((kpw * kpw, target))
         d, matrix, rhs = self._system(cur, alpha, stiffness, weight2, parts)
-        start = time.perf_counter()
-        x4 = _solve(matrix, rhs).reshape(self.n, 4, 3)[self.pattern.rank]  # back to vertex order
-        self.solve_seconds += time.perf_counter() - start
-        self.solves += 1
+        x_perm = self.solver.solve(matrix, rhs, x0)  # unknowns in nested-dissection order
+        x4 = x_perm.reshape(self.n, 4, 3)[self.pattern.rank]  # back to vertex order
         x = x4.reshape(4 * self.n, 3)
         new = ((d[:, 0:1] * x4[:, 0] + d[:, 1:2] * x4[:, 1]) + d[:, 2:3] * x4[:, 2]) + x4[:, 3]
-        return x, new
+        return x, x_perm, new
 
     def run(self) -> np.ndarray:
         """The deformed vertices (N, 3) float64."""
         cur = self.vertices
         x_prev = np.zeros((4 * self.n, 3))
         x = np.ones((4 * self.n, 3))
+        x_perm = None
         with_kp = self.keypoint_index is not None
+        cap = self.settings.nicp_max_steps
+        if cap is None:
+            cap = 11 if with_kp else MAX_STEPS_WITHOUT_KEYPOINTS
         count = 0
         for stage in range(4 if with_kp else 3):
             if with_kp:
@@ -227,23 +340,32 @@ class NonRigidICP:
             else:
                 alpha = _ALPHA * np.exp(-0.5 * stage)
                 epsilon = _EPSILON * pow(0.5, stage)
+            epsilon *= self.settings.nicp_epsilon_scale
             stage0 = with_kp and stage == 0
             stiffness = _STIFFNESS_KEYPOINTS if stage0 else _STIFFNESS
+            self.solver.start_stage()
             step = 0
             while True:
-                delta = np.linalg.norm(x - x_prev)
-                if delta <= epsilon or (with_kp and step > 10):
+                diff = x - x_prev
+                delta = math.sqrt(float(np.einsum("ij,ij->", diff, diff)))  # Frobenius norm
+                if delta <= epsilon or step >= cap:
                     break
-                if not with_kp and step >= MAX_STEPS_WITHOUT_KEYPOINTS:
-                    raise FacegeoError(f"the non-rigid ICP did not converge in {step} steps")
                 x_prev = x
                 kp_weight = _KEYPOINT_WEIGHT if stage0 else _KEYPOINT_WEIGHT * np.exp(-0.9 * count) / 10.0
-                x, cur = self._step(cur, alpha, stiffness, stage0, kp_weight)
+                x, x_perm, cur = self._step(cur, alpha, stiffness, stage0, kp_weight, x_perm)
                 step += 1
                 count += 1
                 if stage0:
                     break
+            if not with_kp and self.settings.nicp_max_steps is None and step >= cap:
+                raise FacegeoError(f"the non-rigid ICP did not converge in {step} steps")
         return cur
+
+    def details(self) -> dict:
+        """Solves, factorisations, PCG iterations per solve (0: direct) and seconds."""
+        s = self.solver
+        return {"solves": self.solves, "factorisations": s.factorisations, "pcg_iterations": list(s.iterations),
+                "factor_seconds": s.factor_seconds, "solve_seconds": s.solve_seconds}
 
 
 def region_error(
@@ -253,24 +375,44 @@ def region_error(
     scan_triangles: np.ndarray,
     keypoints: np.ndarray | None,
     scan_keypoints: np.ndarray | None,
+    settings: Settings = EXACT,
 ) -> tuple[float, dict]:
-    """REALY's error of one region in scan units, and details (solves, their seconds, merged vertex count).
+    """REALY's error of one region in scan units, and details (see below).
 
     ``pred_vertices``: the regionally aligned prediction, ``surface`` the closest-point query of
     its (error-step) triangles; ``scan_vertices`` / ``scan_triangles``:
     the region as read (float32, unmerged); ``keypoints`` / ``scan_keypoints``: the region's
     error-step keypoints on the prediction (float64) and the scan (float32), or None (cheek).
+
+    Details: the solver's counts and seconds (:meth:`NonRigidICP.details`), ``vertices`` (merged
+    count), ``nearest_seconds`` (its nearest-neighbour queries) and ``uncertainty``: how much
+    the error (relative) can move when the final deformed vertices move by round-off,
+    ``UNCERTAINTY_SCALE`` times the region's size: the closest points of the vertices that are
+    that near one of trimesh's tie decisions may jump to the other candidate, and the sum of
+    those jumps' effects on the mean distance is the bound reported (the official code's own
+    rounding moves its numbers that way; a smooth move of the points changes the error by
+    about ``UNCERTAINTY_SCALE``, far less).
     """
     gt_vertices, gt_triangles = merge_vertices(scan_vertices, scan_triangles)
     on_prediction = surface(pred_vertices, gt_vertices)
     if keypoints is not None:
         _, kp_index = cKDTree(gt_vertices).query(np.asarray(scan_keypoints, dtype=np.float64))
-        nicp = NonRigidICP(gt_vertices, gt_triangles, on_prediction, kp_index, keypoints)
+        nicp = NonRigidICP(gt_vertices, gt_triangles, on_prediction, kp_index, keypoints, settings)
     else:
-        nicp = NonRigidICP(gt_vertices, gt_triangles, on_prediction)
+        nicp = NonRigidICP(gt_vertices, gt_triangles, on_prediction, settings=settings)
     deformed = nicp.run()
-    updated = surface(pred_vertices, deformed)
-    error = np.sqrt(np.sum((updated - gt_vertices) ** 2, axis=-1)).mean()
-    if not math.isfinite(float(error)):
+
+    size = float(np.ptp(deformed, axis=0).max())
+    updated = surface(pred_vertices, deformed, jitter=UNCERTAINTY_SCALE * size)
+    distances = np.sqrt(np.sum((updated - gt_vertices) ** 2, axis=-1))
+    error = float(distances.mean())
+    if not math.isfinite(error):
         raise FacegeoError("the error step produced a non-finite value")
-    return float(error), {"solves": nicp.solves, "solve_seconds": nicp.solve_seconds, "vertices": len(gt_vertices)}
+    # near-ties: the other of the two nearest candidates could be picked under round-off
+    near = surface.near_ties
+    other = np.sqrt(np.sum((surface.alternatives[near] - gt_vertices[near, None]) ** 2, axis=-1))
+    jump = np.nan_to_num(np.abs(other - distances[near, None]), nan=0.0).max(axis=1, initial=0.0)
+    uncertainty = float(jump.sum()) / len(distances) / max(error, 1e-300)
+    info = nicp.details()
+    info.update(vertices=len(gt_vertices), nearest_seconds=nicp.nearest_seconds, uncertainty=uncertainty)
+    return error, info

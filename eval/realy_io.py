@@ -47,22 +47,37 @@ class Mesh:
     triangles: np.ndarray  # (F, 3) int64, 0-based
 
 
-def _lines(path: Path, what: str) -> list[str]:
+def _text(path: Path, what: str) -> str:
+    """The file's text with its lines ended by '\n' (as ``str.splitlines`` would split them)."""
     try:
         text = path.read_text(encoding="utf-8", errors="replace")
     except FileNotFoundError:
         raise InputError(path, what, "an existing OBJ file", "no such file") from None
     except OSError as exc:
         raise InputError(path, what, "a readable OBJ file", exc.strerror or str(exc)) from None
-    return text.splitlines()
+    if "\r" in text or any(c in text for c in "\x0b\x0c\x1c\x1d\x1e\x85\u2028\u2029"):
+        text = "\n".join(text.splitlines())
+    return text
+
+
+def _tokens_per_line(lines: list[str]) -> np.ndarray:
+    """(L,) number of blank-separated tokens of each line (``len(line.split())``), vectorised."""
+    data = np.frombuffer(("\n".join(lines) + "\n").encode("utf-8", "replace"), dtype=np.uint8)
+    gap = (data == 32) | ((data >= 9) & (data <= 13))  # blanks and '\n'
+    start = ~gap
+    start[1:] &= gap[:-1]
+    total = np.cumsum(start, dtype=np.int32)[data == 10]  # tokens up to each line's end
+    return np.diff(total, prepend=np.int32(0))
 
 
 def read_obj(path: str | Path, what: str = "mesh", need_faces: bool = True) -> Mesh:
     """Read an OBJ's ``v`` and ``f`` lines the way the official REALY reader does (see module doc)."""
     path = Path(path)
-    lines = _lines(path, what)
-    verts = [raw for raw in lines if raw.startswith("v ")]
-    face_lines = [raw for raw in lines if raw.startswith("f ")]
+    text = _text(path, what)
+    # the 'v ' and 'f ' lines without their first two characters
+    lines = text.split("\n")
+    verts = [raw[2:] for raw in lines if raw.startswith("v ")]
+    face_lines = [raw[2:] for raw in lines if raw.startswith("f ")]
     vertices = _parse_vertices(path, what, verts)
     faces = _parse_faces_fast(face_lines)
     if faces is None:  # something unusual: line by line, for the message naming the line
@@ -91,10 +106,10 @@ def _parse_faces_fast(face_lines: list[str]) -> np.ndarray | None:
     """(T, 3) 1-based triangles of well-formed ``f`` lines (3 or 4 plain or ``v/vt/vn`` tokens), else None."""
     if not face_lines:
         return np.zeros((0, 3), dtype=np.int64)
-    counts = np.array([len(raw.split()) - 1 for raw in face_lines])
+    counts = _tokens_per_line(face_lines)
     if not np.all((counts == 3) | (counts == 4)):
         return None
-    text = _SLASH_TAIL.sub("", " ".join(raw[2:] for raw in face_lines))
+    text = _SLASH_TAIL.sub("", " ".join(face_lines))
     if _NOT_INDEX.search(text):
         return None
     flat = _numbers(text, np.int64)
@@ -137,14 +152,14 @@ def _parse_vertices(path: Path, what: str, lines: list[str]) -> np.ndarray:
     if not lines:
         raise InputError(path, what, "vertices ('v' lines)", "none")
     arr = None
-    per_line = {len(line.split()) for line in lines}
-    if len(per_line) == 1 and (k := per_line.pop() - 1) >= 3:  # every line 'v' + k numbers
-        flat = _numbers(" ".join(line[2:] for line in lines), np.float64)
+    per_line = set(np.unique(_tokens_per_line(lines)).tolist())
+    if len(per_line) == 1 and (k := per_line.pop()) >= 3:  # every line 'v' + k numbers
+        flat = _numbers(" ".join(lines), np.float64)
         if flat is not None and len(flat) == k * len(lines):
             arr = flat.reshape(-1, k)[:, :3]
     if arr is None:
         try:
-            arr = np.array([[float(t) for t in line.split()[1:4]] for line in lines], dtype=np.float64)
+            arr = np.array([[float(t) for t in line.split()[:3]] for line in lines], dtype=np.float64)
         except ValueError:
             raise InputError(path, f"{what} vertices", "'v x y z' lines with numbers", "a malformed line") from None
     if arr.ndim != 2 or arr.shape[1] != 3:
@@ -161,7 +176,7 @@ def _parse_vertices(path: Path, what: str, lines: list[str]) -> np.ndarray:
 def read_points_obj(path: str | Path, what: str = "keypoints", count: int | None = None) -> np.ndarray:
     """The ``v`` lines of an OBJ as (N, 3) float32 (REALY's per-subject keypoint files)."""
     path = Path(path)
-    verts = [raw for raw in _lines(path, what) if raw.startswith("v ")]
+    verts = [raw[2:] for raw in _text(path, what).split("\n") if raw.startswith("v ")]
     points = _parse_vertices(path, what, verts)
     if count is not None and len(points) != count:
         raise InputError(path, what, f"{count} points", str(len(points)))

@@ -4,20 +4,24 @@
 
 * ``REALY_error.txt``: one line per prediction in the official format (name, an empty field,
   then nose, mouth, forehead, cheek in mm, each ``str(value)[:9]``, tab-separated);
-* ``REALY_summary.md``: mean ± std (n - 1) per region and All, then the median;
+* ``REALY_summary.md``: mean ± std (n - 1) per region and All, then the median, the knobs when
+  they are not the official protocol's, and the values whose numerical uncertainty exceeds
+  ``UNCERTAINTY_FLAG`` (1e-6 relative);
 * ``REALY_summary.csv``: one row per prediction (full precision), then mean, median and std rows;
-* ``REALY_result.json``: per-subject values, the 9-character texts, the summary, timings.
+* ``REALY_result.json``: per-subject values, the 9-character texts, the summary, the numerical
+  uncertainty of every value (relative), the settings, timings and solver details.
 """
 
 from __future__ import annotations
 
 import csv
+import dataclasses
 import io
 import json
 import math
 from pathlib import Path
 
-from facegeo.eval.realy import REGIONS, RealyResult
+from facegeo.eval.realy import EXACT, REGIONS, UNCERTAINTY_FLAG, RealyResult
 from facegeo.staged_output import StagedOutput
 
 __all__ = ["markdown_table", "csv_text", "json_text", "write_outputs", "OUTPUT_FILES"]
@@ -41,6 +45,15 @@ def markdown_table(result: RealyResult) -> str:
     median = "| median (mm) | " + " | ".join(_fmt(s[r]["median"]) for r in REGIONS) + " | |"
     note = (f"\nREALY, {s['n']} prediction(s), topology {result.topology}; std with n - 1; "
             "All = mean of the four region means.\n")
+    if result.settings != EXACT:
+        changed = ", ".join(f"{f.name}={getattr(result.settings, f.name)}" for f in dataclasses.fields(result.settings)
+                            if getattr(result.settings, f.name) != getattr(EXACT, f.name))
+        note += f"\n**Not the official protocol**: {changed} (the numbers differ from the official ones).\n"
+    flagged = result.uncertain(UNCERTAINTY_FLAG)
+    if flagged:
+        note += (f"\nNumerically uncertain (round-off moves the value by more than {UNCERTAINTY_FLAG:g} "
+                 "relative; the official code's numbers can differ by as much): "
+                 + ", ".join(f"{name} {region} ({u:.1e})" for name, region, u in flagged) + ".\n")
     return "\n".join([head, rule, mean, median]) + "\n" + note
 
 
@@ -72,6 +85,11 @@ def json_text(result: RealyResult) -> str:
         "per_subject_mm": result.per_subject,
         "per_subject_text": result.text,
         "summary": clean(result.summary),
+        "uncertainty_relative": result.uncertainty,
+        "uncertainty_flag": UNCERTAINTY_FLAG,
+        "settings": dataclasses.asdict(result.settings),
+        "workers": result.workers,
+        "wall_seconds": result.wall_seconds,
         "seconds": result.seconds,
         "details": result.details,
     }

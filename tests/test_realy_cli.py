@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import json
 import shutil
 
 import pytest
@@ -65,3 +66,15 @@ def test_cli_keypoints_file_and_missing_subject(data, tmp_path, capsys):
     kp = data.realy_root / "data" / "ICT-FaceKit.txt"
     code, _, err = run(["realy", pred, "--realy-root", data.realy_root, "--keypoints", kp], capsys)
     assert code == 2 and "REALY_HIFI3D_keypoints/2.obj" in err and "subject 2" in err
+
+
+def test_cli_speed_knobs_are_checked_and_written(data, tmp_path, capsys):
+    code, _, err = run(["realy", data.pred_dir, "--realy-root", data.realy_root, "--solver-rtol", "-1"], capsys)
+    assert code == 2 and "solver_rtol" in err and len(err.strip().splitlines()) == 1
+    out = tmp_path / "loose"
+    code, stdout, err = run(["realy", data.pred_dir, "--realy-root", data.realy_root, "-o", out, "--workers", "2",
+                             "--rigid-max-updates", "1", "--nicp-max-steps", "1", "--no-factor-reuse"], capsys)
+    assert code == 0, err
+    assert "Not the official protocol" in stdout
+    settings = json.loads((out / "REALY_result.json").read_text())["settings"]
+    assert settings["rigid_max_updates"] == 1 and settings["nicp_max_steps"] == 1 and not settings["factor_reuse"]

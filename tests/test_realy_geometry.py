@@ -159,3 +159,39 @@ def test_fit_transform_uses_realys_scale_rule():
     t1 = noisy - noisy.mean(axis=0)
     s1 = src - src.mean(axis=0)
     assert scale == pytest.approx(np.abs(t1).sum() / np.abs(s1 @ r.T).sum(), rel=1e-6)
+
+
+def test_pruned_ring_search_equals_the_full_one(head):
+    # queries near the surface, on edges and vertices (ties), and farther out: the faces skipped by
+    # the lower bound never change trimesh's pick, bit for bit
+    v, f = head
+    rng = np.random.default_rng(5)
+    corners = v[f[rng.choice(len(f), 400)]]
+    w = rng.dirichlet([1.0, 1.0, 1.0], 400)
+    w[:100, 0] = 0.0  # on an edge
+    w[:100] /= w[:100].sum(axis=1, keepdims=True)
+    w[100:150] = [1.0, 0.0, 0.0]  # on a vertex
+    on_surface = np.einsum("nk,nkj->nj", w, corners)
+    q = np.vstack([on_surface + rng.normal(scale=s, size=on_surface.shape) for s in (1e-7, 1e-3, 0.3, 3.0)])
+    pruned = SurfaceQuery(f)
+    full = SurfaceQuery(f)
+    full.prune = False
+    assert np.array_equal(pruned(v, q), full(v, q))
+    moved = (v * 1.01 + [0.5, 0.0, -0.2]).astype(np.float32)  # another frame: a new tree, the same rule
+    assert np.array_equal(pruned(moved, q), full(moved, q))
+
+
+def test_near_ties_are_the_queries_round_off_could_flip():
+    # a unit square in z = 0 split along its diagonal; queries one unit above it
+    v = np.array([[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0]], dtype=np.float64)
+    f = np.array([[0, 1, 2], [0, 2, 3]])
+    off = 1e-4 / np.sqrt(2)  # 1e-4 from the diagonal: squared distances 1 and 1 + 1e-8
+    q = np.array([[0.9, 0.1, 1.0], [0.5, 0.5, 1.0], [0.5 + off, 0.5 - off, 1.0]])
+    query = SurfaceQuery(f)
+    points = query(v, q, jitter=1e-9)
+    assert np.allclose(points[0], [0.9, 0.1, 0.0]) and np.allclose(points[1], [0.5, 0.5, 0.0])
+    assert query.near_ties.tolist() == [False, True, True]
+    # the two nearest candidates of the last query: its foot in the first triangle, the diagonal point
+    assert np.allclose(np.sort(query.alternatives[2, :, 0]), [0.5, 0.5 + off], atol=1e-12)
+    query(v, q)  # without jitter nothing is looked for
+    assert not query.near_ties.any()

@@ -8,7 +8,15 @@ import numpy as np
 import pytest
 
 from facegeo.assets import asset_path
-from facegeo.eval.make_ict_keypoints import EXTRA_POINTS, eye_frame, first_hits, ict_keypoints
+from facegeo.eval.make_ict_keypoints import (
+    EXTRA_POINTS,
+    averaged_table,
+    extra_point_positions,
+    eye_frame,
+    first_hits,
+    ict_keypoints,
+    measure,
+)
 from facegeo.eval.realy_io import barycentric_points, read_keypoint_file
 from facegeo.model_files import load_model
 
@@ -70,3 +78,22 @@ def test_extra_points_are_at_the_right_semantic_places(points):
     assert abs(x[79]) < 1e-6 and z[79] > z[8]
     assert all(abs(x[k]) > abs(x[68]) for k in (74, 75, 76, 77, 81, 82, 83, 84))  # lateral cheek points
     assert np.all(z[68:85] > z[[0, 16]].max() - 0.1)  # on the front of the face, not behind the jaw ends
+
+
+def test_measuring_the_table_on_a_topology_gives_its_extra_points(model, tmp_path):
+    # the measuring code of --measure, run on the ICT-FaceKit template and its keypoint file (whose
+    # extra points are frontal surface points at EXTRA_POINTS): it reads the table back
+    rows = json.loads(asset_path("realy/ICT-FaceKit.txt").read_text())
+    xy = extra_point_positions(model.mean_shape, model.triangles, rows)
+    assert np.abs(xy - np.array([[x, y] for _, _, x, y in EXTRA_POINTS])).max() < 1e-9
+    from facegeo.eval.realy_io import obj_text
+
+    for name in ("A", "B"):
+        (tmp_path / f"{name}.obj").write_text(obj_text(model.mean_shape, model.triangles))
+        (tmp_path / f"{name}.txt").write_text(json.dumps(rows))
+    assert measure(tmp_path, ("A", "B")) == {i: (x, y) for i, _, x, y in EXTRA_POINTS}
+    # averaging and symmetrising: a right point measured 0.02 farther out moves both of its pair by 0.01
+    shifted = xy.copy()
+    shifted[0, 0] -= 0.02
+    table = averaged_table([shifted])
+    assert table[68] == (-0.47, -0.17) and table[69] == (0.47, -0.17) and table[79] == (0.0, -0.97)
