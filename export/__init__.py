@@ -5,8 +5,7 @@ the asset folder format. Names are imported lazily (USD and glTF libraries load 
 
 from __future__ import annotations
 
-from importlib import import_module
-from typing import Any
+from facegeo.lazy_exports import lazy_exports
 
 _EXPORTS = {
     "subdivide": "facegeo.export.subdivision",
@@ -30,7 +29,4 @@ _EXPORTS = {
 __all__ = list(_EXPORTS)
 
 
-def __getattr__(name: str) -> Any:
-    if name in _EXPORTS:
-        return getattr(import_module(_EXPORTS[name]), name)
-    raise AttributeError(f"module 'facegeo.export' has no attribute {name!r}")
+__getattr__, __dir__ = lazy_exports(__name__, _EXPORTS)

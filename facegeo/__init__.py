@@ -6,8 +6,9 @@ the analysis-by-synthesis fit. Public names are imported lazily so ``facegeo --h
 
 from __future__ import annotations
 
-from importlib import import_module
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
+
+from facegeo.lazy_exports import lazy_exports
 
 __version__ = "0.1.0"
 
@@ -47,7 +48,4 @@ if TYPE_CHECKING:
     from facegeo.pipeline import reconstruct
 
 
-def __getattr__(name: str) -> Any:
-    if name in _EXPORTS:
-        return getattr(import_module(_EXPORTS[name]), name)
-    raise AttributeError(f"module 'facegeo' has no attribute {name!r}")
+__getattr__, __dir__ = lazy_exports(__name__, _EXPORTS)

@@ -9,8 +9,9 @@ OpenCV.
 
 from __future__ import annotations
 
-from importlib import import_module
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
+
+from facegeo.lazy_exports import lazy_exports
 
 _EXPORTS = {
     "TextureBackend": "facegeo.texturing.backend",
@@ -28,13 +29,4 @@ if TYPE_CHECKING:
     from facegeo.texturing.shading import ShadingResult, shade_ggx
 
 
-def __getattr__(name: str) -> Any:
-    if name in _EXPORTS:
-        value = getattr(import_module(_EXPORTS[name]), name)
-        globals()[name] = value
-        return value
-    raise AttributeError(f"module 'facegeo.texturing' has no attribute {name!r}")
-
-
-def __dir__() -> list[str]:
-    return sorted(set(globals()) | set(_EXPORTS))
+__getattr__, __dir__ = lazy_exports(__name__, _EXPORTS)

@@ -11,8 +11,9 @@ facegeo imports this package. Names are imported lazily.
 
 from __future__ import annotations
 
-from importlib import import_module
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
+
+from facegeo.lazy_exports import lazy_exports
 
 _EXPORTS = {
     "RegressorConfig": "facegeo.regressor.config",
@@ -42,7 +43,4 @@ if TYPE_CHECKING:
     from facegeo.regressor.training import evaluate, train
 
 
-def __getattr__(name: str) -> Any:
-    if name in _EXPORTS:
-        return getattr(import_module(_EXPORTS[name]), name)
-    raise AttributeError(f"module 'facegeo.regressor' has no attribute {name!r}")
+__getattr__, __dir__ = lazy_exports(__name__, _EXPORTS)

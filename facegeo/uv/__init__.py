@@ -13,8 +13,9 @@ pixels continuous with the origin at the top-left corner (centres at +0.5).
 
 from __future__ import annotations
 
-from importlib import import_module
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
+
+from facegeo.lazy_exports import lazy_exports
 
 # Names are imported lazily (like ``facegeo``'s), so ``facegeo --help`` and the CLI's parser do not
 # pay for torch, OpenCV and SciPy.
@@ -47,13 +48,4 @@ if TYPE_CHECKING:
     from facegeo.uv.unwrapping import FACING_RAMP, Unwrapped, unwrap, unwrap_details
 
 
-def __getattr__(name: str) -> Any:
-    if name in _EXPORTS:
-        value = getattr(import_module(_EXPORTS[name]), name)
-        globals()[name] = value
-        return value
-    raise AttributeError(f"module 'facegeo.uv' has no attribute {name!r}")
-
-
-def __dir__() -> list[str]:
-    return sorted(set(globals()) | set(_EXPORTS))
+__getattr__, __dir__ = lazy_exports(__name__, _EXPORTS)

@@ -18,26 +18,25 @@ Names are imported lazily, so the CLI can register the subcommands without impor
 
 from __future__ import annotations
 
-from importlib import import_module
-from typing import Any
+from facegeo.lazy_exports import lazy_exports
 
 _EXPORTS = {
-    "DiffusionBackend": "backend",
-    "missing_weight_files": "backend",
-    "CrossIntrinsicAttention": "attention",
-    "cross_intrinsic": "attention",
-    "sample": "sampling",
-    "train_lora": "training",
-    "TrainConfig": "training",
-    "encode_samples": "training",
-    "make_texture_pairs": "data",
-    "procedural_pbr_set": "data",
-    "RRDBNet": "sr",
-    "load_realesrgan": "sr",
-    "upscale_tiled": "sr",
-    "Components": "components",
-    "load_components": "components",
-    "tiny_components": "components",
+    "DiffusionBackend": ".backend",
+    "missing_weight_files": ".backend",
+    "CrossIntrinsicAttention": ".attention",
+    "cross_intrinsic": ".attention",
+    "sample": ".sampling",
+    "train_lora": ".training",
+    "TrainConfig": ".training",
+    "encode_samples": ".training",
+    "make_texture_pairs": ".data",
+    "procedural_pbr_set": ".data",
+    "RRDBNet": ".sr",
+    "load_realesrgan": ".sr",
+    "upscale_tiled": ".sr",
+    "Components": ".components",
+    "load_components": ".components",
+    "tiny_components": ".components",
 }
 
 __all__ = [*_EXPORTS, "require_extra"]
@@ -55,13 +54,4 @@ def require_extra() -> None:
         raise InputError("<install>", "diffusers/peft", 'the optional extra: pip install -e ".[diffusion]"', str(exc)) from None
 
 
-def __getattr__(name: str) -> Any:
-    if name in _EXPORTS:
-        value = getattr(import_module(f"{__name__}.{_EXPORTS[name]}"), name)
-        globals()[name] = value
-        return value
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
-
-
-def __dir__() -> list[str]:
-    return sorted(set(globals()) | set(_EXPORTS))
+__getattr__, __dir__ = lazy_exports(__name__, _EXPORTS)
