@@ -19,6 +19,7 @@ import torch
 
 from facegeo.camera import Camera, project
 from facegeo.errors import InputError
+from facegeo.torch_checkpoint import read_torch_file
 from facegeo.fitting import Fit
 from facegeo.landmarks.detectors import LandmarkDetector, get_detector
 from facegeo.model_files import load_model
@@ -48,17 +49,10 @@ def save_checkpoint(path: str | Path, network: MSSFRegressor, config: RegressorC
 def read_checkpoint(path: str | Path) -> dict[str, Any]:
     """The checkpoint's dict; :class:`InputError` naming the file when it is missing, truncated
     or not a facegeo regressor checkpoint."""
-    p = Path(path)
-    if not p.is_file():
-        raise InputError(p, "regressor checkpoint", "an existing file", "no such file")
-    try:
-        payload = torch.load(p, map_location="cpu", weights_only=True)
-    except Exception as exc:  # torch raises RuntimeError, EOFError, UnpicklingError, zipfile errors...
-        raise InputError(p, "regressor checkpoint", "a complete torch.save file", f"unreadable ({type(exc).__name__}: "
-                         f"{str(exc).splitlines()[0] if str(exc) else 'truncated'})") from None
+    payload = read_torch_file(path, "regressor checkpoint")
     if not isinstance(payload, dict) or payload.get("format") != CHECKPOINT_FORMAT:
         found = payload.get("format") if isinstance(payload, dict) else type(payload).__name__
-        raise InputError(p, "format", CHECKPOINT_FORMAT, repr(found))
+        raise InputError(Path(path), "format", CHECKPOINT_FORMAT, repr(found))
     return payload
 
 

@@ -15,6 +15,7 @@ import torch
 from torch import nn
 
 from facegeo.errors import InputError
+from facegeo.torch_checkpoint import read_torch_file
 
 __all__ = ["LPIPS", "load_lpips"]
 
@@ -74,12 +75,7 @@ def load_lpips(path: str | os.PathLike[str]) -> LPIPS:
     Raises:
         InputError: a missing or unreadable file, or missing/unexpected keys (named).
     """
-    if not os.path.isfile(path):
-        raise InputError(path, "LPIPS checkpoint", "a state dict file", "no such file")
-    try:
-        state = torch.load(path, map_location="cpu", weights_only=True)
-    except Exception as exc:  # torch raises several types for a bad file
-        raise InputError(path, "LPIPS checkpoint", "a torch state dict", f"{type(exc).__name__}: {exc}") from None
+    state = read_torch_file(path, "LPIPS checkpoint")
     model = LPIPS()
     expected = {k for k in model.state_dict() if not k.startswith("scaling_layer.")}  # constants
     found = set(state) if isinstance(state, dict) else set()

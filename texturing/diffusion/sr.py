@@ -19,6 +19,7 @@ import torch.nn.functional as F
 from torch import nn
 
 from facegeo.errors import InputError
+from facegeo.torch_checkpoint import read_torch_file
 
 __all__ = ["RRDBNet", "load_realesrgan", "upscale_tiled"]
 
@@ -81,12 +82,7 @@ def load_realesrgan(path: str | os.PathLike[str], scale: int = 4) -> RRDBNet:
     Raises:
         InputError: a missing or unreadable file, or one without the RRDBNet keys.
     """
-    if not os.path.isfile(path):
-        raise InputError(path, "Real-ESRGAN checkpoint", "a .pth file", "no such file")
-    try:
-        state = torch.load(path, map_location="cpu", weights_only=True)
-    except Exception as exc:  # torch raises several types for a bad file
-        raise InputError(path, "Real-ESRGAN checkpoint", "a torch state dict", f"{type(exc).__name__}: {exc}") from None
+    state = read_torch_file(path, "Real-ESRGAN checkpoint")
     for wrapper in ("params_ema", "params"):
         if isinstance(state, dict) and wrapper in state:
             state = state[wrapper]
