@@ -23,7 +23,8 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from bench_fit_priors import BEFORE, previous_fit_landmarks  # noqa: E402
-from fit_validation import DEPTH_POINTS, similarity_align  # noqa: E402
+from fit_validation import DEPTH_POINTS  # noqa: E402
+from test_fitting import similarity_align  # noqa: E402  (on the path via fit_validation)
 from sample_photos import sample_photos  # noqa: E402
 
 from facegeo import Camera, load_model, load_photo  # noqa: E402

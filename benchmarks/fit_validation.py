@@ -21,7 +21,9 @@ tip (along the truth's model z axis).
 
 from __future__ import annotations
 
+import sys
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 import torch
@@ -30,7 +32,10 @@ from facegeo import Camera, MorphableModel, project
 from facegeo.camera import rotation_from_euler
 from facegeo.landmarks.scheme import LANDMARK_WEIGHTS, inter_ocular_distance
 
-__all__ = ["ValidationFace", "make_faces", "face_errors", "similarity_align", "EXPRESSIONS", "DEPTH_POINTS"]
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
+from test_fitting import similarity_align  # noqa: E402  (one definition of the 3D alignment)
+
+__all__ = ["ValidationFace", "make_faces", "face_errors", "EXPRESSIONS", "DEPTH_POINTS"]
 
 CAMERA = Camera.for_image(512, 512)
 
@@ -127,17 +132,6 @@ def make_faces(model: MorphableModel, count: int, seed: int, kind: str = "real-l
             landmarks = _detector_noise(landmarks, rng, noise)
         faces.append(ValidationFace(shape.astype(np.float32), landmarks, alpha, delta, expression, float(yaw)))
     return faces
-
-
-def similarity_align(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """``a`` (N, 3) moved by the best similarity transform onto ``b`` (N, 3) (Umeyama)."""
-    a64, b64 = a.astype(np.float64), b.astype(np.float64)
-    ma, mb = a64.mean(0), b64.mean(0)
-    u, s, vt = np.linalg.svd((b64 - mb).T @ (a64 - ma))
-    d = np.diag([1.0, 1.0, np.sign(np.linalg.det(u @ vt))])
-    rotation = u @ d @ vt
-    scale = (s * np.diag(d)).sum() / ((a64 - ma) ** 2).sum()
-    return scale * (a64 - ma) @ rotation.T + mb
 
 
 def face_errors(model: MorphableModel, fitted: np.ndarray, truth: np.ndarray) -> dict[str, float]:

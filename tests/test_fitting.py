@@ -11,16 +11,22 @@ from facegeo.errors import InputError
 CAMERA = Camera.for_image(512, 512)
 
 
-def similarity_rms(a: np.ndarray, b: np.ndarray) -> float:
-    """RMS distance (mm) between b and a after the best similarity transform of a onto b."""
-    a = a.astype(np.float64) - a.mean(0)
-    mb = b.mean(0)
+def similarity_align(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """``a`` (N, 3) moved by the best similarity transform onto ``b`` (N, 3) (Umeyama), float64."""
+    a = a.astype(np.float64)
+    ma, mb = a.mean(0), b.mean(0)
+    a = a - ma
     bb = b.astype(np.float64) - mb
     u, s, vt = np.linalg.svd(bb.T @ a)
     d = np.diag([1.0, 1.0, np.sign(np.linalg.det(u @ vt))])
     r = u @ d @ vt
     scale = (s * np.diag(d)).sum() / (a**2).sum()
-    return float(np.sqrt(((scale * a @ r.T - bb) ** 2).sum(1).mean()))
+    return scale * a @ r.T + mb
+
+
+def similarity_rms(a: np.ndarray, b: np.ndarray) -> float:
+    """RMS distance (mm) between b and a after the best similarity transform of a onto b."""
+    return float(np.sqrt(((similarity_align(a, b) - b.astype(np.float64)) ** 2).sum(1).mean()))
 
 
 def realistic_delta(model, rng, sigma=0.5, active=5):
