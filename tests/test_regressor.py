@@ -1,8 +1,9 @@
 """The learned regressor (facegeo.regressor) with tiny networks on synthetic renders of the model."""
 
 import csv
-import json
+import dataclasses
 import functools
+import json
 
 import numpy as np
 import pytest
@@ -17,6 +18,7 @@ from facegeo.cli import main  # noqa: E402
 from facegeo.errors import InputError  # noqa: E402
 from facegeo.fitting import Fit, _LandmarkProblem  # noqa: E402
 from facegeo.landmarks.scheme import LANDMARK_WEIGHTS, landmark_loss  # noqa: E402
+from facegeo.lighting import AMBIENT_WHITE  # noqa: E402
 from facegeo.morphable_model import MorphableModel  # noqa: E402
 from facegeo.regressor import (  # noqa: E402
     MSSFRegressor,
@@ -87,6 +89,59 @@ def test_truth_has_zero_landmark_loss_in_the_crop(model, faces):
     full = objective(moved, batch["image"], batch["intrinsics"], batch["landmarks"])["lan"]
     torch.testing.assert_close(subset, full, rtol=1e-4, atol=1e-7)
     assert (full > 1e-5).all()
+
+
+def test_prior_is_the_map_fits_prior_at_the_networks_landmark_noise(model, faces):
+    """L_reg = σ²/Σw · (‖α‖² + Σ(δ/s_δ)² + 2/τ·Σ|δ|) with σ² = mean L_lan / 2 (no gradient), the
+    noise floor when the landmarks are exact; the PCA model's δ gets N(0, I)."""
+    from facegeo.fitting import DEFAULT_PRIORS as P
+
+    folder, truth = faces
+    table, _ = landmark_table(list_images(folder), folder / "unused.npz", "truth", 1024, progress=False)
+    crops = FaceCrops([table[n] for n in truth["names"]], 64, 1.5, augment=False)
+    batch = {k: torch.stack([crops[i][k] for i in range(len(crops))]) for k in ("image", "intrinsics", "landmarks")}
+    params = {k: torch.from_numpy(truth[k]) for k in ("alpha", "delta", "beta", "gamma", "rotation", "translation")}
+    params["gamma"] = torch.zeros_like(params["gamma"]) + torch.as_tensor(AMBIENT_WHITE)  # no SH term
+    config = tiny_config().loss
+    objective = Objective(model, config, 64)
+    exact = objective(params, batch["image"], batch["intrinsics"], batch["landmarks"])
+    a, d = params["alpha"].double(), params["delta"].double()
+    prior = (a * a).sum(-1) + (d / P.expression_scale).pow(2).sum(-1) + 2 * P.expression_rate * d.abs().sum(-1)
+    weight_sum = float(LANDMARK_WEIGHTS.sum())
+    torch.testing.assert_close(exact["reg"].double(), P.noise_floor**2 / weight_sum * prior, rtol=1e-5, atol=0)
+    moved = dict(params, alpha=params["alpha"] + 0.5)
+    terms = objective(moved, batch["image"], batch["intrinsics"], batch["landmarks"])
+    noise2 = float(terms["lan"].mean()) / 2
+    assert noise2 > P.noise_floor**2
+    a = moved["alpha"].double()
+    prior = (a * a).sum(-1) + (d / P.expression_scale).pow(2).sum(-1) + 2 * P.expression_rate * d.abs().sum(-1)
+    torch.testing.assert_close(terms["reg"].double(), noise2 / weight_sum * prior, rtol=1e-5, atol=0)
+    # a PCA expression model: δ ~ N(0, I), no L1 term
+    other = small_model(model)
+    p2 = {"alpha": torch.ones(2, other.n_id), "delta": torch.full((2, other.n_exp), -2.0), "beta": torch.zeros(2, other.n_tex),
+          "gamma": params["gamma"][:2], "rotation": params["rotation"][:2], "translation": params["translation"][:2]}
+    t2 = Objective(other, dataclasses.replace(config, reg_tex=0.0), 64)(p2, batch["image"][:2], batch["intrinsics"][:2],
+                                                                         batch["landmarks"][:2])
+    expected = (t2["lan"].mean() / 2).clamp_min(P.noise_floor**2) / weight_sum * (other.n_id + 4.0 * other.n_exp)
+    torch.testing.assert_close(t2["reg"], expected.expand(2), rtol=1e-5, atol=0)
+
+
+def test_expression_output_is_projected_with_a_straight_through_gradient(model):
+    """δ = the head's output clipped into [0, 1] (ICT); the gradient reaches an output outside
+    the range (a sigmoid's would vanish at δ = 0), and delta_free is the unclipped output."""
+    net = MSSFRegressor(tiny_config().network, ModelSignature.of(model))
+    n = ModelSignature.of(model).n_outputs
+    raw = torch.zeros(1, n)
+    e0 = model.n_id
+    raw[0, e0:e0 + 3] = torch.tensor([-0.3, 0.4, 1.7])
+    raw.requires_grad_(True)
+    p = net.decode(raw, torch.tensor([[80.0, 16.0, 16.0]]))
+    torch.testing.assert_close(p["delta"][0, :3].detach(), torch.tensor([0.0, 0.4, 1.0]))
+    torch.testing.assert_close(p["delta_free"][0, :3].detach(), torch.tensor([-0.3, 0.4, 1.7]))
+    assert float(p["delta"].detach().min()) >= 0 and float(p["delta"].detach().max()) <= 1
+    weights = torch.arange(1.0, model.n_exp + 1)
+    (p["delta"] * weights).sum().backward()
+    torch.testing.assert_close(raw.grad[0, e0:e0 + model.n_exp], weights)
 
 
 def test_photometric_loss_is_small_at_the_truth(model):
@@ -187,10 +242,7 @@ def test_head_sizes_and_start_come_from_the_model(model, which):
     assert p["alpha"].shape == (1, m.n_id) and p["beta"].shape == (1, m.n_tex) and p["gamma"].shape == (1, 3, 9)
     assert torch.count_nonzero(p["alpha"]) == 0
     torch.testing.assert_close(p["rotation"][0], torch.eye(3))
-    if which == "ict":  # sigmoid into [0, 1], starting near 0
-        assert torch.all((p["delta"] > 0) & (p["delta"] < 0.02))
-    else:  # unbounded: linear, starting at 0
-        assert torch.count_nonzero(p["delta"]) == 0
+    assert torch.count_nonzero(p["delta"]) == 0  # the mean face: δ = 0 (ICT's lower bound, or unbounded)
     # the mean landmark centroid starts at the crop centre, whatever the principal point
     anchor = torch.tensor(ModelSignature.of(m).anchor)
     cam = Camera(80.0, 10.0, 20.0, 32, 32)

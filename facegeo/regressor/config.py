@@ -70,8 +70,9 @@ class LossConfig:
     landmarks: ``"hybrid88"`` (the paper's enhanced loss, LANDMARK_WEIGHTS) or ``"ibug68"`` (the
     68 iBUG points, unit weights: the "Baseline" ablation row). perceptual_checkpoint: a
     TorchScript file mapping (B, 3, H, W) sRGB in [0, 1] to (B, D) embeddings (e.g. a face
-    recognition network); None skips L_per with a logged note. The reg weights multiply the mean
-    squared coefficients (α, β in σ units; δ as the model defines it; γ about ambient white).
+    recognition network); None skips L_per with a logged note. L_reg on α and δ is the MAP fit's
+    prior weighted by the network's current landmark noise (:mod:`facegeo.regressor.losses`);
+    reg_tex and reg_sh weigh the mean squares of β (σ units) and of γ − ambient white.
     """
 
     lan: float = 1.0
@@ -80,8 +81,6 @@ class LossConfig:
     reg: float = 1.0
     landmarks: str = "hybrid88"
     perceptual_checkpoint: str | None = None
-    reg_id: float = 1e-3
-    reg_exp: float = 1e-3
     reg_tex: float = 1e-3
     reg_sh: float = 1e-3
 

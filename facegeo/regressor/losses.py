@@ -15,7 +15,15 @@
 - L_per: 1 − cos between a local embedding network's outputs for the crop and for the crop
   with the predicted face composited in (z-buffer from ``facegeo.uv.rasterize_mesh``, colours
   interpolated differentiably); skipped with a logged note when no checkpoint is configured.
-- L_reg: weighted mean squares of α, δ, β and γ − ambient white.
+- L_reg: the negative log prior of ``fit_landmarks`` (:class:`facegeo.fitting.FitPriors`:
+  ‖α‖² + Σ (δ_k/s_δ)² + 2 Σ |δ_k|/τ for blendshapes, ‖δ‖² for PCA expressions, on the head's
+  unconstrained δ) weighted as that MAP fit weighs it against the landmark term: × σ²/Σw, with
+  σ² the landmark noise per coordinate that the network has now (half the batch's mean L_lan,
+  no gradient, never below ``noise_floor``²) and Σw the landmark weights' sum. So early in
+  training, when the predicted landmarks are far off, the prior keeps α and δ near the mean
+  face, and it loosens as the landmarks get closer (as the fit's noise re-estimation does); a
+  fixed weight either lets α and δ absorb the pose error (adding shape error) or, set for the
+  early error, stops them learning later. Plus small ridge terms on β and γ − ambient white.
 """
 
 from __future__ import annotations
@@ -30,7 +38,7 @@ from torch.nn import functional as F
 
 from facegeo.camera import Camera, project
 from facegeo.errors import InputError
-from facegeo.fitting import skin_vertex_mask
+from facegeo.fitting import DEFAULT_PRIORS, FitPriors, skin_vertex_mask
 from facegeo.landmarks.scheme import CHIN, LANDMARK_WEIGHTS, landmark_loss
 from facegeo.lighting import AMBIENT_WHITE, sh_irradiance
 from facegeo.morphable_model import MorphableModel
@@ -131,10 +139,11 @@ class Objective:
 
     Args:
         model: the morphable model. config: the loss section. image_size: the crop side S.
+        priors: the MAP fit's priors (L_reg).
     """
 
-    def __init__(self, model: MorphableModel, config: LossConfig, image_size: int):
-        self.model, self.config, self.size = model, config, image_size
+    def __init__(self, model: MorphableModel, config: LossConfig, image_size: int, priors: FitPriors = DEFAULT_PRIORS):
+        self.model, self.config, self.size, self.priors = model, config, image_size, priors
         self.weights = torch.from_numpy(landmark_weights(config.landmarks))
         self.skin = torch.from_numpy(skin_vertex_mask(model))
         self.landmark_subset, rows = np.unique(model.landmark_indices, return_inverse=True)
@@ -181,14 +190,26 @@ class Objective:
         else:
             terms["pho"] = zero
         terms["per"] = self._perceptual(image, posed.detach(), colour, cam) if self.embed is not None else zero
-        reg = (c.reg_id * params["alpha"].pow(2).mean(-1) + c.reg_exp * params["delta"].pow(2).mean(-1)
-               + c.reg_sh * (params["gamma"] - AMBIENT_WHITE).pow(2).mean((-1, -2)))
-        if params["beta"].shape[-1]:
-            reg = reg + c.reg_tex * params["beta"].pow(2).mean(-1)
-        terms["reg"] = reg
-        total = c.lan * lan + c.pho * terms["pho"] + c.per * terms["per"] + c.reg * reg
+        terms["reg"] = self._prior(params, lan, landmarks)
+        total = c.lan * lan + c.pho * terms["pho"] + c.per * terms["per"] + c.reg * terms["reg"]
         terms["total"] = total.mean()
         return terms
+
+    def _prior(self, params: dict[str, torch.Tensor], lan: torch.Tensor, landmarks: torch.Tensor) -> torch.Tensor:
+        """(B,) L_reg (module docstring)."""
+        c, p = self.config, self.priors
+        delta = params.get("delta_free", params["delta"])
+        if self.model.expression_kind == "blendshape":
+            exp = (delta / p.expression_scale).pow(2).sum(-1) + 2.0 * p.expression_rate * delta.abs().sum(-1)
+        else:
+            exp = delta.pow(2).sum(-1)
+        noise2 = (lan.detach().mean() / 2).clamp_min(p.noise_floor**2)
+        w = torch.where(torch.isfinite(landmarks).all(-1), self.weights, torch.zeros_like(self.weights)).sum(-1)
+        reg = noise2 / w.clamp_min(1.0) * (params["alpha"].pow(2).sum(-1) + exp)
+        reg = reg + c.reg_sh * (params["gamma"] - AMBIENT_WHITE).pow(2).mean((-1, -2))
+        if params["beta"].shape[-1]:
+            reg = reg + c.reg_tex * params["beta"].pow(2).mean(-1)
+        return reg
 
     def _photometric(self, image: torch.Tensor, uv: torch.Tensor, posed: torch.Tensor, normals: torch.Tensor,
                      colour: torch.Tensor) -> torch.Tensor:

@@ -7,8 +7,9 @@ from local folders in the Hugging Face layout (``from_pretrained(folder)``, neve
 a folder the backbone is randomly initialised and a warning says so once per process.
 
 Output parametrisation (so the head starts at the mean face, frontal, centred in the crop):
-α, β linear in σ units; δ mapped into the model's expression range with a sigmoid where both
-bounds are finite (ICT-FaceKit's [0, 1]), linear elsewhere; γ = ambient white + output; pose =
+α, β linear in σ units; δ linear, projected into the model's expression range (ICT-FaceKit's
+[0, 1]) with a straight-through gradient (see :meth:`MSSFRegressor.decode`); γ = ambient white +
+output; pose =
 axis-angle ω (rad) and the crop-pixel position and depth of the mean landmark centroid, turned
 into t with the crop camera's intrinsics (so the same image gives the same pose whatever the
 crop's focal length).
@@ -33,7 +34,7 @@ from facegeo.lighting import AMBIENT_WHITE, N_SH
 from facegeo.morphable_model import MorphableModel
 from facegeo.regressor.config import CONVNEXT_PRESETS, DINO_PRESETS, NetworkConfig
 
-__all__ = ["ModelSignature", "MSSFRegressor", "expression_bounds", "IMAGENET_MEAN", "IMAGENET_STD",
+__all__ = ["ModelSignature", "MSSFRegressor", "IMAGENET_MEAN", "IMAGENET_STD",
            "CONVNEXT_ENV", "DINO_ENV"]
 
 log = logging.getLogger("facegeo.regressor")
@@ -44,21 +45,6 @@ DINO_ENV = "FACEGEO_DINOV3_WEIGHTS"
 IMAGENET_MEAN = (0.485, 0.456, 0.406)
 IMAGENET_STD = (0.229, 0.224, 0.225)
 _said_random: set[str] = set()
-
-
-def expression_bounds(model: MorphableModel) -> tuple[np.ndarray, np.ndarray]:
-    """(lower (n_exp,), upper (n_exp,)) float32 expression bounds: the model's
-    ``expression_range`` when it has one, else [0, 1] for ICT-FaceKit blendshapes, else ±inf."""
-    bounds = getattr(model, "expression_range", None)
-    if callable(bounds):
-        bounds = bounds()
-    if bounds is not None:
-        lower, upper = (np.broadcast_to(np.asarray(b, np.float32), (model.n_exp,)).copy() for b in bounds)
-    elif model.expression_names and "ict" in model.name.lower():
-        lower, upper = np.zeros(model.n_exp, np.float32), np.ones(model.n_exp, np.float32)
-    else:
-        lower, upper = np.full(model.n_exp, -np.inf, np.float32), np.full(model.n_exp, np.inf, np.float32)
-    return lower, upper
 
 
 @dataclass(frozen=True)
@@ -84,7 +70,7 @@ class ModelSignature:
     @classmethod
     def of(cls, model: MorphableModel) -> "ModelSignature":
         """The signature of a loaded model."""
-        lower, upper = expression_bounds(model)
+        lower, upper = model.expression_range
         points = model.mean_shape[model.landmark_indices[:68]].astype(np.float64)
         extent = float(np.max(points[:, :2].max(0) - points[:, :2].min(0)))
         return cls(model.name, model.n_id, model.n_exp, model.n_tex, model.n_vertices,
@@ -200,18 +186,14 @@ class MSSFRegressor(nn.Module):
             nn.Conv2d(width, width, 3, stride=2, padding=1), nn.GroupNorm(8 if width % 8 == 0 else 1, width), nn.GELU(),
         )
         self.head = nn.Sequential(nn.Linear(width, width), nn.GELU(), nn.Linear(width, signature.n_outputs))
+        # zero-initialised last layer: α = β = 0, δ = 0 (or its nearest bound), γ = ambient white,
+        # frontal at the crop centre: the network starts at the mean face
         nn.init.zeros_(self.head[-1].weight)
-        bias = torch.zeros(signature.n_outputs)
-        lower, upper = np.array(signature.exp_lower), np.array(signature.exp_upper)
-        bounded = np.isfinite(lower) & np.isfinite(upper)
-        start = np.clip((0.0 - lower) / np.where(bounded, upper - lower, 1.0), 0.01, 0.99)  # δ starts near 0
-        e0 = signature.n_id
-        bias[e0:e0 + signature.n_exp] = torch.from_numpy(np.where(bounded, np.log(start / (1 - start)), 0.0)).float()
-        with torch.no_grad():
-            self.head[-1].bias.copy_(bias)
-        self.register_buffer("bounded", torch.from_numpy(bounded), persistent=False)
-        self.register_buffer("exp_lower", torch.from_numpy(np.where(bounded, lower, 0.0)).float(), persistent=False)
-        self.register_buffer("exp_span", torch.from_numpy(np.where(bounded, upper - lower, 1.0)).float(), persistent=False)
+        nn.init.zeros_(self.head[-1].bias)
+        lower, upper = (torch.tensor(b, dtype=torch.float32) for b in (signature.exp_lower, signature.exp_upper))
+        self.register_buffer("exp_lower", lower, persistent=False)
+        self.register_buffer("exp_upper", upper, persistent=False)
+        self.register_buffer("exp_start", torch.zeros_like(lower).clamp(lower, upper), persistent=False)
         self.register_buffer("anchor", torch.tensor(signature.anchor, dtype=torch.float32), persistent=False)
         self.register_buffer("mean", torch.tensor(IMAGENET_MEAN).view(1, 3, 1, 1), persistent=False)
         self.register_buffer("std", torch.tensor(IMAGENET_STD).view(1, 3, 1, 1), persistent=False)
@@ -258,12 +240,20 @@ class MSSFRegressor(nn.Module):
 
     def decode(self, raw: torch.Tensor, intrinsics: torch.Tensor) -> dict[str, torch.Tensor]:
         """Raw head output (B, n_outputs) and crop intrinsics (B, 3) = (focal, cx, cy) px ->
-        alpha (B, n_id), delta (B, n_exp), beta (B, n_tex), gamma (B, 3, 9), rotation (B, 3, 3),
-        translation (B, 3) mm (X_c = R·X + t, OpenGL camera axes). All float32."""
+        alpha (B, n_id), delta (B, n_exp), delta_free (B, n_exp), beta (B, n_tex), gamma (B, 3, 9),
+        rotation (B, 3, 3), translation (B, 3) mm (X_c = R·X + t, OpenGL camera axes). All float32.
+
+        ``delta_free`` is the head's unconstrained expression output; ``delta`` its projection
+        into the model's range (as ``fit_landmarks`` projects), whose gradient passes straight
+        through to ``delta_free``. Not a sigmoid: most expression weights of a face sit exactly
+        at 0, where a sigmoid's gradient vanishes (a head starting at 0.01 barely moved δ in
+        training); with a plain clamp an output pushed below 0 would get no gradient again. The
+        objective's prior acts on ``delta_free``, so it cannot drift far outside the range."""
         s = self.signature
         raw = raw.float()
         alpha, delta, beta, gamma, pose = torch.split(raw, [s.n_id, s.n_exp, s.n_tex, 3 * N_SH, 6], dim=1)
-        delta = torch.where(self.bounded, self.exp_lower + self.exp_span * torch.sigmoid(delta), delta)
+        free = self.exp_start + delta
+        delta = free + (free.clamp(self.exp_lower, self.exp_upper) - free).detach()
         gamma = AMBIENT_WHITE.to(raw) + gamma.reshape(-1, 3, N_SH)
         rotation = rotation_from_axis_angle(pose[:, :3])
         size = float(self.config.image_size)
@@ -273,7 +263,8 @@ class MSSFRegressor(nn.Module):
         depth = focal * s.extent * self.config.crop_scale / size * torch.exp(pose[:, 5])
         anchor_cam = torch.stack([(u - cx) * depth / focal, -(v - cy) * depth / focal, -depth], dim=-1)
         translation = anchor_cam - rotation @ self.anchor
-        return {"alpha": alpha, "delta": delta, "beta": beta, "gamma": gamma, "rotation": rotation, "translation": translation}
+        return {"alpha": alpha, "delta": delta, "delta_free": free, "beta": beta, "gamma": gamma, "rotation": rotation,
+                "translation": translation}
 
     def predict(self, image: torch.Tensor, intrinsics: torch.Tensor) -> dict[str, torch.Tensor]:
         """:meth:`decode` of :meth:`forward`."""

@@ -1,8 +1,9 @@
 """Synthetic training faces with known parameters (``facegeo make-synthetic-faces``).
 
 Each image is a random instance of the morphable model rendered with ``facegeo.uv.render``:
-α ~ N(0, σ_id²) (σ_id = 0.8 by default); δ sparse (each expression active with probability 0.25
-by default, uniform in its range, or N(0, 0.5²) when unbounded); a skin albedo = the model's albedo(β) times a random skin-tone
+α ~ N(0, σ_id²) (σ_id = 0.8 by default); δ sparse as in a real face (each expression active with
+probability 0.1 by default, uniform in 0–80 % of its range, a corrective such as ICT's
+``mouthClose`` at most its driver as ``fit_landmarks`` keeps it; or N(0, (2p)²) when unbounded); a skin albedo = the model's albedo(β) times a random skin-tone
 gain and a smooth random variation; random SH lighting about ambient white; yaw, pitch and roll
 uniform in ±``max_yaw``, ±20°, ±12°; the face filling 35–60 % of the frame; a random background
 (a colour gradient with noise). Camera: :meth:`Camera.for_image` (40° field of view).
@@ -23,10 +24,11 @@ import torch
 
 from facegeo.camera import Camera, project, rotation_from_euler
 from facegeo.colour import linear_to_srgb
+from facegeo.fitting import CORRECTIVES
 from facegeo.lighting import AMBIENT_WHITE, sh_irradiance
 from facegeo.morphable_model import MorphableModel
 from facegeo.regressor.data import TRUTH_FILE
-from facegeo.regressor.network import ModelSignature, expression_bounds
+from facegeo.regressor.network import ModelSignature
 from facegeo.staged_output import StagedOutput
 from facegeo.uv import render
 
@@ -34,17 +36,21 @@ __all__ = ["random_face", "render_face", "make_synthetic_faces"]
 
 
 def random_face(model: MorphableModel, rng: np.random.Generator, size: int, max_yaw: float = 75.0,
-                sigma_id: float = 0.8, expressions: float = 0.25) -> dict[str, np.ndarray]:
+                sigma_id: float = 0.8, expressions: float = 0.1) -> dict[str, np.ndarray]:
     """Random parameters of one face: alpha, delta, beta, gamma (3, 9), rotation (3, 3),
     translation (3,) mm for a ``size``² image; float32, plus ``albedo`` (V, 3) linear RGB.
     ``sigma_id``: the identity's standard deviation (σ units); ``expressions``: the probability
-    of each bounded expression being active (unbounded ones are scaled by it / 0.25 × 0.5)."""
-    lower, upper = expression_bounds(model)
+    of each bounded expression being active (unbounded ones: N(0, (2·expressions)²))."""
+    lower, upper = model.expression_range
     bounded = np.isfinite(lower) & np.isfinite(upper)
     active = rng.random(model.n_exp) < expressions
     span = np.where(bounded, upper - lower, 1.0)
     delta = np.where(bounded, np.where(active, lower + rng.uniform(0, 0.8, model.n_exp) * span, np.clip(0.0, lower, upper)),
                      rng.normal(0, 2.0 * expressions, model.n_exp))
+    names = list(model.expression_names)
+    for corrective, driver in CORRECTIVES.items():
+        if corrective in names and driver in names:
+            delta[names.index(corrective)] = min(delta[names.index(corrective)], delta[names.index(driver)])
     alpha = rng.normal(0, sigma_id, model.n_id)
     beta = rng.normal(0, 1.0, model.n_tex)
     gamma = AMBIENT_WHITE.numpy().astype(np.float64).copy()
@@ -91,7 +97,7 @@ def render_face(model: MorphableModel, face: dict[str, np.ndarray], size: int,
 
 def make_synthetic_faces(out_dir: str | Path, count: int, model: MorphableModel, size: int = 256, seed: int = 0,
                          max_yaw: float = 75.0, progress: bool = False, sigma_id: float = 0.8,
-                         expressions: float = 0.25) -> Path:
+                         expressions: float = 0.1) -> Path:
     """Render ``count`` random faces into ``out_dir`` (written atomically) with their ground
     truth in ``faces.npz``; returns ``out_dir``. See the module docstring for the contents and
     :func:`random_face` for ``sigma_id`` and ``expressions``."""
