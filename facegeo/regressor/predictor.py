@@ -33,7 +33,7 @@ from facegeo.staged_output import atomic_write_bytes
 
 __all__ = ["CHECKPOINT_FORMAT", "save_checkpoint", "read_checkpoint", "network_from_checkpoint", "Predictor", "load"]
 
-CHECKPOINT_FORMAT = "facegeo-regressor/1"
+CHECKPOINT_FORMAT = "facegeo-regressor/2"  # 2: δ projected, not a sigmoid (a /1 head decodes differently)
 
 
 def save_checkpoint(path: str | Path, network: MSSFRegressor, config: RegressorConfig, **extra: Any) -> Path:
