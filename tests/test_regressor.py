@@ -34,6 +34,7 @@ from facegeo.regressor import (  # noqa: E402
 from facegeo.regressor.data import FaceCrops, Sample, crop_box, crop_face, landmark_table, list_images  # noqa: E402
 from facegeo.regressor.synthetic import random_face, render_face  # noqa: E402
 from facegeo.regressor.losses import slide_jaw  # noqa: E402
+from test_fitting import similarity_rms  # noqa: E402  (the project's one 3D error)
 
 TINY = {
     "network": {"image_size": 32, "width": 16,
@@ -408,10 +409,14 @@ def test_pipeline_fitter_seam(model, faces):
 
 @pytest.mark.slow
 def test_training_lowers_the_landmark_loss_and_learns_the_pose(model, tmp_path):
-    """A tiny MSSF trained 300 steps on CPU: the landmark loss falls ≥ 5× and the rotation error
-    halves against the frontal guess. (The identity is not learned at this budget: the mesh is
-    no closer to the truth than the mean shape; benchmarks/RESULTS.md.)"""
+    """A tiny MSSF trained 300 steps on CPU (≈ 3 min on a loaded 2-core machine): the landmark
+    loss falls ≥ 5×, the rotation error halves against the frontal guess, and on held-out faces
+    the predicted shape (α, δ) stays as close to the truth as the mean shape: the MAP-weighted
+    prior keeps the α and δ that this budget cannot learn at the mean face (with the fixed 1e-3
+    weight and the sigmoid δ they added 11 % to the error). Not met at this budget: closer than
+    the mean shape (the expressions are not learned yet; benchmarks/RESULTS.md)."""
     folder = make_synthetic_faces(tmp_path / "train", 160, model, size=128, seed=11, max_yaw=60)
+    held_out = make_synthetic_faces(tmp_path / "test", 24, model, size=128, seed=12, max_yaw=60)
     data = json.loads(json.dumps(TINY))
     data["network"].update(image_size=64, width=32, convnext={"hidden_sizes": [8, 16, 32, 64], "depths": [1, 1, 1, 1]},
                            dino={"hidden_size": 32, "num_hidden_layers": 2, "num_attention_heads": 2, "intermediate_size": 64})
@@ -440,3 +445,12 @@ def test_training_lowers_the_landmark_loss_and_learns_the_pose(model, tmp_path):
         errors.append(angle(got.rotation.astype(np.float64) @ truth["rotation"][i].T))
         frontal.append(angle(truth["rotation"][i].T.astype(np.float64)))
     assert np.mean(errors) < 0.6 * np.mean(frontal), (np.mean(errors), np.mean(frontal))
+    test = np.load(held_out / "faces.npz")
+    face = model.face_mask
+    predicted, mean = [], []
+    for i, name in enumerate(test["names"]):
+        true = model.shape(torch.from_numpy(test["alpha"][i]), torch.from_numpy(test["delta"][i])).numpy()[face]
+        got = predictor(load_photo(held_out / str(name)), landmarks=test["landmarks"][i])
+        predicted.append(similarity_rms(got.shape_vertices[face], true))
+        mean.append(similarity_rms(model.mean_shape[face], true))
+    assert np.mean(predicted) < 1.03 * np.mean(mean), (np.mean(predicted), np.mean(mean))

@@ -1,8 +1,9 @@
 """Synthetic training faces with known parameters (``facegeo make-synthetic-faces``).
 
 Each image is a random instance of the morphable model rendered with ``facegeo.uv.render``:
-α ~ N(0, σ_id²) (σ_id = 0.8 by default); δ sparse as in a real face (each expression active with
-probability 0.1 by default, uniform in 0–80 % of its range, a corrective such as ICT's
+α ~ N(0, σ_id²) (σ_id = 0.8 by default); δ sparse as in a real face, drawn among the expressions
+that landmarks can see (:func:`landmark_visible_expressions`; each active with probability 0.1 by
+default, uniform in 0–80 % of its range, a corrective such as ICT's
 ``mouthClose`` at most its driver as ``fit_landmarks`` keeps it; or N(0, (2p)²) when unbounded); a skin albedo = the model's albedo(β) times a random skin-tone
 gain and a smooth random variation; random SH lighting about ambient white; yaw, pitch and roll
 uniform in ±``max_yaw``, ±20°, ±12°; the face filling 35–60 % of the frame; a random background
@@ -32,21 +33,34 @@ from facegeo.regressor.network import ModelSignature
 from facegeo.staged_output import StagedOutput
 from facegeo.uv import render
 
-__all__ = ["random_face", "render_face", "make_synthetic_faces"]
+__all__ = ["landmark_visible_expressions", "random_face", "render_face", "make_synthetic_faces"]
+
+
+def landmark_visible_expressions(model: MorphableModel, min_shift: float = 0.01) -> np.ndarray:
+    """(n_exp,) bool: the expressions whose full weight (1 for blendshapes, 1 σ for PCA) moves
+    the 88 landmark vertices of the mean face by an RMS of at least ``min_shift`` inter-ocular
+    distances in the image plane (frontal view). ICT-FaceKit at 0.01: 38 of 53; out: eye gaze but
+    eyeLookDown, eyeSquint, eyeWide, cheekSquint, browInnerUp and jawForward (< 0.01: landmarks
+    barely constrain them)."""
+    points = model.mean_shape[model.landmark_indices].astype(np.float64)
+    iod = float(np.linalg.norm(points[36, :2] - points[45, :2]))
+    shift = model.exp_basis.reshape(model.n_exp, model.n_vertices, 3)[:, model.landmark_indices, :2].astype(np.float64)
+    return np.sqrt((shift**2).sum(-1).mean(-1)) >= min_shift * iod
 
 
 def random_face(model: MorphableModel, rng: np.random.Generator, size: int, max_yaw: float = 75.0,
-                sigma_id: float = 0.8, expressions: float = 0.1) -> dict[str, np.ndarray]:
+                sigma_id: float = 0.8, expressions: float = 0.1, min_shift: float = 0.01) -> dict[str, np.ndarray]:
     """Random parameters of one face: alpha, delta, beta, gamma (3, 9), rotation (3, 3),
     translation (3,) mm for a ``size``² image; float32, plus ``albedo`` (V, 3) linear RGB.
     ``sigma_id``: the identity's standard deviation (σ units); ``expressions``: the probability
-    of each bounded expression being active (unbounded ones: N(0, (2·expressions)²))."""
+    of each bounded expression being active (unbounded ones: N(0, (2·expressions)²)); only the
+    expressions of :func:`landmark_visible_expressions` at ``min_shift`` (0: all) are drawn."""
     lower, upper = model.expression_range
     bounded = np.isfinite(lower) & np.isfinite(upper)
-    active = rng.random(model.n_exp) < expressions
+    active = (rng.random(model.n_exp) < expressions) & landmark_visible_expressions(model, min_shift)
     span = np.where(bounded, upper - lower, 1.0)
     delta = np.where(bounded, np.where(active, lower + rng.uniform(0, 0.8, model.n_exp) * span, np.clip(0.0, lower, upper)),
-                     rng.normal(0, 2.0 * expressions, model.n_exp))
+                     np.where(landmark_visible_expressions(model, min_shift), rng.normal(0, 2.0 * expressions, model.n_exp), 0.0))
     names = list(model.expression_names)
     for corrective, driver in CORRECTIVES.items():
         if corrective in names and driver in names:
