@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 import torch
 
-from facegeo import Camera, load_model
+from facegeo import Camera
 from facegeo.errors import ModelFileError
 from facegeo.landmarks.iris import Iris, iris_colour, sample_iris_ring
 from facegeo.morphable_model import MorphableModel
@@ -23,11 +23,6 @@ ICT_VERTICES = {
 FIRST_VERTEX = {"teeth": 17039, "eyeballs": 21451, "mouth_socket": 11248}
 #: Stored error bound per part (README: max over 1000 random instances; one mode is far below).
 TOLERANCE_MM = {"teeth": 0.1, "eyeballs": 0.03, "mouth_socket": 0.03}
-
-
-@pytest.fixture(scope="module")
-def model():
-    return load_model()
 
 
 @pytest.fixture(scope="module")

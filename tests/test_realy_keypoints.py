@@ -18,12 +18,6 @@ from facegeo.eval.make_ict_keypoints import (
     measure,
 )
 from facegeo.eval.realy_io import barycentric_points, read_keypoint_file
-from facegeo.model_files import load_model
-
-
-@pytest.fixture(scope="module")
-def model():
-    return load_model()
 
 
 @pytest.fixture(scope="module")
