@@ -9,13 +9,11 @@ faces reference both (``f v/vt``), 1-based as the format requires.
 from __future__ import annotations
 
 import io
-from pathlib import Path
 
 import numpy as np
 
-from facegeo.staged_output import atomic_write_text
 
-__all__ = ["obj_text", "write_obj"]
+__all__ = ["obj_text"]
 
 
 def obj_text(vertices: np.ndarray, triangles: np.ndarray, uv: np.ndarray | None = None, uv_triangles: np.ndarray | None = None) -> str:
@@ -34,7 +32,3 @@ def obj_text(vertices: np.ndarray, triangles: np.ndarray, uv: np.ndarray | None 
         np.savetxt(out, triangles + 1, fmt="f %d %d %d")
     return out.getvalue()
 
-
-def write_obj(path: str | Path, vertices: np.ndarray, triangles: np.ndarray, uv: np.ndarray | None = None, uv_triangles: np.ndarray | None = None) -> None:
-    """Write :func:`obj_text` atomically to ``path``."""
-    atomic_write_text(Path(path), obj_text(vertices, triangles, uv, uv_triangles))
