@@ -1,18 +1,14 @@
-"""Displacement: vertex normals, bilinear map sampling, baking a displacement map into geometry.
+"""Displacement: bilinear map sampling, baking a displacement map into geometry.
 
-``bake_displacement`` moves every geometry vertex along its smoothed normal (the normalised sum
-of the area-weighted normals of its triangles) by the displacement map sampled bilinearly at its
-UV. A vertex on a UV seam has one UV per chart: it is sampled in each and moved by the mean, so
+``bake_displacement`` moves every geometry vertex along its smoothed normal
+(:func:`facegeo.normals.vertex_normals`: finite unit vectors even at degenerate vertices) by the
+displacement map sampled bilinearly at its UV. A vertex on a UV seam has one UV per chart: it is sampled in each and moved by the mean, so
 both sides of a seam move together and the mesh stays watertight. ``displace`` subdivides first
 (:func:`facegeo.export.subdivision.subdivide`), then bakes: the result is the displaced mesh
 Python users ask for.
 
 Map convention (DESIGN.md): row 0 is the top of the UV square; texel (i, j) is centred at
 u = (j + 0.5)/W, v = 1 − (i + 0.5)/H. Samples outside the texel centres are clamped to the edge.
-
-Numerical care: normals are accumulated in float64; a vertex whose triangles have no area (or
-that no triangle uses) has no normal of its own and takes the mean normal of its neighbours,
-and +Z (out of the face) if that is zero too, so it never gets a NaN.
 """
 
 from __future__ import annotations
@@ -20,46 +16,14 @@ from __future__ import annotations
 from typing import Any
 
 import numpy as np
-import scipy.sparse as sp
 
 from facegeo.asset import Asset
 from facegeo.errors import InputError
 from facegeo.export.facevarying import FaceVaryingMesh, as_face_varying, to_trimesh
 from facegeo.export.subdivision import subdivide
+from facegeo.normals import vertex_normals
 
-__all__ = ["vertex_normals", "sample_map", "vertex_values", "bake_displacement", "displace"]
-
-_FALLBACK_NORMAL = np.array([0.0, 0.0, 1.0])
-
-
-def vertex_normals(vertices: np.ndarray, triangles: np.ndarray) -> np.ndarray:
-    """Area-weighted unit vertex normals, (V, 3) float64, for (V, 3) vertices and (F, 3)
-    counter-clockwise triangles. Degenerate cases fall back as described in the module text."""
-    v = np.asarray(vertices, dtype=np.float64)
-    f = np.asarray(triangles, dtype=np.int64)
-    face_n = np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]])  # 2 × area × unit normal
-    corners = f.ravel()
-    n = np.stack([np.bincount(corners, weights=np.repeat(face_n[:, c], 3), minlength=len(v)) for c in range(3)], axis=1)
-    length = np.linalg.norm(n, axis=1)
-    scale = np.max(length) if len(length) else 0.0
-    bad = length <= 1e-12 * max(scale, 1e-300)
-    if bad.any():
-        unit = np.zeros_like(n)
-        unit[~bad] = n[~bad] / length[~bad, None]
-        e = np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]])
-        adjacency = sp.csr_matrix((np.ones(2 * len(e)), (np.concatenate([e[:, 0], e[:, 1]]), np.concatenate([e[:, 1], e[:, 0]]))), shape=(len(v), len(v)))
-        for _ in range(3):  # a few rings outwards, for clusters of degenerate triangles
-            neighbour = adjacency[np.flatnonzero(bad)] @ unit
-            nl = np.linalg.norm(neighbour, axis=1)
-            good = nl > 1e-12
-            idx = np.flatnonzero(bad)[good]
-            unit[idx] = neighbour[good] / nl[good, None]
-            bad[idx] = False
-            if not bad.any():
-                break
-        unit[bad] = _FALLBACK_NORMAL
-        return unit
-    return n / length[:, None]
+__all__ = ["sample_map", "vertex_values", "bake_displacement", "displace"]
 
 
 def sample_map(image: np.ndarray, uv: np.ndarray) -> np.ndarray:

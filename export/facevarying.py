@@ -27,6 +27,7 @@ import numpy as np
 
 from facegeo.asset import Asset
 from facegeo.errors import InputError
+from facegeo.normals import vertex_normals
 
 __all__ = ["FaceVaryingMesh", "as_face_varying", "wedges", "to_trimesh", "from_trimesh"]
 
@@ -135,12 +136,10 @@ def to_trimesh(mesh: Any, normals: np.ndarray | None = None, material: Any = Non
 
     ``mesh`` is an :class:`Asset` (its albedo map, if any, becomes the material's base colour
     texture), a :class:`FaceVaryingMesh` or a Trimesh (returned as a copy). ``normals``: (V, 3)
-    per geometry vertex; default: area-weighted normals. ``process=False`` keeps the order.
+    per geometry vertex; default :func:`facegeo.normals.vertex_normals`. ``process=False`` keeps the order.
     """
     import trimesh
     from trimesh.visual import TextureVisuals
-
-    from facegeo.export.displacement import vertex_normals
 
     if isinstance(mesh, trimesh.Trimesh):
         return mesh.copy()

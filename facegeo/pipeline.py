@@ -271,7 +271,7 @@ class _PreviewScene:
 
     def __init__(self, asset: Asset):
         from facegeo.camera import rotation_from_euler
-        from facegeo.export.displacement import vertex_normals
+        from facegeo.normals import vertex_normals
         from facegeo.uv.tangents import mesh_tangents
 
         surfaces = [asset, *asset.parts]

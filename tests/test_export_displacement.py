@@ -1,4 +1,4 @@
-"""Vertex normals, bilinear sampling and displacement baking (facegeo.export.displacement)."""
+"""Bilinear sampling and displacement baking (facegeo.export.displacement)."""
 
 from __future__ import annotations
 
@@ -8,37 +8,10 @@ import trimesh
 
 from facegeo.asset import Asset
 from facegeo.errors import InputError
-from facegeo.export.displacement import bake_displacement, displace, sample_map, vertex_normals, vertex_values
+from facegeo.export.displacement import bake_displacement, displace, sample_map, vertex_values
+from facegeo.normals import vertex_normals
 from facegeo.export.facevarying import FaceVaryingMesh, from_trimesh, wedges
 from test_export_support import grid_mesh, ict_asset, synthetic_maps
-
-
-def test_vertex_normals_sphere_and_orientation():
-    s = trimesh.creation.icosphere(subdivisions=3, radius=50.0)
-    n = vertex_normals(s.vertices, s.faces)
-    radial = s.vertices / np.linalg.norm(s.vertices, axis=1, keepdims=True)
-    assert np.min(np.sum(n * radial, axis=1)) > 0.999
-    v, f, _, _ = grid_mesh(2)
-    np.testing.assert_allclose(vertex_normals(v, f), np.tile([0, 0, 1.0], (len(v), 1)), atol=1e-12)
-
-
-def test_vertex_normals_degenerate_cases_are_finite_unit():
-    v, f, _, _ = grid_mesh(2)
-    # vertex 9: only in a zero-area triangle (collinear with 0 and 1); vertex 10: in no triangle
-    v = np.vstack([v, [[2.5, 0.0, 0.0]], [[99.0, 99.0, 99.0]]])
-    f = np.vstack([f, [[0, 1, 9]]])
-    n = vertex_normals(v, f)
-    assert np.isfinite(n).all()
-    np.testing.assert_allclose(np.linalg.norm(n, axis=1), 1.0, atol=1e-12)
-    np.testing.assert_allclose(n[9], [0, 0, 1.0], atol=1e-12)  # from its neighbours
-    np.testing.assert_allclose(n[10], [0, 0, 1.0])  # fallback +Z
-    # all triangles degenerate: everything falls back, nothing is NaN
-    flat = np.zeros((3, 3))
-    assert np.isfinite(vertex_normals(flat, np.array([[0, 1, 2]]))).all()
-    # opposite triangles cancelling (a zero-length sum)
-    two = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0.0]])
-    n2 = vertex_normals(two, np.array([[0, 1, 2], [0, 2, 1]]))
-    assert np.isfinite(n2).all() and np.allclose(np.linalg.norm(n2, axis=1), 1.0)
 
 
 def test_sample_map_texel_centres_orientation_and_bilinear():

@@ -26,7 +26,7 @@ _EXPORTS = {
     "clear_raster_cache": "facegeo.uv.raster",
     "GeometryMaps": "facegeo.uv.maps",
     "geometry_maps": "facegeo.uv.maps",
-    "vertex_normals": "facegeo.uv.tangents",
+    "vertex_normals": "facegeo.normals",
     "mikktspace_tangents": "facegeo.uv.tangents",
     "mesh_tangents": "facegeo.uv.tangents",
     "unwrap": "facegeo.uv.unwrapping",
@@ -44,7 +44,8 @@ if TYPE_CHECKING:
     from facegeo.uv.maps import GeometryMaps, geometry_maps
     from facegeo.uv.raster import UVRaster, clear_raster_cache, default_padding, rasterize_uv
     from facegeo.uv.renderer import Rendering, rasterize_mesh, render
-    from facegeo.uv.tangents import mesh_tangents, mikktspace_tangents, vertex_normals
+    from facegeo.normals import vertex_normals
+    from facegeo.uv.tangents import mesh_tangents, mikktspace_tangents
     from facegeo.uv.unwrapping import FACING_RAMP, Unwrapped, unwrap, unwrap_details
 
 

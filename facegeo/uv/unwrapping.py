@@ -50,7 +50,7 @@ from facegeo.errors import InputError
 from facegeo.uv.maps import GeometryMaps, texel_geometry
 from facegeo.uv.raster import UVRaster, rasterize_uv
 from facegeo.uv.renderer import NEAR_MM, _as_float_image, _remap, rasterize_mesh
-from facegeo.uv.tangents import vertex_normals
+from facegeo.normals import vertex_normals
 
 __all__ = ["unwrap", "unwrap_details", "Unwrapped", "FACING_RAMP", "DEPTH_TOLERANCE_MM"]
 
@@ -160,7 +160,7 @@ def unwrap_details(image, fit, model, size: int = 1024, *, occlusion: np.ndarray
     else:
         if raster is None:
             raster = rasterize_uv(model, size=size)
-        geo = texel_geometry(vertices, vertex_normals(vertices, triangles), model, raster, tangents=False)
+        geo = texel_geometry(vertices, vertex_normals(vertices, triangles).astype(np.float32), model, raster, tangents=False)
         P, n_s = geo["position"], geo["normal"]
     tri = raster.texel_triangle
     planes = _Planes(vertices, triangles)
