@@ -62,7 +62,7 @@ import torch
 from skimage.color import deltaE_ciede2000, rgb2lab
 
 import facegeo
-from facegeo.camera import Camera, project, rotation_from_euler
+from facegeo.camera import Camera, project, rotation_from_euler, to_pixels
 from facegeo.colour import linear_to_srgb, luminance, srgb_to_linear
 from facegeo.fitting import skin_vertex_mask
 from facegeo.lighting import sh_irradiance
@@ -144,8 +144,7 @@ def shadow_map(vertices_cam: np.ndarray, model, light: np.ndarray, points: np.nd
     _, _, depth = rasterize_mesh(to_light(vertices_cam), model.triangles, cam, barycentric=False)
     q = to_light(points.astype(np.float64))
     d = -q[:, 2]
-    px = cam.cx + q[:, 0] * cam.focal / d
-    py = cam.cy - q[:, 1] * cam.focal / d
+    px, py = to_pixels(q, cam).T
     ix = np.clip(np.floor(px).astype(np.int64), 0, cam.width - 1)
     iy = np.clip(np.floor(py).astype(np.int64), 0, cam.height - 1)
     zb = np.where(np.isfinite(depth), depth, 1e9)[iy, ix]

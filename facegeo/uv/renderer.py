@@ -20,7 +20,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from facegeo.camera import Camera
+from facegeo.camera import Camera, to_pixels
 from facegeo.errors import InputError
 from facegeo.uv._triangles import triangle_fragments
 
@@ -70,12 +70,9 @@ def rasterize_mesh(vertices_cam: np.ndarray, triangles: np.ndarray, camera: Came
     tri = np.asarray(triangles, dtype=np.int64)
     W, H = camera.width, camera.height
     depth_v = -v[:, 2]
-    safe = np.where(depth_v > 0, depth_v, 1.0)
-    px = camera.cx + camera.focal * v[:, 0] / safe
-    py = camera.cy - camera.focal * v[:, 1] / safe
     ok = np.flatnonzero((depth_v[tri] >= near).all(axis=1) & np.isfinite(depth_v[tri]).all(axis=1))
-    pts = np.stack([px, py], axis=1)[tri[ok]]  # (F', 3, 2)
-    inv_d = 1.0 / safe[tri[ok]]  # (F', 3)
+    pts = to_pixels(v, camera)[tri[ok]]  # (F', 3, 2)
+    inv_d = 1.0 / depth_v[tri[ok]]  # (F', 3)
     zbuf = np.full(H * W, np.inf)
     tbuf = np.full(H * W, -1, dtype=np.int32)
     bbuf = np.zeros((H * W, 3), dtype=np.float32) if barycentric else None

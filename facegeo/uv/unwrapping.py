@@ -44,7 +44,7 @@ import hashlib
 
 import numpy as np
 
-from facegeo.camera import Camera
+from facegeo.camera import Camera, to_pixels
 from facegeo.colour import srgb_to_linear
 from facegeo.errors import InputError
 from facegeo.uv.maps import GeometryMaps, texel_geometry
@@ -170,9 +170,7 @@ def unwrap_details(image, fit, model, size: int = 1024, *, occlusion: np.ndarray
     # projection (float32 keeps 1e-3 px at 16k pixels)
     depth = -P[:, 2]
     ahead = depth > near
-    inv_depth = np.float32(camera.focal) / np.where(ahead, depth, np.float32(1.0))
-    x = np.float32(camera.cx) + P[:, 0] * inv_depth
-    y = np.float32(camera.cy) - P[:, 1] * inv_depth
+    x, y = to_pixels(P, camera).T
     in_image = ahead & (x >= 0) & (x <= W) & (y >= 0) & (y <= H)
     # the texel lies on its triangle's plane n·X = c, so the plane faces the camera iff c < 0
     front = planes.faces_camera[tri]
