@@ -1,14 +1,15 @@
-"""Displacement: bilinear map sampling, baking a displacement map into geometry.
+"""Displacement: baking a displacement map into geometry.
 
 ``bake_displacement`` moves every geometry vertex along its smoothed normal
 (:func:`facegeo.normals.vertex_normals`: finite unit vectors even at degenerate vertices) by the
-displacement map sampled bilinearly at its UV. A vertex on a UV seam has one UV per chart: it is sampled in each and moved by the mean, so
-both sides of a seam move together and the mesh stays watertight. ``displace`` subdivides first
+displacement map sampled bilinearly at its UV (:func:`facegeo.uv.texels.sample_uv`). A vertex on a
+UV seam has one UV per chart: it is sampled in each and moved by the mean, so both sides of a seam
+move together and the mesh stays watertight. ``displace`` subdivides first
 (:func:`facegeo.export.subdivision.subdivide`), then bakes: the result is the displaced mesh
 Python users ask for.
 
-Map convention (DESIGN.md): row 0 is the top of the UV square; texel (i, j) is centred at
-u = (j + 0.5)/W, v = 1 − (i + 0.5)/H. Samples outside the texel centres are clamped to the edge.
+Map convention: :mod:`facegeo.uv.texels` (row 0 is the top of the UV square; beyond the outer
+texel centres the edge texels repeat).
 """
 
 from __future__ import annotations
@@ -22,31 +23,9 @@ from facegeo.errors import InputError
 from facegeo.export.facevarying import FaceVaryingMesh, as_face_varying, to_trimesh
 from facegeo.export.subdivision import subdivide
 from facegeo.normals import vertex_normals
+from facegeo.uv.texels import sample_uv
 
-__all__ = ["sample_map", "vertex_values", "bake_displacement", "displace"]
-
-
-def sample_map(image: np.ndarray, uv: np.ndarray) -> np.ndarray:
-    """Bilinear samples of an (H, W) or (H, W, C) map at (N, 2) UVs (origin bottom-left, row 0 =
-    top): (N,) or (N, C) float64. Coordinates beyond the outer texel centres are clamped."""
-    img = np.asarray(image, dtype=np.float64)
-    if img.ndim not in (2, 3) or min(img.shape[:2]) < 1:
-        raise InputError("<map>", "map", "an (H, W) or (H, W, C) array", str(img.shape))
-    uv = np.asarray(uv, dtype=np.float64)
-    h, w = img.shape[:2]
-    x = np.clip(uv[:, 0] * w - 0.5, 0.0, w - 1.0)
-    y = np.clip((1.0 - uv[:, 1]) * h - 0.5, 0.0, h - 1.0)
-    x0 = np.minimum(np.floor(x).astype(np.int64), max(w - 2, 0))
-    y0 = np.minimum(np.floor(y).astype(np.int64), max(h - 2, 0))
-    x1 = np.minimum(x0 + 1, w - 1)
-    y1 = np.minimum(y0 + 1, h - 1)
-    fx = x - x0
-    fy = y - y0
-    if img.ndim == 3:
-        fx, fy = fx[:, None], fy[:, None]
-    top = img[y0, x0] * (1 - fx) + img[y0, x1] * fx
-    bottom = img[y1, x0] * (1 - fx) + img[y1, x1] * fx
-    return top * (1 - fy) + bottom * fy
+__all__ = ["vertex_values", "bake_displacement", "displace"]
 
 
 def vertex_values(mesh: Any, image: np.ndarray) -> np.ndarray:
@@ -58,7 +37,7 @@ def vertex_values(mesh: Any, image: np.ndarray) -> np.ndarray:
     n_uv = len(fv.uv)
     pairs = np.unique(fv.triangles.ravel() * n_uv + fv.uv_triangles.ravel())
     vert, uvi = pairs // n_uv, pairs % n_uv
-    samples = sample_map(image, fv.uv[uvi])
+    samples = sample_uv(image, fv.uv[uvi]).astype(np.float64)
     n = len(fv.vertices)
     count = np.maximum(np.bincount(vert, minlength=n), 1).astype(np.float64)
     if samples.ndim == 1:

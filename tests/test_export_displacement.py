@@ -8,7 +8,8 @@ import trimesh
 
 from facegeo.asset import Asset
 from facegeo.errors import InputError
-from facegeo.export.displacement import bake_displacement, displace, sample_map, vertex_values
+from facegeo.export.displacement import bake_displacement, displace, vertex_values
+from facegeo.uv.texels import sample_uv as sample_map
 from facegeo.normals import vertex_normals
 from facegeo.export.facevarying import FaceVaryingMesh, from_trimesh, wedges
 from test_export_support import grid_mesh, ict_asset, synthetic_maps

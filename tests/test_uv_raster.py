@@ -5,7 +5,7 @@ import pytest
 
 from facegeo.errors import InputError
 from facegeo.uv import UVRaster, clear_raster_cache, default_padding, rasterize_uv
-from facegeo.uv.raster import texel_centres_uv
+from facegeo.uv.texels import texel_centres_uv
 
 
 def _texel_uv(raster):

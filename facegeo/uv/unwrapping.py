@@ -49,7 +49,8 @@ from facegeo.colour import srgb_to_linear
 from facegeo.errors import InputError
 from facegeo.uv.maps import GeometryMaps, texel_geometry
 from facegeo.uv.raster import UVRaster, rasterize_uv
-from facegeo.uv.renderer import NEAR_MM, _as_float_image, _remap, rasterize_mesh
+from facegeo.uv.renderer import NEAR_MM, _as_float_image, rasterize_mesh
+from facegeo.uv.texels import sample_bilinear
 from facegeo.normals import vertex_normals
 
 __all__ = ["unwrap", "unwrap_details", "Unwrapped", "FACING_RAMP", "DEPTH_TOLERANCE_MM"]
@@ -195,12 +196,11 @@ def unwrap_details(image, fit, model, size: int = 1024, *, occlusion: np.ndarray
         seen = todo[~hidden]
         visible[seen] = True
         # bilinear lookups of the photo (and the mask) at the projections of the seen texels
-        map_x = (x[seen] - 0.5).astype(np.float32)
-        map_y = (y[seen] - 0.5).astype(np.float32)
+        at = np.stack([x[seen], y[seen]], axis=1)
         if occ_img is not None:
-            occ[seen] = _sample(occ_img, map_x, map_y)[:, 0]
+            occ[seen] = sample_bilinear(occ_img, at)
         visibility[seen] = np.clip(coverage[seen] * facing[seen] * (1.0 - occ[seen]), 0.0, 1.0)
-        colours[seen] = _sample(img, map_x, map_y)
+        colours[seen] = sample_bilinear(img, at)
         colours[visibility <= 0] = 0.0
     return Unwrapped(
         raster, colour_space,
@@ -432,18 +432,3 @@ def _vertices(vertices, triangles: np.ndarray) -> np.ndarray:
     if not np.all(np.isfinite(v)):
         raise InputError("<array>", "fit.vertices", "finite values", "NaN/inf values")
     return v
-
-
-_ROW = 4096
-
-
-def _sample(img: np.ndarray, map_x: np.ndarray, map_y: np.ndarray) -> np.ndarray:
-    """Bilinear lookups (integer-centred coordinates, edge pixels repeated) at N points:
-    (N, C) float32. The points are laid out as rows of 4096 for OpenCV's remap."""
-    n = map_x.size
-    rows = max(1, -(-n // _ROW))
-    pad = rows * _ROW - n
-    mx = np.concatenate([map_x, np.full(pad, -1.0, np.float32)]).reshape(rows, _ROW)
-    my = np.concatenate([map_y, np.full(pad, -1.0, np.float32)]).reshape(rows, _ROW)
-    out = _remap(img, mx, my)
-    return out.reshape(rows * _ROW, -1)[:n].astype(np.float32, copy=True)
