@@ -16,16 +16,11 @@ import numpy as np
 import torch
 
 from facegeo.errors import ModelFileError
+from facegeo.landmarks.scheme import N_LANDMARKS
 from facegeo.normals import vertex_normals_torch
 
-__all__ = ["MorphableModel", "N_LANDMARKS", "N_IBUG", "LIP_LANDMARKS_FROM_IBUG", "EXPRESSION_KINDS"]
+__all__ = ["MorphableModel", "EXPRESSION_KINDS"]
 
-#: 68 iBUG points followed by 20 MediaPipe lip points (outer 12 + inner 8, iBUG order 48..67).
-N_IBUG = 68
-N_LANDMARKS = 88
-#: The lip points re-use the model correspondences of iBUG points 48..67 (same semantic points,
-#: detected by MediaPipe instead of dlib).
-LIP_LANDMARKS_FROM_IBUG = np.arange(48, 68)
 #: What the expression coefficients δ are (see :class:`MorphableModel`).
 EXPRESSION_KINDS = ("blendshape", "pca")
 

@@ -23,6 +23,7 @@ from facegeo.model_files import (
     _ibug68_from_tencent86,
     load_model,
 )
+from facegeo.landmarks.scheme import CHIN, EYES, IBUG68, JAW_ENDS, LEFT_EYE, LIP_POINTS, MOUTH, OUTER_EYE_CORNERS, RIGHT_EYE
 
 NPZ = asset_path(DEFAULT_MODEL_ASSET)
 README = Path(__file__).resolve().parents[1] / "assets" / "ict_facekit" / "README.md"
@@ -33,7 +34,7 @@ def test_bundled_model_counts(model):
     assert model.n_vertices == 11248
     assert (model.n_id, model.n_exp, model.n_tex) == (100, 53, 0)
     assert model.landmark_indices.shape == (88,)
-    np.testing.assert_array_equal(model.landmark_indices[68:], model.landmark_indices[48:68])
+    np.testing.assert_array_equal(model.landmark_indices[LIP_POINTS], model.landmark_indices[MOUTH])
     assert len(model.expression_names) == 53 and "jawOpen" in model.expression_names
     assert model.id_basis.dtype == np.float32 and model.exp_basis.dtype == np.float32
     assert model.triangles.shape == (22288, 3) and model.uv_triangles.shape == (22288, 3)
@@ -48,12 +49,12 @@ def test_default_is_cached(model):
 
 def test_bundled_model_size_in_mm_and_axes(model):
     p = model.mean_shape[model.landmark_indices]
-    eye_centres = np.linalg.norm(p[36:42].mean(0) - p[42:48].mean(0))
+    eye_centres = np.linalg.norm(p[RIGHT_EYE].mean(0) - p[LEFT_EYE].mean(0))
     assert 55.0 < eye_centres < 75.0  # interpupillary distance, adults ~ 54-74 mm
-    assert 80.0 < np.linalg.norm(p[36] - p[45]) < 105.0  # outer eye corners (biocular width)
+    assert 80.0 < np.linalg.norm(np.subtract(*p[OUTER_EYE_CORNERS])) < 105.0  # outer eye corners (biocular width)
     assert 95.0 < np.linalg.norm(p[27] - p[8]) < 135.0  # nasion to chin
-    assert p[36:48, 1].mean() > p[48:68, 1].mean() > p[8, 1]  # +Y up
-    ears = p[[0, 16]]  # the top of the jaw contour, in front of the ears
+    assert p[EYES, 1].mean() > p[MOUTH, 1].mean() > p[CHIN, 1]  # +Y up
+    ears = p[JAW_ENDS]  # the top of the jaw contour, in front of the ears
     assert p[30, 2] > ears[:, 2].max() + 50.0  # +Z out of the face
     assert p[36, 0] < 0.0 < p[45, 0]  # +X towards the subject's left
     # the jaw contour runs from the subject's right (-X) down to the chin and up to the left
@@ -68,7 +69,7 @@ def test_bundled_normals_point_outwards(model):
     assert n[tip, 2] > 0.9
     top = int(np.argmax(v[:, 1]))
     assert n[top, 1] > 0.9
-    ears = model.landmark_indices[[0, 16]]  # top of the jaw contour, beside the ears
+    ears = model.landmark_indices[JAW_ENDS]  # top of the jaw contour, beside the ears
     assert n[ears[0], 0] < -0.5 and n[ears[1], 0] > 0.5
     # most face-region normals point away from the head's centre (eye sockets, nostrils and
     # lip corners are concave)
@@ -179,8 +180,8 @@ def test_hifi3dpp_layout_round_trip(tmp_path, n, k_id, k_exp, base, seed):
     np.testing.assert_allclose(m.mean_shape, f["pts"] * 10.0, rtol=1e-5, atol=1e-4)  # cm -> mm
     np.testing.assert_array_equal(m.triangles, f["tri0"])
     kp = f["keypoints"].reshape(-1).astype(np.int64) - base
-    np.testing.assert_array_equal(m.landmark_indices[:68], kp)
-    np.testing.assert_array_equal(m.landmark_indices[68:], kp[48:68])
+    np.testing.assert_array_equal(m.landmark_indices[IBUG68], kp)
+    np.testing.assert_array_equal(m.landmark_indices[LIP_POINTS], kp[MOUTH])
     np.testing.assert_array_equal(m.face_mask, f["mask_face"].reshape(-1) != 0)
     # coefficients in sigma units: the basis is already scaled, EVs unused
     for k in range(k_id):
@@ -301,7 +302,7 @@ def test_ai_next_explicit_albedo_path_and_missing_albedo_keys(tmp_path):
 
 def test_tencent86_keypoints_map_to_ibug68(model):
     """Tencent's 86 groups built from ICT's iBUG vertices (shuffled within groups) map back."""
-    ib = model.landmark_indices[:68]
+    ib = model.landmark_indices[IBUG68]
     spare = iter(range(7000, 7100))  # unrelated vertices for 86-only points
     kp = np.array([next(spare) for _ in range(86)])
     kp[0:17] = ib[16::-1]  # contour given from the subject's left

@@ -10,6 +10,7 @@ from facegeo.landmarks.iris import Iris, iris_colour, sample_iris_ring
 from facegeo.morphable_model import MorphableModel
 from facegeo.parts import DEFAULT_IRIS_SRGB, PART_MATERIALS, eyeball_texture, load_parts, part_assets
 from facegeo.uv.renderer import rasterize_mesh
+from facegeo.landmarks.scheme import LEFT_EYE, RIGHT_EYE
 
 #: Vertices of ICT-FaceKit's OBJs (commit da5f95a, centimetres, as written in the files):
 #: global index -> (part, neutral, identity003.obj, jawOpen.obj).
@@ -163,8 +164,8 @@ def test_iris_ring_sampling_finds_a_known_colour():
     image[(yy < 31) & (np.abs(xx - 60) < 30)] = (200, 150, 130)  # upper eyelid over the iris top
     polygon = np.array([[30, 40], [45, 30], [75, 30], [90, 40], [75, 50], [45, 50]], np.float64)
     landmarks = np.full((68, 2), np.nan)
-    landmarks[36:42] = polygon
-    landmarks[42:48] = polygon
+    landmarks[RIGHT_EYE] = polygon
+    landmarks[LEFT_EYE] = polygon
     pixels = sample_iris_ring(image, np.array([60.0, 40.0]), 10.0, polygon)
     assert len(pixels) > 50
 
