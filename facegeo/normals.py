@@ -18,7 +18,6 @@ in the input's dtype and is differentiable (the fit and the regressor's photomet
 from __future__ import annotations
 
 import numpy as np
-import scipy.sparse as sp
 import torch
 
 __all__ = ["vertex_normals", "vertex_normals_torch", "FALLBACK_NORMAL", "FALLBACK_RINGS"]
@@ -55,6 +54,8 @@ def vertex_normals(vertices: np.ndarray, triangles: np.ndarray) -> np.ndarray:
     bad = length <= _RELATIVE_EPS * max(scale, 1e-300)
     if not bad.any():
         return n / length[:, None]
+    import scipy.sparse as sp  # only for meshes with such vertices
+
     unit = np.zeros_like(n)
     unit[~bad] = n[~bad] / length[~bad, None]
     e = _edges(f)

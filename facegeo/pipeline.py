@@ -29,6 +29,8 @@ from facegeo.texturing.backend import TextureBackend
 from facegeo.texturing.context import build_context
 from facegeo.texturing.default_backend import DefaultBackend
 from facegeo.uv import geometry_maps, rasterize_uv, unwrap
+from facegeo.uv.texels import sample_uv
+from facegeo.landmarks.scheme import IBUG68
 
 __all__ = ["reconstruct", "reconstruct_with_fit", "relit_preview", "BACKENDS", "STAGES"]
 
@@ -253,7 +255,7 @@ def relit_preview(photo: np.ndarray, asset: Asset, fit_result: Fit, *, panel: in
         panel_rgb[:, idx] = pixels[:, start:start + len(idx)]
         start += len(idx)
         columns.append(panel_rgb.reshape(2 * p, p, 3))
-    landmarks = np.asarray(fit_result.landmarks[:68], np.float64)
+    landmarks = np.asarray(fit_result.landmarks[IBUG68], np.float64)
     landmarks = landmarks[np.all(np.isfinite(landmarks), axis=1)]
     lo, hi = landmarks.min(axis=0), landmarks.max(axis=0)
     centre, half = (lo + hi) / 2.0, 0.75 * float(np.max(hi - lo))
@@ -340,7 +342,7 @@ class _PreviewScene:
                 continue
             for name, array in material.items():
                 if array.ndim >= 2:
-                    values[name][sel] = _lookup(array, uv[sel]).reshape(int(sel.sum()), -1)
+                    values[name][sel] = sample_uv(array, uv[sel]).reshape(int(sel.sum()), -1)
                 else:
                     values[name][sel] = array.reshape(1, -1)
 
@@ -357,14 +359,3 @@ class _PreviewScene:
                 image(values["roughness"], clay_roughness), image(values["specular"], clay_specular),
                 torch.zeros(1, 1, 1, len(idx)), shared(position), shared(normal), shared(tangent),
                 torch.ones(1, 1, 1, len(idx))]
-
-def _lookup(texture: np.ndarray, uv: np.ndarray) -> np.ndarray:
-    """Bilinear texture values at (N, 2) UVs (texel centres as in DESIGN.md, edges repeated)."""
-    n = len(uv)
-    rows = -(-n // 1024)  # cv2.remap wants maps shorter than 32767 on each side
-    maps = np.zeros((2, rows * 1024), np.float32)
-    maps[0, :n] = uv[:, 0] * texture.shape[1] - 0.5
-    maps[1, :n] = (1.0 - uv[:, 1]) * texture.shape[0] - 0.5
-    out = cv2.remap(np.ascontiguousarray(texture, dtype=np.float32), maps[0].reshape(rows, 1024), maps[1].reshape(rows, 1024),
-                    cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
-    return out.reshape(rows * 1024, -1)[:n]
