@@ -11,7 +11,7 @@ import pytest
 from facegeo.errors import FacegeoError
 from facegeo.eval.realy_cli import register
 from facegeo.eval.realy_report import OUTPUT_FILES
-from facegeo.eval.realy_synthetic import make_dataset
+from realy_synthetic import make_dataset
 
 
 def run(args, capsys):
