@@ -9,24 +9,24 @@ import trimesh
 from facegeo.asset import Asset
 from facegeo.errors import InputError
 from facegeo.export.displacement import bake_displacement, displace, vertex_values
-from facegeo.uv.texels import sample_uv as sample_map
+from facegeo.uv.texels import sample_uv
 from facegeo.normals import vertex_normals
 from facegeo.export.facevarying import FaceVaryingMesh, from_trimesh, wedges
 from test_export_support import grid_mesh, ict_asset, synthetic_maps
 
 
-def test_sample_map_texel_centres_orientation_and_bilinear():
+def test_sample_uv_texel_centres_orientation_and_bilinear():
     img = np.arange(12, dtype=np.float64).reshape(3, 4)  # row 0 = top (v near 1)
     h, w = img.shape
     centres = np.array([[(j + 0.5) / w, 1 - (i + 0.5) / h] for i in range(h) for j in range(w)])
-    np.testing.assert_allclose(sample_map(img, centres), img.ravel())
+    np.testing.assert_allclose(sample_uv(img, centres), img.ravel())
     mid = np.array([[1.0 / w, 1 - 1.0 / h]])  # between texels (0,0),(0,1),(1,0),(1,1)
-    np.testing.assert_allclose(sample_map(img, mid), [np.mean([0, 1, 4, 5])])
-    np.testing.assert_allclose(sample_map(img, np.array([[-1.0, 2.0], [2.0, -1.0]])), [0.0, 11.0])  # clamped
+    np.testing.assert_allclose(sample_uv(img, mid), [np.mean([0, 1, 4, 5])])
+    np.testing.assert_allclose(sample_uv(img, np.array([[-1.0, 2.0], [2.0, -1.0]])), [0.0, 11.0])  # clamped
     rgb = np.dstack([img, 2 * img, 3 * img])
-    np.testing.assert_allclose(sample_map(rgb, centres[:3]), np.stack([img.ravel()[:3], 2 * img.ravel()[:3], 3 * img.ravel()[:3]], 1))
+    np.testing.assert_allclose(sample_uv(rgb, centres[:3]), np.stack([img.ravel()[:3], 2 * img.ravel()[:3], 3 * img.ravel()[:3]], 1))
     one = np.array([[7.0]])
-    np.testing.assert_allclose(sample_map(one, centres), 7.0)
+    np.testing.assert_allclose(sample_uv(one, centres), 7.0)
 
 
 def test_constant_displacement_moves_along_normals():
@@ -45,7 +45,7 @@ def test_seam_vertices_get_one_value():
     img = np.tile(np.linspace(-1, 1, 64, dtype=np.float32), (64, 1))  # depends on u
     values = vertex_values(a, img)
     vw, tw, _ = wedges(a.triangles, a.uv_triangles)
-    per_wedge = sample_map(img, a.uv[tw])
+    per_wedge = sample_uv(img, a.uv[tw])
     seam = np.flatnonzero(np.bincount(vw) > 1)
     assert len(seam) > 100
     for vtx in seam[:50]:

@@ -3,7 +3,8 @@ occlusion-aware unwrap of a photo (T_inc, M_vis) and the z-buffer renderer that 
 
 Conventions (DESIGN.md): mm; camera space looks down −Z; UV [0, 1]² with the origin bottom-left,
 maps stored row 0 = top (texel (i, j) centre at u = (j + 0.5)/S, v = 1 − (i + 0.5)/S); image
-pixels continuous with the origin at the top-left corner (centres at +0.5).
+pixels continuous with the origin at the top-left corner (centres at +0.5). In code, these
+conventions live in :mod:`facegeo.uv.texels` (uv ↔ texel, bilinear lookups).
 
     raster = rasterize_uv(model, size=1024)              # cached per layout, size and padding
     maps = geometry_maps(fit.shape_vertices, model, raster)   # position/normal/tangent/sign
