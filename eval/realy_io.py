@@ -5,8 +5,9 @@ are the official reader's quirks, kept on purpose (everything else, finding the 
 lines of a file, is :func:`facegeo.mesh_io.obj_records`, and REALY-format files are written with
 :func:`facegeo.mesh_io.obj_text`): vertex coordinates are parsed as float64 and stored as
 **float32**; a quad ``a b c d`` becomes the triangles ``(a, b, c), (a, c, d)`` in file order;
-``f`` tokens may be ``v``, ``v/vt`` or ``v/vt/vn`` (only ``v`` is used; ``vt`` lines are ignored). Where the official reader would silently do something odd, these
-raise :class:`~facegeo.errors.InputError` instead: polygons with more than four corners (the
+``f`` tokens may be ``v``, ``v/vt`` or ``v/vt/vn`` (only ``v`` is used; ``vt`` lines are
+ignored). Where the official reader would silently do something odd, these raise
+:class:`~facegeo.errors.InputError` instead: polygons with more than four corners (the
 official reader drops them), non-numeric or non-finite coordinates, and face indices that are
 zero, negative or past the last vertex.
 

@@ -495,7 +495,8 @@ def fit_landmarks(
         raise InputError("<landmarks>", "landmarks", f"shape ({N_LANDMARKS}, 2) in pixels", str(targets.shape))
     valid = np.isfinite(targets).all(axis=1)
     if valid[INNER_FACE].sum() < 6:
-        raise InputError("<landmarks>", "landmarks", "at least 6 finite non-jaw iBUG points", f"{int(valid[INNER_FACE].sum())}")
+        raise InputError("<landmarks>", "landmarks", "at least 6 finite non-jaw iBUG points",
+                         f"{int(valid[INNER_FACE].sum())}")
     weights = LANDMARK_WEIGHTS if weights is None else np.asarray(weights, dtype=np.float32)
     if weights.shape != (N_LANDMARKS,) or not np.all(np.isfinite(weights)) or np.any(weights < 0):
         raise InputError("<weights>", "weights", f"({N_LANDMARKS},) finite, non-negative", str(weights.shape))

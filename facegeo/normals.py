@@ -59,8 +59,8 @@ def vertex_normals(vertices: np.ndarray, triangles: np.ndarray) -> np.ndarray:
     unit = np.zeros_like(n)
     unit[~bad] = n[~bad] / length[~bad, None]
     e = _edges(f)
-    adjacency = sp.csr_matrix((np.ones(2 * len(e)), (np.concatenate([e[:, 0], e[:, 1]]), np.concatenate([e[:, 1], e[:, 0]]))),
-                              shape=(len(v), len(v)))
+    rows, cols = np.concatenate([e[:, 0], e[:, 1]]), np.concatenate([e[:, 1], e[:, 0]])
+    adjacency = sp.csr_matrix((np.ones(2 * len(e)), (rows, cols)), shape=(len(v), len(v)))
     for _ in range(FALLBACK_RINGS):
         neighbour = adjacency[np.flatnonzero(bad)] @ unit
         nl = np.linalg.norm(neighbour, axis=1)

@@ -232,7 +232,8 @@ def test_nan_in_a_region_file_is_an_input_error(small, tmp_path):
 def test_wrong_vertex_count_and_names_are_input_errors(small, tmp_path):
     realy, pred = _copy_tree(small, tmp_path)
     mesh = read_obj(pred / "1.obj")
-    (pred / "1.obj").write_text(obj_text(mesh.vertices[:-1], mesh.triangles[mesh.triangles.max(axis=1) < len(mesh.vertices) - 1], digits=6, comment=False))
+    kept = mesh.triangles[mesh.triangles.max(axis=1) < len(mesh.vertices) - 1]
+    (pred / "1.obj").write_text(obj_text(mesh.vertices[:-1], kept, digits=6, comment=False))
     with pytest.raises(InputError, match="11248"):
         evaluate(pred, realy)
     (pred / "1.obj").unlink()
@@ -308,7 +309,8 @@ def test_region_part_without_keypoints_is_an_error_not_a_number(small, tmp_path)
     mesh = read_obj(path)
     island = mesh.vertices[:3] + [0.0, 0.0, -4.0]
     n = len(mesh.vertices)
-    path.write_text(obj_text(np.vstack([mesh.vertices, island]), np.vstack([mesh.triangles, [[n, n + 1, n + 2]]]), digits=6, comment=False))
+    triangles = np.vstack([mesh.triangles, [[n, n + 1, n + 2]]])
+    path.write_text(obj_text(np.vstack([mesh.vertices, island]), triangles, digits=6, comment=False))
     for name in ("2.obj", "3.obj"):
         (pred / name).unlink()
     with pytest.raises(FacegeoError, match="1.obj: nose: .*singular"):

@@ -94,7 +94,10 @@ def geometry_maps(vertices: np.ndarray, model, raster: UVRaster | None = None, *
     if raster.n_triangles != triangles.shape[0]:
         raise InputError("<argument>", "raster", f"a UV raster of this model's {triangles.shape[0]} triangles",
                          f"one of {raster.n_triangles}")
-    n = vertex_normals(v, triangles).astype(np.float32) if normals is None else _check_vertices(normals, triangles, "normals")
+    if normals is None:
+        n = vertex_normals(v, triangles).astype(np.float32)
+    else:
+        n = _check_vertices(normals, triangles, "normals")
     geo = texel_geometry(v, n, model, raster, tangents=tangents)
     S = raster.size
     mask = raster.mask
