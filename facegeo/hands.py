@@ -24,10 +24,10 @@ models (``assets/mediapipe``, Apache-2.0, extracted from the ``mediapipe==0.10.1
 
 Why the lite models (4 MB against the full ones' 7.8 MB): on ``benchmarks/bench_albedo.py``'s
 composited hands (flat skin-coloured mittens beside a cheek) the lite palm detector scores 0.66
-and 0.65 (landmark presence 0.88 and 0.54), the full one 0.96 and 0.37 (the second below
+and 0.65 (landmark presence 0.84 and 0.57), the full one 0.96 and 0.37 (the second below
 MediaPipe's 0.5); on the photos without a hand (the bundled astronaut, matplotlib's Grace
 Hopper, the benchmark's frontal scene) no lite detection reaches 0.3, while the full detector
-fires at 0.75–0.78 on a face and a collar (rejected by the landmark model's presence, 0.00).
+fires at 0.75 and 0.78 on two faces (rejected by the landmark model's presence, 0.00).
 
 Landmark order (MediaPipe's): 0 wrist; thumb 1–4; index 5–8; middle 9–12; ring 13–16;
 pinky 17–20 (knuckle to tip). Coordinates: pixels, the centre of the top-left pixel at (0, 0).
