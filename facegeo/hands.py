@@ -30,8 +30,8 @@ Hopper, the benchmark's frontal scene) no lite detection reaches 0.3, while the 
 fires at 0.75 and 0.78 on two faces (rejected by the landmark model's presence, 0.00). On the
 18 photos of scikit-image's ``skimage.data`` (no bare hand in any) the lite palm detector fires
 (≥ 0.5) on 6, 7 detections up to 0.84 (a cat, cells, a retina, a motorcycle, the Hubble deep
-field, the cameraman);
-the landmark model's presence is at most 0.015 on them, so no hand is reported.
+field, the cameraman); the landmark model's presence is at most 0.015 on them, so no hand is
+reported.
 
 Landmark order (MediaPipe's): 0 wrist; thumb 1–4; index 5–8; middle 9–12; ring 13–16;
 pinky 17–20 (knuckle to tip). Coordinates: pixels, the centre of the top-left pixel at (0, 0).
