@@ -66,8 +66,6 @@ def test_hand_over_the_cheek_is_found_and_masked(photo, with_hand):
     assert h.landmarks.shape == (21, 3) and h.landmarks.dtype == np.float32 and h.presence > 0.8 and h.score > 0.5
     assert 25 < h.palm_length < 60  # the drawn palm: knuckles 0.95 × 50 px above the drawn wrist
     ys, xs = np.round(h.landmarks[[4, 8, 12, 16, 20], 1]).astype(int), np.round(h.landmarks[[4, 8, 12, 16, 20], 0]).astype(int)
-    near = np.zeros_like(hand)
-    near[max(ys.min() - 20, 0):, :] = True
     grown = np.pad(hand, 4)  # fingertips within 4 px of the drawn hand
     assert all(grown[y:y + 9, x:x + 9].any() for x, y in zip(xs, ys))
     mask = hand_mask(image.shape[:2], hands)
