@@ -14,13 +14,11 @@ texel centres the edge texels repeat).
 
 from __future__ import annotations
 
-from typing import Any
-
 import numpy as np
 
 from facegeo.asset import Asset
 from facegeo.errors import InputError
-from facegeo.export.facevarying import FaceVaryingMesh, as_face_varying, to_trimesh
+from facegeo.export.facevarying import FaceVaryingMesh, as_face_varying
 from facegeo.export.subdivision import subdivide
 from facegeo.normals import vertex_normals
 from facegeo.uv.texels import sample_uv
@@ -28,7 +26,7 @@ from facegeo.uv.texels import sample_uv
 __all__ = ["vertex_values", "bake_displacement", "displace"]
 
 
-def vertex_values(mesh: Any, image: np.ndarray) -> np.ndarray:
+def vertex_values(mesh: Asset | FaceVaryingMesh, image: np.ndarray) -> np.ndarray:
     """One value per geometry vertex: the map sampled at each distinct UV of the vertex and
     averaged (seam vertices have several). (V,) or (V, C) float64; a vertex no triangle uses gets 0."""
     fv = as_face_varying(mesh)
@@ -45,12 +43,12 @@ def vertex_values(mesh: Any, image: np.ndarray) -> np.ndarray:
     return np.stack([np.bincount(vert, weights=samples[:, c], minlength=n) for c in range(samples.shape[1])], axis=1) / count[:, None]
 
 
-def bake_displacement(mesh: Any, displacement_map: np.ndarray | float | None = None, scale_mm: float = 1.0) -> Any:
+def bake_displacement(mesh: Asset | FaceVaryingMesh, displacement_map: np.ndarray | float | None = None,
+                      scale_mm: float = 1.0) -> Asset | FaceVaryingMesh:
     """Move every vertex along its smoothed area-weighted normal by ``scale_mm ×`` the map.
 
-    ``mesh``: an :class:`Asset`, a :class:`trimesh.Trimesh` with UVs or a ``FaceVaryingMesh``;
-    the same type is returned (a Trimesh with one vertex per (vertex, UV) pair and the displaced
-    mesh's normals). ``displacement_map``: (H, W) float array (millimetres when ``scale_mm`` is 1,
+    ``mesh``: an :class:`Asset` (returns an Asset) or a ``FaceVaryingMesh`` with UVs (returns
+    one). ``displacement_map``: (H, W) float array (millimetres when ``scale_mm`` is 1,
     the DESIGN.md convention), or a number (a uniform offset), or None for an Asset's own
     ``displacement`` map or constant. When the Asset's own displacement is baked it is removed
     from the returned Asset (so it is not applied twice) and ``metadata["displacement_baked"]``
@@ -94,17 +92,15 @@ def bake_displacement(mesh: Any, displacement_map: np.ndarray | float | None = N
             constants.pop("displacement", None)
             metadata["displacement_baked"] = {"scale_mm": float(scale_mm), "level": int(metadata.get("subdivision_level", 0))}
         return Asset(moved, mesh.triangles, mesh.uv, mesh.uv_triangles, maps=maps, constants=constants, name=mesh.name, metadata=metadata)
-    if isinstance(mesh, FaceVaryingMesh):
-        return out
-    return to_trimesh(out, material=getattr(getattr(mesh, "visual", None), "material", None))
+    return out
 
 
-def displace(mesh: Any, displacement_map: np.ndarray | float | None = None, level: int = 2, scale_mm: float = 1.0,
-             *, uv_interpolation: str = "surface") -> Any:
+def displace(mesh: Asset | FaceVaryingMesh, displacement_map: np.ndarray | float | None = None, level: int = 2,
+             scale_mm: float = 1.0, *, uv_interpolation: str = "surface") -> Asset | FaceVaryingMesh:
     """Subdivide ``mesh`` ``level`` times (Loop, UVs carried) and bake the displacement map.
 
-    Returns the input's type: an :class:`Asset` (without its displacement map once baked; use
-    :func:`facegeo.export.to_trimesh` for a Trimesh) or a :class:`trimesh.Trimesh` with UVs.
+    Returns an :class:`Asset` for an Asset (without its displacement map once baked) and a
+    ``FaceVaryingMesh`` otherwise; :func:`facegeo.export.to_trimesh` makes a Trimesh of either.
     ``displacement_map`` (H, W) in map units × ``scale_mm`` = millimetres; None takes an Asset's
     own. See :func:`subdivide` and :func:`bake_displacement`.
     """

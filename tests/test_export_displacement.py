@@ -72,12 +72,12 @@ def test_displace_asset_drops_its_displacement_and_records_it():
     assert 0.05 < gap.max() <= 0.4 + 1e-4
 
 
-def test_displace_trimesh_returns_trimesh_with_uvs():
+def test_displace_via_trimesh_round_trip_keeps_uvs():
     a = ict_asset(maps={})
     from facegeo.export.facevarying import to_trimesh
 
     tm = to_trimesh(a)
-    out = displace(tm, synthetic_maps(32)["displacement"], level=1)
+    out = to_trimesh(displace(from_trimesh(tm), synthetic_maps(32)["displacement"], level=1))
     assert isinstance(out, trimesh.Trimesh)
     assert out.visual.uv is not None and len(out.visual.uv) == len(out.vertices)
     fv = from_trimesh(out)
