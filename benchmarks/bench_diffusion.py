@@ -120,21 +120,21 @@ def _sample_psnr(c, lat, steps: int = 8, guidance: float = 1.0, seed: int = 0) -
     return float(10 * torch.log10(1 / ((out - reference) ** 2).mean()))
 
 
-def _train_tiny(data: dict[str, np.ndarray], adaln: bool, steps: int):
+def _train_tiny(data: dict[str, np.ndarray], extra: tuple[str, ...], steps: int, caption_dropout: float = 0.0):
     """The training test's run: one-layer tiny backbone, inpaint LoRA rank 32 on the paper's targets
-    (+ the AdaLN modulation), batch 8, lr 1e-2. Returns (components, latents, validation loss per σ
-    before, after, sample PSNR before, after, training seconds)."""
+    + ``extra``, batch 8, lr 1e-2 (``caption_dropout`` 0 as in the test). Returns (components,
+    latents, validation loss per σ before, after, sample PSNR before, after, training seconds)."""
     from facegeo.texturing.diffusion.components import tiny_components
-    from facegeo.texturing.diffusion.model import ADALN_TARGETS, LORA_TARGETS, add_adapters
+    from facegeo.texturing.diffusion.model import LORA_TARGETS, add_adapters
     from facegeo.texturing.diffusion.training import TrainConfig, encode_samples, train_lora, validation_loss
 
     c = tiny_components()
     lat = encode_samples(c, data, "inpaint")
-    add_adapters(c.transformer, ["inpaint"], targets=LORA_TARGETS + (ADALN_TARGETS if adaln else ()))
+    add_adapters(c.transformer, ["inpaint"], targets=LORA_TARGETS + extra)
     before, psnr_before = validation_loss(c, lat, "inpaint"), _sample_psnr(c, lat)
     t = time.perf_counter()
     with tempfile.TemporaryDirectory() as run:
-        train_lora(c, lat, TrainConfig(task="inpaint", steps=steps, batch=8, lr=1e-2, save_every=10**6, caption_dropout=0.0),
+        train_lora(c, lat, TrainConfig(task="inpaint", steps=steps, batch=8, lr=1e-2, save_every=10**6, caption_dropout=caption_dropout),
                    run, progress=False)
     seconds = time.perf_counter() - t
     return c, lat, before, validation_loss(c, lat, "inpaint"), psnr_before, _sample_psnr(c, lat), seconds
@@ -160,12 +160,38 @@ def mixture_floor(lat, task: str = "inpaint") -> torch.Tensor:
     return torch.stack(floors)
 
 
+@torch.no_grad()
+def modulation_stats() -> None:
+    """How the frozen random backbone's AdaLN modulation depends on σ: its rms, the rms of its
+    change between σ = 0.1 and 0.9, and the mean |gate| on the dual-stream block's residual writes."""
+    import torch.nn.functional as F
+
+    from facegeo.texturing.diffusion.components import tiny_components
+
+    t = tiny_components().transformer
+
+    def modulation(sigma: float) -> torch.Tensor:
+        act = F.silu(t.time_embed(torch.tensor([1000.0 * sigma]), torch.float32))
+        return torch.cat([t.transformer_blocks[0].norm1.linear(act), t.transformer_blocks[0].norm1_context.linear(act),
+                          t.single_transformer_blocks[0].norm.linear(act), t.norm_out.linear(act)], dim=1)
+
+    low, high = modulation(0.1), modulation(0.9)
+    gates = low[0, :192].view(6, 32)[[2, 5]]  # gate_msa, gate_mlp of the image stream
+    print(f"random one-layer backbone: AdaLN modulation rms {float(low.pow(2).mean().sqrt()):.3f}, its change from σ 0.1 to 0.9 "
+          f"rms {float((high - low).pow(2).mean().sqrt()):.3f}; mean |gate| of the image stream's attention/FF writes "
+          f"{float(gates.abs().mean()):.3f}")
+
+
 def training(steps: int) -> None:
+    from facegeo.texturing.diffusion.model import ADALN_TARGETS
     from facegeo.texturing.diffusion.training import validation_sigmas
 
+    modulation_stats()
     with tempfile.TemporaryDirectory() as folder:
         data = _tiny_pairs(folder)
-    runs = {name: _train_tiny(data, adaln, steps) for name, adaln in (("paper's targets", False), ("+ AdaLN modulation", True))}
+    variants = (("paper's targets", ()), ("+ norm_out", ADALN_TARGETS[3:]), ("+ block modulation", ADALN_TARGETS[:3]),
+                ("+ all AdaLN", ADALN_TARGETS))
+    runs = {name: _train_tiny(data, extra, steps) for name, extra in variants}
     lat = next(iter(runs.values()))[1]
     assert not torch.equal(lat.condition[0], lat.condition[1])  # distinct conditions: the conditional floor is 0
     floor = mixture_floor(lat)
@@ -185,9 +211,11 @@ def training(steps: int) -> None:
 def steps_vs_psnr(train_steps: int) -> None:
     with tempfile.TemporaryDirectory() as folder:
         data = _tiny_pairs(folder)
-    c, lat, before, after, *_ = _train_tiny(data, True, train_steps)
-    print(f"inpaint LoRA (paper's targets + AdaLN modulation, rank 32, {train_steps} steps, one-layer tiny backbone, "
-          f"2 pairs of 16²): validation loss {float(before.mean()):.3f} -> {float(after.mean()):.3f}")
+    from facegeo.texturing.diffusion.model import ADALN_TARGETS
+
+    c, lat, before, after, *_ = _train_tiny(data, ADALN_TARGETS, train_steps, caption_dropout=0.1)  # dropout: guidance needs it
+    print(f"inpaint LoRA (paper's targets + AdaLN modulation, rank 32, {train_steps} steps, caption dropout 0.1, one-layer tiny "
+          f"backbone, 2 pairs of 16²): validation loss {float(before.mean()):.3f} -> {float(after.mean()):.3f}")
     print("steps  guidance  seconds  PSNR dB (vs the VAE-decoded targets)")
     for guidance in (1.0, 2.0):
         for steps in (1, 2, 4, 8, 16, 30):

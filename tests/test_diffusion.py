@@ -190,7 +190,7 @@ def test_a_few_hundred_steps_lower_the_loss_five_times_and_improve_samples(pairs
     before and after; its Bayes floor on this data is 0 (the two conditions differ, so the optimal
     velocity (z_σ − z₀)/σ is exact). The adapter also covers the AdaLN modulation
     (``ADALN_TARGETS``): with this random backbone's modulation frozen, LoRAs on the paper's
-    targets alone plateau near 2.7× (benchmarks/RESULTS.md, "Training bar")."""
+    targets alone reach 2.59× (benchmarks/RESULTS.md, "Training bar")."""
     c = tiny_components()
     lat = encode_samples(c, {k: v[:2] for k, v in read_samples(pairs, ("t_inc", "t_env")).items()}, "inpaint")
     n = lat.condition.shape[0]
