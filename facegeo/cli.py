@@ -12,17 +12,15 @@ that fails for want of room (ENOSPC, EFBIG) is one line and exit status 2 as wel
 from __future__ import annotations
 
 import argparse
-import json
 import math
 import signal
 import sys
-import time
 from pathlib import Path
 from typing import Iterable, NoReturn
 
 from facegeo import __version__
 from facegeo.errors import FacegeoError, InputError
-from facegeo.regressor.cli import add_regressor_arguments, predictor_from_args
+from facegeo.regressor.cli import add_regressor_arguments
 from facegeo.regressor.cli import register as register_regressor
 
 __all__ = ["main", "build_parser", "add_fit_arguments", "add_parts_argument", "check_arguments", "parse_list", "Interrupted",
@@ -80,6 +78,10 @@ def check_arguments(args: argparse.Namespace) -> None:
     focal = getattr(args, "focal", None)
     if focal is not None and not (math.isfinite(focal) and focal > 0):
         raise InputError(COMMAND_LINE, "--focal", "a finite focal length > 0 in pixels", str(focal))
+    if getattr(args, "refine", False) and getattr(args, "regressor", None) is None:
+        raise InputError(COMMAND_LINE, "--refine", "--regressor CKPT with it", "no --regressor")
+    if getattr(args, "weights", None) is not None and getattr(args, "backend", "diffusion") != "diffusion":
+        raise InputError(COMMAND_LINE, "--weights", "--backend diffusion", f"--backend {args.backend}")
     if getattr(args, "output_folder", False):
         check_output_location(args.output, folder=True, replace=True)
         out = Path(args.output).resolve()
@@ -172,116 +174,48 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def _run_fit(args: argparse.Namespace) -> None:
-    from facegeo.camera import Camera
-    from facegeo.export.textures import png_bytes
-    from facegeo.fitting import fit
-    from facegeo.landmarks.scheme import inter_ocular_distance
-    from facegeo.mesh_io import obj_text
-    from facegeo.model_files import load_model
-    from facegeo.overlay import draw_overlay
-    from facegeo.photo import load_photo
-    from facegeo.staged_output import StagedOutput
+    from facegeo.jobs import FitOptions, fit_into_folder
 
-    start = time.perf_counter()
-    t_model = time.perf_counter()
-    model = load_model(args.model)
-    model_seconds = time.perf_counter() - t_model
-    fitter = predictor_from_args(args, model) or fit
-    photo = load_photo(args.photo, max_side=args.max_side)
-    height, width = photo.image.shape[:2]
-    camera = Camera.for_image(width, height)
-    if args.focal is not None:
-        camera = Camera(args.focal, width / 2.0, height / 2.0, width, height)
-    result = fitter(photo, model=model, detector=args.landmarks, camera=camera, photometric=not args.no_photometric)
-    result.timings["load_model"] = model_seconds
-    result.timings["total"] = time.perf_counter() - start
-    iod = inter_ocular_distance(result.landmarks)
-    result.info["landmark_rms_percent_iod"] = 100.0 * result.landmark_rms_px / iod
-    with StagedOutput(args.output, replace=True) as stage:
-        stage.path("fit.json").write_text(json.dumps(result.to_dict(), indent=1))
-        stage.path("mesh.obj").write_text(obj_text(result.vertices, model.triangles, model.uv, model.uv_triangles))
-        overlay = draw_overlay(photo.image, result, model)
-        stage.path("overlay.png").write_bytes(png_bytes(overlay))
-    for note in result.info.get("notes", []):
+    options = FitOptions(model=args.model, landmarks=args.landmarks, focal=args.focal, max_side=args.max_side,
+                         photometric=not args.no_photometric, regressor=args.regressor, refine=args.refine)
+    record = fit_into_folder(args.photo, args.output, options)
+    for note in record.notes:
         print(f"note: {note}")
     print(
-        f"fitted {args.photo} with {model.name}: "
-        f"landmark RMS {result.landmark_rms_px:.2f} px = {result.info['landmark_rms_percent_iod']:.2f} % of the inter-ocular distance"
+        f"fitted {args.photo}: landmark RMS {record.landmark_rms_px:.2f} px = "
+        f"{record.landmark_rms_percent_iod:.2f} % of the inter-ocular distance"
     )
-    print("timings: " + ", ".join(f"{k} {v:.3f} s" for k, v in result.timings.items()))
-    print(f"wrote {args.output}/fit.json, mesh.obj, overlay.png")
+    print("timings: " + ", ".join(f"{k} {v:.3f} s" for k, v in record.timings.items()))
+    print(f"wrote {args.output}/" + ", ".join(record.files))
 
 
 def _run_reconstruct(args: argparse.Namespace) -> None:
     from tqdm import tqdm
 
     from facegeo.asset import MAP_NAMES
-    from facegeo.export.asset_io import write_asset_files
-    from facegeo.export.textures import png_bytes
-    from facegeo.export.writers import FORMATS, export_asset
-    from facegeo.model_files import load_model
-    from facegeo.photo import load_photo
-    from facegeo.errors import NoFaceError
-    from facegeo.pipeline import BACKENDS, STAGES, reconstruct_with_fit, relit_preview
-    from facegeo.skin_mask import skin_mask, skin_mask_image
-    from facegeo.staged_output import StagedOutput
+    from facegeo.export.writers import FORMATS
+    from facegeo.jobs import ReconstructOptions, reconstruct_into_folder
+    from facegeo.pipeline import STAGES
 
     maps = parse_list(args.maps, MAP_NAMES, "--maps")
     formats = parse_list(args.format, FORMATS, "--format")
-    if args.weights is not None and args.backend != "diffusion":
-        raise InputError(COMMAND_LINE, "--weights", "--backend diffusion", f"--backend {args.backend}")
-    start = time.perf_counter()
-    backend = BACKENDS[args.backend](args.weights) if args.backend == "diffusion" else args.backend  # weights checked first
-    model = load_model(args.model)
-    predictor = predictor_from_args(args, model)
-    photo = load_photo(args.photo, max_side=args.max_side)
+    options = ReconstructOptions(model=args.model, landmarks=args.landmarks, max_side=args.max_side,
+                                 regressor=args.regressor, refine=args.refine, backend=args.backend, weights=args.weights,
+                                 size=args.size, upscale=args.upscale, subdiv=args.subdiv, maps=tuple(maps),
+                                 formats=tuple(formats), parts=args.parts, preview=not args.no_preview)
     bar = tqdm(total=len(STAGES) + 2, desc="reconstruct", unit="stage", disable=not sys.stderr.isatty(), leave=False)
 
     def progress(stage: str) -> None:
         bar.set_postfix_str(stage)
         bar.update(1)
 
-    try:  # the skin mask needs MediaPipe's mesh; without it the pipeline builds one from the fit's landmarks
-        skin = skin_mask(photo.image, source=str(args.photo))
-    except NoFaceError:
-        skin = None
-    asset, result = reconstruct_with_fit(photo, model, backend=backend, size=args.size, upscale=args.upscale,
-                                maps=maps, detector=args.landmarks, skin=skin, progress=progress,
-                                **({"fitter": predictor} if predictor else {}))
-    timings = dict(asset.metadata["timings_s"])
-    with StagedOutput(args.output, replace=True) as stage:
-        bar.set_postfix_str("export")
-        bar.update(1)
-        t = time.perf_counter()
-        write_asset_files(asset, stage.staging_dir)
-        if skin is not None:
-            stage.path("skin_mask.png").write_bytes(png_bytes(skin_mask_image(skin)))
-        # An 11k-vertex mesh cannot carry texel-scale displacement: at --subdiv 0 the detail
-        # travels in the normal map only (the displacement map stays in the asset folder).
-        carried = [m for m in asset.maps if m != "displacement" or args.subdiv > 0]
-        scene = asset.select(args.parts)
-        for fmt in formats:
-            export_asset(scene, stage.path(f"face.{fmt}"), format=fmt, level=args.subdiv, maps=carried)
-        timings["export"] = time.perf_counter() - t
-        if not args.no_preview:
-            bar.set_postfix_str("preview")
-            bar.update(1)
-            t = time.perf_counter()
-            preview = relit_preview(photo.image, asset, result)
-            stage.path("preview.png").write_bytes(png_bytes(preview))
-            timings["preview"] = time.perf_counter() - t
-        timings["total"] = time.perf_counter() - start
-        record = result.to_dict()
-        record["timings_s"] = {**record["timings_s"], "stages": timings}
-        record["texture_report"] = asset.metadata.get("texture_report", {})
-        record["parts"] = asset.metadata.get("parts", {})
-        stage.path("fit.json").write_text(json.dumps(record, indent=1))
+    record = reconstruct_into_folder(args.photo, args.output, options, progress=progress)
     bar.close()
-    for note in result.info.get("notes", []):
+    for note in record.notes:
         print(f"note: {note}")
-    print(f"reconstructed {args.photo}: landmark RMS {result.landmark_rms_px:.2f} px, maps {', '.join(asset.maps)} "
-          f"at {next(iter(asset.maps.values())).shape[0]}², formats {', '.join(formats)}")
-    print("timings: " + ", ".join(f"{k} {v:.2f} s" for k, v in timings.items()))
+    print(f"reconstructed {args.photo}: landmark RMS {record.landmark_rms_px:.2f} px, maps {', '.join(record.maps)} "
+          f"at {record.map_size}², formats {', '.join(formats)}")
+    print("timings: " + ", ".join(f"{k} {v:.2f} s" for k, v in record.timings.items()))
     print(f"wrote {args.output}")
 
 

@@ -11,7 +11,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
-__all__ = ["register", "add_regressor_arguments", "predictor_from_args"]
+__all__ = ["register", "add_regressor_arguments"]
 
 
 def add_regressor_arguments(parser: argparse.ArgumentParser) -> None:
@@ -20,20 +20,6 @@ def add_regressor_arguments(parser: argparse.ArgumentParser) -> None:
                         help="use a trained regressor checkpoint (facegeo train-regressor) instead of the analysis-by-synthesis fit")
     parser.add_argument("--refine", action="store_true",
                         help="with --regressor: run the analysis-by-synthesis fit started from the prediction")
-
-
-def predictor_from_args(args: argparse.Namespace, model: Any) -> Any:
-    """The :class:`facegeo.regressor.Predictor` asked for on the command line, or None. Loaded
-    (and checked against ``model``) before any photo is read."""
-    from facegeo.errors import InputError
-
-    if args.regressor is None:
-        if args.refine:
-            raise InputError("<command line>", "--refine", "--regressor CKPT with it", "no --regressor")
-        return None
-    from facegeo.regressor.predictor import load
-
-    return load(args.regressor, model=model, detector=args.landmarks, refine=args.refine)
 
 
 def register(sub: argparse._SubParsersAction) -> None:

@@ -1,0 +1,265 @@
+"""One photo in, one output folder out: the two jobs the ``fit`` and ``reconstruct`` commands run,
+as library functions (the CLI parses options into :class:`FitOptions` / :class:`ReconstructOptions`
+and calls :func:`fit_into_folder` / :func:`reconstruct_into_folder`; batch processing calls the
+same functions once per photo).
+
+The folder is written through :class:`facegeo.staged_output.StagedOutput`: it appears complete
+or not at all, and an existing facegeo output folder is replaced. The morphable model and a
+regressor checkpoint are loaded once per process and reused (:func:`loaded_resources`), so a
+worker that runs many jobs reads them once.
+"""
+
+from __future__ import annotations
+
+import functools
+import json
+import time
+from collections.abc import Callable
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any
+
+from facegeo.errors import InputError
+
+__all__ = ["FitOptions", "ReconstructOptions", "JobRecord", "fit_into_folder", "reconstruct_into_folder",
+           "loaded_resources", "FIT_FILES", "DISPLACEMENT_BAKE_RULE"]
+
+#: The files ``fit_into_folder`` writes.
+FIT_FILES = ("fit.json", "mesh.obj", "overlay.png")
+
+#: When displacement is baked into the exported geometry (see :func:`reconstruct_into_folder`).
+DISPLACEMENT_BAKE_RULE = (
+    "An 11k-vertex mesh cannot carry texel-scale displacement: at subdiv 0 the detail travels in the "
+    "normal map only and the displacement map stays in the asset folder; at subdiv ≥ 1 the subdivided "
+    "mesh is displaced and the scenes carry the displacement map as well."
+)
+
+_SOURCE = "<options>"
+
+
+@dataclass(frozen=True)
+class FitOptions:
+    """What a fit needs besides the photo.
+
+    Attributes:
+        model: model file (.npz, HIFI3D++ .mat, AI-NExT .mat); None = $FACEGEO_MODEL or the bundled one.
+        landmarks: landmark detector name (``facegeo.landmarks.DETECTORS``).
+        focal: focal length in pixels of the (possibly downscaled) photo; None = 40° field of view.
+        max_side: photos whose longer side exceeds this many pixels are downscaled.
+        photometric: run the albedo and SH lighting stage (``fit`` only; ``reconstruct`` always does).
+        regressor: a trained regressor checkpoint to use instead of the analysis-by-synthesis fit.
+        refine: with ``regressor``: run the analysis-by-synthesis fit started from its prediction.
+    """
+
+    model: Path | None = None
+    landmarks: str = "hybrid"
+    focal: float | None = None
+    max_side: int = 2048
+    photometric: bool = True
+    regressor: Path | None = None
+    refine: bool = False
+
+    def __post_init__(self) -> None:
+        from facegeo.landmarks import DETECTORS
+
+        if self.landmarks not in DETECTORS:
+            raise InputError(_SOURCE, "landmarks", f"one of {', '.join(DETECTORS)}", repr(self.landmarks))
+        if self.refine and self.regressor is None:
+            raise InputError(_SOURCE, "refine", "a regressor checkpoint with it", "no regressor")
+
+
+@dataclass(frozen=True)
+class ReconstructOptions(FitOptions):
+    """:class:`FitOptions` plus what the texture, export and preview stages need.
+
+    Attributes:
+        backend: texture backend name (``facegeo.pipeline.BACKENDS``).
+        weights: the diffusion backend's weights folder (only with ``backend="diffusion"``).
+        size: UV map size in texels; upscale: 1, 2 or 4; subdiv: Loop levels of the exported mesh.
+        maps: which maps to compute and export (names from ``facegeo.asset.MAP_NAMES``).
+        formats: scene formats to write (names from ``facegeo.export.writers.FORMATS``).
+        parts: what the scenes hold: face, head or full (``facegeo.asset.PART_CHOICES``).
+        preview: render preview.png.
+    """
+
+    backend: str = "default"
+    weights: Path | None = None
+    size: int = 1024
+    upscale: int = 1
+    subdiv: int = 0
+    maps: tuple[str, ...] = ("albedo", "normal", "roughness", "specular", "displacement")
+    formats: tuple[str, ...] = ("usdz", "glb")
+    parts: str = "full"
+    preview: bool = True
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        from facegeo.asset import MAP_NAMES, PART_CHOICES
+        from facegeo.export.writers import FORMATS
+        from facegeo.pipeline import BACKENDS
+
+        for name, values, allowed in (("maps", self.maps, MAP_NAMES), ("formats", self.formats, FORMATS)):
+            if not values or any(v not in allowed for v in values):
+                raise InputError(_SOURCE, name, f"one or more of {', '.join(allowed)}", ", ".join(values) or "none")
+        if self.backend not in BACKENDS:
+            raise InputError(_SOURCE, "backend", f"one of {', '.join(BACKENDS)}", repr(self.backend))
+        if self.weights is not None and self.backend != "diffusion":
+            raise InputError(_SOURCE, "weights", "backend diffusion", f"backend {self.backend}")
+        if self.upscale not in (1, 2, 4):
+            raise InputError(_SOURCE, "upscale", "1, 2 or 4", str(self.upscale))
+        if self.subdiv not in (0, 1, 2, 3):
+            raise InputError(_SOURCE, "subdiv", "0, 1, 2 or 3", str(self.subdiv))
+        if self.parts not in PART_CHOICES:
+            raise InputError(_SOURCE, "parts", f"one of {', '.join(PART_CHOICES)}", repr(self.parts))
+
+
+@dataclass
+class JobRecord:
+    """What one job did. ``timings`` in seconds by stage; ``landmark_rms_percent_iod`` in % of the
+    inter-ocular distance; ``files``: the names written into ``output``."""
+
+    photo: str
+    output: str
+    landmark_rms_px: float
+    landmark_rms_percent_iod: float
+    timings: dict[str, float]
+    files: list[str]
+    notes: list[str] = field(default_factory=list)
+    maps: list[str] = field(default_factory=list)
+    map_size: int = 0
+
+    def to_dict(self) -> dict[str, Any]:
+        """A JSON-ready dict."""
+        return asdict(self)
+
+
+@functools.lru_cache(maxsize=4)
+def loaded_resources(model: Path | None, regressor: Path | None, refine: bool, landmarks: str) -> tuple[Any, Callable[..., Any] | None]:
+    """``(model, predictor)`` for these options, loaded once per process: the
+    :class:`facegeo.MorphableModel` and the :class:`facegeo.regressor.Predictor` (None without a
+    checkpoint). Errors name the file and come before any photo is read."""
+    from facegeo.model_files import load_model
+
+    loaded = load_model(model)
+    if regressor is None:
+        return loaded, None
+    from facegeo.regressor.predictor import load
+
+    return loaded, load(regressor, model=loaded, detector=landmarks, refine=refine)
+
+
+def _camera(photo: Any, focal: float | None) -> Any:
+    from facegeo.camera import Camera
+
+    height, width = photo.image.shape[:2]
+    if focal is None:
+        return Camera.for_image(width, height)
+    return Camera(focal, width / 2.0, height / 2.0, width, height)
+
+
+def fit_into_folder(photo_path: str | Path, output: str | Path, options: FitOptions = FitOptions()) -> JobRecord:
+    """Fit the model to one photo and write ``fit.json`` (parameters, camera, per-point landmark
+    errors, timings), ``mesh.obj`` (posed mesh in camera space, mm, with UVs) and ``overlay.png``
+    into ``output`` (replaced as a whole if it is an earlier facegeo output).
+
+    Raises:
+        facegeo.errors.FacegeoError: bad photo, no face, failed fit checks, or an unwritable output.
+    """
+    from facegeo.export.textures import png_bytes
+    from facegeo.fitting import fit
+    from facegeo.landmarks.scheme import inter_ocular_distance
+    from facegeo.mesh_io import obj_text
+    from facegeo.overlay import draw_overlay
+    from facegeo.photo import load_photo
+    from facegeo.staged_output import StagedOutput
+
+    start = time.perf_counter()
+    model, predictor = loaded_resources(options.model, options.regressor, options.refine, options.landmarks)
+    model_seconds = time.perf_counter() - start
+    photo = load_photo(photo_path, max_side=options.max_side)
+    fitter = predictor or fit
+    result = fitter(photo, model=model, detector=options.landmarks, camera=_camera(photo, options.focal),
+                    photometric=options.photometric)
+    result.timings["load_model"] = model_seconds
+    result.timings["total"] = time.perf_counter() - start
+    iod = inter_ocular_distance(result.landmarks)
+    result.info["landmark_rms_percent_iod"] = 100.0 * result.landmark_rms_px / iod
+    with StagedOutput(output, replace=True) as stage:
+        stage.path("fit.json").write_text(json.dumps(result.to_dict(), indent=1))
+        stage.path("mesh.obj").write_text(obj_text(result.vertices, model.triangles, model.uv, model.uv_triangles))
+        stage.path("overlay.png").write_bytes(png_bytes(draw_overlay(photo.image, result, model)))
+    return JobRecord(photo=str(photo_path), output=str(output), landmark_rms_px=float(result.landmark_rms_px),
+                     landmark_rms_percent_iod=float(result.info["landmark_rms_percent_iod"]),
+                     timings=dict(result.timings), files=list(FIT_FILES), notes=list(result.info.get("notes", [])))
+
+
+def reconstruct_into_folder(photo_path: str | Path, output: str | Path, options: ReconstructOptions = ReconstructOptions(),
+                            progress: Callable[[str], None] | None = None) -> JobRecord:
+    """The whole pipeline on one photo, into ``output``: ``fit.json`` (the fit, stage timings, the
+    texture report, the parts), the asset files (``asset.json`` + map PNGs, re-exportable with
+    ``facegeo export``), ``skin_mask.png`` when MediaPipe's mesh found the face, one scene per
+    format (``face.usdz``, ``face.glb``, ...) holding ``options.parts``, and ``preview.png`` (the
+    photo beside the asset from the front, three-quarter and profile, textured and as clay).
+    Displacement: :data:`DISPLACEMENT_BAKE_RULE`.
+
+    Args:
+        progress: called with each stage's name as it starts (the pipeline's ``STAGES``, then
+            ``export`` and ``preview``).
+    Raises:
+        facegeo.errors.FacegeoError: bad photo or options, no face, failed fit checks, missing
+            weights, or an unwritable output.
+    """
+    from facegeo.errors import NoFaceError
+    from facegeo.export.asset_io import write_asset_files
+    from facegeo.export.textures import png_bytes
+    from facegeo.export.writers import export_asset
+    from facegeo.photo import load_photo
+    from facegeo.pipeline import BACKENDS, reconstruct_with_fit, relit_preview
+    from facegeo.skin_mask import skin_mask, skin_mask_image
+    from facegeo.staged_output import StagedOutput
+
+    start = time.perf_counter()
+    backend = BACKENDS[options.backend](options.weights) if options.backend == "diffusion" else options.backend  # weights checked first
+    model, predictor = loaded_resources(options.model, options.regressor, options.refine, options.landmarks)
+    photo = load_photo(photo_path, max_side=options.max_side)
+    try:  # the skin mask needs MediaPipe's mesh; without it the pipeline builds one from the fit's landmarks
+        skin = skin_mask(photo.image, source=str(photo_path))
+    except NoFaceError:
+        skin = None
+    asset, result = reconstruct_with_fit(photo, model, backend=backend, size=options.size, upscale=options.upscale,
+                                         maps=options.maps, detector=options.landmarks, skin=skin, progress=progress,
+                                         camera=_camera(photo, options.focal) if options.focal is not None else None,
+                                         **({"fitter": predictor} if predictor else {}))
+    timings = dict(asset.metadata["timings_s"])
+    files: list[str] = []
+    with StagedOutput(output, replace=True) as stage:
+        if progress is not None:
+            progress("export")
+        t = time.perf_counter()
+        write_asset_files(asset, stage.staging_dir)
+        if skin is not None:
+            stage.path("skin_mask.png").write_bytes(png_bytes(skin_mask_image(skin)))
+        carried = [m for m in asset.maps if m != "displacement" or options.subdiv > 0]  # DISPLACEMENT_BAKE_RULE
+        scene = asset.select(options.parts)
+        for fmt in options.formats:
+            export_asset(scene, stage.path(f"face.{fmt}"), format=fmt, level=options.subdiv, maps=carried)
+        timings["export"] = time.perf_counter() - t
+        if options.preview:
+            if progress is not None:
+                progress("preview")
+            t = time.perf_counter()
+            stage.path("preview.png").write_bytes(png_bytes(relit_preview(photo.image, asset, result)))
+            timings["preview"] = time.perf_counter() - t
+        timings["total"] = time.perf_counter() - start
+        record = result.to_dict()
+        record["timings_s"] = {**record["timings_s"], "stages": timings}
+        record["texture_report"] = asset.metadata.get("texture_report", {})
+        record["parts"] = asset.metadata.get("parts", {})
+        stage.path("fit.json").write_text(json.dumps(record, indent=1))
+        files = sorted(p.name for p in stage.staging_dir.iterdir())
+    from facegeo.landmarks.scheme import inter_ocular_distance
+
+    return JobRecord(photo=str(photo_path), output=str(output), landmark_rms_px=float(result.landmark_rms_px),
+                     landmark_rms_percent_iod=float(100.0 * result.landmark_rms_px / inter_ocular_distance(result.landmarks)),
+                     timings=timings, files=files, notes=list(result.info.get("notes", [])),
+                     maps=list(asset.maps), map_size=int(next(iter(asset.maps.values())).shape[0]))
