@@ -190,7 +190,7 @@ def test_a_few_hundred_steps_lower_the_loss_five_times_and_improve_samples(pairs
     before and after; its Bayes floor on this data is 0 (the two conditions differ, so the optimal
     velocity (z_σ − z₀)/σ is exact). The adapter also covers the AdaLN modulation
     (``ADALN_TARGETS``): with this random backbone's modulation frozen, LoRAs on the paper's
-    targets alone reach 2.59× (benchmarks/RESULTS.md, "Training bar")."""
+    targets alone reach 2.39× (benchmarks/RESULTS.md, "Training bar")."""
     c = tiny_components()
     lat = encode_samples(c, {k: v[:2] for k, v in read_samples(pairs, ("t_inc", "t_env")).items()}, "inpaint")
     n = lat.condition.shape[0]
@@ -205,13 +205,13 @@ def test_a_few_hundred_steps_lower_the_loss_five_times_and_improve_samples(pairs
 
     before, psnr_before = validation_loss(c, lat, "inpaint"), psnr_of_samples()
     run = tmp_path / "run"
-    rows = train_lora(c, lat, TrainConfig(task="inpaint", steps=300, batch=8, lr=1e-2, save_every=10**6, caption_dropout=0.0),
+    rows = train_lora(c, lat, TrainConfig(task="inpaint", steps=300, batch=8, lr=5e-3, save_every=10**6, caption_dropout=0.0),
                       run, progress=False)
     assert len(rows) == 300 and (run / "inpaint" / LORA_FILE).is_file()
     after, psnr_after = validation_loss(c, lat, "inpaint"), psnr_of_samples()
-    assert float(before.mean() / after.mean()) >= 5.0, (before, after)  # measured 2.242 -> 0.271, 8.28×
+    assert float(before.mean() / after.mean()) >= 5.0, (before, after)  # measured 2.242 -> 0.276, 8.12×
     assert bool((after < before).all()), (before, after)  # lower at every σ of the grid
-    assert psnr_after > psnr_before + 3.0, (psnr_before, psnr_after)  # measured 14.34 -> 24.01 dB
+    assert psnr_after > psnr_before + 3.0, (psnr_before, psnr_after)  # measured 14.34 -> 24.42 dB
 
 
 def test_joint_materials_step_gradients(pairs):
