@@ -82,7 +82,9 @@ TASK_ADAPTERS = {"inpaint": ("inpaint",), "homogenise": ("homogenise",), "materi
 class TrainConfig:
     """Options of :func:`train_lora` (paper: lr 1e-4, rank 32, λ_img 0.5, λ_lpips 0.1; its batch
     sizes 64 and 8 and 20k steps are for 8 H100s). ``joint_steps``: the materials task's stage-2
-    steps (default: half of ``steps``). ``caption_dropout``: probability that an item trains with
+    steps (default: half of ``steps``). ``batch``: items per step, drawn from the pairs with
+    replacement (it may exceed their number; each item gets its own σ and noise).
+    ``caption_dropout``: probability that an item trains with
     the empty caption instead (what classifier-free guidance needs at sampling time)."""
 
     task: str
