@@ -151,7 +151,7 @@ def to_trimesh(mesh: Any, normals: np.ndarray | None = None, material: Any = Non
     if material is None and isinstance(mesh, Asset) and "albedo" in mesh.maps:
         from PIL import Image
 
-        from facegeo.export.textures import to_uint
+        from facegeo.image_files import to_uint
 
         material = trimesh.visual.material.PBRMaterial(
             name=mesh.name, baseColorTexture=Image.fromarray(to_uint(mesh.maps["albedo"], 8)),

@@ -10,8 +10,8 @@ import pytest
 
 from facegeo.errors import InputError
 from facegeo.export.asset_io import load_asset, read_obj, save_asset
-from facegeo.export.cli import register
-from facegeo.export.textures import read_png
+from facegeo.commands.export import register
+from facegeo.image_files import read_png
 from facegeo.export.usd import check_usd, validate_usd
 from test_export_support import ict_asset, synthetic_maps
 
