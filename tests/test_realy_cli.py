@@ -1,4 +1,4 @@
-"""The ``facegeo realy`` subcommand (argparse, registered by facegeo.eval.realy_cli.register)."""
+"""The ``facegeo realy`` subcommand (argparse, registered by facegeo.commands.realy.register)."""
 
 from __future__ import annotations
 
@@ -9,7 +9,7 @@ import shutil
 import pytest
 
 from facegeo.errors import FacegeoError
-from facegeo.eval.realy_cli import register
+from facegeo.commands.realy import register
 from facegeo.eval.realy_report import OUTPUT_FILES
 from facegeo.eval.realy_synthetic import make_dataset
 

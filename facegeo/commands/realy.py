@@ -1,0 +1,110 @@
+"""``facegeo realy PRED_DIR``: the REALY benchmark (:func:`facegeo.eval.realy.evaluate`) on a
+folder of predicted meshes, written as REALY's files and facegeo's summaries."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from pathlib import Path
+
+from facegeo.commands.arguments import Command, add_commands
+
+__all__ = ["COMMANDS", "register"]
+
+
+def _arguments(p: argparse.ArgumentParser) -> None:
+    from facegeo.eval.realy_align import EXACT
+
+    p.add_argument("pred_dir", type=Path, metavar="PRED_DIR", help="folder of predicted meshes (.obj)")
+    p.add_argument("--realy-root", type=Path, default=None,
+                   help="folder holding REALY's data/ (REALY_HIFI3D_keypoints/, REALY_scan_region/, "
+                   "metrical_scale.txt, <TOPOLOGY>.obj/.txt)")
+    which = p.add_mutually_exclusive_group()
+    which.add_argument("--topology", default=None, metavar="NAME",
+                       help="prediction topology: data/NAME.obj + data/NAME.txt (e.g. HIFI3D, BFM09, FLAME); "
+                       "default ICT-FaceKit (facegeo's model, keypoints bundled)")
+    which.add_argument("--keypoints", type=Path, default=None, metavar="FILE",
+                       help="REALY barycentric keypoint file (85 rows [triangle, w0, w1]) of the prediction "
+                       "topology; its triangles come from --template or FILE's .obj sibling, else each prediction")
+    p.add_argument("--template", type=Path, default=None, metavar="OBJ", help="template mesh of --keypoints")
+    p.add_argument("--template-mask", type=Path, default=None, metavar="FILE",
+                   help="official --template_mask: comma-separated 0/1 per vertex; only triangles whose "
+                   "vertices are all 1 are used in the error step")
+    p.add_argument("--keypoints-dir", type=Path, default=None, metavar="DIR",
+                   help="override data/REALY_HIFI3D_keypoints")
+    p.add_argument("--regions-dir", type=Path, default=None, metavar="DIR", help="override data/REALY_scan_region")
+    p.add_argument("--scale-path", type=Path, default=None, metavar="FILE", help="override data/metrical_scale.txt")
+    p.add_argument("--workers", type=int, default=1, metavar="N",
+                   help="processes; the regions of all subjects are shared among them (the numbers do not change)")
+    knobs = p.add_argument_group(
+        "speed against exactness", "Loosen the official protocol for speed (the defaults are exact; "
+        "benchmarks/RESULTS.md has the error against time of each)")
+    knobs.add_argument("--rigid-tol", type=float, default=EXACT.rigid_tolerance, metavar="T",
+                       help="rigid ICP stops when its mean squared residual changes by less (default %(default)g)")
+    knobs.add_argument("--rigid-max-updates", type=int, default=EXACT.rigid_max_updates, metavar="N",
+                       help="at most N rigid ICP updates per region (default %(default)d)")
+    knobs.add_argument("--nicp-epsilon-scale", type=float, default=EXACT.nicp_epsilon_scale, metavar="S",
+                       help="multiply the non-rigid ICP's stopping thresholds (default %(default)g)")
+    knobs.add_argument("--nicp-max-steps", type=int, default=None, metavar="N",
+                       help="at most N solves per stiffness stage (default: official, 11 with keypoints, no limit for the cheek)")
+    knobs.add_argument("--solver-rtol", type=float, default=EXACT.solver_rtol, metavar="R",
+                       help="relative residual of the factor-preconditioned CG solves (default %(default)g)")
+    knobs.add_argument("--no-factor-reuse", action="store_true", help="factor every linear system (slower)")
+    p.add_argument("-o", "--output", type=Path, default=None, metavar="OUT",
+                   help="output folder (default: PRED_DIR/realy_eval)")
+
+
+def _run(args: argparse.Namespace) -> None:
+    from facegeo.errors import InputError
+    from facegeo.eval.realy import DEFAULT_TOPOLOGY, evaluate
+    from facegeo.eval.realy_align import Settings
+    from facegeo.eval.realy_report import OUTPUT_FILES, markdown_table, write_outputs
+
+    if args.workers < 1:
+        raise InputError("--workers", "value", "a positive number of processes", str(args.workers))
+    if args.template is not None and args.keypoints is None:
+        raise InputError(args.template, "--template", "to be used with --keypoints FILE")
+    try:
+        settings = Settings(args.rigid_tol, args.rigid_max_updates, args.nicp_epsilon_scale, args.nicp_max_steps,
+                            args.solver_rtol, not args.no_factor_reuse)
+    except ValueError as exc:
+        raise InputError("<arguments>", "speed / exactness options", "positive values", str(exc)) from None
+    start = time.perf_counter()
+    result = evaluate(
+        args.pred_dir,
+        args.realy_root,
+        topology=args.topology or DEFAULT_TOPOLOGY,
+        keypoints=args.keypoints,
+        workers=args.workers,
+        template=args.template,
+        keypoints_dir=args.keypoints_dir,
+        regions_dir=args.regions_dir,
+        scale_path=args.scale_path,
+        template_mask=args.template_mask,
+        settings=settings,
+        progress=None if sys.stderr.isatty() else False,
+    )
+    out = args.output if args.output is not None else args.pred_dir / "realy_eval"
+    write_outputs(result, out)
+    print(markdown_table(result), end="")
+    print(f"evaluated {result.summary['n']} prediction(s) in {time.perf_counter() - start:.1f} s; "
+          f"wrote {out}/{{{','.join(OUTPUT_FILES)}}}")
+
+
+COMMANDS = (
+    Command(
+        "realy",
+        help="REALY benchmark: region-wise error (mm) of predicted meshes against the REALY scans",
+        description="Evaluate every PRED_DIR/<id>.obj (frontal track) or <id>_<view>.obj (multi-view "
+        "track) with the REALY protocol (ECCV 2022), numbers equal to the official code. Writes "
+        "REALY_error.txt (official format), REALY_summary.md, REALY_summary.csv and REALY_result.json.",
+        arguments=_arguments,
+        run=_run,
+    ),
+)
+
+
+def register(subparsers: argparse._SubParsersAction) -> list[argparse.ArgumentParser]:
+    """Add :data:`COMMANDS` to ``facegeo``'s sub-parsers; returns their parsers."""
+    return add_commands(subparsers, COMMANDS)
