@@ -1,6 +1,6 @@
 """Face-varying triangle meshes: the arrays every exporter works on, and trimesh conversion.
 
-A face-varying mesh is four arrays (DESIGN.md conventions):
+A face-varying mesh is four arrays (DESIGN.md, "Conventions"):
 
 * ``vertices`` (V, 3) float, millimetres: the geometry, one entry per surface point, so the
   surface is watertight wherever the triangles share vertices;

@@ -1,6 +1,6 @@
 """USD export: ``.usda``, ``.usdc`` and ``.usdz`` with a ``UsdPreviewSurface`` material.
 
-The stage (DESIGN.md conventions): ``upAxis = "Y"``, ``metersPerUnit = 0.001`` (points in mm),
+The stage (DESIGN.md, "Conventions"): ``upAxis = "Y"``, ``metersPerUnit = 0.001`` (points in mm),
 a default prim ``/<name>`` (an Xform of kind ``component``) holding
 
 * ``/<name>/mesh``, a ``Mesh``: points, ``faceVertexCounts``/``faceVertexIndices`` (triangles,

@@ -21,7 +21,7 @@ Stages (each timed in ``Fit.timings``):
    alternating regularised least squares; residuals beyond 3 robust σ (hair, glasses,
    specular highlights) are dropped between rounds.
 
-Axes and units: DESIGN.md (mm, +Y up, camera looks down −Z); pixels as in :mod:`facegeo.camera`.
+Axes and units: DESIGN.md, "Conventions" (mm, +Y up, camera looks down −Z); pixels as in :mod:`facegeo.camera`.
 """
 
 from __future__ import annotations

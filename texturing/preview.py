@@ -182,7 +182,7 @@ class _PreviewScene:
 
 
 def _lookup(texture: np.ndarray, uv: np.ndarray) -> np.ndarray:
-    """Bilinear texture values at (N, 2) UVs (texel centres as in DESIGN.md, edges repeated)."""
+    """Bilinear texture values at (N, 2) UVs (texel centres as in DESIGN.md, "Conventions"; edges repeated)."""
     n = len(uv)
     rows = -(-n // 1024)  # cv2.remap wants maps shorter than 32767 on each side
     maps = np.zeros((2, rows * 1024), np.float32)
