@@ -1,4 +1,4 @@
-"""``facegeo unwrap``: the subcommand added by facegeo.commands.unwrap.register, its files and failures."""
+"""``facegeo unwrap``: the subcommand added by facegeo.commands.unwrap, its files and failures."""
 
 import argparse
 import json
@@ -11,7 +11,8 @@ from PIL import Image
 
 from facegeo.assets import asset_path
 from facegeo.errors import InputError
-from facegeo.commands.unwrap import OUTPUT_FILES, register
+from facegeo.commands.arguments import add_commands
+from facegeo.commands.unwrap import COMMANDS, OUTPUT_FILES
 from facegeo.image_files import exr_bytes
 
 PHOTO = asset_path("photos/astronaut.png")
@@ -19,7 +20,7 @@ PHOTO = asset_path("photos/astronaut.png")
 
 def run(argv):
     parser = argparse.ArgumentParser(prog="facegeo")
-    register(parser.add_subparsers(dest="command", required=True))
+    add_commands(parser.add_subparsers(dest="command", required=True), COMMANDS)
     args = parser.parse_args([str(a) for a in argv])
     args.run(args)
 

@@ -1,7 +1,7 @@
 """The ``facegeo`` command line: the floor above the library (DESIGN.md, "Layers").
 
 One module per subcommand or family, each declaring its :class:`~facegeo.commands.arguments.Command`
-records in ``COMMANDS`` (and ``register(subparsers)`` to add them to a parser):
+records in ``COMMANDS`` (:func:`~facegeo.commands.arguments.add_commands` adds them to a parser):
 
 =============================  ==============================================================
 module                         subcommands
@@ -38,7 +38,7 @@ from importlib import import_module
 from typing import NoReturn
 
 from facegeo import __version__
-from facegeo.commands.arguments import COMMAND_LINE, check_arguments
+from facegeo.commands.arguments import COMMAND_LINE, add_commands, check_arguments
 from facegeo.errors import FacegeoError
 
 __all__ = ["main", "build_parser", "Interrupted", "COMMAND_MODULES"]
@@ -75,7 +75,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--version", action="version", version=f"facegeo {__version__}")
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
     for name in COMMAND_MODULES:
-        import_module(f"facegeo.commands.{name}").register(sub)
+        add_commands(sub, import_module(f"facegeo.commands.{name}").COMMANDS)
     return parser
 
 

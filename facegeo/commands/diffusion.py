@@ -7,10 +7,10 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from facegeo.commands.arguments import COMMAND_LINE, Command, add_commands, add_device_argument, add_seed_argument
+from facegeo.commands.arguments import COMMAND_LINE, Command, add_device_argument, add_seed_argument
 from facegeo.errors import InputError
 
-__all__ = ["COMMANDS", "register"]
+__all__ = ["COMMANDS"]
 
 
 def _train_arguments(train: argparse.ArgumentParser) -> None:
@@ -92,8 +92,3 @@ COMMANDS = (
         run=_run_pairs,
     ),
 )
-
-
-def register(subparsers: argparse._SubParsersAction) -> list[argparse.ArgumentParser]:
-    """Add :data:`COMMANDS` to ``facegeo``'s sub-parsers; returns their parsers."""
-    return add_commands(subparsers, COMMANDS)

@@ -10,10 +10,10 @@ import argparse
 import time
 from pathlib import Path
 
-from facegeo.commands.arguments import COMMAND_LINE, Command, add_commands, add_parts_argument, parse_list
+from facegeo.commands.arguments import COMMAND_LINE, Command, add_parts_argument, parse_list
 from facegeo.errors import InputError
 
-__all__ = ["COMMANDS", "register"]
+__all__ = ["COMMANDS"]
 
 
 def _arguments(parser: argparse.ArgumentParser) -> None:
@@ -84,8 +84,3 @@ COMMANDS = (
         run=_run,
     ),
 )
-
-
-def register(subparsers: argparse._SubParsersAction) -> list[argparse.ArgumentParser]:
-    """Add :data:`COMMANDS` to ``facegeo``'s sub-parsers; returns their parsers."""
-    return add_commands(subparsers, COMMANDS)

@@ -5,9 +5,9 @@ from __future__ import annotations
 
 import argparse
 
-from facegeo.commands.arguments import Command, add_commands, add_fit_arguments, add_photo_arguments, add_regressor_arguments
+from facegeo.commands.arguments import Command, add_fit_arguments, add_photo_arguments, add_regressor_arguments
 
-__all__ = ["COMMANDS", "register"]
+__all__ = ["COMMANDS"]
 
 
 def _arguments(parser: argparse.ArgumentParser) -> None:
@@ -45,8 +45,3 @@ COMMANDS = (
         output_folder=True,
     ),
 )
-
-
-def register(subparsers: argparse._SubParsersAction) -> list[argparse.ArgumentParser]:
-    """Add :data:`COMMANDS` to ``facegeo``'s sub-parsers; returns their parsers."""
-    return add_commands(subparsers, COMMANDS)

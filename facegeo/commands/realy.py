@@ -8,9 +8,9 @@ import sys
 import time
 from pathlib import Path
 
-from facegeo.commands.arguments import Command, add_commands
+from facegeo.commands.arguments import Command
 
-__all__ = ["COMMANDS", "register"]
+__all__ = ["COMMANDS"]
 
 
 def _arguments(p: argparse.ArgumentParser) -> None:
@@ -103,8 +103,3 @@ COMMANDS = (
         run=_run,
     ),
 )
-
-
-def register(subparsers: argparse._SubParsersAction) -> list[argparse.ArgumentParser]:
-    """Add :data:`COMMANDS` to ``facegeo``'s sub-parsers; returns their parsers."""
-    return add_commands(subparsers, COMMANDS)

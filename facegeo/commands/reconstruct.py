@@ -10,7 +10,6 @@ from pathlib import Path
 from facegeo.commands.arguments import (
     Command,
     RegistryNames,
-    add_commands,
     add_fit_arguments,
     add_parts_argument,
     add_photo_arguments,
@@ -19,7 +18,7 @@ from facegeo.commands.arguments import (
     parse_list,
 )
 
-__all__ = ["COMMANDS", "register"]
+__all__ = ["COMMANDS"]
 
 #: The texture backends' names (``facegeo.texturing.backend.BACKENDS``).
 BACKEND_NAMES = RegistryNames("facegeo.texturing.backend", "BACKENDS")
@@ -95,8 +94,3 @@ COMMANDS = (
         output_folder=True,
     ),
 )
-
-
-def register(subparsers: argparse._SubParsersAction) -> list[argparse.ArgumentParser]:
-    """Add :data:`COMMANDS` to ``facegeo``'s sub-parsers; returns their parsers."""
-    return add_commands(subparsers, COMMANDS)

@@ -15,14 +15,13 @@ from facegeo.commands.arguments import (
     COMMAND_LINE,
     Command,
     RegistryNames,
-    add_commands,
     add_device_argument,
     add_model_argument,
     add_seed_argument,
 )
 from facegeo.errors import InputError
 
-__all__ = ["COMMANDS", "register"]
+__all__ = ["COMMANDS"]
 
 #: ``train-regressor --landmarks``: the ground truth of a synthetic folder or a detector.
 LANDMARK_TARGETS = RegistryNames("facegeo.landmarks.detectors", "DETECTORS", extra=("auto", "truth"))
@@ -115,8 +114,3 @@ COMMANDS = (
         run=_run_synthetic,
     ),
 )
-
-
-def register(subparsers: argparse._SubParsersAction) -> list[argparse.ArgumentParser]:
-    """Add :data:`COMMANDS` to ``facegeo``'s sub-parsers; returns their parsers."""
-    return add_commands(subparsers, COMMANDS)

@@ -25,10 +25,10 @@ from pathlib import Path
 
 import numpy as np
 
-from facegeo.commands.arguments import COMMAND_LINE, Command, add_commands, add_fit_arguments, add_photo_arguments
+from facegeo.commands.arguments import COMMAND_LINE, Command, add_fit_arguments, add_photo_arguments
 from facegeo.errors import InputError
 
-__all__ = ["COMMANDS", "register", "OUTPUT_FILES"]
+__all__ = ["COMMANDS", "OUTPUT_FILES"]
 
 #: The files ``facegeo unwrap`` writes.
 OUTPUT_FILES = ("texture_incomplete.png", "visibility.png", "skin_mask.png", "position.exr", "normal.exr", "tangent.exr", "unwrap.json")
@@ -148,8 +148,3 @@ COMMANDS = (
         output_folder=True,
     ),
 )
-
-
-def register(subparsers: argparse._SubParsersAction) -> list[argparse.ArgumentParser]:
-    """Add :data:`COMMANDS` to ``facegeo``'s sub-parsers; returns their parsers."""
-    return add_commands(subparsers, COMMANDS)
