@@ -73,7 +73,7 @@ class ReconstructOptions(FitOptions):
     """:class:`FitOptions` plus what the texture, export and preview stages need.
 
     Attributes:
-        backend: texture backend name (``facegeo.texturing.backend.BACKENDS``).
+        backend: texture backend name (``facegeo.texturing.registry.BACKENDS``).
         weights: the diffusion backend's weights folder (only with ``backend="diffusion"``).
         size: UV map size in texels; upscale: 1, 2 or 4; subdiv: Loop levels of the exported mesh.
         maps: which maps to compute and export (names from ``facegeo.asset.MAP_NAMES``).
@@ -96,7 +96,7 @@ class ReconstructOptions(FitOptions):
         super().__post_init__()
         from facegeo.asset import MAP_NAMES, PART_CHOICES
         from facegeo.export.writers import FORMATS
-        from facegeo.texturing.backend import BACKENDS
+        from facegeo.texturing.registry import BACKENDS
 
         for name, values, allowed in (("maps", self.maps, MAP_NAMES), ("formats", self.formats, FORMATS)):
             if not values or any(v not in allowed for v in values):
@@ -224,7 +224,7 @@ def reconstruct_into_folder(photo_path: str | Path, output: str | Path, options:
     from facegeo.pipeline import reconstruct_with_fit
     from facegeo.skin_mask import skin_mask, skin_mask_image
     from facegeo.staged_output import StagedOutput
-    from facegeo.texturing.backend import BACKENDS
+    from facegeo.texturing.registry import BACKENDS
     from facegeo.texturing.preview import relit_preview
 
     options = ReconstructOptions() if options is None else options

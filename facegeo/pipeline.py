@@ -25,8 +25,9 @@ from facegeo.morphable_model import MorphableModel
 from facegeo.parts import DEFAULT_IRIS_SRGB, load_parts, part_assets
 from facegeo.photo import Photo, as_rgb_uint8, load_photo
 from facegeo.skin_mask import SkinMask, skin_mask
-from facegeo.texturing.backend import BACKENDS, TextureBackend
+from facegeo.texturing.backend import TextureBackend
 from facegeo.texturing.context import build_context
+from facegeo.texturing.registry import BACKENDS
 from facegeo.uv import geometry_maps, rasterize_uv, unwrap
 
 __all__ = ["reconstruct", "reconstruct_with_fit", "BACKENDS", "STAGES"]

@@ -40,7 +40,7 @@ def test_every_command_that_fits_takes_the_same_fitting_options():
 def test_choices_are_the_registries():
     from facegeo.asset import PART_CHOICES
     from facegeo.landmarks import DETECTORS
-    from facegeo.texturing.backend import BACKENDS
+    from facegeo.texturing.registry import BACKENDS
 
     rec = {a.dest: a for a in _subparsers()["reconstruct"]._actions}
     assert list(rec["landmarks"].choices) == list(DETECTORS) and list(rec["backend"].choices) == list(BACKENDS)

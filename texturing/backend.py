@@ -6,7 +6,7 @@ weight-free (:mod:`facegeo.texturing.default_backend`); the diffusion backend is
 a DiT and plugs into the same protocol. :class:`TextureBackend` declares everything the pipeline
 (:func:`facegeo.pipeline.reconstruct_with_fit`) uses of a backend: the four stages, ``name``,
 ``report`` (copied into ``fit.json``'s ``texture_report``) and ``constants`` (the values of the
-maps not computed); :data:`BACKENDS` names the backends the command line offers.
+maps not computed). :data:`facegeo.texturing.registry.BACKENDS` names the backends by name.
 
 Array conventions: UV maps are image-style (row 0 = top, v = 1 − (row + 0.5)/S), float32.
 Colour textures (``T_inc``, ``T_full``, ``T_hom``, the ``albedo`` map) are **sRGB-encoded** in
@@ -15,15 +15,14 @@ Colour textures (``T_inc``, ``T_full``, ``T_hom``, the ``albedo`` map) are **sRG
 
 from __future__ import annotations
 
-from collections.abc import Callable, Mapping
+from collections.abc import Mapping
 from dataclasses import dataclass, field
-from os import PathLike
 from types import MappingProxyType
 from typing import Any, Protocol, runtime_checkable
 
 import numpy as np
 
-__all__ = ["TextureContext", "TextureBackend", "SurfaceOperators", "SKIN_CONSTANTS", "BACKENDS"]
+__all__ = ["TextureContext", "TextureBackend", "SurfaceOperators", "SKIN_CONSTANTS"]
 
 #: Roughness and specular level of generic skin (away from the oily T-zone, the lips and brows):
 #: what a backend's ``constants`` give the maps it was not asked to compute (the exporters write
@@ -142,24 +141,3 @@ class TextureBackend(Protocol):
     def upscale(self, map_: np.ndarray, factor: int) -> np.ndarray:
         """(S, S[, C]) -> (factor·S, factor·S[, C]), same dtype and encoding."""
         ...
-
-
-def _default_backend() -> TextureBackend:
-    from facegeo.texturing.default_backend import DefaultBackend
-
-    return DefaultBackend()
-
-
-def _diffusion_backend(weights: str | PathLike[str] | None = None) -> TextureBackend:
-    """The diffusion backend from a weights folder (the optional [diffusion] extra, imported only here)."""
-    from facegeo.texturing.diffusion import require_extra
-
-    require_extra()
-    from facegeo.texturing.diffusion.backend import DiffusionBackend
-
-    return DiffusionBackend.from_weights(weights)
-
-
-#: Texture backends by name -> a factory (imported when called, so that reading the names costs
-#: nothing); ``diffusion``'s takes its weights folder.
-BACKENDS: dict[str, Callable[..., TextureBackend]] = {"default": _default_backend, "diffusion": _diffusion_backend}

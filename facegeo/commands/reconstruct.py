@@ -20,8 +20,8 @@ from facegeo.commands.arguments import (
 
 __all__ = ["COMMANDS"]
 
-#: The texture backends' names (``facegeo.texturing.backend.BACKENDS``).
-BACKEND_NAMES = RegistryNames("facegeo.texturing.backend", "BACKENDS")
+#: The texture backends' names (``facegeo.texturing.registry.BACKENDS``).
+BACKEND_NAMES = RegistryNames("facegeo.texturing.registry", "BACKENDS")
 
 
 def _arguments(parser: argparse.ArgumentParser) -> None:
