@@ -8,8 +8,8 @@ move together and the mesh stays watertight. ``displace`` subdivides first
 (:func:`facegeo.export.subdivision.subdivide`), then bakes: the result is the displaced mesh
 Python users ask for.
 
-Map convention: :mod:`facegeo.uv.texels` (row 0 is the top of the UV square; beyond the outer
-texel centres the edge texels repeat).
+Map convention (DESIGN.md, "Conventions"; in code :mod:`facegeo.uv.texels`): row 0 is the top of
+the UV square; beyond the outer texel centres the edge texels repeat.
 """
 
 from __future__ import annotations
@@ -49,7 +49,7 @@ def bake_displacement(mesh: Asset | FaceVaryingMesh, displacement_map: np.ndarra
 
     ``mesh``: an :class:`Asset` (returns an Asset) or a ``FaceVaryingMesh`` with UVs (returns
     one). ``displacement_map``: (H, W) float array (millimetres when ``scale_mm`` is 1,
-    the DESIGN.md convention), or a number (a uniform offset), or None for an Asset's own
+    DESIGN.md, "Conventions"), or a number (a uniform offset), or None for an Asset's own
     ``displacement`` map or constant. When the Asset's own displacement is baked it is removed
     from the returned Asset (so it is not applied twice) and ``metadata["displacement_baked"]``
     records the scale.

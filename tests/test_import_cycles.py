@@ -6,9 +6,8 @@ module-level ``import``/``from`` statements, including those under module-level 
 blocks, but not those under ``if TYPE_CHECKING:`` (never run). Function-local imports are left
 out on purpose: they run when the function is called, after both modules have finished
 initialising, so they cannot meet a half-initialised module; they are the sanctioned way to defer
-heavy or optional imports (the CLI's subcommands, the diffusion extra). A second test still
-forbids circles through them (a circle is a layering smell either way), with the one known circle
-listed. ``from package import name`` counts as an import of ``package.name`` when that is a
+heavy or optional imports (the diffusion extra). A second test forbids circles through them too
+(a circle is a layering smell either way). ``from package import name`` counts as an import of ``package.name`` when that is a
 module, else of ``package``.
 """
 
@@ -123,13 +122,6 @@ def test_the_graph_sees_the_packages_and_known_edges():
     assert cycles({"a": {"b"}, "b": {"c"}, "c": {"a"}, "d": {"a"}}) == [{"a", "b", "c"}]
 
 
-#: Circles through function-local imports still present, each removed by another change: the
-#: commands' circle (facegeo/cli.py imports the subcommands' cli modules in a function, they import
-#: facegeo.cli's shared helpers) is issue 15 part B's (the commands floor). The lead deletes this
-#: exemption when part B is merged; the test below fails once the circle is gone, to say so.
-KNOWN_LOCAL_CYCLES = [{"facegeo.cli", "facegeo.export.cli", "facegeo.uv.cli"}]
-
-
 def test_no_import_cycles():
     found = cycles(import_graph())
     assert found == [], f"import circles among project modules: {found}"
@@ -137,5 +129,4 @@ def test_no_import_cycles():
 
 def test_no_import_cycles_through_function_local_imports():
     found = cycles(import_graph(local=True))
-    assert [c for c in found if c not in KNOWN_LOCAL_CYCLES] == [], f"import circles: {found}"
-    assert [c for c in KNOWN_LOCAL_CYCLES if c not in found] == [], "a known circle is gone: remove its exemption"
+    assert found == [], f"import circles through function-local imports: {found}"
