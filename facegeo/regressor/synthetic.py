@@ -26,6 +26,8 @@ import torch
 from facegeo.camera import Camera, project, rotation_from_euler
 from facegeo.colour import linear_to_srgb
 from facegeo.fitting import CORRECTIVES
+from facegeo.image_files import png_bytes
+from facegeo.landmarks.scheme import OUTER_EYE_CORNERS
 from facegeo.lighting import AMBIENT_WHITE, sh_irradiance
 from facegeo.morphable_model import MorphableModel
 from facegeo.regressor.data import TRUTH_FILE
@@ -43,7 +45,7 @@ def landmark_visible_expressions(model: MorphableModel, min_shift: float = 0.01)
     eyeLookDown, eyeSquint, eyeWide, cheekSquint, browInnerUp and jawForward (< 0.01: landmarks
     barely constrain them)."""
     points = model.mean_shape[model.landmark_indices].astype(np.float64)
-    iod = float(np.linalg.norm(points[36, :2] - points[45, :2]))
+    iod = float(np.linalg.norm(np.subtract(*points[OUTER_EYE_CORNERS, :2])))
     shift = model.exp_basis.reshape(model.n_exp, model.n_vertices, 3)[:, model.landmark_indices, :2].astype(np.float64)
     return np.sqrt((shift**2).sum(-1).mean(-1)) >= min_shift * iod
 
@@ -125,7 +127,7 @@ def make_synthetic_faces(out_dir: str | Path, count: int, model: MorphableModel,
             face = random_face(model, rng, size, max_yaw, sigma_id, expressions)
             image, landmarks, camera = render_face(model, face, size, rng)
             name = f"{i:06d}.png"
-            stage.path(name).write_bytes(cv2.imencode(".png", image[..., ::-1])[1].tobytes())
+            stage.path(name).write_bytes(png_bytes(image))
             for k in keys:
                 truth[k].append(face[k])
             truth["names"].append(name)
