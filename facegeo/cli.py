@@ -19,6 +19,7 @@ from pathlib import Path
 from typing import Iterable, NoReturn
 
 from facegeo import __version__
+from facegeo.batch import add_batch_arguments, run_batch, wants_batch
 from facegeo.errors import FacegeoError, InputError
 from facegeo.regressor.cli import add_regressor_arguments
 from facegeo.regressor.cli import register as register_regressor
@@ -82,7 +83,9 @@ def check_arguments(args: argparse.Namespace) -> None:
         raise InputError(COMMAND_LINE, "--refine", "--regressor CKPT with it", "no --regressor")
     if getattr(args, "weights", None) is not None and getattr(args, "backend", "diffusion") != "diffusion":
         raise InputError(COMMAND_LINE, "--weights", "--backend diffusion", f"--backend {args.backend}")
-    if getattr(args, "output_folder", False):
+    if isinstance(getattr(args, "photo", None), list) and not wants_batch(args):
+        args.photo = args.photo[0]  # one photo, no batch option: the single-photo command
+    if getattr(args, "output_folder", False) and not wants_batch(args):  # a batch checks its OUT itself
         check_output_location(args.output, folder=True, replace=True)
         out = Path(args.output).resolve()
         for name, value in vars(args).items():  # an existing OUT is replaced: it must not hold an input
@@ -98,9 +101,12 @@ class _Parser(argparse.ArgumentParser):
         self.exit(2, f"facegeo: error: {COMMAND_LINE}: {message} (see '{self.prog} --help')\n")
 
 
-def add_fit_arguments(parser: argparse.ArgumentParser) -> None:
-    """The photo, output folder and fitting options shared by ``fit`` and ``unwrap``."""
-    parser.add_argument("photo", type=Path, help="the photo (PNG, JPEG, ...); EXIF orientation is honoured")
+def add_fit_arguments(parser: argparse.ArgumentParser, many: bool = False) -> None:
+    """The photo, output folder and fitting options shared by ``fit`` and ``unwrap``; with
+    ``many``, ``photo`` takes several (a batch: :mod:`facegeo.batch`)."""
+    parser.add_argument("photo", type=Path, nargs="+" if many else None,
+                        help="the photo (PNG, JPEG, ...); EXIF orientation is honoured"
+                        + ("; or several, folders, glob patterns, manifests (see batch)" if many else ""))
     parser.add_argument("-o", "--output", type=Path, required=True, help="output folder (created; an existing one must be empty or an earlier facegeo output, and is replaced)")
     parser.add_argument("--model", type=Path, default=None, help="model file (.npz, HIFI3D++ .mat, AI-NExT .mat); default: $FACEGEO_MODEL or the bundled ICT-FaceKit model")
     parser.add_argument("--landmarks", choices=["hybrid", "dlib", "mediapipe"], default="hybrid", help="landmark detector (default: hybrid = dlib 68 + MediaPipe 20 lip points; mediapipe is licence-clean for commercial use)")
@@ -130,7 +136,8 @@ def build_parser() -> argparse.ArgumentParser:
         "and write fit.json (parameters, camera, per-point landmark errors, timings), mesh.obj "
         "(posed mesh in camera space, mm, with UVs) and overlay.png.",
     )
-    add_fit_arguments(fit)
+    add_fit_arguments(fit, many=True)
+    add_batch_arguments(fit)
     fit.add_argument("--no-photometric", action="store_true", help="skip the albedo and lighting stage")
     add_regressor_arguments(fit)
     fit.set_defaults(run=_run_fit, output_folder=True)
@@ -143,7 +150,7 @@ def build_parser() -> argparse.ArgumentParser:
         "the maps (asset.json + PNGs, re-exportable with 'facegeo export'), the assets and preview.png "
         "(the photo beside the asset from the front, three-quarter and profile, textured and as clay).",
     )
-    rec.add_argument("photo", type=Path, help="the photo")
+    rec.add_argument("photo", type=Path, nargs="+", help="the photo; or several, folders, glob patterns, manifests (see batch)")
     rec.add_argument("-o", "--output", type=Path, required=True, help="output folder (created; an existing one must be empty or an earlier facegeo output, and is replaced)")
     rec.add_argument("--backend", choices=["default", "diffusion"], default="default", help="texture backend (default: weight-free, offline; diffusion: needs --weights and the [diffusion] extra)")
     rec.add_argument("--weights", type=Path, default=None, help="diffusion backend: folder with base/, loras/<task>/ and sr/ (see facegeo.texturing.diffusion.backend)")
@@ -158,6 +165,7 @@ def build_parser() -> argparse.ArgumentParser:
     rec.add_argument("--no-preview", action="store_true", help="do not render preview.png")
     add_parts_argument(rec)
     add_regressor_arguments(rec)
+    add_batch_arguments(rec)
     rec.set_defaults(run=_run_reconstruct, output_folder=True)
 
     from facegeo.eval.realy_cli import register as register_realy
@@ -173,11 +181,13 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
-def _run_fit(args: argparse.Namespace) -> None:
+def _run_fit(args: argparse.Namespace) -> int | None:
     from facegeo.jobs import FitOptions, fit_into_folder
 
     options = FitOptions(model=args.model, landmarks=args.landmarks, focal=args.focal, max_side=args.max_side,
                          photometric=not args.no_photometric, regressor=args.regressor, refine=args.refine)
+    if wants_batch(args):
+        return run_batch(args, "fit", options)
     record = fit_into_folder(args.photo, args.output, options)
     for note in record.notes:
         print(f"note: {note}")
@@ -187,9 +197,10 @@ def _run_fit(args: argparse.Namespace) -> None:
     )
     print("timings: " + ", ".join(f"{k} {v:.3f} s" for k, v in record.timings.items()))
     print(f"wrote {args.output}/" + ", ".join(record.files))
+    return None
 
 
-def _run_reconstruct(args: argparse.Namespace) -> None:
+def _run_reconstruct(args: argparse.Namespace) -> int | None:
     from tqdm import tqdm
 
     from facegeo.asset import MAP_NAMES
@@ -203,6 +214,8 @@ def _run_reconstruct(args: argparse.Namespace) -> None:
                                  regressor=args.regressor, refine=args.refine, backend=args.backend, weights=args.weights,
                                  size=args.size, upscale=args.upscale, subdiv=args.subdiv, maps=tuple(maps),
                                  formats=tuple(formats), parts=args.parts, preview=not args.no_preview)
+    if wants_batch(args):
+        return run_batch(args, "reconstruct", options)
     bar = tqdm(total=len(STAGES) + 2, desc="reconstruct", unit="stage", disable=not sys.stderr.isatty(), leave=False)
 
     def progress(stage: str) -> None:
@@ -217,20 +230,23 @@ def _run_reconstruct(args: argparse.Namespace) -> None:
           f"at {record.map_size}², formats {', '.join(formats)}")
     print("timings: " + ", ".join(f"{k} {v:.2f} s" for k, v in record.timings.items()))
     print(f"wrote {args.output}")
+    return None
 
 
 def main(argv: list[str] | None = None) -> int:
     """Entry point of the ``facegeo`` console command; returns the exit status: 0, 2 for bad
-    input or a failed write (one line on stderr), 128 + signal number after SIGINT/SIGTERM."""
+    input or a failed write (one line on stderr), 128 + signal number after SIGINT/SIGTERM; a
+    batch (several photos) also 3 when some photos failed (:data:`facegeo.batch.EXIT_STATUS`)."""
     import threading
 
     on_main_thread = threading.current_thread() is threading.main_thread()  # only there can signals be caught
     previous = {s: signal.signal(s, _raise_interrupted) for s in (signal.SIGINT, signal.SIGTERM)} if on_main_thread else {}
+    status: int | None = None
     try:
         parser = build_parser()
         args = parser.parse_args(argv)
         check_arguments(args)
-        args.run(args)
+        status = args.run(args)
     except FacegeoError as exc:
         print(f"facegeo: error: {exc}", file=sys.stderr)
         return 2
@@ -245,7 +261,7 @@ def main(argv: list[str] | None = None) -> int:
     finally:
         for s, handler in previous.items():
             signal.signal(s, handler)
-    return 0
+    return int(status or 0)
 
 
 if __name__ == "__main__":
