@@ -481,7 +481,7 @@ def evaluate(
         if client is not None:
             from distributed import as_completed as dask_completed
 
-            futures = client.map(_run, tasks, pure=False)
+            futures = [client.submit(_run, t, pure=False) for t in tasks]  # one small graph each (≈1 MB), not one huge one
             try:
                 for fut in dask_completed(futures):
                     _collect(results, fut.result())
@@ -521,7 +521,7 @@ def evaluate(
         uncertainty={name: {r: results[name, r][1]["uncertainty"] for r in REGIONS} for name in per_subject},
         settings=settings,
         wall_seconds=time.perf_counter() - start,
-        workers=workers,
+        workers=len(client.scheduler_info()["workers"]) if client is not None else workers,
     )
 
 
