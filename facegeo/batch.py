@@ -315,6 +315,7 @@ def dask_client(client: Any = None, scheduler: str | None = None, workers: int |
             raise InputError(_COMMAND_LINE, "--workers", "a positive number of worker processes", str(n))
         with dask.config.set({"distributed.scheduler.allowed-failures": int(allowed_failures)}):
             cluster = distributed.LocalCluster(n_workers=n, threads_per_worker=1, processes=True, dashboard_address=None,
+                                               scheduler_kwargs={"dashboard_address": "127.0.0.1:0"},  # its HTTP routes on a free port
                                                silence_logs=logging.ERROR, memory_limit=memory_limit or "auto")
         try:
             local = distributed.Client(cluster)
