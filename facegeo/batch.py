@@ -460,16 +460,20 @@ def _run_many(kind: str, photos: Iterable[str | os.PathLike[str]], out: str | os
                 future = dask.submit(_run_item, job, records[i].photo, records[i].output, options, files == "client",
                                      retries=retries, pure=False, key=f"facegeo-{kind}-{i}-{os.getpid()}-{time.time_ns()}")
                 futures[future] = i
+            own_cluster = client is None and not scheduler
+            completed = distributed.as_completed(list(futures))
+            workerless_since: float | None = None
             try:
                 with _quiet_dask():
-                    for future in distributed.as_completed(list(futures)):
-                        record = records[futures.pop(future)]
-                        _collect(record, future, files, StagedOutput)
-                        if record.status == "failed":
-                            bar.set_postfix_str(f"{sum(r.status == 'failed' for r in records)} failed")
-                            if on_failure is not None:
-                                on_failure(record)
-                        bar.update(1)
+                    while futures:
+                        ready = completed.next_batch(block=False)
+                        if not ready:
+                            workerless_since = _check_workers(dask, own_cluster, workerless_since, futures, records)
+                            time.sleep(0.05)
+                            continue
+                        workerless_since = None
+                        for future in ready:
+                            _finish(future, futures, records, files, StagedOutput, bar, on_failure)
                         if time.monotonic() - last_flush > _FLUSH_SECONDS:
                             _write_reports(out, [r for r in records if r.status != "pending"], earlier)
                             last_flush = time.monotonic()
@@ -487,6 +491,39 @@ def _run_many(kind: str, photos: Iterable[str | os.PathLike[str]], out: str | os
         elif client is None and not scheduler:  # the embedded workers were stopped; their staged folders are stale
             remove_stale_temporaries(out)
     return records
+
+
+_NO_WORKER_SECONDS = 60.0  # the embedded cluster without a live worker this long: its nannies could not restart them
+
+
+def _finish(future: Any, futures: dict[Any, int], records: list[BatchRecord], files: str, staged: Any, bar: Any,
+            on_failure: Callable[[BatchRecord], None] | None) -> None:
+    record = records[futures.pop(future)]
+    _collect(record, future, files, staged)
+    if record.status == "failed":
+        bar.set_postfix_str(f"{sum(r.status == 'failed' for r in records)} failed")
+        if on_failure is not None:
+            on_failure(record)
+    bar.update(1)
+
+
+def _check_workers(dask: Any, own_cluster: bool, since: float | None, futures: dict[Any, int],
+                   records: list[BatchRecord]) -> float | None:
+    """While nothing completes: on the embedded cluster, fail what is left once no worker has
+    been alive for :data:`_NO_WORKER_SECONDS` (a nanny whose restart failed, e.g. for want of
+    memory, does not try again; a batch must end rather than wait for ever). An external
+    cluster may be scaling, and is waited for."""
+    if not own_cluster or dask.scheduler_info().get("workers"):
+        return None
+    now = time.monotonic()
+    if since is None or now - since < _NO_WORKER_SECONDS:
+        return since if since is not None else now
+    for future, i in list(futures.items()):
+        records[i].status = "failed"
+        records[i].error = "no worker left: the embedded cluster's worker processes died and could not be restarted"
+        future.cancel()
+    futures.clear()
+    return None
 
 
 def _remove_temporaries(out: Path) -> None:
