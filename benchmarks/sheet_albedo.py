@@ -35,15 +35,16 @@ def row(path: Path, model, size: int, height: int) -> tuple[np.ndarray, str]:
     skin = skin_mask(photo.image, source=str(path))
     asset, fit = reconstruct_with_fit(photo, model, size=size, skin=skin)
     seconds = time.perf_counter() - t
-    preview = relit_preview(photo.image, asset, fit, model, height=height)
-    width = preview.shape[1] // 4
-    photo_panel, front = preview[:, :width], preview[:, 2 * width:3 * width]
+    p = height // 2
+    preview = relit_preview(photo.image, asset, fit, panel=2 * p)  # (4p, 10p): photo (4p)², then 3 views (textured over clay)
+    photo_panel = cv2.resize(preview[:, :4 * p], (2 * p, 2 * p), interpolation=cv2.INTER_AREA)
+    front = preview[:2 * p, 4 * p:6 * p]
     # the same crop of the photo with the mask: occluded pixels tinted magenta
     tinted = photo.image.astype(np.float32) / 255
     occ = skin.occlusion[..., None]
-    tinted = (tinted * (1 - 0.6 * occ) + 0.6 * occ * np.array([1.0, 0.0, 1.0])) * 255
-    crop = _same_crop(photo.image, photo_panel.shape, tinted.astype(np.uint8), fit, model)
-    albedo = cv2.resize((np.clip(asset.maps["albedo"], 0, 1) * 255).astype(np.uint8), (height, height), interpolation=cv2.INTER_AREA)
+    tinted = np.clip((tinted * (1 - 0.6 * occ) + 0.6 * occ * np.array([1.0, 0.0, 1.0])) * 255, 0, 255).astype(np.uint8)
+    crop = relit_preview(tinted, asset, fit, panel=p)[:, :2 * p]
+    albedo = cv2.resize((np.clip(asset.maps["albedo"], 0, 1) * 255).astype(np.uint8), (2 * p, 2 * p), interpolation=cv2.INTER_AREA)
     report = asset.metadata["texture_report"]
     relief = relief_effect(asset, fit, model)
     note = (f"{path.name}: {seconds:.1f} s, occluded {100 * skin.occlusion.mean():.0f} % of the photo, "
@@ -80,18 +81,6 @@ def relief_effect(asset, fit, model, size: int = 1024) -> float:
                         chw(geo.mask.astype(np.float32)), light, torch.full((1, 1, 3), 2.5), torch.zeros(1, 3), 0.1, s_disp=1.0)
         images.append(linear_to_srgb(out.shaded[0].numpy().transpose(1, 2, 0)) * 255)
     return float(np.abs(images[0] - images[1])[skin].mean())
-
-
-def _same_crop(image: np.ndarray, shape: tuple[int, ...], tinted: np.ndarray, fit, model) -> np.ndarray:
-    """``tinted`` cropped and resized as ``relit_preview`` crops the photo (mesh bounds + 10 %)."""
-    from facegeo.uv import render
-
-    view = render(fit.vertices, model, fit.camera)
-    ys, xs = np.nonzero(view.mask)
-    pad = int(0.1 * max(np.ptp(ys), np.ptp(xs)))
-    y0, y1 = max(ys.min() - pad, 0), min(ys.max() + pad, image.shape[0])
-    x0, x1 = max(xs.min() - pad, 0), min(xs.max() + pad, image.shape[1])
-    return cv2.resize(tinted[y0:y1, x0:x1], (shape[1], shape[0]), interpolation=cv2.INTER_AREA)
 
 
 def main(argv=None) -> int:

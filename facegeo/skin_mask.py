@@ -1,7 +1,7 @@
 """Where a photo shows the face's own surface: a per-pixel mask that keeps hair, headwear,
 glasses, clothing, eye interiors and teeth out of the texture.
 
-The mask is built from what runs offline here, in three parts:
+The mask is built from what runs offline here, in four parts:
 
 1. **Face regions** from MediaPipe's 468-point face mesh (:mod:`facegeo.landmarks.mediapipe_mesh`):
    the face oval, eyes (the lid contour: inside it is eyeball, never albedo), brows, lips and the
@@ -24,9 +24,9 @@ The mask is built from what runs offline here, in three parts:
    dilated by :data:`HALO_FRACTION` of the inter-ocular distance (the soft fringe of hair strands
    and frames) and feathered.
 
-Hands: MediaPipe's hand models are not used. A hand in front of a face is skin-coloured, so the
-colour model lets it through; it is the one occluder this mask does not remove (measured in
-``benchmarks/bench_albedo.py``).
+4. **Hands**: a hand in front of the face is skin-coloured, so the colour model lets it through;
+   MediaPipe's palm detector and hand landmark model find it by shape instead, and its polygon
+   (:func:`facegeo.hands.hand_mask`) is occluded like the rest.
 
 :func:`skin_mask` returns a :class:`SkinMask`; its ``occlusion`` (1 = something other than the
 face's surface is seen) is what :func:`facegeo.uv.unwrap` folds into M_vis; ``facegeo unwrap``
@@ -43,6 +43,7 @@ import numpy as np
 
 from facegeo.colour import luminance, srgb_to_linear
 from facegeo.errors import NoFaceError
+from facegeo.hands import Hand, default_hand_detector, hand_mask
 from facegeo.photo import as_rgb_uint8
 
 __all__ = ["SkinMask", "FaceRegions", "skin_mask", "skin_mask_image", "DARK_FRACTION", "HALO_FRACTION", "LOCAL_DARK"]
@@ -116,6 +117,7 @@ class SkinMask:
     sample: bool, the pixels the colour model was fitted on.
     mean, covariance: (2,) and (2, 2) float64, the robust Gaussian of (log R/G, log B/G).
     source: ``"mediapipe"`` or ``"ibug68"`` (where the regions came from).
+    hands: the number of hands masked out.
     """
 
     occlusion: np.ndarray
@@ -124,11 +126,12 @@ class SkinMask:
     mean: np.ndarray
     covariance: np.ndarray
     source: str
+    hands: int = 0
 
     def summary(self) -> dict[str, float | str]:
         """JSON-ready statistics (for reports)."""
         return {"source": self.source, "occluded_fraction": float(self.occlusion.mean()),
-                "sample_pixels": int(self.sample.sum()), "chroma_mean": self.mean.tolist(),
+                "sample_pixels": int(self.sample.sum()), "hands": self.hands, "chroma_mean": self.mean.tolist(),
                 "chroma_sigma": np.sqrt(np.diag(self.covariance)).tolist()}
 
 
@@ -168,14 +171,15 @@ def _robust_gaussian(samples: np.ndarray, rounds: int = 3) -> tuple[np.ndarray, 
 
 
 def skin_mask(image: np.ndarray, landmarks: np.ndarray | None = None, *, regions: FaceRegions | None = None,
-              source: str = "<array>") -> SkinMask:
+              hands: list[Hand] | None = None, source: str = "<array>") -> SkinMask:
     """The skin mask of an (H, W, 3) uint8 RGB photo (see the module docstring).
 
     Args:
         image: the photo (any input :func:`facegeo.photo.as_rgb_uint8` accepts).
         landmarks: optional (68 or 88, 2) iBUG points (corner-origin pixels, e.g. a fit's
             ``landmarks``), used when MediaPipe finds no face.
-        regions: face regions already known (skips MediaPipe).
+        regions: face regions already known (skips MediaPipe's face mesh).
+        hands: the hands already found (default: :func:`facegeo.hands.default_hand_detector` runs).
         source: the photo's name for error messages.
     Raises:
         NoFaceError: MediaPipe finds no face and no ``landmarks`` were given.
@@ -238,13 +242,16 @@ def skin_mask(image: np.ndarray, landmarks: np.ndarray | None = None, *, regions
     # neighbourhood, where skin creases and shadows are only somewhat darker
     local = cv2.GaussianBlur(lum, (0, 0), 0.12 * iod)
     occluded |= (lum < LOCAL_DARK * local) & ~(lips | brows | eyes)
+    if hands is None:
+        hands = default_hand_detector()(rgb)
+    occluded |= hand_mask((H, W), hands)
     occluded = cv2.dilate(occluded.astype(np.uint8), _disc(HALO_FRACTION * iod)).astype(bool)
     occluded |= cv2.dilate((eyes | mouth).astype(np.uint8), _disc(0.02 * iod)).astype(bool)  # lashes, lip edge
     occluded = occluded.astype(np.float32)
     sigma = max(0.5, 0.02 * iod)
     occlusion = np.clip(cv2.GaussianBlur(occluded, (0, 0), sigma) * 1.5, 0.0, 1.0)  # feathered, 1 on the occluder
     occlusion = np.maximum(occlusion, (eyes | mouth).astype(np.float32))
-    return SkinMask(occlusion.astype(np.float32), prob, sample, mean, cov, origin)
+    return SkinMask(occlusion.astype(np.float32), prob, sample, mean, cov, origin, len(hands))
 
 
 def skin_mask_image(mask: SkinMask) -> np.ndarray:

@@ -1,4 +1,4 @@
-"""Fetch the three MediaPipe face models facegeo uses, without installing mediapipe.
+"""Fetch the MediaPipe face and hand models facegeo uses, without installing mediapipe.
 
 Downloads the ``mediapipe==0.10.14`` wheel (CPython 3.11, manylinux x86_64) with
 ``pip download --no-deps`` into a temporary folder, checks its sha256, and copies out of it
@@ -6,6 +6,8 @@ Downloads the ``mediapipe==0.10.14`` wheel (CPython 3.11, manylinux x86_64) with
 * ``mediapipe/modules/face_detection/face_detection_short_range.tflite`` (BlazeFace, 128x128)
 * ``mediapipe/modules/face_landmark/face_landmark.tflite`` (face mesh, 468 points, 192x192)
 * ``mediapipe/modules/iris_landmark/iris_landmark.tflite`` (iris + eye contour of one eye, 64x64)
+* ``mediapipe/modules/palm_detection/palm_detection_lite.tflite`` (BlazePalm, 192x192)
+* ``mediapipe/modules/hand_landmark/hand_landmark_lite.tflite`` (21 hand landmarks, 224x224)
 * ``mediapipe-0.10.14.dist-info/LICENSE`` (Apache-2.0) as ``LICENSE``
 
 into the folder this script lives in. Each extracted file is checked against the sha256 recorded
@@ -46,6 +48,14 @@ MEMBERS = {
     "mediapipe/modules/iris_landmark/iris_landmark.tflite": (
         "iris_landmark.tflite",
         "d1744d2a09c25f501d39eba4faff47e53ecca8852c5ce19bce8eeac39357521f",
+    ),
+    "mediapipe/modules/palm_detection/palm_detection_lite.tflite": (
+        "palm_detection_lite.tflite",
+        "e9a4aaddf90dda56a87235303cf00e4c2d3fb28725f68fd88772997dac905c18",
+    ),
+    "mediapipe/modules/hand_landmark/hand_landmark_lite.tflite": (
+        "hand_landmark_lite.tflite",
+        "048edd3645c9bf7397d19a9f6e3a42957d6e414c9bea6598030a2e9b624156e6",
     ),
     f"mediapipe-{VERSION}.dist-info/LICENSE": (
         "LICENSE",

@@ -79,6 +79,8 @@ __all__ = [
     "MediaPipeFaceMesh",
     "SHORT_RANGE_ANCHOR_OPTIONS",
     "ibug68_from_mesh",
+    "roi_crop",
+    "ssd_detect",
     "ssd_anchors",
     "weighted_nms",
 ]
@@ -108,8 +110,6 @@ SHORT_RANGE_ANCHOR_OPTIONS = dict(
     fixed_anchor_size=True,
     reduce_boxes_in_lowest_layer=False,
 )
-#: ``x_scale = y_scale = w_scale = h_scale`` of the decoder.
-DETECTOR_COORD_SCALE = 128.0
 SCORE_CLIPPING = 100.0
 
 
@@ -425,11 +425,99 @@ def _compose(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return (a3 @ b3)[:2]
 
 
+def ssd_detect(model: _Model, image: np.ndarray, size: int, anchors: np.ndarray, value_range: tuple[float, float],
+               n_keypoints: int, min_score: float, nms_iou: float) -> list[tuple[np.ndarray, np.ndarray, float]]:
+    """One SSD detector of MediaPipe's BlazeFace/BlazePalm family on a whole (H, W, 3) uint8 RGB photo.
+
+    The photo is letterboxed to a square (centred, black padding: ``keep_aspect_ratio: true,
+    BORDER_ZERO``), area-resized to ``size``² and scaled to ``value_range``; the model's outputs
+    ``boxes`` (1, N, 4 + 2K) (x, y, w, h then K keypoints, divided by ``size`` and offset by the
+    anchor centre, ``reverse_output_order``) and ``scores`` (1, N, 1) logits (clipped to ±100,
+    sigmoid, kept when ≥ ``min_score``) are decoded against ``anchors`` (N, 4) and merged by
+    :func:`weighted_nms`. Returns (box (4,) x0, y0, x1, y1, keypoints (K, 2), score) in
+    pixel-centre coordinates, best score first.
+    """
+    _check_image(image)
+    height, width = image.shape[:2]
+    side = max(height, width)
+    pad_x = (side - width) // 2
+    pad_y = (side - height) // 2
+    square = image
+    if side != width or side != height:
+        square = cv2.copyMakeBorder(image, pad_y, side - height - pad_y, pad_x,
+                                    side - width - pad_x, cv2.BORDER_CONSTANT, value=(0, 0, 0))
+    interp = cv2.INTER_AREA if side > size else cv2.INTER_LINEAR
+    small = cv2.resize(square, (size, size), interpolation=interp)
+    lo, hi = value_range
+    tensor = (small.astype(np.float32) / np.float32(255.0 / (hi - lo)) + np.float32(lo))[None]
+    out = model(tensor)
+    raw = out["boxes"][0].astype(np.float64)
+    logits = np.clip(out["scores"][0, :, 0].astype(np.float64), -SCORE_CLIPPING, SCORE_CLIPPING)
+    scores = 1.0 / (1.0 + np.exp(-logits))
+    keep = np.flatnonzero(scores >= min_score)
+    if keep.size == 0:
+        return []
+    raw, scores, anchors = raw[keep], scores[keep], anchors[keep].astype(np.float64)
+    ax, ay, aw, ah = anchors[:, 0:1], anchors[:, 1:2], anchors[:, 2:3], anchors[:, 3:4]
+    xc = raw[:, 0:1] / size * aw + ax
+    yc = raw[:, 1:2] / size * ah + ay
+    w = raw[:, 2:3] / size * aw
+    h = raw[:, 3:4] / size * ah
+    boxes = np.concatenate([xc - w / 2, yc - h / 2, xc + w / 2, yc + h / 2], axis=1)
+    end = 4 + 2 * n_keypoints
+    kx = raw[:, 4:end:2] / size * aw + ax
+    ky = raw[:, 5:end:2] / size * ah + ay
+    keypoints = np.stack([kx, ky], axis=2)  # (n, K, 2), normalised to the letterboxed square
+    # normalised square -> continuous image coordinates -> pixel-centre coordinates
+    offset = np.array([pad_x, pad_y], dtype=np.float64)
+    boxes = boxes * side - np.tile(offset, 2) - 0.5
+    keypoints = keypoints * side - offset - 0.5
+    return weighted_nms(boxes, keypoints, scores, nms_iou)
+
+
+def roi_crop(image: np.ndarray, center: np.ndarray, side: float, angle: float, size: int) -> tuple[np.ndarray, np.ndarray]:
+    """The rotated square region of interest (centre (2,) in pixel-centre coordinates, ``side``
+    px, ``angle`` radians clockwise in the image) of an (H, W, 3) uint8 photo, resampled to
+    ``size``² (bilinear, replicated border; regions much larger than ``size`` are box-filtered
+    down by an integer factor first so that the warp does not alias). Returns the (size, size, 3)
+    uint8 crop and the 2x3 affine from crop to image continuous coordinates (pixel ``i`` spans
+    ``[i, i + 1]`` in both)."""
+    # crop (continuous) -> image (continuous); ROI centre given in pixel-centre coordinates
+    to_image = _roi_to_image(np.asarray(center, np.float64) + 0.5, side, angle, size)
+    source = image
+    # image continuous -> source pixel-centre coordinates
+    to_source = np.array([[1.0, 0.0, -0.5], [0.0, 1.0, -0.5]])
+    factor = int(side / size)
+    if factor >= 2:
+        # shrink the region by an exact integer box filter first, so the bilinear warp
+        # does not alias when the region is much larger than the crop
+        corners = to_image @ np.array([[0, size, 0, size], [0, 0, size, size], [1, 1, 1, 1]], float)
+        h, w = image.shape[:2]
+        x0 = int(np.clip(math.floor(corners[0].min()) - factor, 0, w))
+        y0 = int(np.clip(math.floor(corners[1].min()) - factor, 0, h))
+        x1 = int(np.clip(math.ceil(corners[0].max()) + factor, 0, w))
+        y1 = int(np.clip(math.ceil(corners[1].max()) + factor, 0, h))
+        nx, ny = (x1 - x0) // factor, (y1 - y0) // factor
+        if nx >= 1 and ny >= 1:
+            region = image[y0:y0 + ny * factor, x0:x0 + nx * factor]
+            source = cv2.resize(region, (nx, ny), interpolation=cv2.INTER_AREA)
+            to_source = np.array([[1.0 / factor, 0.0, -x0 / factor - 0.5],
+                                  [0.0, 1.0 / factor, -y0 / factor - 0.5]])
+    # crop pixel index i has continuous coordinate i + 0.5
+    from_index = np.array([[1.0, 0.0, 0.5], [0.0, 1.0, 0.5]])
+    sample = _compose(to_source, _compose(to_image, from_index))
+    crop = cv2.warpAffine(source, sample, (size, size), flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP,
+                          borderMode=cv2.BORDER_REPLICATE)
+    return crop, to_image
+
+
 class _Model:
-    """A LiteRT interpreter with its input and output tensor indices checked."""
+    """A LiteRT interpreter with its input and output tensor indices checked. Outputs are found
+    by shape; ``output_names`` (key -> tensor name) picks among outputs that share a shape."""
 
     def __init__(self, path: Path, input_shape: tuple[int, ...],
-                 output_shapes: dict[str, tuple[int, ...]], num_threads: int | None):
+                 output_shapes: dict[str, tuple[int, ...]], num_threads: int | None,
+                 output_names: dict[str, str] | None = None):
         path = Path(path)
         if not path.is_file():
             raise ModelFileError(path, "file", "a TFLite model file", "no such file")
@@ -453,10 +541,12 @@ class _Model:
         outputs = self.interpreter.get_output_details()
         self.output_index: dict[str, int] = {}
         for name, shape in output_shapes.items():
-            match = [d["index"] for d in outputs if tuple(int(v) for v in d["shape"]) == shape]
+            tensor = (output_names or {}).get(name)
+            match = [d["index"] for d in outputs if tuple(int(v) for v in d["shape"]) == shape
+                     and (tensor is None or d["name"] == tensor)]
             if len(match) != 1:
-                raise ModelFileError(path, "output tensors", f"one of shape {shape} ({name})",
-                                     f"{[tuple(int(v) for v in d['shape']) for d in outputs]}")
+                raise ModelFileError(path, "output tensors", f"one of shape {shape} ({name}{', ' + tensor if tensor else ''})",
+                                     f"{[(d['name'], tuple(int(v) for v in d['shape'])) for d in outputs]}")
             self.output_index[name] = match[0]
 
     def __call__(self, tensor: np.ndarray) -> dict[str, np.ndarray]:
@@ -534,42 +624,9 @@ class MediaPipeFaceMesh:
 
     def detect(self, image: np.ndarray) -> list[BlazeFaceDetection]:
         """BlazeFace detections (after weighted NMS), best score first."""
-        _check_image(image)
-        height, width = image.shape[:2]
-        side = max(height, width)
-        pad_x = (side - width) // 2
-        pad_y = (side - height) // 2
-        square = image
-        if side != width or side != height:
-            square = cv2.copyMakeBorder(image, pad_y, side - height - pad_y, pad_x,
-                                        side - width - pad_x, cv2.BORDER_CONSTANT, value=(0, 0, 0))
-        interp = cv2.INTER_AREA if side > DETECTOR_SIZE else cv2.INTER_LINEAR
-        small = cv2.resize(square, (DETECTOR_SIZE, DETECTOR_SIZE), interpolation=interp)
-        tensor = (small.astype(np.float32) / 127.5 - 1.0)[None]
-        out = self.detector(tensor)
-        raw = out["boxes"][0].astype(np.float64)
-        logits = np.clip(out["scores"][0, :, 0].astype(np.float64), -SCORE_CLIPPING, SCORE_CLIPPING)
-        scores = 1.0 / (1.0 + np.exp(-logits))
-        keep = np.flatnonzero(scores >= self.min_detection_score)
-        if keep.size == 0:
-            return []
-        raw, scores, anchors = raw[keep], scores[keep], self.anchors[keep].astype(np.float64)
-        ax, ay, aw, ah = anchors[:, 0:1], anchors[:, 1:2], anchors[:, 2:3], anchors[:, 3:4]
-        scale = DETECTOR_COORD_SCALE
-        xc = raw[:, 0:1] / scale * aw + ax
-        yc = raw[:, 1:2] / scale * ah + ay
-        w = raw[:, 2:3] / scale * aw
-        h = raw[:, 3:4] / scale * ah
-        boxes = np.concatenate([xc - w / 2, yc - h / 2, xc + w / 2, yc + h / 2], axis=1)
-        kx = raw[:, 4:16:2] / scale * aw + ax
-        ky = raw[:, 5:16:2] / scale * ah + ay
-        keypoints = np.stack([kx, ky], axis=2)  # (n, 6, 2), normalised to the letterboxed square
-        # normalised square -> continuous image coordinates -> pixel-centre coordinates
-        offset = np.array([pad_x, pad_y], dtype=np.float64)
-        boxes = boxes * side - np.tile(offset, 2) - 0.5
-        keypoints = keypoints * side - offset - 0.5
-        merged = weighted_nms(boxes, keypoints, scores, self.nms_iou)
-        return [BlazeFaceDetection(box=b, keypoints=k, score=s) for b, k, s in merged]
+        found = ssd_detect(self.detector, image, DETECTOR_SIZE, self.anchors, (-1.0, 1.0), 6,
+                           self.min_detection_score, self.nms_iou)
+        return [BlazeFaceDetection(box=b, keypoints=k, score=s) for b, k, s in found]
 
     # -- mesh --------------------------------------------------------------------------------
 
@@ -595,34 +652,7 @@ class MediaPipeFaceMesh:
     def mesh_in_roi(self, image: np.ndarray, center: np.ndarray, side: float,
                     angle: float) -> tuple[np.ndarray, float]:
         """Run the mesh model on a rotated square ROI; return ((468, 3) px mesh, presence)."""
-        # crop (continuous) -> image (continuous); ROI centre given in pixel-centre coordinates
-        to_image = _roi_to_image(np.asarray(center, np.float64) + 0.5, side, angle, MESH_SIZE)
-        source = image
-        # image continuous -> source pixel-centre coordinates
-        to_source = np.array([[1.0, 0.0, -0.5], [0.0, 1.0, -0.5]])
-        factor = int(side / MESH_SIZE)
-        if factor >= 2:
-            # shrink the region by an exact integer box filter first, so the bilinear warp
-            # does not alias when the face is much larger than 192 px
-            corners = to_image @ np.array(
-                [[0, MESH_SIZE, 0, MESH_SIZE], [0, 0, MESH_SIZE, MESH_SIZE], [1, 1, 1, 1]], float)
-            h, w = image.shape[:2]
-            x0 = int(np.clip(math.floor(corners[0].min()) - factor, 0, w))
-            y0 = int(np.clip(math.floor(corners[1].min()) - factor, 0, h))
-            x1 = int(np.clip(math.ceil(corners[0].max()) + factor, 0, w))
-            y1 = int(np.clip(math.ceil(corners[1].max()) + factor, 0, h))
-            nx, ny = (x1 - x0) // factor, (y1 - y0) // factor
-            if nx >= 1 and ny >= 1:
-                region = image[y0:y0 + ny * factor, x0:x0 + nx * factor]
-                source = cv2.resize(region, (nx, ny), interpolation=cv2.INTER_AREA)
-                to_source = np.array([[1.0 / factor, 0.0, -x0 / factor - 0.5],
-                                      [0.0, 1.0 / factor, -y0 / factor - 0.5]])
-        # crop pixel index i has continuous coordinate i + 0.5
-        from_index = np.array([[1.0, 0.0, 0.5], [0.0, 1.0, 0.5]])
-        sample = _compose(to_source, _compose(to_image, from_index))
-        crop = cv2.warpAffine(source, sample, (MESH_SIZE, MESH_SIZE),
-                              flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP,
-                              borderMode=cv2.BORDER_REPLICATE)
+        crop, to_image = roi_crop(image, center, side, angle, MESH_SIZE)
         out = self.mesh_model((crop.astype(np.float32) / 255.0)[None])
         raw = out["mesh"].reshape(N_MESH, 3).astype(np.float64)
         presence = 1.0 / (1.0 + math.exp(-float(out["presence"].ravel()[0])))
