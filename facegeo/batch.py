@@ -40,7 +40,8 @@ failed fit checks) is failed at once; any other exception is retried ``retries``
 ``retries=``); a worker that dies while running an item (a crash, or the nanny killing it for its
 memory limit) gets the item re-run on another worker, and an item that has killed
 ``allowed_failures`` + 1 workers is failed (Dask's ``distributed.scheduler.allowed-failures``, set
-on the embedded cluster's scheduler; an external scheduler uses its own setting). Ctrl-C
+on the embedded cluster's scheduler; an external scheduler uses its own setting); should the
+embedded cluster be left without any worker for a minute, the photos still waiting fail. Ctrl-C
 (SIGINT) or SIGTERM cancels the batch: finished item folders stay, unfinished ones never appear,
 ``summary.csv`` lists what finished, and ``--resume`` goes on from there.
 
