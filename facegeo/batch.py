@@ -66,10 +66,12 @@ import time
 from collections.abc import Callable, Iterable, Iterator, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from facegeo.errors import FacegeoError, InputError
-from facegeo.jobs import FitOptions, JobRecord, ReconstructOptions
+
+if TYPE_CHECKING:  # facegeo.jobs imports torch (its option defaults check the detectors): not for the CLI parser
+    from facegeo.jobs import FitOptions, JobRecord, ReconstructOptions
 
 __all__ = ["BatchRecord", "fit_many", "reconstruct_many", "expand_inputs", "folder_names", "dask_client",
            "add_batch_arguments", "wants_batch", "run_batch", "EXIT_STATUS", "ITEMS_FILE", "SUMMARY_FILE",
@@ -577,12 +579,13 @@ def _collect(record: BatchRecord, future: Any, files: str, staged: Any) -> None:
 
 # ------------------------------------------------------------------------------------- API
 def fit_many(photos: Iterable[str | os.PathLike[str]], out: str | os.PathLike[str], client: Any = None,
-             options: FitOptions = FitOptions(), *, workers: int | None = None, scheduler: str | None = None,
+             options: FitOptions | None = None, *, workers: int | None = None, scheduler: str | None = None,
              resume: bool = False, retries: int = 2, allowed_failures: int = 2, files: str = "shared",
              job: Callable[..., JobRecord] | None = None, memory_limit: str | float | None = None,
              progress: bool | None = False, on_failure: Callable[[BatchRecord], None] | None = None) -> list[BatchRecord]:
     """Fit every photo of ``photos`` (paths, folders, globs, manifests: :func:`expand_inputs`)
-    into ``out/<name>/`` (fit.json, mesh.obj, overlay.png), on ``client`` (an existing
+    into ``out/<name>/`` (fit.json, mesh.obj, overlay.png) with ``options`` (default
+    ``FitOptions()``), on ``client`` (an existing
     :class:`distributed.Client`, left open), on the cluster at ``scheduler``, or on an embedded
     ``LocalCluster`` of ``workers`` processes; returns one :class:`BatchRecord` per photo, in
     input order, and writes ``items.csv``, ``summary.csv`` and ``failures.csv`` into ``out``
@@ -602,20 +605,25 @@ def fit_many(photos: Iterable[str | os.PathLike[str]], out: str | os.PathLike[st
         InputError: no inputs, an unusable ``out``, bad options, Dask missing, no scheduler.
         KeyboardInterrupt: passed on after the batch was cancelled and its reports written.
     """
-    return _run_many("fit", photos, out, client, options, workers=workers, scheduler=scheduler, resume=resume,
+    from facegeo.jobs import FitOptions
+
+    return _run_many("fit", photos, out, client, options or FitOptions(), workers=workers, scheduler=scheduler, resume=resume,
                      retries=retries, allowed_failures=allowed_failures, files=files, job=job,
                      memory_limit=memory_limit, progress=progress, on_failure=on_failure)
 
 
 def reconstruct_many(photos: Iterable[str | os.PathLike[str]], out: str | os.PathLike[str], client: Any = None,
-                     options: ReconstructOptions = ReconstructOptions(), *, workers: int | None = None,
+                     options: ReconstructOptions | None = None, *, workers: int | None = None,
                      scheduler: str | None = None, resume: bool = False, retries: int = 2, allowed_failures: int = 2,
                      files: str = "shared", job: Callable[..., JobRecord] | None = None,
                      memory_limit: str | float | None = None, progress: bool | None = False,
                      on_failure: Callable[[BatchRecord], None] | None = None) -> list[BatchRecord]:
     """:func:`fit_many` with the whole pipeline per photo
-    (:func:`facegeo.jobs.reconstruct_into_folder`: fit.json, the maps, the scenes, preview.png)."""
-    return _run_many("reconstruct", photos, out, client, options, workers=workers, scheduler=scheduler, resume=resume,
+    (:func:`facegeo.jobs.reconstruct_into_folder`: fit.json, the maps, the scenes, preview.png;
+    ``options`` default ``ReconstructOptions()``)."""
+    from facegeo.jobs import ReconstructOptions
+
+    return _run_many("reconstruct", photos, out, client, options or ReconstructOptions(), workers=workers, scheduler=scheduler, resume=resume,
                      retries=retries, allowed_failures=allowed_failures, files=files, job=job,
                      memory_limit=memory_limit, progress=progress, on_failure=on_failure)
 
