@@ -1,4 +1,4 @@
-"""Benchmark of ``preview.png`` (:func:`facegeo.pipeline.relit_preview`) and the parts stage.
+"""Benchmark of ``preview.png`` (:func:`facegeo.texturing.preview.relit_preview`) and the parts stage.
 
     python benchmarks/bench_preview.py [--repeat 5]
 
@@ -36,7 +36,8 @@ def main() -> None:
     from facegeo.assets import asset_path
     from facegeo.landmarks.iris import IrisDetector, iris_colour
     from facegeo.parts import load_parts, part_assets
-    from facegeo.pipeline import reconstruct_with_fit, relit_preview
+    from facegeo.pipeline import reconstruct_with_fit
+    from facegeo.texturing.preview import relit_preview
     from facegeo.uv import render
 
     photo = facegeo.load_photo(asset_path("photos/astronaut.png"))

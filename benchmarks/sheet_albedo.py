@@ -22,7 +22,8 @@ import numpy as np
 import facegeo
 from facegeo.assets import asset_path
 from facegeo.photo import load_photo
-from facegeo.pipeline import reconstruct_with_fit, relit_preview
+from facegeo.pipeline import reconstruct_with_fit
+from facegeo.texturing.preview import relit_preview
 from facegeo.skin_mask import skin_mask
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -34,7 +34,8 @@ import numpy as np
 
 from facegeo.asset import MAP_CHANNELS, MAP_NAMES, Asset
 from facegeo.errors import InputError
-from facegeo.export.textures import decode_map, encode_map, png_bytes, read_png
+from facegeo.export.textures import decode_map, encode_map
+from facegeo.image_files import png_bytes, read_png
 from facegeo.mesh_io import obj_text
 from facegeo.staged_output import StagedOutput
 

@@ -7,7 +7,7 @@ both sides of a seam move together and the mesh stays watertight. ``displace`` s
 (:func:`facegeo.export.subdivision.subdivide`), then bakes: the result is the displaced mesh
 Python users ask for.
 
-Map convention (DESIGN.md): row 0 is the top of the UV square; texel (i, j) is centred at
+Map convention (DESIGN.md, "Conventions"): row 0 is the top of the UV square; texel (i, j) is centred at
 u = (j + 0.5)/W, v = 1 − (i + 0.5)/H. Samples outside the texel centres are clamped to the edge.
 
 Numerical care: normals are accumulated in float64; a vertex whose triangles have no area (or
@@ -108,7 +108,7 @@ def bake_displacement(mesh: Any, displacement_map: np.ndarray | float | None = N
     ``mesh``: an :class:`Asset`, a :class:`trimesh.Trimesh` with UVs or a ``FaceVaryingMesh``;
     the same type is returned (a Trimesh with one vertex per (vertex, UV) pair and the displaced
     mesh's normals). ``displacement_map``: (H, W) float array (millimetres when ``scale_mm`` is 1,
-    the DESIGN.md convention), or a number (a uniform offset), or None for an Asset's own
+    DESIGN.md, "Conventions"), or a number (a uniform offset), or None for an Asset's own
     ``displacement`` map or constant. When the Asset's own displacement is baked it is removed
     from the returned Asset (so it is not applied twice) and ``metadata["displacement_baked"]``
     records the scale.

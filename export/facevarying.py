@@ -1,6 +1,6 @@
 """Face-varying triangle meshes: the arrays every exporter works on, and trimesh conversion.
 
-A face-varying mesh is four arrays (DESIGN.md conventions):
+A face-varying mesh is four arrays (DESIGN.md, "Conventions"):
 
 * ``vertices`` (V, 3) float, millimetres: the geometry, one entry per surface point, so the
   surface is watertight wherever the triangles share vertices;
@@ -151,7 +151,7 @@ def to_trimesh(mesh: Any, normals: np.ndarray | None = None, material: Any = Non
     if material is None and isinstance(mesh, Asset) and "albedo" in mesh.maps:
         from PIL import Image
 
-        from facegeo.export.textures import to_uint
+        from facegeo.image_files import to_uint
 
         material = trimesh.visual.material.PBRMaterial(
             name=mesh.name, baseColorTexture=Image.fromarray(to_uint(mesh.maps["albedo"], 8)),

@@ -49,7 +49,8 @@ from facegeo.colour import linear_to_srgb, srgb_to_linear
 from facegeo.errors import InputError
 from facegeo.export.facevarying import wedges
 from facegeo.export.scene import SceneContents, scene_contents
-from facegeo.export.textures import DEFAULT_ROUGHNESS, SPECULAR_F0_SCALE, encode_map, png_bytes, to_uint
+from facegeo.export.textures import DEFAULT_ROUGHNESS, SPECULAR_F0_SCALE, encode_map
+from facegeo.image_files import png_bytes, to_uint
 from facegeo.staged_output import atomic_write_bytes
 
 __all__ = ["write_glb", "glb_bytes", "validate_glb", "find_gltf_validator", "GltfValidatorMissing", "VALIDATOR_ENV_VAR"]

@@ -26,7 +26,7 @@ import numpy as np
 
 from facegeo.asset import MAP_CHANNELS, MAP_NAMES, Asset
 from facegeo.errors import InputError
-from facegeo.native_stderr import silenced_native_stderr
+from facegeo.image_files import to_uint
 
 __all__ = [
     "MaterialInput",
@@ -36,9 +36,6 @@ __all__ = [
     "SPECULAR_F0_SCALE",
     "encode_map",
     "decode_map",
-    "png_bytes",
-    "read_png",
-    "to_uint",
 ]
 
 #: Roughness written when the asset has none (UsdPreviewSurface's default; glTF's is 1.0, so the
@@ -108,13 +105,6 @@ def material_inputs(asset: Asset, maps: Iterable[str] | None = None) -> dict[str
     return out
 
 
-def to_uint(array: np.ndarray, bits: int) -> np.ndarray:
-    """Values in [0, 1] (clipped) to uint8 or uint16, rounded."""
-    top = (1 << bits) - 1
-    q = np.round(np.clip(np.asarray(array, dtype=np.float64), 0.0, 1.0) * top)
-    return q.astype(np.uint8 if bits == 8 else np.uint16)
-
-
 def encode_map(name: str, array: np.ndarray, bits: int | None = None) -> tuple[np.ndarray, dict[str, Any]]:
     """Encode a map for a PNG: returns ``(uint8/uint16 image, encoding)`` where ``encoding`` is
     ``{"bits", "colorspace", "scale", "offset"}`` with value = offset + scale × texel/(2^bits − 1)
@@ -143,38 +133,3 @@ def decode_map(name: str, image: np.ndarray, encoding: dict[str, Any]) -> np.nda
     if name == "normal":
         values = values / np.maximum(np.linalg.norm(values, axis=-1, keepdims=True), 1e-12)
     return values.astype(np.float32)
-
-
-def png_bytes(image: np.ndarray) -> bytes:
-    """PNG bytes of an (H, W), (H, W, 3) or (H, W, 4) uint8/uint16 image (RGB(A) order)."""
-    import cv2
-
-    img = np.ascontiguousarray(image)
-    if img.ndim == 3 and img.shape[2] == 3:
-        img = img[:, :, ::-1]
-    elif img.ndim == 3 and img.shape[2] == 4:
-        img = img[:, :, [2, 1, 0, 3]]
-    # zlib level 1: 3-4x faster than 6 on 4K maps for files about 10 % larger
-    ok, buf = cv2.imencode(".png", np.ascontiguousarray(img), [cv2.IMWRITE_PNG_COMPRESSION, 1])
-    if not ok:  # pragma: no cover
-        raise RuntimeError("PNG encoding failed")
-    return buf.tobytes()
-
-
-def read_png(path: str) -> np.ndarray:
-    """An 8- or 16-bit PNG as stored: (H, W) or (H, W, C) uint8/uint16, RGB(A) order.
-
-    Raises:
-        InputError: the file is missing or not a readable image.
-    """
-    import cv2
-
-    with silenced_native_stderr():  # libpng prints "libpng error: ..." itself; the InputError says it
-        img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
-    if img is None:
-        raise InputError(path, "image", "a readable PNG file")
-    if img.ndim == 3 and img.shape[2] == 3:
-        img = img[:, :, ::-1]
-    elif img.ndim == 3 and img.shape[2] == 4:
-        img = img[:, :, [2, 1, 0, 3]]
-    return np.ascontiguousarray(img)

@@ -1,6 +1,6 @@
 """USD export: ``.usda``, ``.usdc`` and ``.usdz`` with a ``UsdPreviewSurface`` material.
 
-The stage (DESIGN.md conventions): ``upAxis = "Y"``, ``metersPerUnit = 0.001`` (points in mm),
+The stage (DESIGN.md, "Conventions"): ``upAxis = "Y"``, ``metersPerUnit = 0.001`` (points in mm),
 a default prim ``/<name>`` (an Xform of kind ``component``) holding
 
 * ``/<name>/mesh``, a ``Mesh``: points, ``faceVertexCounts``/``faceVertexIndices`` (triangles,
@@ -60,7 +60,8 @@ from facegeo.asset import Asset
 from facegeo.colour import srgb_to_linear
 from facegeo.errors import InputError, OutputError
 from facegeo.export.scene import SceneContents, scene_contents
-from facegeo.export.textures import DEFAULT_ROUGHNESS, SPECULAR_F0_SCALE, encode_map, png_bytes
+from facegeo.export.textures import DEFAULT_ROUGHNESS, SPECULAR_F0_SCALE, encode_map
+from facegeo.image_files import png_bytes
 from facegeo.staged_output import WRITE_FAULTS, StagedOutput, atomic_write_bytes
 
 __all__ = ["write_usd", "validate_usd", "check_usd", "UsdCheck", "USD_SUFFIXES"]

@@ -21,6 +21,7 @@ _EXPORTS = {
     "FaceLandmarks": "facegeo.landmarks.detectors",
     "LandmarkDetector": "facegeo.landmarks.detectors",
     "Fit": "facegeo.fitting",
+    "Fitter": "facegeo.fitting",
     "fit": "facegeo.fitting",
     "fit_landmarks": "facegeo.fitting",
     "reconstruct": "facegeo.pipeline",
@@ -39,7 +40,7 @@ __all__ = ["__version__", *_EXPORTS]
 if TYPE_CHECKING:
     from facegeo.camera import Camera, project
     from facegeo.errors import FacegeoError, InputError, ModelFileError, NoFaceError, OutputError
-    from facegeo.fitting import Fit, fit, fit_landmarks
+    from facegeo.fitting import Fit, Fitter, fit, fit_landmarks
     from facegeo.landmarks.detectors import FaceLandmarks, LandmarkDetector, detect_landmarks
     from facegeo.model_files import load_model
     from facegeo.morphable_model import MorphableModel

@@ -1,6 +1,6 @@
 """The Asset: a face mesh with face-varying UVs and its PBR maps in UV space.
 
-This is what the texture stage produces and what the exporters write. Conventions (DESIGN.md):
+This is what the texture stage produces and what the exporters write. Conventions (DESIGN.md, "Conventions"):
 millimetres, +Y up, +Z out of the face; UV [0, 1]² with the origin bottom-left; map arrays are
 stored image-style, row 0 = top (texel row i covers v = 1 − (i + 0.5)/H).
 

@@ -1,6 +1,6 @@
 """Perspective pinhole camera, rigid pose and projection (OpenGL axes, pixel rows downwards).
 
-Camera space follows DESIGN.md: X_c = R·X + t, +X right, +Y up, and the camera looks down −Z, so
+Camera space follows DESIGN.md, "Conventions": X_c = R·X + t, +X right, +Y up, and the camera looks down −Z, so
 a visible point has z_c < 0. A pixel (u, v) has u growing to the right and v growing downwards:
 
     u = cx + f · x_c / (−z_c),    v = cy − f · y_c / (−z_c).

@@ -21,7 +21,7 @@ Stages (each timed in ``Fit.timings``):
    alternating regularised least squares; residuals beyond 3 robust σ (hair, glasses,
    specular highlights) are dropped between rounds.
 
-Axes and units: DESIGN.md (mm, +Y up, camera looks down −Z); pixels as in :mod:`facegeo.camera`.
+Axes and units: DESIGN.md, "Conventions" (mm, +Y up, camera looks down −Z); pixels as in :mod:`facegeo.camera`.
 """
 
 from __future__ import annotations
@@ -29,7 +29,7 @@ from __future__ import annotations
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, Protocol
 
 import cv2
 import numpy as np
@@ -48,7 +48,7 @@ from facegeo.morphable_model import MorphableModel
 from facegeo.photo import Photo, as_rgb_uint8, load_photo
 from facegeo.visibility import vertex_visibility
 
-__all__ = ["Fit", "fit", "fit_landmarks", "FitPriors", "DEFAULT_PRIORS", "LandmarkStage", "LANDMARK_SCHEDULE",
+__all__ = ["Fit", "Fitter", "fit", "fit_landmarks", "FitPriors", "DEFAULT_PRIORS", "LandmarkStage", "LANDMARK_SCHEDULE",
            "PHOTOMETRIC_REGULARISATION", "CORRECTIVES"]
 
 
@@ -182,6 +182,25 @@ class Fit:
             "timings_s": self.timings,
             "info": self.info,
         }
+
+
+class Fitter(Protocol):
+    """Anything that turns a photo into a :class:`Fit`: the seam the pipeline and the jobs fit
+    through (:func:`facegeo.pipeline.reconstruct_with_fit`'s ``fitter=``,
+    :func:`facegeo.jobs.fit_into_folder`). The analysis-by-synthesis :func:`fit` is the default;
+    a loaded regressor (:class:`facegeo.regressor.Predictor`) is the second.
+
+    The callers pass exactly these keywords: ``landmarks`` (None: detect them with ``detector``),
+    ``camera`` (None: :meth:`Camera.for_image`'s 40° field of view) and ``photometric`` (the
+    jobs' ``fit`` passes False for ``--no-photometric``; the pipeline leaves the default). The
+    returned fit's ``vertices`` must be the posed mesh of ``model`` in camera space (mm) and its
+    ``landmarks`` the 88 targets in the photo's pixels: the unwrap and the fit checks read them.
+    """
+
+    def __call__(self, image: np.ndarray | str | Path | Photo, model: MorphableModel | None = None,
+                 landmarks: np.ndarray | None = None, detector: str | LandmarkDetector = "hybrid",
+                 camera: Camera | None = None, photometric: bool = True) -> Fit:
+        ...
 
 
 # ---------------------------------------------------------------------------------- pose init

@@ -22,7 +22,7 @@ from typing import Any
 from facegeo.errors import InputError
 
 __all__ = ["FitOptions", "ReconstructOptions", "JobRecord", "fit_into_folder", "reconstruct_into_folder",
-           "loaded_resources", "FIT_FILES", "DISPLACEMENT_BAKE_RULE"]
+           "loaded_resources", "photo_camera", "FIT_FILES", "DISPLACEMENT_BAKE_RULE"]
 
 #: The files ``fit_into_folder`` writes.
 FIT_FILES = ("fit.json", "mesh.obj", "overlay.png")
@@ -73,7 +73,7 @@ class ReconstructOptions(FitOptions):
     """:class:`FitOptions` plus what the texture, export and preview stages need.
 
     Attributes:
-        backend: texture backend name (``facegeo.pipeline.BACKENDS``).
+        backend: texture backend name (``facegeo.texturing.registry.BACKENDS``).
         weights: the diffusion backend's weights folder (only with ``backend="diffusion"``).
         size: UV map size in texels; upscale: 1, 2 or 4; subdiv: Loop levels of the exported mesh.
         maps: which maps to compute and export (names from ``facegeo.asset.MAP_NAMES``).
@@ -96,7 +96,7 @@ class ReconstructOptions(FitOptions):
         super().__post_init__()
         from facegeo.asset import MAP_NAMES, PART_CHOICES
         from facegeo.export.writers import FORMATS
-        from facegeo.pipeline import BACKENDS
+        from facegeo.texturing.registry import BACKENDS
 
         for name, values, allowed in (("maps", self.maps, MAP_NAMES), ("formats", self.formats, FORMATS)):
             if not values or any(v not in allowed for v in values):
@@ -148,7 +148,10 @@ def loaded_resources(model: Path | None, regressor: Path | None, refine: bool, l
     return loaded, load(regressor, model=loaded, detector=landmarks, refine=refine)
 
 
-def _camera(photo: Any, focal: float | None) -> Any:
+def photo_camera(photo: Any, focal: float | None) -> Any:
+    """The :class:`facegeo.Camera` of a loaded :class:`facegeo.Photo`: principal point at the
+    centre, ``focal`` in pixels of the (possibly downscaled) photo, or None for
+    :meth:`Camera.for_image`'s 40° field of view (the ``--focal`` option of every command that fits)."""
     from facegeo.camera import Camera
 
     height, width = photo.image.shape[:2]
@@ -157,15 +160,16 @@ def _camera(photo: Any, focal: float | None) -> Any:
     return Camera(focal, width / 2.0, height / 2.0, width, height)
 
 
-def fit_into_folder(photo_path: str | Path, output: str | Path, options: FitOptions = FitOptions()) -> JobRecord:
+def fit_into_folder(photo_path: str | Path, output: str | Path, options: FitOptions | None = None) -> JobRecord:
     """Fit the model to one photo and write ``fit.json`` (parameters, camera, per-point landmark
     errors, timings), ``mesh.obj`` (posed mesh in camera space, mm, with UVs) and ``overlay.png``
-    into ``output`` (replaced as a whole if it is an earlier facegeo output).
+    into ``output`` (replaced as a whole if it is an earlier facegeo output). ``options``:
+    default ``FitOptions()``.
 
     Raises:
         facegeo.errors.FacegeoError: bad photo, no face, failed fit checks, or an unwritable output.
     """
-    from facegeo.export.textures import png_bytes
+    from facegeo.image_files import png_bytes
     from facegeo.fitting import fit
     from facegeo.landmarks.scheme import inter_ocular_distance
     from facegeo.mesh_io import obj_text
@@ -173,12 +177,13 @@ def fit_into_folder(photo_path: str | Path, output: str | Path, options: FitOpti
     from facegeo.photo import load_photo
     from facegeo.staged_output import StagedOutput
 
+    options = FitOptions() if options is None else options
     start = time.perf_counter()
     model, predictor = loaded_resources(options.model, options.regressor, options.refine, options.landmarks)
     model_seconds = time.perf_counter() - start
     photo = load_photo(photo_path, max_side=options.max_side)
     fitter = predictor or fit
-    result = fitter(photo, model=model, detector=options.landmarks, camera=_camera(photo, options.focal),
+    result = fitter(photo, model=model, detector=options.landmarks, camera=photo_camera(photo, options.focal),
                     photometric=options.photometric)
     result.timings["load_model"] = model_seconds
     result.timings["total"] = time.perf_counter() - start
@@ -193,7 +198,7 @@ def fit_into_folder(photo_path: str | Path, output: str | Path, options: FitOpti
                      timings=dict(result.timings), files=list(FIT_FILES), notes=list(result.info.get("notes", [])))
 
 
-def reconstruct_into_folder(photo_path: str | Path, output: str | Path, options: ReconstructOptions = ReconstructOptions(),
+def reconstruct_into_folder(photo_path: str | Path, output: str | Path, options: ReconstructOptions | None = None,
                             progress: Callable[[str], None] | None = None) -> JobRecord:
     """The whole pipeline on one photo, into ``output``: ``fit.json`` (the fit, stage timings, the
     texture report, the parts), the asset files (``asset.json`` + map PNGs, re-exportable with
@@ -203,6 +208,7 @@ def reconstruct_into_folder(photo_path: str | Path, output: str | Path, options:
     Displacement: :data:`DISPLACEMENT_BAKE_RULE`.
 
     Args:
+        options: default ``ReconstructOptions()``.
         progress: called with each stage's name as it starts (the pipeline's ``STAGES``, then
             ``export`` and ``preview``).
     Raises:
@@ -211,13 +217,17 @@ def reconstruct_into_folder(photo_path: str | Path, output: str | Path, options:
     """
     from facegeo.errors import NoFaceError
     from facegeo.export.asset_io import write_asset_files
-    from facegeo.export.textures import png_bytes
     from facegeo.export.writers import export_asset
+    from facegeo.fitting import fit
+    from facegeo.image_files import png_bytes
     from facegeo.photo import load_photo
-    from facegeo.pipeline import BACKENDS, reconstruct_with_fit, relit_preview
+    from facegeo.pipeline import reconstruct_with_fit
     from facegeo.skin_mask import skin_mask, skin_mask_image
     from facegeo.staged_output import StagedOutput
+    from facegeo.texturing.registry import BACKENDS
+    from facegeo.texturing.preview import relit_preview
 
+    options = ReconstructOptions() if options is None else options
     start = time.perf_counter()
     backend = BACKENDS[options.backend](options.weights) if options.backend == "diffusion" else options.backend  # weights checked first
     model, predictor = loaded_resources(options.model, options.regressor, options.refine, options.landmarks)
@@ -228,8 +238,8 @@ def reconstruct_into_folder(photo_path: str | Path, output: str | Path, options:
         skin = None
     asset, result = reconstruct_with_fit(photo, model, backend=backend, size=options.size, upscale=options.upscale,
                                          maps=options.maps, detector=options.landmarks, skin=skin, progress=progress,
-                                         camera=_camera(photo, options.focal) if options.focal is not None else None,
-                                         **({"fitter": predictor} if predictor else {}))
+                                         camera=photo_camera(photo, options.focal) if options.focal is not None else None,
+                                         fitter=predictor or fit)
     timings = dict(asset.metadata["timings_s"])
     files: list[str] = []
     with StagedOutput(output, replace=True) as stage:

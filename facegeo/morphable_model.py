@@ -1,6 +1,6 @@
 """The linear 3D morphable model: S = S̄ + B_id·α + B_exp·δ and T = T̄ + B_tex·β (paper Eq. 1).
 
-Units and axes follow DESIGN.md: millimetres, right-handed, +Y up, +Z out of the face (towards a
+Units and axes follow DESIGN.md, "Conventions": millimetres, right-handed, +Y up, +Z out of the face (towards a
 frontal camera). Coefficients are in standard-deviation units: each basis column is already scaled
 by its component's standard deviation, so α ~ N(0, I) samples the model's prior. For blendshape
 expression bases (ICT-FaceKit) δ is the blendshape weight, 1 = the full expression.

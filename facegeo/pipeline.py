@@ -1,7 +1,10 @@
-"""The whole pipeline: photo → fit → unwrap → texture backend → :class:`Asset` (+ preview).
+"""The whole pipeline: photo → fit → unwrap → texture backend → :class:`Asset`.
 
-This is the one geometry-side module that composes ``facegeo.texturing`` (DESIGN.md: only the
-CLI/pipeline module does); exporting is left to :func:`facegeo.export.export_asset`.
+It composes the layers (DESIGN.md, "Layers"): the geometry (``facegeo``), the UV space
+(``facegeo.uv``) and a texture backend (``facegeo.texturing``), through the two seams of
+DESIGN.md, "Seams": any :class:`facegeo.fitting.Fitter` (``fitter=``) and any
+:class:`facegeo.texturing.backend.TextureBackend` (``backend=``). Writing files (the asset folder,
+the scenes, the relit preview) is :func:`facegeo.jobs.reconstruct_into_folder`'s.
 """
 
 from __future__ import annotations
@@ -10,15 +13,12 @@ import time
 from collections.abc import Callable, Iterable
 from pathlib import Path
 
-import cv2
 import numpy as np
-import torch
 
 from facegeo.asset import MAP_NAMES, Asset
 from facegeo.camera import Camera
-from facegeo.colour import linear_to_srgb, srgb_to_linear
 from facegeo.errors import InputError
-from facegeo.fitting import Fit, fit
+from facegeo.fitting import Fit, Fitter, fit
 from facegeo.landmarks.iris import iris_colour
 from facegeo.model_files import load_model
 from facegeo.morphable_model import MorphableModel
@@ -27,29 +27,13 @@ from facegeo.photo import Photo, as_rgb_uint8, load_photo
 from facegeo.skin_mask import SkinMask, skin_mask
 from facegeo.texturing.backend import TextureBackend
 from facegeo.texturing.context import build_context
-from facegeo.texturing.default_backend import DefaultBackend
+from facegeo.texturing.registry import BACKENDS
 from facegeo.uv import geometry_maps, rasterize_uv, unwrap
 
-__all__ = ["reconstruct", "reconstruct_with_fit", "relit_preview", "BACKENDS", "STAGES"]
+__all__ = ["reconstruct", "reconstruct_with_fit", "BACKENDS", "STAGES"]
 
-
-def _diffusion_backend(weights: str | Path | None = None) -> TextureBackend:
-    """The diffusion backend from a weights folder (the optional [diffusion] extra, imported only here)."""
-    from facegeo.texturing.diffusion import require_extra
-
-    require_extra()
-    from facegeo.texturing.diffusion.backend import DiffusionBackend
-
-    return DiffusionBackend.from_weights(weights)
-
-
-#: Texture backends by name; ``diffusion`` takes its weights folder as its argument.
-BACKENDS: dict[str, Callable[..., TextureBackend]] = {"default": DefaultBackend, "diffusion": _diffusion_backend}
 #: The stages, in order, as reported to a progress callback and in ``metadata["timings_s"]``.
 STAGES = ("fit", "unwrap", "inpaint", "homogenise", "materials", "upscale", "parts")
-
-#: Constant-map factors used when a map is not asked for (the exporters write a factor).
-DEFAULT_CONSTANTS = {"roughness": 0.55, "specular": 0.45}
 
 
 def reconstruct(image: np.ndarray | str | Path | Photo, model: MorphableModel | None = None, **options) -> Asset:
@@ -73,18 +57,20 @@ def reconstruct_with_fit(
     landmarks: np.ndarray | None = None,
     progress: Callable[[str], None] | None = None,
     parts: bool = True,
-    fitter: Callable[..., Fit] = fit,
+    fitter: Fitter = fit,
 ) -> tuple[Asset, Fit]:
     """Reconstruct a textured face from one photo.
 
     Args:
         image: (H, W, 3) uint8 RGB, a path, or a :class:`Photo`.
         model: the morphable model (default: the bundled one).
-        backend: ``"default"`` or a :class:`TextureBackend` instance.
+        backend: a name in :data:`BACKENDS` (``"default"``; ``"diffusion"`` needs its weights, so
+            pass an instance) or any :class:`TextureBackend` instance.
         size: UV map size S in texels (the maps come out at ``size · upscale``).
         upscale: 1, 2 or 4: Lanczos (or the backend's) upscaling of the maps.
         maps: which of albedo, normal, roughness, specular, displacement to compute; maps not
-            asked for are not computed (roughness and specular fall back to constant factors).
+            asked for are not computed (roughness and specular fall back to the backend's
+            ``constants``, written as factors).
         detector: landmark detector name. camera: intrinsics (default: 40° field of view).
         skin: the photo's :class:`facegeo.skin_mask.SkinMask` if already computed (default: computed
             here, from the 468-point mesh or, failing that, the fit's landmarks); its occlusion is
@@ -95,8 +81,9 @@ def reconstruct_with_fit(
             without parts) as ``asset.parts``, the eyeballs with the iris colour found in the
             photo (:func:`facegeo.landmarks.iris.iris_colour`; a default colour and a note in
             ``fit.info["notes"]`` when none is found).
-        fitter: called as ``fitter(photo, model=, detector=, camera=)`` -> :class:`Fit`; default
-            the analysis-by-synthesis :func:`facegeo.fit` (e.g. a ``facegeo.regressor.Predictor``).
+        fitter: any :class:`facegeo.fitting.Fitter`, called once as
+            ``fitter(photo, model=, landmarks=, detector=, camera=)``; default the
+            analysis-by-synthesis :func:`facegeo.fit`, or e.g. a ``facegeo.regressor.Predictor``.
     Returns:
         ``(asset, fit)``: the asset in model space (upright, mm) with its maps, and the fit.
     """
@@ -170,8 +157,7 @@ def reconstruct_with_fit(
         parts_report["names"] = [p.name for p in part_list]
     timings["parts"] = time.perf_counter() - t
 
-    constants = {name: value for name, value in DEFAULT_CONSTANTS.items() if name not in out}
-    report = getattr(backend, "report", {})
+    constants = {name: value for name, value in backend.constants.items() if name not in out}
     asset = Asset(
         vertices=result.shape_vertices,
         triangles=model.triangles,
@@ -185,186 +171,14 @@ def reconstruct_with_fit(
         metadata={
             "parts": parts_report,
             "model": model.name,
-            "backend": getattr(backend, "name", type(backend).__name__),
+            "backend": backend.name,
             "size": size,
             "upscale": upscale,
             "timings_s": timings,
-            "texture_report": report,
+            "texture_report": backend.report,
             "skin_mask": skin.summary(),
             "landmark_rms_px": result.landmark_rms_px,
             "fit": {k: v for k, v in result.to_dict().items() if k not in ("landmarks_px", "landmarks_fitted_px")},
         },
     )
     return asset, result
-
-
-#: The preview's views: yaw in degrees (rotation_from_euler's convention: positive turns the nose
-#: to the viewer's right and shows the subject's right side).
-PREVIEW_VIEWS = (("front", 0.0), ("three-quarter", 40.0), ("profile", 90.0))
-#: Lights of the preview in camera space (towards the light; linear radiance) and the ambient
-#: term: a key light from the upper left, a weaker fill from the right.
-PREVIEW_LIGHTS = (((-0.5, 0.55, 0.65), 2.0), ((0.75, 0.1, 0.45), 0.6))
-PREVIEW_AMBIENT = 0.15
-#: Clay: linear grey albedo, roughness and specular level.
-CLAY = (0.45, 0.6, 0.25)
-#: Background of the rendered panels (sRGB).
-PREVIEW_BACKGROUND = 0.12
-
-
-def relit_preview(photo: np.ndarray, asset: Asset, fit_result: Fit, *, panel: int = 256) -> np.ndarray:
-    """The photo beside the asset from the front, three-quarter and profile: textured and relit
-    (top row) and as clay (bottom row), parts (eyes, mouth interior) included.
-
-    The photo panel is the (2·panel)² square around the detected landmarks. Each view is a
-    virtual camera (perspective, 800 mm away, framing the skin's face region) around the
-    model-space asset; the meshes are rasterised with :func:`facegeo.uv.rasterize_mesh` and each
-    pixel is shaded with the project's GGX shader (:func:`shade_ggx`, deferred: the per-pixel
-    position, normal, MikkTSpace tangent, albedo, normal map, roughness and specular) under
-    :data:`PREVIEW_LIGHTS`; clay uses :data:`CLAY` and no normal map. Returns
-    (2·panel, 5·panel, 3) uint8 sRGB.
-    """
-    from facegeo.camera import rotation_from_euler
-    from facegeo.texturing.shading import shade_ggx
-    from facegeo.uv.renderer import rasterize_mesh
-
-    scene = _PreviewScene(asset)
-    p = int(panel)
-    lights = torch.tensor([[d for d, _ in PREVIEW_LIGHTS]], dtype=torch.float32)
-    lights = torch.nn.functional.normalize(lights, dim=-1)
-    radiance = torch.tensor([[[r, r, r] for _, r in PREVIEW_LIGHTS]], dtype=torch.float32)
-    coverage, buffers = [], []
-    for _, yaw in PREVIEW_VIEWS:
-        rotation = rotation_from_euler(yaw, 0.0, 0.0)
-        distance = 800.0
-        focal = 0.5 * p * (distance - scene.radius) / (1.05 * scene.radius)
-        camera = Camera(focal, p / 2.0, p / 2.0, p, p)
-        cam_vertices = (scene.vertices - scene.centre) @ rotation.T + [0.0, 0.0, -distance]
-        tri, bary, _ = rasterize_mesh(cam_vertices, scene.triangles, camera)
-        coverage.append(np.flatnonzero(tri.ravel() >= 0))
-        buffers.append(scene.buffers(tri, bary, cam_vertices, rotation))
-    # the covered pixels of all views shaded in one call, as a (2, C, 1, N) "image"
-    inputs = [torch.cat(column, dim=-1) for column in zip(*buffers)]
-    with torch.inference_mode():  # no autograd bookkeeping (15 % faster here)
-        shaded = shade_ggx(*inputs, lights, radiance, torch.zeros(1, 3), PREVIEW_AMBIENT, s_disp=1.0).shaded
-    pixels = linear_to_srgb(shaded[:, :, 0].numpy().transpose(0, 2, 1).clip(0.0, None))  # (2, N, 3)
-    columns, start = [], 0
-    for idx in coverage:
-        panel_rgb = np.full((2, p * p, 3), PREVIEW_BACKGROUND, np.float32)
-        panel_rgb[:, idx] = pixels[:, start:start + len(idx)]
-        start += len(idx)
-        columns.append(panel_rgb.reshape(2 * p, p, 3))
-    landmarks = np.asarray(fit_result.landmarks[:68], np.float64)
-    landmarks = landmarks[np.all(np.isfinite(landmarks), axis=1)]
-    lo, hi = landmarks.min(axis=0), landmarks.max(axis=0)
-    centre, half = (lo + hi) / 2.0, 0.75 * float(np.max(hi - lo))
-    side = 2 * p
-    scale = side / (2.0 * half)
-    warp = np.array([[scale, 0.0, side / 2.0 - scale * centre[0]], [0.0, scale, side / 2.0 - scale * centre[1]]])
-    photo_panel = cv2.warpAffine(as_rgb_uint8(photo), warp, (side, side), flags=cv2.INTER_AREA, borderMode=cv2.BORDER_REPLICATE)
-    views = (np.concatenate(columns, axis=1) * 255.0).round().clip(0, 255).astype(np.uint8)
-    return np.concatenate([photo_panel, views], axis=1)
-
-
-class _PreviewScene:
-    """The skin and its parts as one triangle soup for the preview, with per-corner UVs, normals
-    and tangents, and per-surface materials (linear albedo, normal map, roughness, specular)."""
-
-    def __init__(self, asset: Asset):
-        from facegeo.camera import rotation_from_euler
-        from facegeo.export.displacement import vertex_normals
-        from facegeo.uv.tangents import mesh_tangents
-
-        surfaces = [asset, *asset.parts]
-        # framing: the skin's face region
-        face = asset.triangles if asset.face_triangles is None else asset.triangles[asset.face_triangles]
-        head = asset.vertices[np.unique(face)]
-        self.centre = (head.min(axis=0) + head.max(axis=0)) / 2.0
-        #: the largest half-extent of the head seen from any preview view (x and y after the yaw)
-        self.radius = max(float(np.abs(((head - self.centre) @ rotation_from_euler(yaw, 0.0, 0.0).T)[:, :2]).max())
-                          for _, yaw in PREVIEW_VIEWS)
-        verts, tris, corner_uv, corner_n, corner_t, surface = [], [], [], [], [], []
-        offset = 0
-        for k, s in enumerate(surfaces):
-            normals = vertex_normals(s.vertices, s.triangles)
-            if "normal" in s.maps:
-                tangents = mesh_tangents(s.vertices, s.triangles, s.uv, s.uv_triangles, normals.astype(np.float32))[..., :3]
-            else:  # no normal map: any tangent perpendicular to the normal shades the same
-                helper = np.where(np.abs(normals[:, 1:2]) < 0.9, [[0.0, 1.0, 0.0]], [[1.0, 0.0, 0.0]])
-                tangents = np.cross(helper, normals)[s.triangles]
-            verts.append(s.vertices)
-            tris.append(s.triangles + offset)
-            corner_uv.append(s.uv[s.uv_triangles])
-            corner_n.append(normals[s.triangles])
-            corner_t.append(tangents)
-            surface.append(np.full(len(s.triangles), k))
-            offset += len(s.vertices)
-        self.vertices = np.concatenate(verts).astype(np.float64)
-        self.triangles = np.concatenate(tris)
-        self.corner_uv = np.concatenate(corner_uv).astype(np.float32)
-        self.corner_normal = np.concatenate(corner_n).astype(np.float32)
-        self.corner_tangent = np.concatenate(corner_t).astype(np.float32)
-        self.surface = np.concatenate(surface)
-        self.materials = [self._material(s) for s in surfaces]
-
-    @staticmethod
-    def _material(s: Asset) -> dict[str, np.ndarray]:
-        def value(name: str, default: float | tuple[float, ...]) -> np.ndarray:
-            if name in s.maps:
-                return s.maps[name]
-            return np.asarray(s.constants.get(name, default), np.float32)
-
-        return {"albedo": srgb_to_linear(value("albedo", 0.5)), "normal": value("normal", (0.0, 0.0, 1.0)),
-                "roughness": value("roughness", DEFAULT_CONSTANTS["roughness"]),
-                "specular": value("specular", DEFAULT_CONSTANTS["specular"])}
-
-    def buffers(self, tri: np.ndarray, bary: np.ndarray, cam_vertices: np.ndarray, rotation: np.ndarray) -> list[torch.Tensor]:
-        """shade_ggx's inputs for the covered pixels (row-major) of one view as (B, C, 1, N)
-        float32 (batch 2: textured, clay; geometry shared, batch 1)."""
-        idx = np.flatnonzero(tri.ravel() >= 0)
-        t = tri.ravel()[idx]
-        b = bary.reshape(-1, 3)[idx]
-
-        def interpolate(corner: np.ndarray) -> np.ndarray:
-            return np.einsum("nk,nkc->nc", b, corner[t])
-
-        position = interpolate(cam_vertices[self.triangles].astype(np.float32))
-        normal = interpolate(self.corner_normal) @ rotation.T.astype(np.float32)
-        tangent = interpolate(self.corner_tangent) @ rotation.T.astype(np.float32)
-        uv = interpolate(self.corner_uv)
-        values = {"albedo": np.zeros((len(idx), 3), np.float32), "normal": np.zeros((len(idx), 3), np.float32),
-                  "roughness": np.zeros((len(idx), 1), np.float32), "specular": np.zeros((len(idx), 1), np.float32)}
-        surface = self.surface[t]
-        for k, material in enumerate(self.materials):
-            sel = surface == k
-            if not sel.any():
-                continue
-            for name, array in material.items():
-                if array.ndim >= 2:
-                    values[name][sel] = _lookup(array, uv[sel]).reshape(int(sel.sum()), -1)
-                else:
-                    values[name][sel] = array.reshape(1, -1)
-
-        def image(textured: np.ndarray, clay: np.ndarray | float) -> torch.Tensor:
-            out = np.empty((2, len(idx), textured.shape[1]), np.float32)
-            out[0], out[1] = textured, clay
-            return torch.from_numpy(out.transpose(0, 2, 1)[:, :, None].copy())
-
-        def shared(array: np.ndarray) -> torch.Tensor:
-            return torch.from_numpy(np.ascontiguousarray(array, dtype=np.float32).T[None, :, None].copy())
-
-        clay_albedo, clay_roughness, clay_specular = CLAY
-        return [image(values["albedo"], clay_albedo), image(values["normal"], np.array([0.0, 0.0, 1.0], np.float32)),
-                image(values["roughness"], clay_roughness), image(values["specular"], clay_specular),
-                torch.zeros(1, 1, 1, len(idx)), shared(position), shared(normal), shared(tangent),
-                torch.ones(1, 1, 1, len(idx))]
-
-def _lookup(texture: np.ndarray, uv: np.ndarray) -> np.ndarray:
-    """Bilinear texture values at (N, 2) UVs (texel centres as in DESIGN.md, edges repeated)."""
-    n = len(uv)
-    rows = -(-n // 1024)  # cv2.remap wants maps shorter than 32767 on each side
-    maps = np.zeros((2, rows * 1024), np.float32)
-    maps[0, :n] = uv[:, 0] * texture.shape[1] - 0.5
-    maps[1, :n] = (1.0 - uv[:, 1]) * texture.shape[0] - 0.5
-    out = cv2.remap(np.ascontiguousarray(texture, dtype=np.float32), maps[0].reshape(rows, 1024), maps[1].reshape(rows, 1024),
-                    cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
-    return out.reshape(rows * 1024, -1)[:n]

@@ -28,12 +28,12 @@ from facegeo.texturing.diffusion.data import (  # noqa: E402
 )
 from facegeo.texturing.diffusion.lpips import LPIPS, load_lpips  # noqa: E402
 from facegeo.texturing.diffusion.model import (  # noqa: E402
-    MATERIAL_BRANCHES, TASKS, add_adapters, decode, encode, lora_parameters, mixed_adapters, pack, unpack, velocity,
+    ADALN_TARGETS, LORA_TARGETS, MATERIAL_BRANCHES, TASKS, add_adapters, decode, encode, lora_parameters, mixed_adapters, pack, unpack, velocity,
 )
 from facegeo.texturing.diffusion.sampling import sample  # noqa: E402
 from facegeo.texturing.diffusion.sr import RRDBNet, load_realesrgan, upscale_tiled  # noqa: E402
 from facegeo.texturing.diffusion.training import (  # noqa: E402
-    ShadingSupervisor, TrainConfig, encode_samples, flow_matching_step, maps_from_images, train_lora,
+    ShadingSupervisor, TrainConfig, encode_samples, flow_matching_step, maps_from_images, train_lora, validation_loss,
 )
 
 torch.set_num_threads(1)
@@ -180,20 +180,21 @@ def test_uniform_white_light_gives_lambertian_albedo():
 
 
 # ------------------------------------------------------------------------ training
-def _eval_loss(c, lat, task: str, n: int) -> float:
-    g = torch.Generator().manual_seed(123)
-    with torch.no_grad():
-        return float(np.mean([float(flow_matching_step(c, lat, task, torch.arange(n), g)["diff"]) for _ in range(16)]))
-
-
 def _psnr(a: torch.Tensor, b: torch.Tensor) -> float:
     return float(10 * torch.log10(1.0 / ((a.clamp(0, 1) - b.clamp(0, 1)) ** 2).mean()))
 
 
-def _train_and_measure(c, lat, steps: int, lr: float, rank: int, run: Path) -> tuple[float, float, float, float]:
-    """(loss before, loss after, sample PSNR before, after) of an inpaint LoRA trained ``steps``."""
+def test_a_few_hundred_steps_lower_the_loss_five_times_and_improve_samples(pairs, tmp_path):
+    """The issue's bar on the one-layer backbone: an inpaint LoRA (the paper's rank 32), 300 steps
+    of batch 8 on 2 pairs. The loss is :func:`validation_loss` on a fixed σ grid and fixed noise,
+    before and after; its Bayes floor on this data is 0 (the two conditions differ, so the optimal
+    velocity (z_σ − z₀)/σ is exact). The adapter also covers the AdaLN modulation
+    (``ADALN_TARGETS``): with this random backbone's modulation frozen, LoRAs on the paper's
+    targets alone reach 2.39× (benchmarks/RESULTS.md, "Training bar")."""
+    c = tiny_components()
+    lat = encode_samples(c, {k: v[:2] for k, v in read_samples(pairs, ("t_inc", "t_env")).items()}, "inpaint")
     n = lat.condition.shape[0]
-    add_adapters(c.transformer, ["inpaint"], rank=rank)
+    add_adapters(c.transformer, ["inpaint"], targets=LORA_TARGETS + ADALN_TARGETS)
 
     def psnr_of_samples() -> float:
         z = sample(c.transformer, c.scheduler, lat.condition, c.prompt("inpaint").expand(n, -1, -1),
@@ -202,31 +203,15 @@ def _train_and_measure(c, lat, steps: int, lr: float, rank: int, run: Path) -> t
         with torch.no_grad():  # against the targets as the VAE reproduces them (the tiny VAE is untrained)
             return _psnr(decode(c.vae, unpack(z, *lat.latent_hw)), decode(c.vae, unpack(lat.targets[0], *lat.latent_hw)))
 
-    before, psnr_before = _eval_loss(c, lat, "inpaint", n), psnr_of_samples()
-    rows = train_lora(c, lat, TrainConfig(task="inpaint", steps=steps, batch=n, lr=lr, rank=rank, save_every=10**6,
-                                          caption_dropout=0.0), run, progress=False)
-    assert len(rows) == steps and (run / "inpaint" / LORA_FILE).is_file()
-    return before, _eval_loss(c, lat, "inpaint", n), psnr_before, psnr_of_samples()
-
-
-def test_short_training_lowers_the_loss_and_improves_samples(pairs, tmp_path):
-    c = tiny_components()
-    lat = encode_samples(c, {k: v[:2] for k, v in read_samples(pairs, ("t_inc", "t_env")).items()}, "inpaint")
-    before, after, psnr_before, psnr_after = _train_and_measure(c, lat, 100, 1e-2, 16, tmp_path / "run")
-    assert before / after >= 1.4, (before, after)  # measured 1.61 (the 5× bar: the slow test below)
-    assert psnr_after > psnr_before + 0.4, (psnr_before, psnr_after)  # measured +0.8 dB
-
-
-@pytest.mark.slow
-def test_a_few_hundred_steps_lower_the_loss_five_times(pairs, tmp_path):
-    """The issue's bar. A random frozen one-layer backbone cannot learn the σ-dependent velocity
-    through LoRAs alone (it plateaus near 2.5× in 1000 steps), so this uses a slightly wider one
-    (4 heads of 32, two blocks of each kind; still random, still only LoRA weights train)."""
-    c = tiny_components(num_attention_heads=4, attention_head_dim=32, num_layers=2, num_single_layers=2, axes_dims_rope=[8, 12, 12])
-    lat = encode_samples(c, {k: v[:2] for k, v in read_samples(pairs, ("t_inc", "t_env")).items()}, "inpaint")
-    before, after, psnr_before, psnr_after = _train_and_measure(c, lat, 800, 3e-3, 16, tmp_path / "run")
-    assert before / after >= 5.0, (before, after)
-    assert psnr_after > psnr_before + 3.0, (psnr_before, psnr_after)
+    before, psnr_before = validation_loss(c, lat, "inpaint"), psnr_of_samples()
+    run = tmp_path / "run"
+    rows = train_lora(c, lat, TrainConfig(task="inpaint", steps=300, batch=8, lr=5e-3, save_every=10**6, caption_dropout=0.0),
+                      run, progress=False)
+    assert len(rows) == 300 and (run / "inpaint" / LORA_FILE).is_file()
+    after, psnr_after = validation_loss(c, lat, "inpaint"), psnr_of_samples()
+    assert float(before.mean() / after.mean()) >= 5.0, (before, after)  # measured 2.242 -> 0.276, 8.12×
+    assert bool((after < before).all()), (before, after)  # lower at every σ of the grid
+    assert psnr_after > psnr_before + 3.0, (psnr_before, psnr_after)  # measured 14.34 -> 24.42 dB
 
 
 def test_joint_materials_step_gradients(pairs):

@@ -10,15 +10,16 @@ import pytest
 
 from facegeo.errors import InputError
 from facegeo.export.asset_io import load_asset, read_obj, save_asset
-from facegeo.export.cli import register
-from facegeo.export.textures import read_png
+from facegeo.commands.arguments import add_commands
+from facegeo.commands.export import COMMANDS
+from facegeo.image_files import read_png
 from facegeo.export.usd import check_usd, validate_usd
 from test_export_support import ict_asset, synthetic_maps
 
 
 def _run_cli(argv):
     parser = argparse.ArgumentParser(prog="facegeo")
-    register(parser.add_subparsers(dest="command", required=True))
+    add_commands(parser.add_subparsers(dest="command", required=True), COMMANDS)
     args = parser.parse_args(argv)
     args.run(args)
 

@@ -184,7 +184,7 @@ def test_degenerate_geometry_still_validates(tmp_path):
 
 
 def test_sixteen_bit_linear_textures(tmp_path):
-    from facegeo.export.textures import read_png
+    from facegeo.image_files import read_png
 
     path = write_usd(ict_asset(size=16), tmp_path / "h.usda", linear_bits=16, displacement="texture")
     assert validate_usd(path) == []

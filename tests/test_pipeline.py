@@ -10,7 +10,8 @@ from facegeo import load_model, load_photo
 from facegeo.assets import asset_path
 from facegeo.cli import main
 from facegeo.errors import InputError
-from facegeo.pipeline import STAGES, reconstruct, reconstruct_with_fit, relit_preview
+from facegeo.pipeline import STAGES, reconstruct, reconstruct_with_fit
+from facegeo.texturing.preview import relit_preview
 
 PHOTO = asset_path("photos/astronaut.png")
 
@@ -111,3 +112,61 @@ def test_reconstruct_command_bad_maps_leaves_nothing(tmp_path, capsys):
     code = main(["reconstruct", str(PHOTO), "-o", str(out), "--maps", "albedo,sheen"])
     _, err = capsys.readouterr()
     assert code == 2 and "--maps" in err and not out.exists()
+
+
+# ------------------------------------------------------------------------------------- the seams
+def test_the_pipeline_fits_with_any_fitter(small_asset):
+    """``fitter=``: a callable photo -> Fit (facegeo.fitting.Fitter) is called once, with the
+    keywords the protocol names, and its Fit is the one the asset is built on."""
+    photo, model, _, known = small_asset
+    calls = []
+
+    def fitter(image, model=None, landmarks=None, detector="hybrid", camera=None, photometric=True):
+        calls.append({"image": image, "model": model, "landmarks": landmarks, "detector": detector, "camera": camera})
+        return known
+
+    asset, result = reconstruct_with_fit(photo, model, fitter=fitter, size=64, maps={"albedo"}, detector="mediapipe", parts=False)
+    assert result is known and len(calls) == 1
+    assert calls[0] == {"image": photo, "model": model, "landmarks": None, "detector": "mediapipe", "camera": None}
+    np.testing.assert_array_equal(asset.vertices, known.shape_vertices)
+    np.testing.assert_allclose(asset.metadata["fit"]["alpha"], known.alpha)
+
+
+def test_a_second_backend_needs_only_the_protocol(small_asset):
+    """What the pipeline reads of a backend is what TextureBackend declares: the four stages,
+    ``name``, ``report`` (-> texture_report) and ``constants`` (-> the maps not computed)."""
+    from facegeo.texturing.backend import SKIN_CONSTANTS, TextureBackend
+    from facegeo.texturing.default_backend import DefaultBackend
+
+    class Flat:  # no base class, nothing private: a grey albedo, nothing else
+        name = "flat"
+        constants = {"roughness": 0.3, "specular": 0.7}
+
+        def __init__(self):
+            self.report = {}
+
+        def inpaint(self, T_inc, M_vis, ctx):
+            self.report["inpaint"] = {"texels": int(ctx.coverage.sum())}
+            return np.full_like(T_inc, 0.5)
+
+        def homogenise(self, T_full, ctx):
+            return T_full
+
+        def materials(self, T_hom, ctx, maps=frozenset()):
+            return {"albedo": T_hom} if "albedo" in maps else {}
+
+        def upscale(self, map_, factor):
+            return np.repeat(np.repeat(map_, factor, axis=0), factor, axis=1)
+
+    assert isinstance(Flat(), TextureBackend) and isinstance(DefaultBackend(), TextureBackend)
+    assert DefaultBackend().constants == SKIN_CONSTANTS
+    no_constants = type("NoConstants", (), {k: v for k, v in vars(Flat).items() if k != "constants"})()
+    assert not isinstance(no_constants, TextureBackend)  # the protocol declares them: a backend must say
+    photo, model, _, known = small_asset
+    backend = Flat()
+    asset, _ = reconstruct_with_fit(photo, model, backend=backend, fitter=lambda image, **_: known, size=64, upscale=2,
+                                    maps={"albedo", "normal"}, parts=False)
+    assert asset.metadata["backend"] == "flat"
+    assert set(asset.metadata["texture_report"]) == {"inpaint"} and asset.metadata["texture_report"]["inpaint"]["texels"] > 0
+    assert asset.constants == {"roughness": 0.3, "specular": 0.7} and set(asset.maps) == {"albedo"}
+    assert asset.maps["albedo"].shape == (128, 128, 3) and np.all(asset.maps["albedo"] == 0.5)

@@ -1,4 +1,4 @@
-"""The ``facegeo realy`` subcommand (argparse, registered by facegeo.eval.realy_cli.register)."""
+"""The ``facegeo realy`` subcommand (argparse, declared in facegeo.commands.realy)."""
 
 from __future__ import annotations
 
@@ -9,7 +9,8 @@ import shutil
 import pytest
 
 from facegeo.errors import FacegeoError
-from facegeo.eval.realy_cli import register
+from facegeo.commands.arguments import add_commands
+from facegeo.commands.realy import COMMANDS
 from facegeo.eval.realy_report import OUTPUT_FILES
 from facegeo.eval.realy_synthetic import make_dataset
 
@@ -17,7 +18,7 @@ from facegeo.eval.realy_synthetic import make_dataset
 def run(args, capsys):
     """What facegeo.cli.main does with a registered subcommand: run, print FacegeoError, exit 2."""
     parser = argparse.ArgumentParser(prog="facegeo")
-    register(parser.add_subparsers(dest="command", required=True))
+    add_commands(parser.add_subparsers(dest="command", required=True), COMMANDS)
     ns = parser.parse_args([str(a) for a in args])
     try:
         ns.run(ns)

@@ -1,4 +1,4 @@
-"""``facegeo unwrap``: the subcommand added by facegeo.uv.cli.register, its files and failures."""
+"""``facegeo unwrap``: the subcommand added by facegeo.commands.unwrap, its files and failures."""
 
 import argparse
 import json
@@ -11,14 +11,16 @@ from PIL import Image
 
 from facegeo.assets import asset_path
 from facegeo.errors import InputError
-from facegeo.uv.cli import OUTPUT_FILES, encode_exr, register
+from facegeo.commands.arguments import add_commands
+from facegeo.commands.unwrap import COMMANDS, OUTPUT_FILES
+from facegeo.image_files import exr_bytes
 
 PHOTO = asset_path("photos/astronaut.png")
 
 
 def run(argv):
     parser = argparse.ArgumentParser(prog="facegeo")
-    register(parser.add_subparsers(dest="command", required=True))
+    add_commands(parser.add_subparsers(dest="command", required=True), COMMANDS)
     args = parser.parse_args([str(a) for a in argv])
     args.run(args)
 
@@ -73,15 +75,15 @@ def test_failures_leave_no_output(tmp_path):
 def test_exr_round_trip_even_when_cv2_was_imported_first(tmp_path):
     code = (
         "import cv2, numpy as np, sys\n"
-        "from facegeo.uv.cli import encode_exr\n"
+        "from facegeo.image_files import exr_bytes\n"
         "a = np.random.default_rng(0).random((5, 7, 4)).astype(np.float32)\n"
-        f"open(r'{tmp_path / 'x.exr'}', 'wb').write(encode_exr(a))\n"
+        f"open(r'{tmp_path / 'x.exr'}', 'wb').write(exr_bytes(a))\n"
         f"b = cv2.imread(r'{tmp_path / 'x.exr'}', cv2.IMREAD_UNCHANGED)[..., [2, 1, 0, 3]]\n"
         "assert np.array_equal(a, b)\n"
     )
     subprocess.run([sys.executable, "-c", code], check=True)
     grey = np.linspace(0, 1, 12, dtype=np.float32).reshape(3, 4)
-    (tmp_path / "g.exr").write_bytes(encode_exr(grey))
+    (tmp_path / "g.exr").write_bytes(exr_bytes(grey))
     np.testing.assert_array_equal(read_exr_grey(tmp_path / "g.exr"), grey)
 
 

@@ -1,10 +1,10 @@
 """UV-space texturing (installed as ``facegeo.texturing``): the texture-backend protocol, the
-weight-free default backend, the texture context of a fit, and the differentiable GGX shader of
-the paper's appendix A.1. The geometry half (``facegeo``) never imports it; the pipeline does.
+weight-free default backend, the texture context of a fit, the differentiable GGX shader of
+the paper's appendix A.1 and the relit preview that uses it. The geometry half (``facegeo``) never
+imports it; the pipeline and the jobs do.
 
-Names are imported lazily (like ``facegeo.uv``'s), so building the CLI's parser, which registers
-the diffusion subcommands from ``facegeo.texturing.diffusion.cli``, does not pay for torch and
-OpenCV.
+Names are imported lazily (like ``facegeo.uv``'s), so building the CLI's parser, which reads the
+backends' names from :mod:`facegeo.texturing.backend`, does not pay for torch and OpenCV.
 """
 
 from __future__ import annotations

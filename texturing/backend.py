@@ -3,7 +3,10 @@
 A backend turns the incomplete, shaded photo texture ``T_inc`` in UV space into PBR maps in four
 steps: ``inpaint`` → ``homogenise`` → ``materials`` → ``upscale``. The default backend is
 weight-free (:mod:`facegeo.texturing.default_backend`); the diffusion backend is an adapter over
-a DiT and plugs into the same protocol.
+a DiT and plugs into the same protocol. :class:`TextureBackend` declares everything the pipeline
+(:func:`facegeo.pipeline.reconstruct_with_fit`) uses of a backend: the four stages, ``name``,
+``report`` (copied into ``fit.json``'s ``texture_report``) and ``constants`` (the values of the
+maps not computed). :data:`facegeo.texturing.registry.BACKENDS` names the backends by name.
 
 Array conventions: UV maps are image-style (row 0 = top, v = 1 − (row + 0.5)/S), float32.
 Colour textures (``T_inc``, ``T_full``, ``T_hom``, the ``albedo`` map) are **sRGB-encoded** in
@@ -12,12 +15,20 @@ Colour textures (``T_inc``, ``T_full``, ``T_hom``, the ``albedo`` map) are **sRG
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass, field
+from types import MappingProxyType
 from typing import Any, Protocol, runtime_checkable
 
 import numpy as np
 
-__all__ = ["TextureContext", "TextureBackend", "SurfaceOperators"]
+__all__ = ["TextureContext", "TextureBackend", "SurfaceOperators", "SKIN_CONSTANTS"]
+
+#: Roughness and specular level of generic skin (away from the oily T-zone, the lips and brows):
+#: what a backend's ``constants`` give the maps it was not asked to compute (the exporters write
+#: them as factors), the default backend's prior where no facial region says otherwise, and the
+#: relit preview's value for a surface with neither map nor constant. The one definition.
+SKIN_CONSTANTS: Mapping[str, float] = MappingProxyType({"roughness": 0.55, "specular": 0.45})
 
 
 @dataclass(eq=False)
@@ -95,9 +106,22 @@ class TextureContext:
 
 @runtime_checkable
 class TextureBackend(Protocol):
-    """The four texture stages. Shapes: S × S texels; colour maps sRGB in [0, 1], float32."""
+    """The four texture stages, and what the pipeline reads besides. Shapes: S × S texels;
+    colour maps sRGB in [0, 1], float32.
+
+    Attributes:
+        name: recorded as ``asset.metadata["backend"]``.
+        report: JSON-ready statistics or settings of the last calls (the backend fills it as it
+            runs); the pipeline copies it into ``asset.metadata["texture_report"]`` and
+            ``fit.json``'s ``texture_report``.
+        constants: map name -> value for the maps the backend may be asked not to compute
+            (``roughness`` and ``specular``; :data:`SKIN_CONSTANTS` for both backends); the
+            pipeline puts those not computed into ``Asset.constants``.
+    """
 
     name: str
+    report: dict[str, Any]
+    constants: Mapping[str, float]
 
     def inpaint(self, T_inc: np.ndarray, M_vis: np.ndarray, ctx: TextureContext) -> np.ndarray:
         """Complete the photo texture: ``T_inc`` (S, S, 3) sRGB, ``M_vis`` (S, S) visibility in

@@ -42,8 +42,9 @@ texture (``ctx.mean_texture``) is used only when no texel is seen at all.
 from __future__ import annotations
 
 import hashlib
+from collections.abc import Mapping
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, ClassVar
 
 import cv2
 import numpy as np
@@ -55,7 +56,7 @@ from scipy import ndimage
 from facegeo.asset import MAP_NAMES
 from facegeo.colour import linear_to_srgb, luminance, srgb_to_linear
 from facegeo.lighting import sh_basis
-from facegeo.texturing.backend import TextureContext
+from facegeo.texturing.backend import SKIN_CONSTANTS, TextureContext
 
 __all__ = ["DefaultBackend", "REGION_PRIORS", "pad_outside", "masked_blur", "gaussian_blur", "value_noise", "MAX_GAIN",
            "GRAZING_GAIN", "SHADOW_TOLERANCE", "HIGHLIGHT_RATIO", "DETAIL_DEPTH_MM", "DETAIL_LIMIT_MM"]
@@ -72,7 +73,7 @@ REGION_PRIORS: dict[str, tuple[float, float]] = {
     "eyes": (0.30, 0.70),
 }
 #: Roughness and specular where no region mask says otherwise (skin on the head and neck).
-DEFAULT_PRIOR = (0.55, 0.45)
+DEFAULT_PRIOR = (SKIN_CONSTANTS["roughness"], SKIN_CONSTANTS["specular"])
 #: Largest de-lighting gain (and 1/smallest) where the surface faces the camera.
 MAX_GAIN = 2.0
 #: Largest gain at grazing angles (camera-space normal z → 0).
@@ -200,8 +201,10 @@ class _Analysis:
 @dataclass
 class DefaultBackend:
     """Weight-free texture backend. Knobs: the detail band (``detail_sigma_fraction`` of S) and
-    depth (``detail_depth_mm``). ``report`` holds statistics of the last calls."""
+    depth (``detail_depth_mm``). ``report`` holds statistics of the last calls; ``constants``
+    (:data:`~facegeo.texturing.backend.SKIN_CONSTANTS`) the maps not asked for."""
 
+    constants: ClassVar[Mapping[str, float]] = SKIN_CONSTANTS
     name: str = "default"
     detail_sigma_fraction: float = 1.0 / 256.0  # detail = frequencies above ~S/256 texels⁻¹ (~1 mm at 1K: pores, wrinkles, creases)
     detail_depth_mm: float = DETAIL_DEPTH_MM

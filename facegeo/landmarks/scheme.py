@@ -10,8 +10,12 @@ them up and the dlib mouth points down. All weights live here, nowhere else.
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import numpy as np
-import torch
+
+if TYPE_CHECKING:  # torch is imported where it is used, so that the detectors' registry (and the
+    import torch   # command line's --landmarks choices and help) can be read without loading it
 
 __all__ = [
     "N_LANDMARKS",
@@ -60,6 +64,8 @@ LANDMARK_WEIGHTS = _weights()
 
 def inter_ocular_distance(points: np.ndarray | torch.Tensor) -> float:
     """Distance between the outer eye corners (iBUG 36 and 45) of (≥68, 2) points, in pixels."""
+    import torch
+
     p = torch.as_tensor(points, dtype=torch.float64)
     return float(torch.linalg.norm(p[36] - p[45]))
 
@@ -82,6 +88,8 @@ def landmark_loss(
     Returns:
         (...) tensor: Σ w_i ‖p_i − q_i‖² / (Σ w_i · scale²).
     """
+    import torch
+
     w = torch.as_tensor(LANDMARK_WEIGHTS if weights is None else weights, dtype=predicted.dtype)
     valid = torch.isfinite(target).all(-1)
     w = torch.where(valid, w, torch.zeros_like(w))

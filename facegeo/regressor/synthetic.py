@@ -23,6 +23,7 @@ import torch
 
 from facegeo.camera import Camera, project, rotation_from_euler
 from facegeo.colour import linear_to_srgb
+from facegeo.image_files import png_bytes
 from facegeo.lighting import AMBIENT_WHITE, sh_irradiance
 from facegeo.morphable_model import MorphableModel
 from facegeo.regressor.data import TRUTH_FILE
@@ -105,7 +106,7 @@ def make_synthetic_faces(out_dir: str | Path, count: int, model: MorphableModel,
             face = random_face(model, rng, size, max_yaw, sigma_id, expressions)
             image, landmarks, camera = render_face(model, face, size, rng)
             name = f"{i:06d}.png"
-            stage.path(name).write_bytes(cv2.imencode(".png", image[..., ::-1])[1].tobytes())
+            stage.path(name).write_bytes(png_bytes(image))
             for k in keys:
                 truth[k].append(face[k])
             truth["names"].append(name)

@@ -1,7 +1,7 @@
 """UV space: the rasteriser, geometry maps (position, normal, MikkTSpace tangent), the
 occlusion-aware unwrap of a photo (T_inc, M_vis) and the z-buffer renderer that inverts it.
 
-Conventions (DESIGN.md): mm; camera space looks down −Z; UV [0, 1]² with the origin bottom-left,
+Conventions (DESIGN.md, "Conventions"): mm; camera space looks down −Z; UV [0, 1]² with the origin bottom-left,
 maps stored row 0 = top (texel (i, j) centre at u = (j + 0.5)/S, v = 1 − (i + 0.5)/S); image
 pixels continuous with the origin at the top-left corner (centres at +0.5).
 

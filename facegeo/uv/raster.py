@@ -1,6 +1,6 @@
 """The UV rasteriser: per texel, the triangle that covers it and its barycentric coordinates.
 
-Texel convention (DESIGN.md): the UV square [0, 1]² has its origin bottom-left; a map of size S is
+Texel convention (DESIGN.md, "Conventions"): the UV square [0, 1]² has its origin bottom-left; a map of size S is
 stored row 0 = top, so texel (row i, column j) has its centre at u = (j + 0.5)/S,
 v = 1 − (i + 0.5)/S. A texel is *inside* when its centre lies in a UV triangle (the exact tie rule
 of :mod:`facegeo.uv._triangles` gives a centre on a shared edge to one triangle only); zero-area UV

@@ -9,7 +9,7 @@ triangles with a corner closer than ``near`` mm to the camera plane, or behind i
 distance along −Z in mm.
 
 Textures are sampled bilinearly at the interpolated UV (texel centres at ((j + 0.5)/S,
-1 − (i + 0.5)/S), row 0 = top, DESIGN.md), with edge texels repeated beyond the border; the
+1 − (i + 0.5)/S), row 0 = top, DESIGN.md, "Conventions"), with edge texels repeated beyond the border; the
 values are used as given (pass sRGB to get sRGB pixels, linear to get linear ones).
 """
 

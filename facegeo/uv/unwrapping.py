@@ -7,7 +7,7 @@ pixel coordinates, pixel centres at +0.5, :mod:`facegeo.camera`), and
 
 * ``T_inc`` = the photo sampled bilinearly at (x, y) (edge pixels repeated). Colour space: by
   default the photo's own sRGB values as float32 in [0, 1] (a colour map, stored in sRGB as
-  DESIGN.md asks; linearise with ``facegeo.fitting.srgb_to_linear`` before shading);
+  DESIGN.md, "Conventions", asks; linearise with ``facegeo.colour.srgb_to_linear`` before shading);
   ``colour_space="linear"`` linearises the photo first and returns linear RGB.
 * ``M_vis`` = visible · coverage · facing · (1 − occlusion), in [0, 1], where
   - **visible** (self-occlusion, image bounds, orientation) is the geometric visibility of P:

@@ -8,7 +8,8 @@
 - :class:`CrossIntrinsicAttention` (:mod:`.attention`): Eq. 3's processor.
 - :func:`sample` (:mod:`.sampling`): Euler flow matching with classifier-free guidance.
 - :func:`train_lora` (:mod:`.training`): flow-matching LoRA training, the two-stage materials
-  schedule and the shading loss; ``facegeo train-lora``.
+  schedule and the shading loss; ``facegeo train-lora``. :func:`validation_loss`: the loss on a
+  fixed σ grid and fixed noise, comparable before and after training.
 - :func:`make_texture_pairs` (:mod:`.data`): paired data from PBR sets; ``facegeo
   make-texture-pairs``.
 - :class:`RRDBNet`, :func:`load_realesrgan`, :func:`upscale_tiled` (:mod:`.sr`).
@@ -29,6 +30,7 @@ _EXPORTS = {
     "train_lora": ".training",
     "TrainConfig": ".training",
     "encode_samples": ".training",
+    "validation_loss": ".training",
     "make_texture_pairs": ".data",
     "procedural_pbr_set": ".data",
     "RRDBNet": ".sr",

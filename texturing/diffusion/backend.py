@@ -21,9 +21,10 @@ from __future__ import annotations
 
 import os
 import time
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, ClassVar
 
 import cv2
 import numpy as np
@@ -31,7 +32,7 @@ import torch
 
 from facegeo.asset import MAP_NAMES
 from facegeo.errors import InputError
-from facegeo.texturing.backend import TextureContext
+from facegeo.texturing.backend import SKIN_CONSTANTS, TextureContext
 from facegeo.texturing.default_backend import pad_outside
 from facegeo.texturing.diffusion.components import PROMPT_FILE, Components, load_components, missing_base_files
 from facegeo.texturing.diffusion.data import unpack_rsd
@@ -70,8 +71,10 @@ def _resize(image: np.ndarray, size: int) -> np.ndarray:
 @dataclass(eq=False)
 class DiffusionBackend:
     """The diffusion texture backend (module docstring). ``captions``: optional task -> extra
-    caption (needs the text encoder). ``report`` holds the settings and timings of the last calls."""
+    caption (needs the text encoder). ``report`` holds the settings and timings of the last calls;
+    ``constants`` (:data:`~facegeo.texturing.backend.SKIN_CONSTANTS`) the maps not asked for."""
 
+    constants: ClassVar[Mapping[str, float]] = SKIN_CONSTANTS
     components: Components
     sr: RRDBNet | None = None
     steps: int = DEFAULT_STEPS

@@ -34,7 +34,7 @@ from facegeo.asset import MAP_NAMES
 from facegeo.camera import Camera, rotation_from_euler
 from facegeo.colour import linear_to_srgb, srgb_to_linear
 from facegeo.errors import InputError
-from facegeo.export.textures import png_bytes, read_png, to_uint
+from facegeo.image_files import png_bytes, read_png, to_uint
 from facegeo.staged_output import StagedOutput
 from facegeo.texturing.default_backend import DefaultBackend
 from facegeo.texturing.shading import shade_ggx

@@ -19,6 +19,11 @@ single-stream blocks' attention has ``to_q/k/v`` too, so they get adapters as we
 at rank 32 on the real LongCat sizes that gives 89.7 M parameters per adapter, the paper's
 "approximately 91 M"; restricting to the dual-stream blocks would give 67.2 M
 (benchmarks/RESULTS.md, ``bench_diffusion.py --sizes``).
+
+:data:`ADALN_TARGETS` (the AdaLN modulation layers) are not the paper's and not a default: the
+tests and benchmarks add them on *randomly initialised* backbones, whose frozen modulation gates
+every block's residual write by random per-channel factors of about 0.1 that hardly change with
+σ; a pre-trained backbone's modulation is learnt (benchmarks/RESULTS.md, "Training bar").
 """
 
 from __future__ import annotations
@@ -38,6 +43,7 @@ __all__ = [
     "TASKS",
     "MATERIAL_BRANCHES",
     "LORA_TARGETS",
+    "ADALN_TARGETS",
     "LORA_RANK",
     "TINY_TRANSFORMER_CONFIG",
     "TINY_VAE_CONFIG",
@@ -63,6 +69,9 @@ LORA_TARGETS = (
     "add_q_proj", "add_k_proj", "add_v_proj", "to_add_out",
     "ff.net.0.proj", "ff.net.2", "ff_context.net.0.proj", "ff_context.net.2",
 )  # fmt: skip
+#: The AdaLN modulation layers (σ-dependent shift, scale and gate) of the dual-stream, single-stream
+#: and output blocks: extra targets for random test backbones only (module docstring).
+ADALN_TARGETS = ("norm1.linear", "norm1_context.linear", "norm.linear", "norm_out.linear")
 #: The paper's LoRA rank.
 LORA_RANK = 32
 
@@ -80,19 +89,21 @@ TINY_VAE_CONFIG: dict[str, Any] = dict(
 )  # fmt: skip
 
 
-def lora_config(rank: int = LORA_RANK) -> LoraConfig:
-    """The task adapters' peft config: ``rank`` on :data:`LORA_TARGETS`, alpha = rank (scale 1),
-    B initialised to 0 (a new adapter leaves the backbone's output unchanged)."""
-    return LoraConfig(r=rank, lora_alpha=rank, target_modules=list(LORA_TARGETS), init_lora_weights=True)
+def lora_config(rank: int = LORA_RANK, targets: Sequence[str] = LORA_TARGETS) -> LoraConfig:
+    """The task adapters' peft config: ``rank`` on ``targets`` (default: the paper's
+    :data:`LORA_TARGETS`), alpha = rank (scale 1), B initialised to 0 (a new adapter leaves the
+    backbone's output unchanged)."""
+    return LoraConfig(r=rank, lora_alpha=rank, target_modules=list(targets), init_lora_weights=True)
 
 
-def add_adapters(transformer: LongCatImageTransformer2DModel, names: Sequence[str], rank: int = LORA_RANK) -> None:
-    """Add one LoRA adapter per name; afterwards only these adapters' weights require gradients
-    (the backbone and any other adapter are frozen)."""
+def add_adapters(transformer: LongCatImageTransformer2DModel, names: Sequence[str], rank: int = LORA_RANK,
+                 targets: Sequence[str] = LORA_TARGETS) -> None:
+    """Add one LoRA adapter per name on ``targets``; afterwards only these adapters' weights
+    require gradients (the backbone and any other adapter are frozen)."""
     for name in names:
         with warnings.catch_warnings():  # peft warns on every adapter after the first; several are the point here
             warnings.filterwarnings("ignore", message="Already found a `peft_config` attribute")
-            transformer.add_adapter(lora_config(rank), adapter_name=name)
+            transformer.add_adapter(lora_config(rank, targets), adapter_name=name)
     transformer.requires_grad_(False)
     for p in lora_parameters(transformer, names):
         p.requires_grad_(True)

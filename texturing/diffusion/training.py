@@ -23,6 +23,9 @@ sampled camera and light (:class:`ShadingSupervisor`), and compared in sRGB with
 shaded the same way, weighted by the visibility M·(N_g·v)⁺. LPIPS needs a local checkpoint
 (:mod:`facegeo.texturing.diffusion.lpips`); without one its term is dropped with a logged note.
 
+:func:`validation_loss` evaluates L_diff on a fixed σ grid and fixed noise, so that losses
+before and after training compare the same draws (the running training loss does not).
+
 A run folder holds ``metrics.csv`` (one row per step), ``checkpoint-<step>/state.pt`` (LoRA
 weights, optimiser, step, random states; ``resume`` continues from the latest) and, at the end,
 one folder per adapter written by diffusers' ``save_lora_adapter``.
@@ -63,6 +66,9 @@ __all__ = [
     "ShadingSupervisor",
     "maps_from_images",
     "flow_matching_step",
+    "validation_sigmas",
+    "validation_draws",
+    "validation_loss",
     "train_lora",
 ]
 
@@ -76,7 +82,9 @@ TASK_ADAPTERS = {"inpaint": ("inpaint",), "homogenise": ("homogenise",), "materi
 class TrainConfig:
     """Options of :func:`train_lora` (paper: lr 1e-4, rank 32, λ_img 0.5, λ_lpips 0.1; its batch
     sizes 64 and 8 and 20k steps are for 8 H100s). ``joint_steps``: the materials task's stage-2
-    steps (default: half of ``steps``). ``caption_dropout``: probability that an item trains with
+    steps (default: half of ``steps``). ``batch``: items per step, drawn from the pairs with
+    replacement (it may exceed their number; each item gets its own σ and noise).
+    ``caption_dropout``: probability that an item trains with
     the empty caption instead (what classifier-free guidance needs at sampling time)."""
 
     task: str
@@ -217,13 +225,15 @@ class ShadingSupervisor:
 
 def flow_matching_step(components: Components, latents: LatentSet, task: str, index: torch.Tensor, generator: torch.Generator,
                        *, joint: bool = False, supervisor: ShadingSupervisor | None = None, lambda_img: float = 0.5,
-                       lambda_lpips: float = 0.1, caption_dropout: float = 0.0) -> dict[str, torch.Tensor]:
+                       lambda_lpips: float = 0.1, caption_dropout: float = 0.0, sigma: torch.Tensor | None = None,
+                       noise: torch.Tensor | None = None) -> dict[str, torch.Tensor]:
     """The losses of one batch (``index``: (b,) sample indices); call ``backward`` on ``"loss"``.
 
     The branches of ``task`` are stacked along the batch axis (branch-major), each with its own
     adapter; ``joint`` turns on cross-intrinsic attention and, with a ``supervisor``, the
-    shading terms; ``caption_dropout`` swaps items' captions for the empty one. Returns ``loss``,
-    ``diff`` and, when computed, ``img`` and ``lpips``."""
+    shading terms; ``caption_dropout`` swaps items' captions for the empty one. ``sigma`` (b,)
+    and ``noise`` (branches·b, N, D) fix the draws (default: σ logit-normal, ε ~ N(0, I) from
+    ``generator``). Returns ``loss``, ``diff`` and, when computed, ``img`` and ``lpips``."""
     transformer, device = components.transformer, components.device
     adapters = TASK_ADAPTERS[task]
     m, b = len(adapters), len(index)
@@ -235,8 +245,10 @@ def flow_matching_step(components: Components, latents: LatentSet, task: str, in
         negative = components.prompt("negative").expand(m * b, -1, -1)
         if negative.shape[1] == prompt.shape[1]:
             prompt = torch.where(drop[:, None, None], negative, prompt)
-    sigma = torch.sigmoid(torch.randn(b, generator=generator)).repeat(m).to(device)  # logit-normal (SD3, Flux trainers)
-    noise = torch.randn(z0.shape, generator=generator).to(device)
+    if sigma is None:
+        sigma = torch.sigmoid(torch.randn(b, generator=generator))  # logit-normal (SD3, Flux trainers)
+    sigma = sigma.float().repeat(m).to(device)
+    noise = (torch.randn(z0.shape, generator=generator) if noise is None else noise.float()).to(device)
     z_sigma = (1 - sigma[:, None, None]) * z0 + sigma[:, None, None] * noise
     autocast = torch.autocast("cuda", dtype=torch.bfloat16) if device.type == "cuda" and torch.cuda.is_bf16_supported() else nullcontext()
     with ExitStack() as stack:
@@ -260,6 +272,42 @@ def flow_matching_step(components: Components, latents: LatentSet, task: str, in
             loss = loss + lambda_lpips * perceptual
     out["loss"] = loss
     return out
+
+
+def validation_sigmas(points: int = 16) -> torch.Tensor:
+    """(points,) noise levels at the mid-quantiles (k + ½)/points of the training density
+    σ = sigmoid(N(0, 1)): the mean of a loss over them is a quadrature of its expectation under
+    the training's σ sampling (points = 16: σ from 0.134 to 0.866)."""
+    normal = torch.distributions.Normal(0.0, 1.0)
+    return torch.sigmoid(normal.icdf((torch.arange(points, dtype=torch.float64) + 0.5) / points)).float()
+
+
+def validation_draws(latents: LatentSet, task: str, *, points: int = 16, repeats: int = 2,
+                     seed: int = 0) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """The fixed evaluation set of :func:`validation_loss`: ``index`` (r·n,) every sample
+    ``repeats`` times, ``sigmas`` (points,) from :func:`validation_sigmas`, ``noise`` (points,
+    branches·r·n, N, D) standard normal drawn from ``seed`` (branch-major, as
+    :func:`flow_matching_step` stacks the branches)."""
+    index = torch.arange(latents.condition.shape[0]).repeat(repeats)
+    generator = torch.Generator().manual_seed(seed)
+    shape = (points, len(TASK_ADAPTERS[task]) * len(index), *latents.targets.shape[2:])
+    return index, validation_sigmas(points), torch.randn(shape, generator=generator)
+
+
+@torch.no_grad()
+def validation_loss(components: Components, latents: LatentSet, task: str, *, points: int = 16, repeats: int = 2,
+                    seed: int = 0, joint: bool = False) -> torch.Tensor:
+    """Flow-matching loss L_diff on a fixed evaluation set (:func:`validation_draws`): every
+    sample at each σ of :func:`validation_sigmas` with ``repeats`` noise draws fixed by ``seed``,
+    the fixed captions. Calls before and after training see the same (σ, ε), unlike the running
+    training loss, so their ratio measures what training changed. ``joint``: the materials task's
+    cross-intrinsic attention. Returns (points,) float32, the loss at each σ (mean over samples,
+    branches and repeats)."""
+    index, sigmas, noise = validation_draws(latents, task, points=points, repeats=repeats, seed=seed)
+    unused = torch.Generator()  # every draw is given; the step samples nothing
+    losses = [flow_matching_step(components, latents, task, index, unused, joint=joint, sigma=sigma.expand(len(index)),
+                                 noise=eps)["diff"] for sigma, eps in zip(sigmas, noise)]
+    return torch.stack(losses).float().cpu()
 
 
 def _latest_checkpoint(run: Path) -> Path | None:
@@ -336,7 +384,7 @@ def train_lora(components: Components, latents: LatentSet, config: TrainConfig, 
         for step in bar:
             t0 = time.perf_counter()
             joint = step >= joint_from
-            index = torch.randint(0, n, (min(config.batch, n),), generator=generator)
+            index = torch.randint(0, n, (config.batch,), generator=generator)  # with replacement, also when batch > n
             out = flow_matching_step(components, latents, task, index, generator, joint=joint, supervisor=supervisor,
                                      lambda_img=config.lambda_img, lambda_lpips=config.lambda_lpips,
                                      caption_dropout=config.caption_dropout)

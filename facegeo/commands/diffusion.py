@@ -1,27 +1,19 @@
-"""``facegeo train-lora`` and ``facegeo make-texture-pairs`` (registered by ``facegeo.cli``).
-
-Parsing imports nothing heavy; the commands import diffusers only when they run and say how to
-install the optional extra when it is missing.
-"""
+"""The diffusion backend's subcommands: ``train-lora`` and ``make-texture-pairs``
+(:mod:`facegeo.texturing.diffusion`). Parsing imports nothing heavy; the commands import
+diffusers only when they run and say how to install the optional extra when it is missing."""
 
 from __future__ import annotations
 
 import argparse
 from pathlib import Path
 
+from facegeo.commands.arguments import COMMAND_LINE, Command, add_device_argument, add_seed_argument
 from facegeo.errors import InputError
 
-__all__ = ["register"]
+__all__ = ["COMMANDS"]
 
 
-def register(sub: argparse._SubParsersAction) -> None:
-    """Add the two subcommands to the ``facegeo`` parser."""
-    train = sub.add_parser(
-        "train-lora",
-        help="train the diffusion backend's task LoRAs on texture pairs (needs the [diffusion] extra)",
-        description="Flow-matching LoRA training on a frozen LongCat-Image-Edit base (Sec. 3.3-3.4). "
-        "Writes RUN/metrics.csv, RUN/checkpoint-<step>/ and one adapter folder per LoRA.",
-    )
+def _train_arguments(train: argparse.ArgumentParser) -> None:
     train.add_argument("--task", choices=["inpaint", "homogenise", "materials"], required=True)
     train.add_argument("--data", type=Path, required=True, help="pairs folder from 'facegeo make-texture-pairs'")
     train.add_argument("--out", type=Path, required=True, help="run folder (created; --resume continues it)")
@@ -33,17 +25,12 @@ def register(sub: argparse._SubParsersAction) -> None:
     train.add_argument("--joint-steps", type=int, default=None, help="materials: steps of the joint stage (default: half)")
     train.add_argument("--lpips", type=Path, default=None, help="LPIPS checkpoint (the lpips package's VGG layout); without it the term is dropped")
     train.add_argument("--save-every", type=int, default=500)
-    train.add_argument("--seed", type=int, default=0)
-    train.add_argument("--device", default=None, help="torch device (default: cuda if available, else cpu)")
+    add_seed_argument(train)
+    add_device_argument(train)
     train.add_argument("--resume", action="store_true", help="continue from the run's latest checkpoint")
-    train.set_defaults(run=_run_train)
 
-    pairs = sub.add_parser(
-        "make-texture-pairs",
-        help="render paired training data (T_inc, T_env, T_hom, T_PBR) from PBR texture sets",
-        description="For each PBR set folder (albedo/normal/roughness/specular/displacement .png) render "
-        "random poses and lights with facegeo's shader, renderer and unwrap (Sec. 3.1).",
-    )
+
+def _pairs_arguments(pairs: argparse.ArgumentParser) -> None:
     pairs.add_argument("sets", type=Path, nargs="*", help="PBR set folders")
     pairs.add_argument("-o", "--output", type=Path, required=True, help="output folder (created)")
     pairs.add_argument("--procedural", type=int, default=0, help="also use this many procedurally generated skin PBR sets")
@@ -51,8 +38,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     pairs.add_argument("--size", type=int, default=1024, help="UV size S of the pairs")
     pairs.add_argument("--image-size", type=int, default=1024, help="size of the rendered photo in pixels")
     pairs.add_argument("--displacement-mm", type=float, default=0.1, help="displacement of the sets' white level (0.5 grey = 0)")
-    pairs.add_argument("--seed", type=int, default=0)
-    pairs.set_defaults(run=_run_pairs)
+    add_seed_argument(pairs)
 
 
 def _run_train(args: argparse.Namespace) -> None:
@@ -80,9 +66,29 @@ def _run_pairs(args: argparse.Namespace) -> None:
     from facegeo.texturing.diffusion.data import make_texture_pairs, procedural_pbr_set, read_pbr_set
 
     if not args.sets and args.procedural <= 0:
-        raise InputError("<command line>", "sets", "PBR set folders or --procedural N", "none")
+        raise InputError(COMMAND_LINE, "sets", "PBR set folders or --procedural N", "none")
     sets = [(p.name, read_pbr_set(p, args.size, args.displacement_mm)) for p in args.sets]
     rng = np.random.default_rng(args.seed)
     sets += [(f"procedural{k:03d}", procedural_pbr_set(args.size, rng)) for k in range(args.procedural)]
     count = make_texture_pairs(sets, args.output, args.samples, seed=args.seed, image_size=args.image_size)
     print(f"wrote {count} texture pairs of {args.size}² to {args.output}")
+
+
+COMMANDS = (
+    Command(
+        "train-lora",
+        help="train the diffusion backend's task LoRAs on texture pairs (needs the [diffusion] extra)",
+        description="Flow-matching LoRA training on a frozen LongCat-Image-Edit base (Sec. 3.3-3.4). "
+        "Writes RUN/metrics.csv, RUN/checkpoint-<step>/ and one adapter folder per LoRA.",
+        arguments=_train_arguments,
+        run=_run_train,
+    ),
+    Command(
+        "make-texture-pairs",
+        help="render paired training data (T_inc, T_env, T_hom, T_PBR) from PBR texture sets",
+        description="For each PBR set folder (albedo/normal/roughness/specular/displacement .png) render "
+        "random poses and lights with facegeo's shader, renderer and unwrap (Sec. 3.1).",
+        arguments=_pairs_arguments,
+        run=_run_pairs,
+    ),
+)

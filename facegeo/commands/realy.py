@@ -1,4 +1,5 @@
-"""The ``facegeo realy`` subcommand (wired into facegeo/cli.py with :func:`register`)."""
+"""``facegeo realy PRED_DIR``: the REALY benchmark (:func:`facegeo.eval.realy.evaluate`) on a
+folder of predicted meshes, written as REALY's files and facegeo's summaries."""
 
 from __future__ import annotations
 
@@ -9,20 +10,14 @@ import sys
 import time
 from pathlib import Path
 
-from facegeo.eval.realy_align import EXACT, Settings
+from facegeo.commands.arguments import Command
 
-__all__ = ["register", "run"]
+__all__ = ["COMMANDS"]
 
 
-def register(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParser:
-    """Add ``realy`` to the ``facegeo`` subcommands; returns its parser."""
-    p = subparsers.add_parser(
-        "realy",
-        help="REALY benchmark: region-wise error (mm) of predicted meshes against the REALY scans",
-        description="Evaluate every PRED_DIR/<id>.obj (frontal track) or <id>_<view>.obj (multi-view "
-        "track) with the REALY protocol (ECCV 2022), numbers equal to the official code. Writes "
-        "REALY_error.txt (official format), REALY_summary.md, REALY_summary.csv and REALY_result.json.",
-    )
+def _arguments(p: argparse.ArgumentParser) -> None:
+    from facegeo.eval.realy_align import EXACT
+
     p.add_argument("pred_dir", type=Path, metavar="PRED_DIR", help="folder of predicted meshes (.obj)")
     p.add_argument("--realy-root", type=Path, default=None,
                    help="folder holding REALY's data/ (REALY_HIFI3D_keypoints/, REALY_scan_region/, "
@@ -63,13 +58,12 @@ def register(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParser:
     knobs.add_argument("--no-factor-reuse", action="store_true", help="factor every linear system (slower)")
     p.add_argument("-o", "--output", type=Path, default=None, metavar="OUT",
                    help="output folder (default: PRED_DIR/realy_eval)")
-    p.set_defaults(run=run)
-    return p
 
 
-def run(args: argparse.Namespace) -> None:
+def _run(args: argparse.Namespace) -> None:
     from facegeo.errors import InputError
     from facegeo.eval.realy import DEFAULT_TOPOLOGY, evaluate
+    from facegeo.eval.realy_align import Settings
     from facegeo.eval.realy_report import OUTPUT_FILES, markdown_table, write_outputs
 
     if args.workers < 1:
@@ -110,3 +104,16 @@ def run(args: argparse.Namespace) -> None:
     print(markdown_table(result), end="")
     print(f"evaluated {result.summary['n']} prediction(s) in {time.perf_counter() - start:.1f} s; "
           f"wrote {out}/{{{','.join(OUTPUT_FILES)}}}")
+
+
+COMMANDS = (
+    Command(
+        "realy",
+        help="REALY benchmark: region-wise error (mm) of predicted meshes against the REALY scans",
+        description="Evaluate every PRED_DIR/<id>.obj (frontal track) or <id>_<view>.obj (multi-view "
+        "track) with the REALY protocol (ECCV 2022), numbers equal to the official code. Writes "
+        "REALY_error.txt (official format), REALY_summary.md, REALY_summary.csv and REALY_result.json.",
+        arguments=_arguments,
+        run=_run,
+    ),
+)

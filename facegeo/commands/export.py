@@ -1,7 +1,7 @@
 """``facegeo export ASSET_DIR -o FILE``: re-export a saved asset folder to USD or glTF.
 
-Wired into ``facegeo.cli`` by ``register(subparsers)``; errors are :class:`FacegeoError` (one
-line, exit status 2, no output left behind), as for every facegeo command.
+Errors are :class:`FacegeoError` (one line, exit status 2, no output left behind), as for every
+facegeo command.
 """
 
 from __future__ import annotations
@@ -10,47 +10,35 @@ import argparse
 import time
 from pathlib import Path
 
+from facegeo.commands.arguments import COMMAND_LINE, Command, add_parts_argument, parse_list
 from facegeo.errors import InputError
 
-__all__ = ["register", "run_export"]
+__all__ = ["COMMANDS"]
 
 
-def register(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParser:
-    """Add the ``export`` subcommand to ``facegeo``'s subparsers; returns its parser."""
+def _arguments(parser: argparse.ArgumentParser) -> None:
+    from facegeo.asset import MAP_NAMES
     from facegeo.export.writers import FORMATS
 
-    p = subparsers.add_parser(
-        "export",
-        help="re-export a saved asset folder (asset.json, mesh.obj, maps) to usdz/usdc/usda/glb",
-        description="Read an asset folder written by facegeo (asset.json, mesh.obj with UVs, the maps as "
-        "8/16-bit PNG) and write it as USD (usdz, usdc, usda; UsdPreviewSurface, Y-up, mm) or glTF 2.0 "
-        "binary (glb; metres, metallic-roughness PBR, KHR_materials_specular). Only the maps the "
-        "asset has (or --maps names) are written; constant maps become material factors.",
-    )
-    p.add_argument("asset_dir", type=Path, metavar="ASSET_DIR", help="folder with asset.json")
-    p.add_argument("-o", "--output", type=Path, required=True, metavar="FILE",
-                   help="output file; its suffix picks the format, or give --format (several formats: FILE is the stem)")
-    p.add_argument("--format", default=None, metavar="FMT[,FMT]",
-                   help=f"format(s), comma-separated, among {', '.join(FORMATS)} (default: the suffix of FILE)")
-    p.add_argument("--subdiv", type=int, choices=[0, 1, 2, 3], default=0, help="Loop subdivision levels before baking the displacement (default 0)")
-    p.add_argument("--maps", default=None, metavar="NAME[,NAME]",
-                   help="maps to carry, among albedo, normal, roughness, specular, displacement (default: all the asset has)")
-    p.add_argument("--displacement", choices=["bake", "texture"], default="bake",
-                   help="bake the displacement into the geometry (default) or, USD only, write it as the material's displacement input")
-    from facegeo.cli import add_parts_argument
-
-    add_parts_argument(p)
-    p.set_defaults(run=run_export)
-    return p
+    parser.add_argument("asset_dir", type=Path, metavar="ASSET_DIR", help="folder with asset.json")
+    parser.add_argument("-o", "--output", type=Path, required=True, metavar="FILE",
+                        help="output file; its suffix picks the format, or give --format (several formats: FILE is the stem)")
+    parser.add_argument("--format", default=None, metavar="FMT[,FMT]",
+                        help=f"format(s), comma-separated, among {', '.join(FORMATS)} (default: the suffix of FILE)")
+    parser.add_argument("--subdiv", type=int, choices=[0, 1, 2, 3], default=0, help="Loop subdivision levels before baking the displacement (default 0)")
+    parser.add_argument("--maps", default=None, metavar="NAME[,NAME]",
+                        help=f"maps to carry, among {', '.join(MAP_NAMES)} (default: all the asset has)")
+    parser.add_argument("--displacement", choices=["bake", "texture"], default="bake",
+                        help="bake the displacement into the geometry (default) or, USD only, write it as the material's displacement input")
+    add_parts_argument(parser)
 
 
-def run_export(args: argparse.Namespace) -> None:
+def _run(args: argparse.Namespace) -> None:
     """Run ``facegeo export`` with parsed arguments (raises FacegeoError on bad input).
 
     The output files are checked before the asset is read, written into one staging folder and
     moved into place together: with several formats, either all files appear or none does."""
     from facegeo.asset import MAP_NAMES
-    from facegeo.cli import COMMAND_LINE, parse_list
     from facegeo.export.asset_io import load_asset
     from facegeo.export.writers import FORMATS, export_asset
     from facegeo.staged_output import StagedOutput, check_output_location
@@ -82,3 +70,17 @@ def run_export(args: argparse.Namespace) -> None:
     seconds = time.perf_counter() - start
     print(f"wrote {', '.join(str(path) for path, _ in targets)} from {args.asset_dir} "
           f"(parts {args.parts}, subdivision level {args.subdiv}, {seconds:.2f} s)")
+
+
+COMMANDS = (
+    Command(
+        "export",
+        help="re-export a saved asset folder (asset.json, mesh.obj, maps) to usdz/usdc/usda/glb",
+        description="Read an asset folder written by facegeo (asset.json, mesh.obj with UVs, the maps as "
+        "8/16-bit PNG) and write it as USD (usdz, usdc, usda; UsdPreviewSurface, Y-up, mm) or glTF 2.0 "
+        "binary (glb; metres, metallic-roughness PBR, KHR_materials_specular). Only the maps the "
+        "asset has (or --maps names) are written; constant maps become material factors.",
+        arguments=_arguments,
+        run=_run,
+    ),
+)

@@ -14,59 +14,41 @@ Writes (atomically, through :class:`facegeo.staged_output.StagedOutput`):
 
 The geometry maps are in the camera space of the fit (the frame of ``facegeo fit``'s
 ``mesh.obj``); ``unwrap.json`` holds the rotation and translation back to model space.
-``register(subparsers)`` adds the subcommand to the ``facegeo`` parser.
 """
 
 from __future__ import annotations
 
-import os
+import argparse
+import json
+import time
+from pathlib import Path
 
-# OpenCV reads this when it first encodes or decodes an EXR (checked lazily in OpenCV 4.x, so it
-# also works when cv2 was imported earlier); set before cv2 is imported to be safe.
-os.environ.setdefault("OPENCV_IO_ENABLE_OPENEXR", "1")
+import numpy as np
 
-import argparse  # noqa: E402
-import json  # noqa: E402
-import time  # noqa: E402
-from pathlib import Path  # noqa: E402
+from facegeo.commands.arguments import COMMAND_LINE, Command, add_fit_arguments, add_photo_arguments
+from facegeo.errors import InputError
 
-import numpy as np  # noqa: E402
-
-from facegeo.errors import InputError  # noqa: E402
-
-__all__ = ["register", "run_unwrap", "encode_exr", "OUTPUT_FILES"]
+__all__ = ["COMMANDS", "OUTPUT_FILES"]
 
 #: The files ``facegeo unwrap`` writes.
 OUTPUT_FILES = ("texture_incomplete.png", "visibility.png", "skin_mask.png", "position.exr", "normal.exr", "tangent.exr", "unwrap.json")
 
 
-def register(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParser:
-    """Add the ``unwrap`` subcommand to the ``facegeo`` sub-parsers; returns its parser."""
-    from facegeo.cli import add_fit_arguments
-
-    p = subparsers.add_parser(
-        "unwrap",
-        help="fit, then unwrap the photo into UV space (texture_incomplete.png, visibility.png, geometry EXRs)",
-        description="Fit the morphable model to the photo, then write the incomplete texture T_inc "
-        "(texture_incomplete.png, sRGB), its visibility M_vis (visibility.png), and the position, normal and "
-        "MikkTSpace tangent maps of the fitted mesh as float32 EXR (camera space, mm), plus unwrap.json.",
-    )
-    add_fit_arguments(p)
-    p.add_argument("--size", type=int, default=1024, help="UV map size in texels (default 1024)")
-    p.add_argument("--padding", type=int, default=None, help="seam padding in texels (default size/128, at least 2)")
-    p.add_argument("--occlusion", type=Path, default=None, help="optional image-space mask, same size as the photo: white where hair, glasses or hands cover the face (added to the skin mask's occlusion)")
-    p.add_argument("--no-skin-mask", action="store_true", help="do not compute the skin mask (M_vis is then geometric visibility only, times --occlusion)")
-    p.set_defaults(run=run_unwrap, output_folder=True)
-    return p
+def _arguments(parser: argparse.ArgumentParser) -> None:
+    add_photo_arguments(parser)
+    add_fit_arguments(parser)
+    parser.add_argument("--size", type=int, default=1024, help="UV map size in texels (default 1024)")
+    parser.add_argument("--padding", type=int, default=None, help="seam padding in texels (default size/128, at least 2)")
+    parser.add_argument("--occlusion", type=Path, default=None, help="optional image-space mask, same size as the photo: white where hair, glasses or hands cover the face (added to the skin mask's occlusion)")
+    parser.add_argument("--no-skin-mask", action="store_true", help="do not compute the skin mask (M_vis is then geometric visibility only, times --occlusion)")
 
 
-def run_unwrap(args: argparse.Namespace) -> None:
+def _run(args: argparse.Namespace) -> None:
     """Run ``facegeo unwrap`` for parsed ``args`` (raises :class:`facegeo.errors.FacegeoError`)."""
-    import cv2
-
-    from facegeo.camera import Camera, euler_from_rotation
-    from facegeo.cli import COMMAND_LINE
+    from facegeo.camera import euler_from_rotation
     from facegeo.fitting import fit
+    from facegeo.image_files import exr_bytes, png_bytes
+    from facegeo.jobs import photo_camera
     from facegeo.model_files import load_model
     from facegeo.photo import load_photo
     from facegeo.skin_mask import skin_mask, skin_mask_image
@@ -90,10 +72,7 @@ def run_unwrap(args: argparse.Namespace) -> None:
                              f"{mask.shape[1]}x{mask.shape[0]}")
         occlusion = mask.astype(np.float32).mean(axis=2) / 255.0
     model = load_model(args.model)
-    height, width = photo.image.shape[:2]
-    camera = Camera.for_image(width, height)
-    if args.focal is not None:
-        camera = Camera(args.focal, width / 2.0, height / 2.0, width, height)
+    camera = photo_camera(photo, args.focal)
     t = time.perf_counter()
     result = fit(photo, model=model, detector=args.landmarks, camera=camera)
     timings["fit"] = time.perf_counter() - t
@@ -139,14 +118,14 @@ def run_unwrap(args: argparse.Namespace) -> None:
     t = time.perf_counter()
     with StagedOutput(args.output, replace=True) as stage:
         rgb8 = np.clip(np.round(texture * 255.0), 0, 255).astype(np.uint8)
-        stage.path("texture_incomplete.png").write_bytes(_png(cv2, rgb8[..., ::-1]))
-        stage.path("visibility.png").write_bytes(_png(cv2, np.clip(np.round(vis * 255.0), 0, 255).astype(np.uint8)))
+        stage.path("texture_incomplete.png").write_bytes(png_bytes(rgb8))
+        stage.path("visibility.png").write_bytes(png_bytes(np.clip(np.round(vis * 255.0), 0, 255).astype(np.uint8)))
         if skin is not None:
-            stage.path("skin_mask.png").write_bytes(_png(cv2, skin_mask_image(skin)))
-        stage.path("position.exr").write_bytes(encode_exr(maps.position))
-        stage.path("normal.exr").write_bytes(encode_exr(maps.normal))
+            stage.path("skin_mask.png").write_bytes(png_bytes(skin_mask_image(skin)))
+        stage.path("position.exr").write_bytes(exr_bytes(maps.position))
+        stage.path("normal.exr").write_bytes(exr_bytes(maps.normal))
         tangent = np.concatenate([maps.tangent, maps.bitangent_sign[..., None]], axis=-1)
-        stage.path("tangent.exr").write_bytes(encode_exr(tangent))
+        stage.path("tangent.exr").write_bytes(exr_bytes(tangent))
         timings["write"] = time.perf_counter() - t
         timings["total"] = time.perf_counter() - start
         info["timings_s"] = timings
@@ -157,27 +136,15 @@ def run_unwrap(args: argparse.Namespace) -> None:
     print(f"wrote {args.output}/" + ", ".join(f for f in OUTPUT_FILES if skin is not None or f != "skin_mask.png"))
 
 
-def encode_exr(image: np.ndarray) -> bytes:
-    """A float32 OpenEXR file (ZIP compression) of an (H, W), (H, W, 3) RGB or (H, W, 4) RGBA
-    array, channels in RGB(A) order."""
-    import cv2
-
-    a = np.ascontiguousarray(image, dtype=np.float32)
-    if a.ndim == 3 and a.shape[2] == 3:
-        a = a[..., ::-1]
-    elif a.ndim == 3 and a.shape[2] == 4:
-        a = a[..., [2, 1, 0, 3]]
-    params = [cv2.IMWRITE_EXR_TYPE, cv2.IMWRITE_EXR_TYPE_FLOAT]
-    if hasattr(cv2, "IMWRITE_EXR_COMPRESSION_ZIP"):
-        params += [cv2.IMWRITE_EXR_COMPRESSION, cv2.IMWRITE_EXR_COMPRESSION_ZIP]
-    ok, buf = cv2.imencode(".exr", np.ascontiguousarray(a), params)
-    if not ok:  # pragma: no cover - OpenCV built without OpenEXR
-        raise RuntimeError("OpenCV could not encode EXR (is OPENCV_IO_ENABLE_OPENEXR=1 set?)")
-    return buf.tobytes()
-
-
-def _png(cv2, image: np.ndarray) -> bytes:
-    ok, buf = cv2.imencode(".png", np.ascontiguousarray(image))
-    if not ok:  # pragma: no cover
-        raise RuntimeError("PNG encoding failed")
-    return buf.tobytes()
+COMMANDS = (
+    Command(
+        "unwrap",
+        help="fit, then unwrap the photo into UV space (texture_incomplete.png, visibility.png, geometry EXRs)",
+        description="Fit the morphable model to the photo, then write the incomplete texture T_inc "
+        "(texture_incomplete.png, sRGB), its visibility M_vis (visibility.png), and the position, normal and "
+        "MikkTSpace tangent maps of the fitted mesh as float32 EXR (camera space, mm), plus unwrap.json.",
+        arguments=_arguments,
+        run=_run,
+        output_folder=True,
+    ),
+)

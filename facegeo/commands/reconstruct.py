@@ -1,0 +1,101 @@
+"""``facegeo reconstruct PHOTO -o OUT``: the whole pipeline, through
+:func:`facegeo.jobs.reconstruct_into_folder` (fit.json, the asset folder, the scenes, preview.png)."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+from facegeo.batch import add_batch_arguments, run_batch, wants_batch
+from facegeo.commands.arguments import (
+    Command,
+    RegistryNames,
+    add_fit_arguments,
+    add_parts_argument,
+    add_photo_arguments,
+    add_regressor_arguments,
+    option_defaults,
+    parse_list,
+)
+
+__all__ = ["COMMANDS"]
+
+#: The texture backends' names (``facegeo.texturing.registry.BACKENDS``).
+BACKEND_NAMES = RegistryNames("facegeo.texturing.registry", "BACKENDS")
+
+
+def _arguments(parser: argparse.ArgumentParser) -> None:
+    from facegeo.asset import MAP_NAMES
+    from facegeo.export.writers import FORMATS
+    from facegeo.jobs import ReconstructOptions
+
+    defaults = option_defaults(ReconstructOptions)
+    add_photo_arguments(parser, many=True)
+    add_fit_arguments(parser)
+    add_regressor_arguments(parser)
+    texture = parser.add_argument_group("texture and export")
+    texture.add_argument("--backend", choices=BACKEND_NAMES, default=defaults["backend"], metavar="NAME",
+                         help="texture backend, one of %(choices)s (default: weight-free, offline; diffusion: needs --weights "
+                         "and the [diffusion] extra)")
+    texture.add_argument("--weights", type=Path, default=None, metavar="DIR",
+                         help="diffusion backend: folder with base/, loras/<task>/ and sr/ (see facegeo.texturing.diffusion.backend)")
+    texture.add_argument("--size", type=int, default=defaults["size"], help="UV map size in texels (default %(default)d)")
+    texture.add_argument("--upscale", type=int, choices=[1, 2, 4], default=defaults["upscale"], help="upscale the maps by this factor (Lanczos)")
+    texture.add_argument("--subdiv", type=int, choices=[0, 1, 2, 3], default=defaults["subdiv"],
+                         help="Loop subdivision levels of the exported mesh (displacement baked when > 0)")
+    texture.add_argument("--maps", default=",".join(defaults["maps"]), metavar="NAME[,NAME]",
+                         help=f"comma-separated maps to compute and export, among {', '.join(MAP_NAMES)} (default: all)")
+    texture.add_argument("--format", default=",".join(defaults["formats"]), metavar="FMT[,FMT]",
+                         help=f"comma-separated formats among {', '.join(FORMATS)} (default %(default)s)")
+    add_parts_argument(texture)
+    parser.add_argument("--no-preview", action="store_true", help="do not render preview.png")
+    add_batch_arguments(parser)
+
+
+def _run(args: argparse.Namespace) -> int | None:
+    from tqdm import tqdm
+
+    from facegeo.asset import MAP_NAMES
+    from facegeo.export.writers import FORMATS
+    from facegeo.jobs import ReconstructOptions, reconstruct_into_folder
+    from facegeo.pipeline import STAGES
+
+    maps = parse_list(args.maps, MAP_NAMES, "--maps")
+    formats = parse_list(args.format, FORMATS, "--format")
+    options = ReconstructOptions(model=args.model, landmarks=args.landmarks, focal=args.focal, max_side=args.max_side,
+                                 regressor=args.regressor, refine=args.refine, backend=args.backend, weights=args.weights,
+                                 size=args.size, upscale=args.upscale, subdiv=args.subdiv, maps=tuple(maps),
+                                 formats=tuple(formats), parts=args.parts, preview=not args.no_preview)
+    if wants_batch(args):
+        return run_batch(args, "reconstruct", options)
+    bar = tqdm(total=len(STAGES) + 2, desc="reconstruct", unit="stage", disable=not sys.stderr.isatty(), leave=False)
+
+    def progress(stage: str) -> None:
+        bar.set_postfix_str(stage)
+        bar.update(1)
+
+    record = reconstruct_into_folder(args.photo, args.output, options, progress=progress)
+    bar.close()
+    for note in record.notes:
+        print(f"note: {note}")
+    print(f"reconstructed {args.photo}: landmark RMS {record.landmark_rms_px:.2f} px, maps {', '.join(record.maps)} "
+          f"at {record.map_size}², formats {', '.join(formats)}")
+    print("timings: " + ", ".join(f"{k} {v:.2f} s" for k, v in record.timings.items()))
+    print(f"wrote {args.output}")
+    return None
+
+
+COMMANDS = (
+    Command(
+        "reconstruct",
+        help="photo -> fit -> UV maps -> USD/glTF asset (the whole pipeline)",
+        description="Fit the model, unwrap the photo into UV space, complete and de-light the texture, "
+        "estimate PBR maps (albedo, normal, roughness, specular, displacement) and write fit.json, "
+        "the maps (asset.json + PNGs, re-exportable with 'facegeo export'), the assets and preview.png "
+        "(the photo beside the asset from the front, three-quarter and profile, textured and as clay).",
+        arguments=_arguments,
+        run=_run,
+        output_folder=True,
+    ),
+)

@@ -1,0 +1,78 @@
+"""PNG and EXR files, the one place facegeo encodes and decodes them (the map PNGs of an asset
+folder and of the USD/glTF writers, overlays, previews, skin masks, unwrap's EXR maps, training
+data). Arrays are in RGB(A) channel order here; OpenCV's BGR order stays inside this module.
+
+Photos are read by :mod:`facegeo.photo` (EXIF orientation, alpha, size checks), not here.
+"""
+
+from __future__ import annotations
+
+import os
+
+# OpenCV reads this when it first encodes or decodes an EXR (checked lazily in OpenCV 4.x, so it
+# also works when cv2 was imported earlier); set before cv2 is imported to be safe.
+os.environ.setdefault("OPENCV_IO_ENABLE_OPENEXR", "1")
+
+import numpy as np  # noqa: E402
+
+from facegeo.errors import InputError  # noqa: E402
+from facegeo.native_stderr import silenced_native_stderr  # noqa: E402
+
+__all__ = ["png_bytes", "read_png", "exr_bytes", "to_uint"]
+
+
+def _bgr(image: np.ndarray) -> np.ndarray:
+    """RGB(A) <-> BGR(A) (the same swap both ways); grey images unchanged."""
+    img = np.ascontiguousarray(image)
+    if img.ndim == 3 and img.shape[2] == 3:
+        return np.ascontiguousarray(img[:, :, ::-1])
+    if img.ndim == 3 and img.shape[2] == 4:
+        return np.ascontiguousarray(img[:, :, [2, 1, 0, 3]])
+    return img
+
+
+def to_uint(array: np.ndarray, bits: int) -> np.ndarray:
+    """Values in [0, 1] (clipped) to uint8 (``bits`` 8) or uint16 (16), rounded to nearest."""
+    top = (1 << bits) - 1
+    q = np.round(np.clip(np.asarray(array, dtype=np.float64), 0.0, 1.0) * top)
+    return q.astype(np.uint8 if bits == 8 else np.uint16)
+
+
+def png_bytes(image: np.ndarray) -> bytes:
+    """PNG bytes of an (H, W), (H, W, 3) or (H, W, 4) uint8/uint16 image (RGB(A) order)."""
+    import cv2
+
+    # zlib level 1: 3-4x faster than 6 on 4K maps for files about 10 % larger
+    ok, buf = cv2.imencode(".png", _bgr(image), [cv2.IMWRITE_PNG_COMPRESSION, 1])
+    if not ok:  # pragma: no cover
+        raise RuntimeError("PNG encoding failed")
+    return buf.tobytes()
+
+
+def read_png(path: str | os.PathLike[str]) -> np.ndarray:
+    """An 8- or 16-bit PNG as stored: (H, W) or (H, W, C) uint8/uint16, RGB(A) order.
+
+    Raises:
+        InputError: the file is missing or not a readable image.
+    """
+    import cv2
+
+    with silenced_native_stderr():  # libpng prints "libpng error: ..." itself; the InputError says it
+        img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+    if img is None:
+        raise InputError(path, "image", "a readable PNG file")
+    return _bgr(img)
+
+
+def exr_bytes(image: np.ndarray) -> bytes:
+    """A float32 OpenEXR file (ZIP compression) of an (H, W), (H, W, 3) RGB or (H, W, 4) RGBA
+    array, channels in RGB(A) order."""
+    import cv2
+
+    params = [cv2.IMWRITE_EXR_TYPE, cv2.IMWRITE_EXR_TYPE_FLOAT]
+    if hasattr(cv2, "IMWRITE_EXR_COMPRESSION_ZIP"):
+        params += [cv2.IMWRITE_EXR_COMPRESSION, cv2.IMWRITE_EXR_COMPRESSION_ZIP]
+    ok, buf = cv2.imencode(".exr", _bgr(np.asarray(image, dtype=np.float32)), params)
+    if not ok:  # pragma: no cover - OpenCV built without OpenEXR
+        raise RuntimeError("OpenCV could not encode EXR (is OPENCV_IO_ENABLE_OPENEXR=1 set?)")
+    return buf.tobytes()

@@ -1,0 +1,99 @@
+"""The command floor (facegeo.commands): one fitting group for every command that fits, choices
+from the library's registries, help for every subcommand, a parser that imports nothing heavy."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+
+import pytest
+
+from facegeo.assets import asset_path
+from facegeo.commands import COMMAND_MODULES, build_parser, main
+from facegeo.jobs import FitOptions, JobRecord
+
+PHOTO = str(asset_path("photos/astronaut.png"))
+FITTING = ("fit", "reconstruct", "unwrap")
+
+
+def _subparsers():
+    parser = build_parser()
+    (sub,) = [a for a in parser._actions if a.dest == "command"]
+    return sub.choices
+
+
+def test_every_command_that_fits_takes_the_same_fitting_options():
+    subparsers = _subparsers()
+    groups = []
+    for name in FITTING:
+        actions = {a.dest: a for a in subparsers[name]._actions}
+        group = {dest: (tuple(actions[dest].option_strings), actions[dest].default, tuple(actions[dest].choices or ()))
+                 for dest in ("model", "landmarks", "focal", "max_side")}
+        groups.append(group)
+        args = subparsers[name].parse_args([PHOTO, "-o", "out", "--focal", "812.5", "--landmarks", "mediapipe", "--max-side", "640"])
+        assert (args.focal, args.landmarks, args.max_side) == (812.5, "mediapipe", 640)
+    assert groups[0] == groups[1] == groups[2]
+    defaults = FitOptions()
+    assert groups[0]["landmarks"][1] == defaults.landmarks and groups[0]["max_side"][1] == defaults.max_side
+
+
+def test_choices_are_the_registries():
+    from facegeo.asset import PART_CHOICES
+    from facegeo.landmarks import DETECTORS
+    from facegeo.texturing.registry import BACKENDS
+
+    rec = {a.dest: a for a in _subparsers()["reconstruct"]._actions}
+    assert list(rec["landmarks"].choices) == list(DETECTORS) and list(rec["backend"].choices) == list(BACKENDS)
+    assert tuple(rec["parts"].choices) == PART_CHOICES
+    train = {a.dest: a for a in _subparsers()["train-regressor"]._actions}
+    assert list(train["landmarks"].choices) == ["auto", "truth", *DETECTORS]
+
+
+def test_an_unknown_detector_is_one_usage_line(capsys):
+    with pytest.raises(SystemExit) as exit_:
+        main(["fit", PHOTO, "-o", "out", "--landmarks", "openpose"])
+    err = capsys.readouterr().err
+    assert exit_.value.code == 2 and len(err.strip().splitlines()) == 1
+    assert "openpose" in err and all(name in err for name in ("hybrid", "dlib", "mediapipe"))
+
+
+def test_reconstruct_passes_focal_to_the_job(tmp_path, monkeypatch, capsys):
+    seen = {}
+
+    def job(photo, output, options, progress=None):
+        seen["options"] = options
+        return JobRecord(str(photo), str(output), 1.0, 2.0, {"total": 0.0}, [], maps=["albedo"], map_size=64)
+
+    monkeypatch.setattr("facegeo.jobs.reconstruct_into_folder", job)
+    code = main(["reconstruct", PHOTO, "-o", str(tmp_path / "out"), "--focal", "900", "--landmarks", "dlib", "--maps", "albedo"])
+    assert code == 0, capsys.readouterr().err
+    options = seen["options"]
+    assert (options.focal, options.landmarks, options.maps) == (900.0, "dlib", ("albedo",))
+
+
+@pytest.mark.parametrize("name", [None, *("fit", "reconstruct", "unwrap", "export", "realy", "train-regressor",
+                                          "make-synthetic-faces", "train-lora", "make-texture-pairs")])
+def test_help_of_every_subcommand(name, capsys):
+    with pytest.raises(SystemExit) as exit_:
+        main([name, "--help"] if name else ["--help"])
+    out = capsys.readouterr().out
+    assert exit_.value.code == 0 and out.startswith(f"usage: facegeo{' ' + name if name else ''}")
+
+
+def test_the_subcommands_are_those_of_the_command_modules():
+    from importlib import import_module
+
+    declared = [c.name for m in COMMAND_MODULES for c in import_module(f"facegeo.commands.{m}").COMMANDS]
+    assert list(_subparsers()) == declared and len(declared) == 9
+
+
+def test_building_the_parser_imports_nothing_heavy():
+    """Building the parser loads no heavy module; a subcommand's help (which lists the detectors'
+    registry) loads OpenCV with the detectors, but not torch."""
+    code = ("import sys; from facegeo.commands import build_parser; parser = build_parser(); "
+            "print(sorted(m for m in ('torch', 'cv2', 'diffusers', 'transformers', 'pxr') if m in sys.modules)); "
+            "(sub,) = [a for a in parser._actions if a.dest == 'command']; "
+            "assert 'mediapipe' in sub.choices['reconstruct'].format_help(); "
+            "print(sorted(m for m in ('torch', 'diffusers', 'transformers', 'pxr') if m in sys.modules))")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
+    assert out.split() == ["[]", "[]"]
