@@ -11,7 +11,7 @@ photometric fit, MediaPipe's mesh for the skin mask, the unwrap, the backends) r
 Scenes (bundled ICT-FaceKit model, 768² photo, 40° fov, 600 mm away):
 
 * ground truth per texel, a function of the model-space position of the rendered head (so it is
-  continuous across UV seams) and of the facial regions (:mod:`facegeo.texturing.regions`): a skin
+  continuous across UV seams) and of the facial regions (:func:`facegeo.skin_mask.vertex_regions`): a skin
   tone, low-frequency mottling, redness on cheeks and nose, freckles, pores, stubble (one head),
   red lips and dark brows; roughness 0.4, specular 0.6, flat normals;
 * shading: ``shade_ggx`` (diffuse + GGX specular) of one directional light, times its cast-shadow
@@ -62,17 +62,17 @@ import torch
 from skimage.color import deltaE_ciede2000, rgb2lab
 
 import facegeo
-from facegeo.camera import Camera, project, rotation_from_euler
+from facegeo.camera import Camera, project, rotation_from_euler, to_pixels
 from facegeo.colour import linear_to_srgb, luminance, srgb_to_linear
-from facegeo.fitting import skin_vertex_mask
 from facegeo.lighting import sh_irradiance
 from facegeo.pipeline import reconstruct_with_fit
-from facegeo.skin_mask import SkinMask
+from facegeo.skin_mask import SkinMask, skin_vertex_mask, vertex_regions
 from facegeo.texturing.context import surface_operators
 from facegeo.texturing.default_backend import DefaultBackend, masked_blur, value_noise
-from facegeo.texturing.regions import vertex_regions
 from facegeo.texturing.shading import shade_ggx
+from facegeo.uv.texels import sample_uv
 from facegeo.uv import geometry_maps, rasterize_mesh, rasterize_uv, render, unwrap_details
+from facegeo.landmarks.scheme import BROWS, IBUG68, LEFT_EYE, RIGHT_EYE
 
 ROOT = Path(__file__).resolve().parents[1]
 BASELINE_COMMIT = "0477a8f"
@@ -111,7 +111,7 @@ def truth_albedo(model, shape: np.ndarray, raster, tone, stubble: bool, seed: in
     freckle = (value_noise(p, 1.6, seed + 4) > 0.5) & (freckle_area > 0.3)
     lin = np.where(freckle[:, None], lin * np.array([0.72, 0.62, 0.55]), lin)
     if stubble:
-        lm = model.mean_shape[model.landmark_indices[:68]]
+        lm = model.mean_shape[model.landmark_indices[IBUG68]]
         lower = (p[:, 1] < lm[33, 1] - 3.0) & (p[:, 2] > lm[0, 2] - 10.0)  # below the nose, front of the jaw
         lips_zone = regions["lips"] > 0.2
         dots = (value_noise(p, 0.35, seed + 5) > 0.2) & lower & ~lips_zone
@@ -144,8 +144,7 @@ def shadow_map(vertices_cam: np.ndarray, model, light: np.ndarray, points: np.nd
     _, _, depth = rasterize_mesh(to_light(vertices_cam), model.triangles, cam, barycentric=False)
     q = to_light(points.astype(np.float64))
     d = -q[:, 2]
-    px = cam.cx + q[:, 0] * cam.focal / d
-    py = cam.cy - q[:, 1] * cam.focal / d
+    px, py = to_pixels(q, cam).T
     ix = np.clip(np.floor(px).astype(np.int64), 0, cam.width - 1)
     iy = np.clip(np.floor(py).astype(np.int64), 0, cam.height - 1)
     zb = np.where(np.isfinite(depth), depth, 1e9)[iy, ix]
@@ -183,8 +182,8 @@ def occluders(kinds, lm: np.ndarray, shape: tuple[int, int], rng) -> tuple[np.nd
     H, W = shape
     colour = np.zeros((H, W, 3), np.float32)
     alpha = np.zeros((H, W), np.float32)
-    iod = float(np.linalg.norm(lm[36:42].mean(0) - lm[42:48].mean(0)))
-    brow_y = float(lm[17:27, 1].min())
+    iod = float(np.linalg.norm(lm[RIGHT_EYE].mean(0) - lm[LEFT_EYE].mean(0)))
+    brow_y = float(lm[BROWS, 1].min())
 
     def paint(mask: np.ndarray, rgb):
         m = mask.astype(np.float32)
@@ -208,7 +207,7 @@ def occluders(kinds, lm: np.ndarray, shape: tuple[int, int], rng) -> tuple[np.nd
     if "glasses" in kinds:
         frame = np.zeros((H, W), np.uint8)
         t = max(2, int(0.06 * iod))
-        centres = [lm[36:42].mean(0), lm[42:48].mean(0)]
+        centres = [lm[RIGHT_EYE].mean(0), lm[LEFT_EYE].mean(0)]
         for c in centres:
             cv2.ellipse(frame, (int(c[0]), int(c[1] + 0.05 * iod)), (int(0.36 * iod), int(0.25 * iod)), 0, 0, 360, 1, t)
         cv2.line(frame, (int(centres[0][0] + 0.36 * iod), int(centres[0][1])), (int(centres[1][0] - 0.36 * iod), int(centres[1][1])), 1, t)
@@ -263,13 +262,6 @@ def seam_pairs(model) -> np.ndarray:
         if e - s >= 2:
             out.append(model.uv[pairs[[s, s + 1], 1]])
     return np.asarray(out, np.float32)
-
-
-def sample_uv(tex: np.ndarray, uv: np.ndarray) -> np.ndarray:
-    S = tex.shape[0]
-    x = (uv[:, 0] * S - 0.5).astype(np.float32)[None]
-    y = ((1 - uv[:, 1]) * S - 0.5).astype(np.float32)[None]
-    return cv2.remap(tex, x, y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)[0]
 
 
 def metrics(albedo, truth, skin, occluded, occ_albedo, m_vis, pairs, blur: float, cover: np.ndarray,
@@ -391,7 +383,7 @@ def main(argv=None) -> int:
         texture, factor = shaded_texture(model, vertices_cam, raster, truth, np.asarray(light, np.float32))
         view = render(vertices_cam, model, camera, texture=texture, background=(0.42, 0.45, 0.5))
         lm88 = np.asarray(project(shape[model.landmark_indices].astype(np.float64), R, t, camera), np.float32)
-        lm = lm88[:68]
+        lm = lm88[IBUG68]
         occ_rgb, occ_a = occluders(kinds, np.asarray(lm), (PHOTO, PHOTO), rng)
         photo_f = view.image * (1 - occ_a[..., None]) + occ_rgb * occ_a[..., None]
         photo = np.clip(np.round(photo_f * 255), 0, 255).astype(np.uint8)

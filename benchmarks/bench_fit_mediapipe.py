@@ -31,8 +31,9 @@ from facegeo import Camera, load_model, load_photo  # noqa: E402
 from facegeo.fitting import LandmarkStage, fit_landmarks  # noqa: E402
 from facegeo.landmarks import get_detector  # noqa: E402
 from facegeo.landmarks.mediapipe_mesh import MEDIAPIPE_TO_IBUG68, MediaPipeFaceMesh  # noqa: E402
+from facegeo.landmarks.scheme import INNER_FACE  # noqa: E402
 
-POINTS = np.arange(17, 68)
+POINTS = INNER_FACE
 
 
 def mediapipe_camera_space(mesh: np.ndarray, camera: Camera, depth: float) -> np.ndarray:

@@ -32,6 +32,7 @@ from fit_validation import CAMERA, make_faces  # noqa: E402
 from sample_photos import sample_photos  # noqa: E402
 
 import facegeo.fitting as fitting  # noqa: E402
+from facegeo.landmarks.scheme import IBUG68  # noqa: E402
 from facegeo import Camera, detect_landmarks, load_model, load_photo  # noqa: E402
 
 
@@ -63,7 +64,7 @@ def time_eos(items) -> list[float] | None:
         return None
     with tempfile.TemporaryDirectory() as tmp:
         spec = Path(tmp) / "landmarks.json"
-        spec.write_text(json.dumps([{"points": p[:68].tolist(), "width": c.width, "height": c.height} for _, p, c in items]))
+        spec.write_text(json.dumps([{"points": p[IBUG68].tolist(), "width": c.width, "height": c.height} for _, p, c in items]))
         script = Path(__file__).resolve().parent / "eos_timing.py"
         out = subprocess.run([python, str(script), str(spec)], capture_output=True, text=True, check=True).stdout
     return json.loads(out)

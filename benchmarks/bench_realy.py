@@ -1,6 +1,6 @@
 """REALY evaluation: time per subject of facegeo against the official REALY code, same inputs.
 
-Builds synthetic REALY data sets (facegeo.eval.realy_synthetic: 3 subjects each, regions of
+Builds synthetic REALY data sets (tools/realy_synthetic.py: 3 subjects each, regions of
 about 600-1600 vertices with ``--subdivisions 0`` and 2300-6200 with ``1``) and, in one run so
 that the machine's load is shared alike:
 
@@ -226,7 +226,8 @@ def main(argv: list[str] | None = None) -> None:
     from facegeo.eval.realy import evaluate
     from facegeo.eval.realy_align import Settings
     from facegeo.eval.realy_io import read_obj
-    from facegeo.eval.realy_synthetic import make_dataset
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tools"))
+    from realy_synthetic import make_dataset
 
     threadpool_limits(1)  # one core per worker, in the 1-worker run too
     have_official = (args.official_src / "main.py").is_file() and args.official_python.is_file()

@@ -30,7 +30,7 @@ import torch
 
 from facegeo import Camera, MorphableModel, project
 from facegeo.camera import rotation_from_euler
-from facegeo.landmarks.scheme import LANDMARK_WEIGHTS, inter_ocular_distance
+from facegeo.landmarks.scheme import BROWS, EYES, LANDMARK_WEIGHTS, LIP_POINTS, MOUTH, NOSE, inter_ocular_distance
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
 from test_fitting import similarity_align  # noqa: E402  (one definition of the 3D alignment)
@@ -52,7 +52,7 @@ EXPRESSIONS: dict[str, list[tuple[str, float, float]]] = {
 }
 #: iBUG points whose depth relative to the nose tip (30) is checked: upper lip, lower lip, chin.
 DEPTH_POINTS = {"upper lip": 51, "lower lip": 57, "chin": 8}
-_GROUPS = [range(17, 27), range(36, 48), range(27, 36), range(48, 68), range(68, 88)]
+_GROUPS = [BROWS, EYES, NOSE, MOUTH, LIP_POINTS]
 
 
 @dataclass

@@ -62,7 +62,7 @@ def relief_effect(asset, fit, model, size: int = 1024) -> float:
     import torch
 
     from facegeo.colour import linear_to_srgb, srgb_to_linear
-    from facegeo.fitting import skin_vertex_mask
+    from facegeo.skin_mask import skin_vertex_mask
     from facegeo.texturing.context import surface_operators
     from facegeo.texturing.shading import shade_ggx
     from facegeo.uv import geometry_maps, rasterize_uv

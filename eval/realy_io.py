@@ -1,10 +1,13 @@
 """Files of the REALY protocol: OBJ meshes, barycentric keypoint files, the metrical scales.
 
-The readers follow what the official REALY code reads, because the numbers depend on it:
-vertex coordinates are parsed as float64 and stored as **float32**; a quad ``a b c d`` becomes
-the triangles ``(a, b, c), (a, c, d)`` in file order; ``f`` tokens may be ``v``, ``v/vt`` or
-``v/vt/vn`` (only ``v`` is used). Where the official reader would silently do something odd, these
-raise :class:`~facegeo.errors.InputError` instead: polygons with more than four corners (the
+The readers follow what the official REALY code reads, because the numbers depend on it. These
+are the official reader's quirks, kept on purpose (everything else, finding the ``v`` and ``f``
+lines of a file, is :func:`facegeo.mesh_io.obj_records`, and REALY-format files are written with
+:func:`facegeo.mesh_io.obj_text`): vertex coordinates are parsed as float64 and stored as
+**float32**; a quad ``a b c d`` becomes the triangles ``(a, b, c), (a, c, d)`` in file order;
+``f`` tokens may be ``v``, ``v/vt`` or ``v/vt/vn`` (only ``v`` is used; ``vt`` lines are
+ignored). Where the official reader would silently do something odd, these raise
+:class:`~facegeo.errors.InputError` instead: polygons with more than four corners (the
 official reader drops them), non-numeric or non-finite coordinates, and face indices that are
 zero, negative or past the last vertex.
 
@@ -23,6 +26,7 @@ from pathlib import Path
 import numpy as np
 
 from facegeo.errors import InputError
+from facegeo.mesh_io import obj_records
 
 __all__ = [
     "Mesh",
@@ -31,7 +35,6 @@ __all__ = [
     "read_keypoint_file",
     "barycentric_points",
     "read_metrical_scales",
-    "obj_text",
 ]
 
 
@@ -47,19 +50,6 @@ class Mesh:
     triangles: np.ndarray  # (F, 3) int64, 0-based
 
 
-def _text(path: Path, what: str) -> str:
-    """The file's text with its lines ended by '\n' (as ``str.splitlines`` would split them)."""
-    try:
-        text = path.read_text(encoding="utf-8", errors="replace")
-    except FileNotFoundError:
-        raise InputError(path, what, "an existing OBJ file", "no such file") from None
-    except OSError as exc:
-        raise InputError(path, what, "a readable OBJ file", exc.strerror or str(exc)) from None
-    if "\r" in text or any(c in text for c in "\x0b\x0c\x1c\x1d\x1e\x85\u2028\u2029"):
-        text = "\n".join(text.splitlines())
-    return text
-
-
 def _tokens_per_line(lines: list[str]) -> np.ndarray:
     """(L,) number of blank-separated tokens of each line (``len(line.split())``), vectorised."""
     data = np.frombuffer(("\n".join(lines) + "\n").encode("utf-8", "replace"), dtype=np.uint8)
@@ -73,15 +63,11 @@ def _tokens_per_line(lines: list[str]) -> np.ndarray:
 def read_obj(path: str | Path, what: str = "mesh", need_faces: bool = True) -> Mesh:
     """Read an OBJ's ``v`` and ``f`` lines the way the official REALY reader does (see module doc)."""
     path = Path(path)
-    text = _text(path, what)
-    # the 'v ' and 'f ' lines without their first two characters
-    lines = text.split("\n")
-    verts = [raw[2:] for raw in lines if raw.startswith("v ")]
-    face_lines = [raw[2:] for raw in lines if raw.startswith("f ")]
-    vertices = _parse_vertices(path, what, verts)
-    faces = _parse_faces_fast(face_lines)
+    records = obj_records(path, what)
+    vertices = _parse_vertices(path, what, records["v"])
+    faces = _parse_faces_fast(records["f"])
     if faces is None:  # something unusual: line by line, for the message naming the line
-        faces = _parse_faces(path, what, lines)
+        faces = _parse_faces(path, what, records["f"], records["f_line"])
     if need_faces and not len(faces):
         raise InputError(path, what, "a mesh with faces ('f' lines)", "no faces")
     triangles = np.asarray(faces, dtype=np.int64).reshape(-1, 3) - 1
@@ -126,17 +112,15 @@ def _parse_faces_fast(face_lines: list[str]) -> np.ndarray | None:
     return out
 
 
-def _parse_faces(path: Path, what: str, lines: list[str]) -> list[list[int]]:
+def _parse_faces(path: Path, what: str, rows: list[str], numbers: list[int]) -> list[list[int]]:
     faces: list[list[int]] = []
-    for number, raw in enumerate(lines, 1):
-        if not raw.startswith("f "):
-            continue
-        tokens = raw.split()[1:]
+    for number, raw in zip(numbers, rows):
+        tokens = raw.split()
         try:
             idx = [int(t.split("/", 1)[0]) for t in tokens]
         except ValueError:
             raise InputError(path, f"{what} face on line {number}", "integer vertex indices",
-                             repr(raw.strip()[:60])) from None
+                             repr(f"f {raw}".strip()[:60])) from None
         if len(idx) == 3:
             faces.append(idx)
         elif len(idx) == 4:
@@ -176,8 +160,7 @@ def _parse_vertices(path: Path, what: str, lines: list[str]) -> np.ndarray:
 def read_points_obj(path: str | Path, what: str = "keypoints", count: int | None = None) -> np.ndarray:
     """The ``v`` lines of an OBJ as (N, 3) float32 (REALY's per-subject keypoint files)."""
     path = Path(path)
-    verts = [raw[2:] for raw in _text(path, what).split("\n") if raw.startswith("v ")]
-    points = _parse_vertices(path, what, verts)
+    points = _parse_vertices(path, what, obj_records(path, what)["v"])
     if count is not None and len(points) != count:
         raise InputError(path, what, f"{count} points", str(len(points)))
     return points
@@ -227,24 +210,3 @@ def read_metrical_scales(path: str | Path) -> np.ndarray:
     if scales.ndim != 1 or not np.isfinite(scales).all() or np.any(scales <= 0):
         raise InputError(path, "metrical scale file", "one positive number per line", "other values")
     return scales
-
-
-def obj_text(vertices: np.ndarray, triangles: np.ndarray | None = None, quads: bool = False) -> str:
-    """A plain OBJ: ``v`` lines (6 decimals) and 1-based ``f`` lines.
-
-    With ``quads=True`` consecutive triangle pairs ``(a, b, c), (a, c, d)`` are written as the
-    quad ``a b c d`` (which reads back to the same two triangles); other triangles stay triangles.
-    """
-    lines = [f"v {x:.6f} {y:.6f} {z:.6f}" for x, y, z in np.asarray(vertices, dtype=np.float64)]
-    if triangles is not None:
-        t = np.asarray(triangles, dtype=np.int64) + 1
-        i = 0
-        while i < len(t):
-            a, b, c = t[i]
-            if quads and i + 1 < len(t) and t[i + 1][0] == a and t[i + 1][1] == c:
-                lines.append(f"f {a} {b} {c} {t[i + 1][2]}")
-                i += 2
-                continue
-            lines.append(f"f {a} {b} {c}")
-            i += 1
-    return "\n".join(lines) + "\n"

@@ -36,10 +36,10 @@ from facegeo.asset import MAP_CHANNELS, MAP_NAMES, Asset
 from facegeo.errors import InputError
 from facegeo.export.textures import decode_map, encode_map
 from facegeo.image_files import png_bytes, read_png
-from facegeo.mesh_io import obj_text
+from facegeo.mesh_io import obj_text, read_obj
 from facegeo.staged_output import StagedOutput
 
-__all__ = ["save_asset", "write_asset_files", "load_asset", "read_obj", "ASSET_FILE", "ASSET_FORMAT", "ASSET_VERSION"]
+__all__ = ["save_asset", "write_asset_files", "load_asset", "ASSET_FILE", "ASSET_FORMAT", "ASSET_VERSION"]
 
 ASSET_FILE = "asset.json"
 ASSET_FORMAT = "facegeo-asset"
@@ -196,56 +196,3 @@ def _read_surface(root: Path, meta_path: Path, doc: dict[str, Any], where: str) 
     constants = doc.get("constants", {}) or {}
     return {"vertices": vertices, "triangles": triangles, "uv": uv, "uv_triangles": uv_triangles,
             "maps": maps, "constants": constants}
-
-
-def read_obj(path: str | os.PathLike[str]) -> tuple[np.ndarray, np.ndarray, np.ndarray | None, np.ndarray | None]:
-    """Read a triangle OBJ: ``(vertices (V, 3) float64, triangles (F, 3), uv (T, 2) | None,
-    uv_triangles (F, 3) | None)``. Faces are ``f v``, ``f v/vt`` or ``f v/vt/vn`` (1-based or
-    negative indices); normals, groups and materials are ignored.
-
-    Raises:
-        InputError: a missing file, a polygon that is not a triangle, or malformed numbers.
-    """
-    p = Path(path)
-    try:
-        lines = p.read_text().splitlines()
-    except FileNotFoundError:
-        raise InputError(p, "mesh", "an OBJ file", "no such file") from None
-    except (OSError, UnicodeDecodeError) as exc:
-        raise InputError(p, "mesh", "a readable text OBJ file", str(exc)) from None
-    v_rows, vt_rows, f_rows = [], [], []
-    for line in lines:
-        if line.startswith("v "):
-            v_rows.append(line[2:])
-        elif line.startswith("vt "):
-            vt_rows.append(line[3:])
-        elif line.startswith("f "):
-            f_rows.append(line[2:])
-    try:
-        vertices = np.array([row.split()[:3] for row in v_rows], dtype=np.float64).reshape(-1, 3)
-        uv = np.array([row.split()[:2] for row in vt_rows], dtype=np.float64).reshape(-1, 2) if vt_rows else None
-    except ValueError as exc:
-        raise InputError(p, "v/vt", "numbers", str(exc)) from None
-    if len(vertices) == 0 or not f_rows:
-        raise InputError(p, "mesh", "vertices (v) and faces (f)", f"{len(vertices)} vertices, {len(f_rows)} faces")
-    corners = []
-    for k, row in enumerate(f_rows):
-        parts = row.split()
-        if len(parts) != 3:
-            raise InputError(p, f"face {k + 1}", "a triangle", f"{len(parts)} corners")
-        corners.append([c.split("/") for c in parts])
-    try:
-        vi = np.array([[int(c[0]) for c in face] for face in corners], dtype=np.int64)
-        has_vt = uv is not None and all(len(c) > 1 and c[1] for face in corners for c in face)
-        ti = np.array([[int(c[1]) for c in face] for face in corners], dtype=np.int64) if has_vt else None
-    except ValueError as exc:
-        raise InputError(p, "f", "integer indices", str(exc)) from None
-    triangles = np.where(vi < 0, vi + len(vertices), vi - 1)
-    if triangles.min() < 0 or triangles.max() >= len(vertices):
-        raise InputError(p, "f", f"vertex indices in [1, {len(vertices)}]")
-    if ti is None:
-        return vertices, triangles, None, None
-    uv_triangles = np.where(ti < 0, ti + len(uv), ti - 1)
-    if uv_triangles.min() < 0 or uv_triangles.max() >= len(uv):
-        raise InputError(p, "f", f"texture indices in [1, {len(uv)}]")
-    return vertices, triangles, uv, uv_triangles

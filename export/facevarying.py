@@ -11,10 +11,13 @@ A face-varying mesh is four arrays (DESIGN.md, "Conventions"):
 The pair (vertex index, UV index) of a triangle corner is a *wedge*. Formats that have one
 attribute set per vertex (glTF, trimesh) get one output vertex per wedge.
 
-A :class:`trimesh.Trimesh` stores seams by duplicating vertices; :func:`from_trimesh` welds
+The functions of ``facegeo.export`` take and return an :class:`~facegeo.asset.Asset` (the
+project's mesh type, with its maps) or these arrays (:class:`FaceVaryingMesh`), never a third
+party's type: trimesh is reached only through the two conversions here. A
+:class:`trimesh.Trimesh` stores seams by duplicating vertices; :func:`from_trimesh` welds
 vertices at exactly the same position back into one geometry vertex (so the result is watertight
 again) and keeps each duplicate's UV as a face-varying UV. Vertices that sit at the same position
-but were meant to stay apart are welded too: pass an :class:`~facegeo.asset.Asset` to keep an
+but were meant to stay apart are welded too: keep an :class:`~facegeo.asset.Asset` to keep an
 exact topology.
 """
 
@@ -27,6 +30,7 @@ import numpy as np
 
 from facegeo.asset import Asset
 from facegeo.errors import InputError
+from facegeo.normals import vertex_normals
 
 __all__ = ["FaceVaryingMesh", "as_face_varying", "wedges", "to_trimesh", "from_trimesh"]
 
@@ -72,20 +76,15 @@ class FaceVaryingMesh:
                 raise InputError(source, "uv_triangles", f"shape {f.shape} with indices in [0, {len(uv)})", str(ut.shape))
 
 
-def as_face_varying(mesh: Any, source: str = "<mesh>") -> FaceVaryingMesh:
-    """The face-varying arrays of an :class:`Asset`, a :class:`FaceVaryingMesh` or a
-    :class:`trimesh.Trimesh` (welded by :func:`from_trimesh`)."""
+def as_face_varying(mesh: Asset | FaceVaryingMesh, source: str = "<mesh>") -> FaceVaryingMesh:
+    """The face-varying arrays of an :class:`Asset` or a :class:`FaceVaryingMesh` (a
+    :class:`trimesh.Trimesh` goes through :func:`from_trimesh` first)."""
     if isinstance(mesh, FaceVaryingMesh):
         return mesh
     if isinstance(mesh, Asset):
         return FaceVaryingMesh(mesh.vertices, mesh.triangles, mesh.uv, mesh.uv_triangles)
-    try:
-        import trimesh
-    except ImportError:  # pragma: no cover - trimesh is a dependency
-        trimesh = None
-    if trimesh is not None and isinstance(mesh, trimesh.Trimesh):
-        return from_trimesh(mesh)
-    raise InputError(source, "mesh", "a facegeo Asset or a trimesh.Trimesh", type(mesh).__name__)
+    raise InputError(source, "mesh", "a facegeo Asset or FaceVaryingMesh (a trimesh.Trimesh: facegeo.export.from_trimesh)",
+                     type(mesh).__name__)
 
 
 def wedges(triangles: np.ndarray, uv_triangles: np.ndarray | None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -129,21 +128,17 @@ def from_trimesh(mesh: Any) -> FaceVaryingMesh:
     return FaceVaryingMesh(welded, triangles, np.asarray(uv, dtype=np.float64), faces)
 
 
-def to_trimesh(mesh: Any, normals: np.ndarray | None = None, material: Any = None) -> Any:
+def to_trimesh(mesh: Asset | FaceVaryingMesh, normals: np.ndarray | None = None, material: Any = None) -> Any:
     """A :class:`trimesh.Trimesh` with one vertex per wedge, UVs in ``visual.uv`` and smooth
     vertex normals (one per geometry vertex, so seams do not show in shading).
 
     ``mesh`` is an :class:`Asset` (its albedo map, if any, becomes the material's base colour
-    texture), a :class:`FaceVaryingMesh` or a Trimesh (returned as a copy). ``normals``: (V, 3)
-    per geometry vertex; default: area-weighted normals. ``process=False`` keeps the order.
+    texture) or a :class:`FaceVaryingMesh`. ``normals``: (V, 3)
+    per geometry vertex; default :func:`facegeo.normals.vertex_normals`. ``process=False`` keeps the order.
     """
     import trimesh
     from trimesh.visual import TextureVisuals
 
-    from facegeo.export.displacement import vertex_normals
-
-    if isinstance(mesh, trimesh.Trimesh):
-        return mesh.copy()
     fv = as_face_varying(mesh)
     if normals is None:
         normals = vertex_normals(fv.vertices, fv.triangles)

@@ -44,12 +44,12 @@ from typing import Any, Iterable
 
 import numpy as np
 
-from facegeo.asset import Asset
+from facegeo.asset import SPECULAR_F0_SCALE, Asset
 from facegeo.colour import linear_to_srgb, srgb_to_linear
 from facegeo.errors import InputError
 from facegeo.export.facevarying import wedges
 from facegeo.export.scene import SceneContents, scene_contents
-from facegeo.export.textures import DEFAULT_ROUGHNESS, SPECULAR_F0_SCALE, encode_map
+from facegeo.export.textures import DEFAULT_ROUGHNESS, encode_map
 from facegeo.image_files import png_bytes, to_uint
 from facegeo.staged_output import atomic_write_bytes
 

@@ -15,7 +15,8 @@ import numpy as np
 
 from facegeo.asset import Asset
 from facegeo.errors import InputError
-from facegeo.export.displacement import bake_displacement, vertex_normals
+from facegeo.export.displacement import bake_displacement
+from facegeo.normals import vertex_normals
 from facegeo.export.facevarying import FaceVaryingMesh
 from facegeo.export.subdivision import subdivide_arrays
 from facegeo.export.textures import MaterialInput, material_inputs

@@ -40,14 +40,12 @@ non-manifold vertices (a bow tie) are kept in place.
 
 from __future__ import annotations
 
-from typing import Any
-
 import numpy as np
 import scipy.sparse as sp
 
 from facegeo.asset import Asset
 from facegeo.errors import InputError
-from facegeo.export.facevarying import FaceVaryingMesh, as_face_varying, to_trimesh
+from facegeo.export.facevarying import FaceVaryingMesh, as_face_varying
 
 __all__ = ["subdivide", "subdivide_arrays", "UV_INTERPOLATIONS", "MAX_LEVEL"]
 
@@ -57,14 +55,13 @@ UV_INTERPOLATIONS = ("surface", "linear")
 MAX_LEVEL = 6
 
 
-def subdivide(mesh: Any, level: int, *, uv_interpolation: str = "surface") -> Any:
+def subdivide(mesh: Asset | FaceVaryingMesh, level: int, *, uv_interpolation: str = "surface") -> Asset | FaceVaryingMesh:
     """Loop-subdivide ``mesh`` ``level`` times, UV layer included.
 
     ``mesh``: an :class:`~facegeo.asset.Asset` (returns an Asset with the same maps, constants
-    and name; ``metadata["subdivision_level"]`` is increased by ``level``), a
-    :class:`trimesh.Trimesh` (welded by position, returned as a Trimesh with one vertex per
-    (vertex, UV) pair, UVs in ``visual.uv``, its material kept) or a
-    :class:`~facegeo.export.facevarying.FaceVaryingMesh`. Each level multiplies the triangles by
+    and name; ``metadata["subdivision_level"]`` is increased by ``level``) or a
+    :class:`~facegeo.export.facevarying.FaceVaryingMesh` (returns one; a Trimesh goes through
+    :func:`~facegeo.export.facevarying.from_trimesh` and back with ``to_trimesh``). Each level multiplies the triangles by
     four; level 0 returns the mesh unchanged. See the module text for the rules.
 
     Raises:
@@ -79,11 +76,7 @@ def subdivide(mesh: Any, level: int, *, uv_interpolation: str = "surface") -> An
         metadata = dict(mesh.metadata)
         metadata["subdivision_level"] = int(metadata.get("subdivision_level", 0)) + int(level)
         return Asset(v, f, uv, ut, maps=dict(mesh.maps), constants=dict(mesh.constants), name=mesh.name, metadata=metadata)
-    out = FaceVaryingMesh(v, f, uv, ut)
-    if isinstance(mesh, FaceVaryingMesh):
-        return out
-    material = getattr(getattr(mesh, "visual", None), "material", None)
-    return to_trimesh(out, material=material)
+    return FaceVaryingMesh(v, f, uv, ut)
 
 
 def subdivide_arrays(

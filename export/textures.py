@@ -32,8 +32,6 @@ __all__ = [
     "MaterialInput",
     "material_inputs",
     "DEFAULT_ROUGHNESS",
-    "DEFAULT_SPECULAR",
-    "SPECULAR_F0_SCALE",
     "encode_map",
     "decode_map",
 ]
@@ -41,10 +39,6 @@ __all__ = [
 #: Roughness written when the asset has none (UsdPreviewSurface's default; glTF's is 1.0, so the
 #: glTF writer writes it explicitly).
 DEFAULT_ROUGHNESS = 0.5
-#: Specular level when the asset has none: F0 = 0.04, the default of both formats (IOR 1.5).
-DEFAULT_SPECULAR = 0.5
-#: F0 = SPECULAR_F0_SCALE × specular (the Disney/Blender "specular" convention of the Asset).
-SPECULAR_F0_SCALE = 0.08
 
 _FLAT_TOLERANCE = {"albedo": 0.5 / 255, "normal": 0.5 / 255, "roughness": 0.5 / 255, "specular": 0.5 / 255, "displacement": 1e-3}
 

@@ -56,11 +56,11 @@ from typing import Any, Iterable
 
 import numpy as np
 
-from facegeo.asset import Asset
+from facegeo.asset import SPECULAR_F0_SCALE, Asset
 from facegeo.colour import srgb_to_linear
 from facegeo.errors import InputError, OutputError
 from facegeo.export.scene import SceneContents, scene_contents
-from facegeo.export.textures import DEFAULT_ROUGHNESS, SPECULAR_F0_SCALE, encode_map
+from facegeo.export.textures import DEFAULT_ROUGHNESS, encode_map
 from facegeo.image_files import png_bytes
 from facegeo.staged_output import WRITE_FAULTS, StagedOutput, atomic_write_bytes
 

@@ -35,12 +35,15 @@ import numpy as np
 
 from facegeo.errors import InputError
 
-__all__ = ["Asset", "MAP_NAMES", "MAP_CHANNELS", "PART_CHOICES"]
+__all__ = ["Asset", "MAP_NAMES", "MAP_CHANNELS", "PART_CHOICES", "SPECULAR_F0_SCALE"]
 
 #: The map names, in the order the exporters and the CLI list them.
 MAP_NAMES = ("albedo", "normal", "roughness", "specular", "displacement")
 #: Channels of each map (1 means a 2-D (H, W) array).
 MAP_CHANNELS = {"albedo": 3, "normal": 3, "roughness": 1, "specular": 1, "displacement": 1}
+#: F0 = SPECULAR_F0_SCALE × specular: the Disney/Blender "specular" level of the maps (non-metallic
+#: skin; the shader, the USD and the glTF writers all read it from here).
+SPECULAR_F0_SCALE = 0.08
 #: What a scene holds (:meth:`Asset.select`): the face region of the skin, all the skin, or the
 #: skin and every part (eyes, mouth interior).
 PART_CHOICES = ("face", "head", "full")

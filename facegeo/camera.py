@@ -24,6 +24,7 @@ import torch
 __all__ = [
     "Camera",
     "project",
+    "to_pixels",
     "rotation_from_axis_angle",
     "rotation_from_euler",
     "euler_from_rotation",
@@ -109,11 +110,21 @@ def project(
     else:  # NumPy in, NumPy out, computed in float64 without a round trip through torch
         xp = np
         p, r, t = (np.asarray(a, dtype=np.float64) for a in (points, rotation, translation))
-    cam = p @ xp.swapaxes(r, -1, -2) + t[..., None, :]
-    depth = xp.clip(-cam[..., 2], 1e-6, None)
-    u = camera.cx + camera.focal * cam[..., 0] / depth
-    v = camera.cy - camera.focal * cam[..., 1] / depth
-    return xp.stack([u, v], axis=-1)
+    return to_pixels(p @ xp.swapaxes(r, -1, -2) + t[..., None, :], camera)
+
+
+def to_pixels(points_cam: torch.Tensor | np.ndarray, camera: Camera) -> torch.Tensor | np.ndarray:
+    """The pinhole of the module docstring, the one implementation of the projection (:func:`project`
+    poses points, then calls it): (..., N, 3) camera-space points (mm) -> (..., N, 2) pixels (u right,
+    v down), in the input's type and float dtype (differentiable for tensors).
+
+    Reads only ``camera.focal``, ``cx`` and ``cy`` (floats, or tensors that broadcast). Depths are
+    clamped to ≥ 1e-6 mm, so points at or behind the camera plane stay finite; callers that must
+    skip them test the depth themselves.
+    """
+    xp = torch if isinstance(points_cam, torch.Tensor) else np
+    scale = camera.focal / xp.clip(-points_cam[..., 2], 1e-6, None)  # pixels per mm at that depth
+    return xp.stack([camera.cx + points_cam[..., 0] * scale, camera.cy - points_cam[..., 1] * scale], axis=-1)
 
 
 def rotation_from_axis_angle(axis_angle: torch.Tensor) -> torch.Tensor:

@@ -1,10 +1,21 @@
-"""sRGB transfer functions (IEC 61966-2-1) and luminance; NumPy, any shape, float32."""
+"""sRGB transfer functions (IEC 61966-2-1) and luminance: the one home of the sRGB curves.
+
+NumPy (float32, any shape) for I/O and the texture stage; :func:`srgb_to_linear_slope` (float64,
+with the derivative) for linearising model files; the ``*_torch`` twins (differentiable, any
+shape; torch is not imported here: they use tensor methods only) for losses.
+"""
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import numpy as np
 
-__all__ = ["srgb_to_linear", "linear_to_srgb", "luminance"]
+if TYPE_CHECKING:
+    import torch
+
+__all__ = ["srgb_to_linear", "linear_to_srgb", "srgb_to_linear_slope", "srgb_to_linear_torch", "linear_to_srgb_torch",
+           "luminance"]
 
 
 def srgb_to_linear(srgb: np.ndarray) -> np.ndarray:
@@ -17,6 +28,29 @@ def linear_to_srgb(linear: np.ndarray) -> np.ndarray:
     """Encode linear RGB (values ≥ 0; clipped to [0, 1]) to sRGB in [0, 1] (float32)."""
     x = np.clip(np.asarray(linear, dtype=np.float32), 0.0, 1.0)
     return np.where(x <= 0.0031308, 12.92 * x, 1.055 * x ** (1 / 2.4) - 0.055).astype(np.float32)
+
+
+def srgb_to_linear_slope(srgb: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Linear values and the derivative d(linear)/d(sRGB), both float64, for sRGB clipped to [0, 1]."""
+    s = np.clip(np.asarray(srgb, dtype=np.float64), 0.0, 1.0)
+    low = s <= 0.04045
+    lin = np.where(low, s / 12.92, ((s + 0.055) / 1.055) ** 2.4)
+    slope = np.where(low, 1.0 / 12.92, 2.4 / 1.055 * ((s + 0.055) / 1.055) ** 1.4)
+    return lin, slope
+
+
+def srgb_to_linear_torch(s: "torch.Tensor") -> "torch.Tensor":
+    """The torch twin of :func:`srgb_to_linear` (not clamped at 1), differentiable, the tensor's dtype."""
+    return (s / 12.92).where(s <= 0.04045, ((s.clamp_min(0.0) + 0.055) / 1.055) ** 2.4)
+
+
+def linear_to_srgb_torch(x: "torch.Tensor", clip: bool = True) -> "torch.Tensor":
+    """The torch twin of :func:`linear_to_srgb`, differentiable. ``clip=False`` skips the clip to
+    [0, 1] (values above 1 follow the curve, negative ones its linear toe), so gradients pass for
+    overshoot too."""
+    if clip:
+        x = x.clamp(0.0, 1.0)
+    return (12.92 * x).where(x <= 0.0031308, 1.055 * x.clamp_min(0.0031308) ** (1 / 2.4) - 0.055)
 
 
 def luminance(linear: np.ndarray) -> np.ndarray:

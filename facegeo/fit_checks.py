@@ -35,7 +35,7 @@ import numpy as np
 
 from facegeo.camera import Camera
 from facegeo.errors import InputError, NoFaceError, check_finite
-from facegeo.landmarks.scheme import N_LANDMARKS, inter_ocular_distance
+from facegeo.landmarks.scheme import IBUG68, INNER_FACE, N_LANDMARKS, inter_ocular_distance
 
 if TYPE_CHECKING:  # facegeo.fitting imports this module
     from facegeo.fitting import Fit
@@ -79,7 +79,7 @@ def check_landmarks(targets: np.ndarray, camera: Camera) -> None:
         x, y = targets[np.flatnonzero(outside)[0]]
         raise InputError(_SOURCE, "landmarks", f"pixel coordinates within {MAX_OUTSIDE_IMAGE:g} image size of the "
                          f"{camera.width}x{camera.height} image", f"a point at ({x:.4g}, {y:.4g}) px")
-    inner = targets[17:68][valid[17:68]]
+    inner = targets[INNER_FACE][valid[INNER_FACE]]
     if len(inner) < 3:
         return  # fit_landmarks refuses fewer than 6 points itself
     centred = inner - inner.mean(axis=0)
@@ -118,7 +118,7 @@ def check_fit(result: Fit, image: Any) -> None:
                           "inter-ocular distance; a wrong detection, e.g. a turned face)", f"{percent:.3g} %")
     opacity = getattr(image, "opacity", None)
     if opacity is not None:
-        outline = cv2.convexHull(np.round(result.landmarks_fitted[:68] - 0.5).astype(np.int32))
+        outline = cv2.convexHull(np.round(result.landmarks_fitted[IBUG68] - 0.5).astype(np.int32))
         mask = np.zeros(opacity.shape, np.uint8)
         cv2.fillConvexPoly(mask, outline, 1)
         inside = opacity[mask.astype(bool)]

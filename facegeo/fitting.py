@@ -41,11 +41,13 @@ from facegeo.colour import srgb_to_linear
 from facegeo.errors import InputError
 from facegeo.fit_checks import check_fit, check_landmarks
 from facegeo.landmarks.detectors import FaceLandmarks, LandmarkDetector, get_detector
-from facegeo.landmarks.scheme import CHIN, LANDMARK_WEIGHTS, N_LANDMARKS, inter_ocular_distance
+from facegeo.landmarks.scheme import CHIN, INNER_FACE, LANDMARK_WEIGHTS, N_LANDMARKS, OUTER_EYE_CORNERS, inter_ocular_distance
 from facegeo.lighting import AMBIENT_WHITE, N_SH, sh_basis
 from facegeo.model_files import load_model
 from facegeo.morphable_model import MorphableModel
 from facegeo.photo import Photo, as_rgb_uint8, load_photo
+from facegeo.skin_mask import skin_vertex_mask
+from facegeo.uv.texels import sample_bilinear
 from facegeo.visibility import vertex_visibility
 
 __all__ = ["Fit", "Fitter", "fit", "fit_landmarks", "FitPriors", "DEFAULT_PRIORS", "LandmarkStage", "LANDMARK_SCHEDULE",
@@ -206,12 +208,13 @@ class Fitter(Protocol):
 # ---------------------------------------------------------------------------------- pose init
 def _initial_pose(model: MorphableModel, targets: np.ndarray, camera: Camera) -> tuple[np.ndarray, np.ndarray]:
     """(R (3,3), t (3,)) in OpenGL camera axes from solvePnP on the non-jaw iBUG points."""
-    ids = np.arange(17, 68)
+    ids = INNER_FACE
     ok = np.isfinite(targets[ids]).all(axis=1)
     obj = model.mean_shape[model.landmark_indices[ids[ok]]].astype(np.float64)
     img = targets[ids[ok]].astype(np.float64)
     K = camera.matrix()
-    iod_model = float(np.linalg.norm(model.mean_shape[model.landmark_indices[36]] - model.mean_shape[model.landmark_indices[45]]))
+    right, left = model.mean_shape[model.landmark_indices[OUTER_EYE_CORNERS]]
+    iod_model = float(np.linalg.norm(right - left))
     iod_image = max(inter_ocular_distance(targets), 1.0)
     fallback_t = np.array([0.0, 0.0, -camera.focal * iod_model / iod_image])
     if len(obj) >= 6:
@@ -510,8 +513,9 @@ def fit_landmarks(
     if targets.shape != (N_LANDMARKS, 2):
         raise InputError("<landmarks>", "landmarks", f"shape ({N_LANDMARKS}, 2) in pixels", str(targets.shape))
     valid = np.isfinite(targets).all(axis=1)
-    if valid[17:68].sum() < 6:
-        raise InputError("<landmarks>", "landmarks", "at least 6 finite non-jaw iBUG points", f"{int(valid[17:68].sum())}")
+    if valid[INNER_FACE].sum() < 6:
+        raise InputError("<landmarks>", "landmarks", "at least 6 finite non-jaw iBUG points",
+                         f"{int(valid[INNER_FACE].sum())}")
     weights = LANDMARK_WEIGHTS if weights is None else np.asarray(weights, dtype=np.float32)
     if weights.shape != (N_LANDMARKS,) or not np.all(np.isfinite(weights)) or np.any(weights < 0):
         raise InputError("<weights>", "weights", f"({N_LANDMARKS},) finite, non-negative", str(weights.shape))
@@ -611,24 +615,6 @@ def _assemble(
 
 
 # ---------------------------------------------------------------------------------- photometric
-def skin_vertex_mask(model: MorphableModel) -> np.ndarray:
-    """(V,) bool: the model's face region minus eyes (14 mm around iBUG 36–47), brows (9 mm
-    around 17–26) and lips (8 mm around 48–67), measured on the mean shape."""
-    mean = model.mean_shape
-    keep = model.face_mask.copy()
-    for points, radius in ((range(36, 48), 14.0), (range(17, 27), 9.0), (range(48, 68), 8.0)):
-        centres = mean[model.landmark_indices[list(points)]]
-        d2 = ((mean[:, None, :] - centres[None]) ** 2).sum(-1).min(axis=1)
-        keep &= d2 > radius * radius
-    return keep
-
-
-def _sample_bilinear(image: np.ndarray, uv: np.ndarray) -> np.ndarray:
-    """Colours (N, 3) of an (H, W, 3) float32 image at corner-origin pixel coordinates (N, 2)."""
-    maps = (uv.astype(np.float32) - 0.5).reshape(-1, 1, 2)
-    return cv2.remap(image, maps[..., 0], maps[..., 1], cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE).reshape(-1, 3)
-
-
 def _fit_photometric(model: MorphableModel, fit_result: Fit, image_linear: np.ndarray, rounds: int = 4) -> None:
     """Fit β and γ (in place on ``fit_result``) by alternating regularised least squares."""
     camera = fit_result.camera
@@ -642,7 +628,7 @@ def _fit_photometric(model: MorphableModel, fit_result: Fit, image_linear: np.nd
         fit_result.info["photometric"] = info
         return
     uv = project(fit_result.vertices[use].astype(np.float64), np.eye(3), np.zeros(3), camera)
-    observed = torch.from_numpy(_sample_bilinear(image_linear, uv)).double()
+    observed = torch.from_numpy(sample_bilinear(image_linear, uv)).double()
     basis = sh_basis(torch.from_numpy(normals[use]).double())  # (N, 9)
     mean_albedo = model.tensor("mean_albedo", torch.float64)[use]
     tex_basis = model.tensor("tex_basis", torch.float64)[:, use] if model.n_tex else None

@@ -1,40 +1,128 @@
-"""Wavefront OBJ output of a model mesh with its face-varying UVs.
+"""Wavefront OBJ reading and writing for the project (REALY's reader, with the official reader's
+quirks, is :mod:`facegeo.eval.realy_io`; it reads its lines with :func:`obj_records`).
 
 Written by hand rather than through trimesh: trimesh splits vertices along UV seams on export,
 which would break the one-to-one vertex order that REALY keypoint files and the model's landmark
-indices rely on. Here ``v`` lines keep the model's vertex order, ``vt`` lines the UV list, and
-faces reference both (``f v/vt``), 1-based as the format requires.
+indices rely on. Here ``v`` lines keep the model's vertex order, ``vt`` lines the UV list (origin
+bottom-left, as OBJ and DESIGN.md), and faces reference both (``f v/vt``), 1-based as the format
+requires.
 """
 
 from __future__ import annotations
 
 import io
+import os
 from pathlib import Path
 
 import numpy as np
 
-from facegeo.staged_output import atomic_write_text
+from facegeo.errors import InputError
 
-__all__ = ["obj_text", "write_obj"]
+__all__ = ["obj_text", "obj_records", "read_obj"]
+
+#: The first line of the meshes facegeo writes.
+OBJ_COMMENT = "# facegeo mesh: millimetres, +Y up, +Z out of the face\n"
 
 
-def obj_text(vertices: np.ndarray, triangles: np.ndarray, uv: np.ndarray | None = None, uv_triangles: np.ndarray | None = None) -> str:
-    """The OBJ text of (V, 3) mm vertices, (F, 3) triangles and optional (T, 2) UVs (origin
-    bottom-left, as OBJ) with (F, 3) UV triangles."""
+def obj_text(vertices: np.ndarray, triangles: np.ndarray | None = None, uv: np.ndarray | None = None,
+             uv_triangles: np.ndarray | None = None, *, digits: int = 5, comment: bool = True, quads: bool = False) -> str:
+    """The OBJ text of a mesh.
+
+    Args:
+        vertices: (V, 3) vertices (mm), written with ``digits`` decimals.
+        triangles: (F, 3) 0-based triangles, or None (a point set: ``v`` lines only).
+        uv, uv_triangles: optional (T, 2) UVs (6 decimals) and their (F, 3) triangles (``f v/vt``).
+        comment: start with :data:`OBJ_COMMENT`.
+        quads: write consecutive triangle pairs ``(a, b, c), (a, c, d)`` as the quad ``a b c d``
+            (which reads back to the same two triangles); not with UVs.
+    """
     vertices = np.asarray(vertices, dtype=np.float64)
-    triangles = np.asarray(triangles, dtype=np.int64)
     out = io.StringIO()
-    out.write("# facegeo mesh: millimetres, +Y up, +Z out of the face\n")
-    np.savetxt(out, vertices, fmt="v %.5f %.5f %.5f")
+    if comment:
+        out.write(OBJ_COMMENT)
+    np.savetxt(out, vertices, fmt=f"v %.{digits}f %.{digits}f %.{digits}f")
+    if triangles is None:
+        return out.getvalue()
+    t = np.asarray(triangles, dtype=np.int64) + 1
     if uv is not None and uv_triangles is not None:
         np.savetxt(out, np.asarray(uv, dtype=np.float64), fmt="vt %.6f %.6f")
-        faces = np.stack([triangles + 1, np.asarray(uv_triangles, dtype=np.int64) + 1], axis=-1).reshape(-1, 6)
+        faces = np.stack([t, np.asarray(uv_triangles, dtype=np.int64) + 1], axis=-1).reshape(-1, 6)
         np.savetxt(out, faces, fmt="f %d/%d %d/%d %d/%d")
+    elif quads:
+        i = 0
+        while i < len(t):
+            a, b, c = t[i]
+            if i + 1 < len(t) and t[i + 1][0] == a and t[i + 1][1] == c:
+                out.write(f"f {a} {b} {c} {t[i + 1][2]}\n")
+                i += 2
+                continue
+            out.write(f"f {a} {b} {c}\n")
+            i += 1
     else:
-        np.savetxt(out, triangles + 1, fmt="f %d %d %d")
+        np.savetxt(out, t, fmt="f %d %d %d")
     return out.getvalue()
 
 
-def write_obj(path: str | Path, vertices: np.ndarray, triangles: np.ndarray, uv: np.ndarray | None = None, uv_triangles: np.ndarray | None = None) -> None:
-    """Write :func:`obj_text` atomically to ``path``."""
-    atomic_write_text(Path(path), obj_text(vertices, triangles, uv, uv_triangles))
+def obj_records(path: str | os.PathLike[str], what: str = "mesh") -> dict[str, list]:
+    """The ``v``, ``vt`` and ``f`` lines of an OBJ file without their keyword (``{"v": [...],
+    "vt": [...], "f": [...]}``, in file order) and ``"f_line"``, the 1-based line number of each
+    ``f`` line (for messages); lines are split as ``str.splitlines`` does, bytes that are not UTF-8
+    are replaced. Raises :class:`InputError` (naming ``what``) for a missing or unreadable file."""
+    p = Path(path)
+    try:
+        text = p.read_text(encoding="utf-8", errors="replace")
+    except FileNotFoundError:
+        raise InputError(p, what, "an existing OBJ file", "no such file") from None
+    except OSError as exc:
+        raise InputError(p, what, "a readable OBJ file", exc.strerror or str(exc)) from None
+    records: dict[str, list] = {"v": [], "vt": [], "f": [], "f_line": []}
+    for number, line in enumerate(text.splitlines(), 1):
+        if line.startswith("v "):
+            records["v"].append(line[2:])
+        elif line.startswith("vt "):
+            records["vt"].append(line[3:])
+        elif line.startswith("f "):
+            records["f"].append(line[2:])
+            records["f_line"].append(number)
+    return records
+
+
+def read_obj(path: str | os.PathLike[str]) -> tuple[np.ndarray, np.ndarray, np.ndarray | None, np.ndarray | None]:
+    """Read a triangle OBJ: ``(vertices (V, 3) float64, triangles (F, 3), uv (T, 2) | None,
+    uv_triangles (F, 3) | None)``. Faces are ``f v``, ``f v/vt`` or ``f v/vt/vn`` (1-based or
+    negative indices); normals, groups and materials are ignored.
+
+    Raises:
+        InputError: a missing file, a polygon that is not a triangle, or malformed numbers.
+    """
+    p = Path(path)
+    records = obj_records(p)
+    v_rows, vt_rows, f_rows = records["v"], records["vt"], records["f"]
+    try:
+        vertices = np.array([row.split()[:3] for row in v_rows], dtype=np.float64).reshape(-1, 3)
+        uv = np.array([row.split()[:2] for row in vt_rows], dtype=np.float64).reshape(-1, 2) if vt_rows else None
+    except ValueError as exc:
+        raise InputError(p, "v/vt", "numbers", str(exc)) from None
+    if len(vertices) == 0 or not f_rows:
+        raise InputError(p, "mesh", "vertices (v) and faces (f)", f"{len(vertices)} vertices, {len(f_rows)} faces")
+    corners = []
+    for k, row in enumerate(f_rows):
+        parts = row.split()
+        if len(parts) != 3:
+            raise InputError(p, f"face {k + 1}", "a triangle", f"{len(parts)} corners")
+        corners.append([c.split("/") for c in parts])
+    try:
+        vi = np.array([[int(c[0]) for c in face] for face in corners], dtype=np.int64)
+        has_vt = uv is not None and all(len(c) > 1 and c[1] for face in corners for c in face)
+        ti = np.array([[int(c[1]) for c in face] for face in corners], dtype=np.int64) if has_vt else None
+    except ValueError as exc:
+        raise InputError(p, "f", "integer indices", str(exc)) from None
+    triangles = np.where(vi < 0, vi + len(vertices), vi - 1)
+    if triangles.min() < 0 or triangles.max() >= len(vertices):
+        raise InputError(p, "f", f"vertex indices in [1, {len(vertices)}]")
+    if ti is None:
+        return vertices, triangles, None, None
+    uv_triangles = np.where(ti < 0, ti + len(uv), ti - 1)
+    if uv_triangles.min() < 0 or uv_triangles.max() >= len(uv):
+        raise InputError(p, "f", f"texture indices in [1, {len(uv)}]")
+    return vertices, triangles, uv, uv_triangles

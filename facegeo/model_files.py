@@ -67,8 +67,11 @@ from typing import Any
 
 import numpy as np
 
+from facegeo.colour import srgb_to_linear_slope
 from facegeo.errors import ModelFileError
-from facegeo.morphable_model import LIP_LANDMARKS_FROM_IBUG, N_IBUG, MorphableModel
+from facegeo.landmarks.scheme import EYES, MOUTH, N_IBUG
+from facegeo.morphable_model import MorphableModel
+from facegeo.uv.texels import nearest_texel
 
 __all__ = [
     "load_model",
@@ -468,7 +471,7 @@ def _load_tencent(
             path, "keypoints", "68 (iBUG) or 86 (Tencent) vertex indices", f"{keypoints.size}"
         )
     _check_axes(path, mean, ibug)
-    landmark_indices = np.concatenate([ibug, ibug[LIP_LANDMARKS_FROM_IBUG]])
+    landmark_indices = np.concatenate([ibug, ibug[MOUTH]])  # the lip points re-use the mouth's vertices
 
     if "mask_face" in data:
         mask = _get(path, data, "mask_face", f"a (1, {n_vertices}) 0/1 array").reshape(-1)
@@ -541,7 +544,7 @@ def _outward_flux(vertices: np.ndarray, triangles: np.ndarray) -> float:
 
 def _check_axes(path: Path, mean: np.ndarray, ibug: np.ndarray) -> None:
     p = mean[ibug]
-    eyes_above_mouth = p[36:48, 1].mean() > p[48:68, 1].mean()
+    eyes_above_mouth = p[EYES, 1].mean() > p[MOUTH, 1].mean()
     nose_in_front = p[30, 2] > max(p[0, 2], p[16, 2])
     if not (eyes_above_mouth and nose_in_front):
         warnings.warn(
@@ -654,15 +657,6 @@ def _find_albedo(path: Path) -> Path | None:
     return None
 
 
-def _srgb_to_linear(s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Linear values and the derivative d(linear)/d(sRGB), for sRGB in [0, 1] (clipped)."""
-    s = np.clip(s, 0.0, 1.0)
-    low = s <= 0.04045
-    lin = np.where(low, s / 12.92, ((s + 0.055) / 1.055) ** 2.4)
-    slope = np.where(low, 1.0 / 12.92, 2.4 / 1.055 * ((s + 0.055) / 1.055) ** 1.4)
-    return lin, slope
-
-
 def _vertex_albedo(
     path: Path, n_vertices: int, triangles: np.ndarray, uv_triangles: np.ndarray, uv: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray]:
@@ -697,8 +691,7 @@ def _vertex_albedo(
 
     corners = np.unique(np.stack([triangles.reshape(-1), uv_triangles.reshape(-1)], axis=1), axis=0)
     vert, vt = corners[:, 0], corners[:, 1]
-    rows = np.clip(np.floor((1.0 - uv[vt, 1]) * size), 0, size - 1).astype(np.int64)
-    cols = np.clip(np.floor(uv[vt, 0] * size), 0, size - 1).astype(np.int64)
+    rows, cols = nearest_texel(uv[vt], size, size)
     sample = lookup[rows, cols]
     missing = sample < 0
     if np.any(missing):
@@ -726,5 +719,5 @@ def _vertex_albedo(
     basis_s[:, covered] /= counts[covered, None]
     if np.any(~covered) and np.any(covered):
         mean_s[~covered] = mean_s[covered].mean(axis=0)
-    mean_lin, slope = _srgb_to_linear(mean_s / scale)
+    mean_lin, slope = srgb_to_linear_slope(mean_s / scale)
     return mean_lin, basis_s / scale * slope[None]

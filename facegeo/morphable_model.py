@@ -16,15 +16,11 @@ import numpy as np
 import torch
 
 from facegeo.errors import ModelFileError
+from facegeo.landmarks.scheme import N_LANDMARKS
+from facegeo.normals import vertex_normals_torch
 
-__all__ = ["MorphableModel", "N_LANDMARKS", "N_IBUG", "LIP_LANDMARKS_FROM_IBUG", "EXPRESSION_KINDS"]
+__all__ = ["MorphableModel", "EXPRESSION_KINDS"]
 
-#: 68 iBUG points followed by 20 MediaPipe lip points (outer 12 + inner 8, iBUG order 48..67).
-N_IBUG = 68
-N_LANDMARKS = 88
-#: The lip points re-use the model correspondences of iBUG points 48..67 (same semantic points,
-#: detected by MediaPipe instead of dlib).
-LIP_LANDMARKS_FROM_IBUG = np.arange(48, 68)
 #: What the expression coefficients δ are (see :class:`MorphableModel`).
 EXPRESSION_KINDS = ("blendshape", "pca")
 
@@ -207,14 +203,9 @@ class MorphableModel:
         return out
 
     def vertex_normals(self, vertices: torch.Tensor) -> torch.Tensor:
-        """Area-weighted unit vertex normals of (..., V, 3) vertices -> (..., V, 3)."""
-        tri = self.tensor("triangles", torch.long)
-        a, b, c = vertices[..., tri[:, 0], :], vertices[..., tri[:, 1], :], vertices[..., tri[:, 2], :]
-        face_n = torch.cross(b - a, c - a, dim=-1)
-        normals = torch.zeros_like(vertices)
-        for k in range(3):
-            normals = normals.index_add(-2, tri[:, k], face_n)
-        return torch.nn.functional.normalize(normals, dim=-1, eps=1e-12)
+        """Unit vertex normals of (..., V, 3) vertices on the model's triangles -> (..., V, 3),
+        differentiable (:func:`facegeo.normals.vertex_normals_torch`)."""
+        return vertex_normals_torch(vertices, self.tensor("triangles", torch.long))
 
 
 def _dtype_of(*tensors: object) -> torch.dtype:

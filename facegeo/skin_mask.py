@@ -32,11 +32,17 @@ The mask is built from what runs offline here, in four parts:
 face's surface is seen) is what :func:`facegeo.uv.unwrap` folds into M_vis; ``facegeo unwrap``
 and ``facegeo reconstruct`` save it as ``skin_mask.png`` (:func:`skin_mask_image`: 255 = the face's
 own surface, 0 = occluded).
+
+The model's regions live here too (the one face-regions module), measured on the mean shape from
+its 68 landmark vertices (model space, mm, +Y up, +Z out of the face), so any topology with
+landmarks gets them: :func:`skin_vertex_mask` (the vertices the photometric fits trust) and
+:func:`vertex_regions` (the soft region masks of the texture stage's material priors).
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import cv2
 import numpy as np
@@ -44,9 +50,14 @@ import numpy as np
 from facegeo.colour import luminance, srgb_to_linear
 from facegeo.errors import NoFaceError
 from facegeo.hands import Hand, default_hand_detector, hand_mask
+from facegeo.landmarks import scheme as ibug
 from facegeo.photo import as_rgb_uint8
 
-__all__ = ["SkinMask", "FaceRegions", "skin_mask", "skin_mask_image", "DARK_FRACTION", "HALO_FRACTION", "LOCAL_DARK"]
+if TYPE_CHECKING:
+    from facegeo.morphable_model import MorphableModel
+
+__all__ = ["SkinMask", "FaceRegions", "skin_mask", "skin_mask_image", "DARK_FRACTION", "HALO_FRACTION", "LOCAL_DARK",
+           "skin_vertex_mask", "vertex_regions", "REGION_NAMES", "RAMP_MM"]
 
 # MediaPipe face-mesh contours (vertex indices of the 468-point canonical mesh, in order).
 FACE_OVAL = [10, 338, 297, 332, 284, 251, 389, 356, 454, 323, 361, 288, 397, 365, 379, 378, 400, 377, 152, 148,
@@ -93,12 +104,12 @@ class FaceRegions:
         """From 68 (or the hybrid 88) iBUG points in pixels, corner-origin convention (the fit's
         ``landmarks``). The oval's upper half is the brows raised by 60 % of the brow-to-chin
         height (no forehead points exist)."""
-        p = np.asarray(points, np.float32)[:68] - 0.5
-        up = 0.6 * (p[8, 1] - p[17:27, 1].mean())
-        forehead = p[26:16:-1] - np.array([0.0, up], np.float32)
+        p = np.asarray(points, np.float32)[ibug.IBUG68] - 0.5
+        up = 0.6 * (p[ibug.CHIN, 1] - p[ibug.BROWS, 1].mean())
+        forehead = p[ibug.BROWS[::-1]] - np.array([0.0, up], np.float32)
         brow_band = lambda b: np.concatenate([b - [0.0, 0.04 * up], b[::-1] + [0.0, 0.04 * up]])  # noqa: E731
-        return cls(np.concatenate([p[0:17], forehead]), (p[36:42], p[42:48]), (brow_band(p[17:22]), brow_band(p[22:27])),
-                   p[48:60], p[60:68])
+        return cls(np.concatenate([p[ibug.JAW], forehead]), (p[ibug.RIGHT_EYE], p[ibug.LEFT_EYE]),
+                   (brow_band(p[ibug.RIGHT_BROW]), brow_band(p[ibug.LEFT_BROW])), p[ibug.OUTER_LIP], p[ibug.INNER_LIP])
 
     @property
     def interocular(self) -> float:
@@ -258,3 +269,68 @@ def skin_mask_image(mask: SkinMask) -> np.ndarray:
     """(H, W) uint8 picture of the mask as saved (``skin_mask.png``): 255 where the photo shows
     the face's own surface, 0 where an occluder (or an eye interior, the mouth opening) covers it."""
     return np.clip(np.round((1.0 - mask.occlusion) * 255.0), 0, 255).astype(np.uint8)
+
+
+# ------------------------------------------------------------------------- the model's regions
+#: The soft regions of :func:`vertex_regions`.
+REGION_NAMES = ("forehead", "nose", "cheeks", "chin", "lips", "brows", "eyes")
+#: Width (mm) of the linear ramp from 1 to 0 at each region's border.
+RAMP_MM = 4.0
+
+
+def skin_vertex_mask(model: MorphableModel) -> np.ndarray:
+    """(V,) bool: the model's face region minus eyes (14 mm around iBUG 36–47), brows (9 mm
+    around 17–26) and lips (8 mm around 48–67), measured on the mean shape."""
+    mean = model.mean_shape
+    keep = model.face_mask.copy()
+    for points, radius in ((ibug.EYES, 14.0), (ibug.BROWS, 9.0), (ibug.MOUTH, 8.0)):
+        centres = mean[model.landmark_indices[points]]
+        d2 = ((mean[:, None, :] - centres[None]) ** 2).sum(-1).min(axis=1)
+        keep &= d2 > radius * radius
+    return keep
+
+
+def _near(points: np.ndarray, centres: np.ndarray, radius: float) -> np.ndarray:
+    d = np.sqrt(((points[:, None, :] - centres[None]) ** 2).sum(-1)).min(axis=1)
+    return np.clip((radius + RAMP_MM - d) / RAMP_MM, 0.0, 1.0)
+
+
+def _ramp(signed_mm: np.ndarray) -> np.ndarray:
+    """1 where ``signed_mm`` ≥ RAMP_MM, 0 where ≤ 0."""
+    return np.clip(signed_mm / RAMP_MM, 0.0, 1.0)
+
+
+def vertex_regions(model: MorphableModel) -> dict[str, np.ndarray]:
+    """name -> (V,) float32 soft mask in [0, 1] for :data:`REGION_NAMES`, on the face region; each
+    mask ramps linearly from 1 to 0 over :data:`RAMP_MM` at its border. Every rule is one line."""
+    from matplotlib.path import Path as Polygon
+
+    p = model.mean_shape.astype(np.float64)
+    lm = p[model.landmark_indices[ibug.IBUG68]]
+    x, y, z = p[:, 0], p[:, 1], p[:, 2]
+    face = model.face_mask.astype(np.float64)
+    front = _ramp(z - (lm[ibug.JAW_ENDS, 2].mean() - 5.0))  # in front of the jaw's top: the face, not the head sides
+    nose_half = 0.5 * abs(lm[ibug.NOSTRILS[-1], 0] - lm[ibug.NOSTRILS[0], 0]) + 4.0  # nostril wings plus a margin
+    eye_x = np.abs(lm[ibug.OUTER_EYE_CORNERS, 0]).max()  # outer eye corners
+    brow_top = lm[ibug.BROWS, 1].max()
+
+    eyes = _near(p, lm[ibug.EYES], 7.0)  # lids and canthi: within 7 mm of the eye contour
+    brows = _near(p, lm[ibug.BROWS], 6.0) * (1 - eyes)  # hair of the brows: 6 mm around their landmarks
+    mouth_xy = Polygon(lm[ibug.OUTER_LIP, :2])
+    inside_lips = mouth_xy.contains_points(p[:, :2]) & (z > lm[ibug.OUTER_LIP, 2].min() - 10.0)
+    lips = np.maximum(inside_lips.astype(np.float64), _near(p, lm[ibug.OUTER_LIP], 1.0))  # the vermilion
+    nose = _near(p, lm[ibug.NOSE], 9.0) * _ramp(nose_half - np.abs(x) + RAMP_MM)  # bridge, tip, wings
+    forehead = _ramp(y - brow_top + 2.0) * _ramp(eye_x + 8.0 - np.abs(x)) * front  # above the brows (brows win)
+    cheeks = (
+        _ramp(lm[40, 1] - 6.0 - y)  # below the lower lids
+        * _ramp(y - (lm[57, 1] - 2.0))  # above the lower lip line
+        * _ramp(np.abs(x) - nose_half - 3.0)  # beside the nose
+        * front
+    )
+    chin = _ramp(lm[57, 1] - 4.0 - y) * _ramp(24.0 - np.abs(x)) * front  # below the lower lip, central
+    masks = {"forehead": forehead, "nose": nose, "cheeks": cheeks, "chin": chin, "lips": lips, "brows": brows, "eyes": eyes}
+    # features win over the broad skin regions they lie in
+    features = np.maximum.reduce([lips, brows, eyes])
+    for name in ("forehead", "nose", "cheeks", "chin"):
+        masks[name] = masks[name] * (1 - features)
+    return {name: (m * face).astype(np.float32) for name, m in masks.items()}

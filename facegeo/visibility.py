@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from facegeo.camera import Camera
+from facegeo.camera import Camera, to_pixels
 
 __all__ = ["vertex_visibility"]
 
@@ -46,9 +46,7 @@ def vertex_visibility(
     scale = min(1.0, max_side / max(camera.width, camera.height))
     w, h = max(1, int(round(camera.width * scale))), max(1, int(round(camera.height * scale)))
     depth = -v[:, 2]
-    safe = np.maximum(depth, 1e-6)
-    u = (camera.cx + camera.focal * v[:, 0] / safe) * scale
-    r = (camera.cy - camera.focal * v[:, 1] / safe) * scale
+    u, r = (to_pixels(v, camera) * scale).T
     in_front = depth > 1e-3
 
     tri = np.asarray(triangles)

@@ -15,6 +15,7 @@ from facegeo.camera import (
     Camera,
     euler_from_rotation,
     project,
+    to_pixels,
     rotation_from_axis_angle,
     rotation_from_euler,
 )
@@ -33,6 +34,17 @@ def test_up_is_up_and_right_is_right():
     np.testing.assert_allclose(uv, [[320.0 + 20.0, 240.0 - 20.0]])
     far = project(np.array([[10.0, 10.0, 0.0]]), np.eye(3), np.array([0.0, 0.0, -1000.0]), CAM)
     np.testing.assert_allclose(far, [[330.0, 230.0]])
+
+
+def test_to_pixels_is_project_without_pose_and_keeps_the_dtype():
+    pts = np.random.default_rng(1).normal(scale=60.0, size=(50, 3)) + [0.0, 0.0, -600.0]
+    expected = project(pts, np.eye(3), np.zeros(3), CAM)
+    np.testing.assert_array_equal(to_pixels(pts, CAM), expected)
+    single = to_pixels(pts.astype(np.float32), CAM)
+    assert single.dtype == np.float32
+    np.testing.assert_allclose(single, expected, rtol=1e-6)
+    behind = to_pixels(np.array([[1.0, 1.0, 0.0], [1.0, 1.0, 5.0]]), CAM)
+    assert np.isfinite(behind).all()  # depth clamped, never a division by zero
 
 
 @settings(max_examples=30, deadline=None)

@@ -9,7 +9,8 @@ import numpy as np
 import pytest
 
 from facegeo.errors import InputError
-from facegeo.export.asset_io import load_asset, read_obj, save_asset
+from facegeo.export.asset_io import load_asset, save_asset
+from facegeo.mesh_io import read_obj
 from facegeo.commands.arguments import add_commands
 from facegeo.commands.export import COMMANDS
 from facegeo.image_files import read_png

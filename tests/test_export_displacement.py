@@ -1,4 +1,4 @@
-"""Vertex normals, bilinear sampling and displacement baking (facegeo.export.displacement)."""
+"""Bilinear sampling and displacement baking (facegeo.export.displacement)."""
 
 from __future__ import annotations
 
@@ -8,51 +8,25 @@ import trimesh
 
 from facegeo.asset import Asset
 from facegeo.errors import InputError
-from facegeo.export.displacement import bake_displacement, displace, sample_map, vertex_normals, vertex_values
+from facegeo.export.displacement import bake_displacement, displace, vertex_values
+from facegeo.uv.texels import sample_uv
+from facegeo.normals import vertex_normals
 from facegeo.export.facevarying import FaceVaryingMesh, from_trimesh, wedges
 from test_export_support import grid_mesh, ict_asset, synthetic_maps
 
 
-def test_vertex_normals_sphere_and_orientation():
-    s = trimesh.creation.icosphere(subdivisions=3, radius=50.0)
-    n = vertex_normals(s.vertices, s.faces)
-    radial = s.vertices / np.linalg.norm(s.vertices, axis=1, keepdims=True)
-    assert np.min(np.sum(n * radial, axis=1)) > 0.999
-    v, f, _, _ = grid_mesh(2)
-    np.testing.assert_allclose(vertex_normals(v, f), np.tile([0, 0, 1.0], (len(v), 1)), atol=1e-12)
-
-
-def test_vertex_normals_degenerate_cases_are_finite_unit():
-    v, f, _, _ = grid_mesh(2)
-    # vertex 9: only in a zero-area triangle (collinear with 0 and 1); vertex 10: in no triangle
-    v = np.vstack([v, [[2.5, 0.0, 0.0]], [[99.0, 99.0, 99.0]]])
-    f = np.vstack([f, [[0, 1, 9]]])
-    n = vertex_normals(v, f)
-    assert np.isfinite(n).all()
-    np.testing.assert_allclose(np.linalg.norm(n, axis=1), 1.0, atol=1e-12)
-    np.testing.assert_allclose(n[9], [0, 0, 1.0], atol=1e-12)  # from its neighbours
-    np.testing.assert_allclose(n[10], [0, 0, 1.0])  # fallback +Z
-    # all triangles degenerate: everything falls back, nothing is NaN
-    flat = np.zeros((3, 3))
-    assert np.isfinite(vertex_normals(flat, np.array([[0, 1, 2]]))).all()
-    # opposite triangles cancelling (a zero-length sum)
-    two = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0.0]])
-    n2 = vertex_normals(two, np.array([[0, 1, 2], [0, 2, 1]]))
-    assert np.isfinite(n2).all() and np.allclose(np.linalg.norm(n2, axis=1), 1.0)
-
-
-def test_sample_map_texel_centres_orientation_and_bilinear():
+def test_sample_uv_texel_centres_orientation_and_bilinear():
     img = np.arange(12, dtype=np.float64).reshape(3, 4)  # row 0 = top (v near 1)
     h, w = img.shape
     centres = np.array([[(j + 0.5) / w, 1 - (i + 0.5) / h] for i in range(h) for j in range(w)])
-    np.testing.assert_allclose(sample_map(img, centres), img.ravel())
+    np.testing.assert_allclose(sample_uv(img, centres), img.ravel())
     mid = np.array([[1.0 / w, 1 - 1.0 / h]])  # between texels (0,0),(0,1),(1,0),(1,1)
-    np.testing.assert_allclose(sample_map(img, mid), [np.mean([0, 1, 4, 5])])
-    np.testing.assert_allclose(sample_map(img, np.array([[-1.0, 2.0], [2.0, -1.0]])), [0.0, 11.0])  # clamped
+    np.testing.assert_allclose(sample_uv(img, mid), [np.mean([0, 1, 4, 5])])
+    np.testing.assert_allclose(sample_uv(img, np.array([[-1.0, 2.0], [2.0, -1.0]])), [0.0, 11.0])  # clamped
     rgb = np.dstack([img, 2 * img, 3 * img])
-    np.testing.assert_allclose(sample_map(rgb, centres[:3]), np.stack([img.ravel()[:3], 2 * img.ravel()[:3], 3 * img.ravel()[:3]], 1))
+    np.testing.assert_allclose(sample_uv(rgb, centres[:3]), np.stack([img.ravel()[:3], 2 * img.ravel()[:3], 3 * img.ravel()[:3]], 1))
     one = np.array([[7.0]])
-    np.testing.assert_allclose(sample_map(one, centres), 7.0)
+    np.testing.assert_allclose(sample_uv(one, centres), 7.0)
 
 
 def test_constant_displacement_moves_along_normals():
@@ -71,7 +45,7 @@ def test_seam_vertices_get_one_value():
     img = np.tile(np.linspace(-1, 1, 64, dtype=np.float32), (64, 1))  # depends on u
     values = vertex_values(a, img)
     vw, tw, _ = wedges(a.triangles, a.uv_triangles)
-    per_wedge = sample_map(img, a.uv[tw])
+    per_wedge = sample_uv(img, a.uv[tw])
     seam = np.flatnonzero(np.bincount(vw) > 1)
     assert len(seam) > 100
     for vtx in seam[:50]:
@@ -98,12 +72,12 @@ def test_displace_asset_drops_its_displacement_and_records_it():
     assert 0.05 < gap.max() <= 0.4 + 1e-4
 
 
-def test_displace_trimesh_returns_trimesh_with_uvs():
+def test_displace_via_trimesh_round_trip_keeps_uvs():
     a = ict_asset(maps={})
     from facegeo.export.facevarying import to_trimesh
 
     tm = to_trimesh(a)
-    out = displace(tm, synthetic_maps(32)["displacement"], level=1)
+    out = to_trimesh(displace(from_trimesh(tm), synthetic_maps(32)["displacement"], level=1))
     assert isinstance(out, trimesh.Trimesh)
     assert out.visual.uv is not None and len(out.visual.uv) == len(out.vertices)
     fv = from_trimesh(out)

@@ -10,7 +10,7 @@ import pytest
 import trimesh
 
 from facegeo.errors import InputError
-from facegeo.export.displacement import vertex_normals
+from facegeo.normals import vertex_normals
 from facegeo.export.gltf import GltfValidatorMissing, find_gltf_validator, validate_glb, write_glb
 from test_export_support import ict_asset, synthetic_maps
 

@@ -153,13 +153,15 @@ def test_flat_grid_uv_follows_positions_exactly():
     np.testing.assert_allclose(uv, v[uv_vertex, :2] / 12.0, atol=1e-12)
 
 
-def test_trimesh_in_trimesh_out_welded():
+def test_trimesh_through_from_and_to_trimesh_welded():
     a = ict_asset(size=8)
     tm = to_trimesh(a)
     assert len(tm.vertices) == len(wedges(a.triangles, a.uv_triangles)[0])
     fv = from_trimesh(tm)
     assert len(fv.vertices) == len(a.vertices)  # seam duplicates welded again
-    out = subdivide(tm, 1)
+    with pytest.raises(InputError, match="from_trimesh"):  # export takes facegeo's types only
+        subdivide(tm, 1)
+    out = to_trimesh(subdivide(fv, 1))
     assert isinstance(out, trimesh.Trimesh) and out.visual.uv is not None
     assert len(out.faces) == 4 * len(a.triangles)
     direct = subdivide(a, 1)

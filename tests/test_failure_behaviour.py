@@ -31,7 +31,6 @@ from facegeo.export.writers import export_asset
 from facegeo.fit_checks import MAX_RMS_PERCENT_IOD, check_fit
 from facegeo.fitting import fit, fit_landmarks
 from facegeo.landmarks.scheme import inter_ocular_distance
-from facegeo.model_files import load_model
 from facegeo.photo import Photo, load_photo
 from facegeo.staged_output import TEMP_PREFIX, StagedOutput
 from test_export_support import grid_mesh, synthetic_maps
@@ -359,11 +358,6 @@ def test_litert_prints_nothing_on_stderr(capfd):
     faces = MediaPipeFaceMesh()(load_photo(PHOTO).image)  # a fresh instance: both interpreters created
     _, err = capfd.readouterr()
     assert len(faces) == 1 and err == ""
-
-
-@pytest.fixture(scope="module")
-def model():
-    return load_model()
 
 
 @pytest.mark.parametrize(

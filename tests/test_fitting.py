@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 import torch
 
-from facegeo import Camera, fit_landmarks, load_model, project
+from facegeo import Camera, fit_landmarks, project
 from facegeo.camera import euler_from_rotation, rotation_from_euler
 from facegeo.errors import InputError
 
@@ -48,11 +48,6 @@ def synthetic(model, rng, yaw, sigma=0.5, pitch=None, roll=None):
     shape = model.shape(torch.from_numpy(alpha), torch.from_numpy(delta)).numpy()
     landmarks = project(shape[model.landmark_indices].astype(np.float64), rotation, translation, CAMERA)
     return shape, rotation, landmarks
-
-
-@pytest.fixture(scope="module")
-def model():
-    return load_model()
 
 
 RECOVERY_CASES = [(1, -60.0), (2, -25.0), (3, 0.0), (4, 35.0), (5, 60.0)]

@@ -29,6 +29,7 @@ from facegeo.landmarks.mediapipe_mesh import (
     ssd_anchors,
     weighted_nms,
 )
+from facegeo.landmarks.scheme import MOUTH, OUTER_EYE_CORNERS
 
 # ----------------------------------------------------------------------------------- fixtures
 
@@ -88,7 +89,7 @@ def _dlib68(tools, image: np.ndarray, near_box: np.ndarray) -> np.ndarray:
 
 def _iod_error(points: np.ndarray, reference: np.ndarray) -> np.ndarray:
     """Per-point distance in % of the reference's inter-ocular distance (36-45)."""
-    iod = np.linalg.norm(reference[36] - reference[45])
+    iod = np.linalg.norm(np.subtract(*reference[OUTER_EYE_CORNERS]))
     return np.linalg.norm(points - reference, axis=1) / iod * 100.0
 
 
@@ -125,7 +126,7 @@ def test_table_has_68_unique_valid_indices():
     assert MEDIAPIPE_TO_IBUG68.shape == (68,) and MEDIAPIPE_TO_IBUG68.dtype == np.int64
     assert len(set(MEDIAPIPE_TO_IBUG68.tolist())) == 68
     assert MEDIAPIPE_TO_IBUG68.min() >= 0 and MEDIAPIPE_TO_IBUG68.max() < 468
-    np.testing.assert_array_equal(MEDIAPIPE_LIPS20, MEDIAPIPE_TO_IBUG68[48:68])
+    np.testing.assert_array_equal(MEDIAPIPE_LIPS20, MEDIAPIPE_TO_IBUG68[MOUTH])
     assert MEDIAPIPE_LIPS20.shape == (20,)
     # well-known mesh vertices: eye corners and mouth corners
     assert MEDIAPIPE_TO_IBUG68[[36, 39, 42, 45]].tolist() == [33, 133, 362, 263]

@@ -23,43 +23,38 @@ from facegeo.model_files import (
     _ibug68_from_tencent86,
     load_model,
 )
-from facegeo.morphable_model import MorphableModel
+from facegeo.landmarks.scheme import CHIN, EYES, IBUG68, JAW_ENDS, LEFT_EYE, LIP_POINTS, MOUTH, OUTER_EYE_CORNERS, RIGHT_EYE
 
 NPZ = asset_path(DEFAULT_MODEL_ASSET)
 README = Path(__file__).resolve().parents[1] / "assets" / "ict_facekit" / "README.md"
 
 
-@pytest.fixture(scope="module")
-def ict() -> MorphableModel:
-    return load_model()
-
-
 # ------------------------------------------------------------------------------- bundled model
-def test_bundled_model_counts(ict):
-    assert ict.n_vertices == 11248
-    assert (ict.n_id, ict.n_exp, ict.n_tex) == (100, 53, 0)
-    assert ict.landmark_indices.shape == (88,)
-    np.testing.assert_array_equal(ict.landmark_indices[68:], ict.landmark_indices[48:68])
-    assert len(ict.expression_names) == 53 and "jawOpen" in ict.expression_names
-    assert ict.id_basis.dtype == np.float32 and ict.exp_basis.dtype == np.float32
-    assert ict.triangles.shape == (22288, 3) and ict.uv_triangles.shape == (22288, 3)
-    assert ict.uv.min() >= 0.0 and ict.uv.max() <= 1.0
-    assert ict.face_mask.sum() == 9409
-    np.testing.assert_allclose(ict.mean_albedo, 0.5)
+def test_bundled_model_counts(model):
+    assert model.n_vertices == 11248
+    assert (model.n_id, model.n_exp, model.n_tex) == (100, 53, 0)
+    assert model.landmark_indices.shape == (88,)
+    np.testing.assert_array_equal(model.landmark_indices[LIP_POINTS], model.landmark_indices[MOUTH])
+    assert len(model.expression_names) == 53 and "jawOpen" in model.expression_names
+    assert model.id_basis.dtype == np.float32 and model.exp_basis.dtype == np.float32
+    assert model.triangles.shape == (22288, 3) and model.uv_triangles.shape == (22288, 3)
+    assert model.uv.min() >= 0.0 and model.uv.max() <= 1.0
+    assert model.face_mask.sum() == 9409
+    np.testing.assert_allclose(model.mean_albedo, 0.5)
 
 
-def test_default_is_cached(ict):
-    assert load_model() is ict
+def test_default_is_cached(model):
+    assert load_model() is model
 
 
-def test_bundled_model_size_in_mm_and_axes(ict):
-    p = ict.mean_shape[ict.landmark_indices]
-    eye_centres = np.linalg.norm(p[36:42].mean(0) - p[42:48].mean(0))
+def test_bundled_model_size_in_mm_and_axes(model):
+    p = model.mean_shape[model.landmark_indices]
+    eye_centres = np.linalg.norm(p[RIGHT_EYE].mean(0) - p[LEFT_EYE].mean(0))
     assert 55.0 < eye_centres < 75.0  # interpupillary distance, adults ~ 54-74 mm
-    assert 80.0 < np.linalg.norm(p[36] - p[45]) < 105.0  # outer eye corners (biocular width)
+    assert 80.0 < np.linalg.norm(np.subtract(*p[OUTER_EYE_CORNERS])) < 105.0  # outer eye corners (biocular width)
     assert 95.0 < np.linalg.norm(p[27] - p[8]) < 135.0  # nasion to chin
-    assert p[36:48, 1].mean() > p[48:68, 1].mean() > p[8, 1]  # +Y up
-    ears = p[[0, 16]]  # the top of the jaw contour, in front of the ears
+    assert p[EYES, 1].mean() > p[MOUTH, 1].mean() > p[CHIN, 1]  # +Y up
+    ears = p[JAW_ENDS]  # the top of the jaw contour, in front of the ears
     assert p[30, 2] > ears[:, 2].max() + 50.0  # +Z out of the face
     assert p[36, 0] < 0.0 < p[45, 0]  # +X towards the subject's left
     # the jaw contour runs from the subject's right (-X) down to the chin and up to the left
@@ -67,20 +62,20 @@ def test_bundled_model_size_in_mm_and_axes(ict):
     assert np.all(np.diff(p[0:9, 1]) < 0) and np.all(np.diff(p[8:17, 1]) > 0)
 
 
-def test_bundled_normals_point_outwards(ict):
-    n = ict.vertex_normals(ict.tensor("mean_shape")).numpy()
-    v = ict.mean_shape
+def test_bundled_normals_point_outwards(model):
+    n = model.vertex_normals(model.tensor("mean_shape")).numpy()
+    v = model.mean_shape
     tip = int(np.argmax(v[:, 2]))
     assert n[tip, 2] > 0.9
     top = int(np.argmax(v[:, 1]))
     assert n[top, 1] > 0.9
-    ears = ict.landmark_indices[[0, 16]]  # top of the jaw contour, beside the ears
+    ears = model.landmark_indices[JAW_ENDS]  # top of the jaw contour, beside the ears
     assert n[ears[0], 0] < -0.5 and n[ears[1], 0] > 0.5
     # most face-region normals point away from the head's centre (eye sockets, nostrils and
     # lip corners are concave)
     centre = v.mean(axis=0)
     outward = np.sum(n * (v - centre), axis=1) > 0
-    assert outward[ict.face_mask].mean() > 0.8  # ~0.15 if the winding were reversed
+    assert outward[model.face_mask].mean() > 0.8  # ~0.15 if the winding were reversed
 
 
 def test_float16_error_recorded_and_consistent():
@@ -106,15 +101,15 @@ def test_float16_error_recorded_and_consistent():
     assert f"{err_max:.3f} mm" in text and f"{err_rms:.4f} mm" in text
 
 
-def test_shape_batched_and_differentiable(ict):
-    alpha = torch.randn(2, 3, ict.n_id, requires_grad=True)
-    delta = torch.rand(2, 3, ict.n_exp, requires_grad=True)
-    s = ict.shape(alpha, delta, vertex_indices=ict.landmark_indices)
+def test_shape_batched_and_differentiable(model):
+    alpha = torch.randn(2, 3, model.n_id, requires_grad=True)
+    delta = torch.rand(2, 3, model.n_exp, requires_grad=True)
+    s = model.shape(alpha, delta, vertex_indices=model.landmark_indices)
     assert s.shape == (2, 3, 88, 3)
     s.sum().backward()
     assert alpha.grad is not None and delta.grad is not None
     np.testing.assert_allclose(
-        ict.shape(alpha[1, 2], delta[1, 2]).detach()[ict.landmark_indices].numpy(),
+        model.shape(alpha[1, 2], delta[1, 2]).detach()[model.landmark_indices].numpy(),
         s[1, 2].detach().numpy(),
         atol=1e-3,
     )
@@ -185,8 +180,8 @@ def test_hifi3dpp_layout_round_trip(tmp_path, n, k_id, k_exp, base, seed):
     np.testing.assert_allclose(m.mean_shape, f["pts"] * 10.0, rtol=1e-5, atol=1e-4)  # cm -> mm
     np.testing.assert_array_equal(m.triangles, f["tri0"])
     kp = f["keypoints"].reshape(-1).astype(np.int64) - base
-    np.testing.assert_array_equal(m.landmark_indices[:68], kp)
-    np.testing.assert_array_equal(m.landmark_indices[68:], kp[48:68])
+    np.testing.assert_array_equal(m.landmark_indices[IBUG68], kp)
+    np.testing.assert_array_equal(m.landmark_indices[LIP_POINTS], kp[MOUTH])
     np.testing.assert_array_equal(m.face_mask, f["mask_face"].reshape(-1) != 0)
     # coefficients in sigma units: the basis is already scaled, EVs unused
     for k in range(k_id):
@@ -305,9 +300,9 @@ def test_ai_next_explicit_albedo_path_and_missing_albedo_keys(tmp_path):
             load_model(f["path"], albedo_path=broken)
 
 
-def test_tencent86_keypoints_map_to_ibug68(ict):
+def test_tencent86_keypoints_map_to_ibug68(model):
     """Tencent's 86 groups built from ICT's iBUG vertices (shuffled within groups) map back."""
-    ib = ict.landmark_indices[:68]
+    ib = model.landmark_indices[IBUG68]
     spare = iter(range(7000, 7100))  # unrelated vertices for 86-only points
     kp = np.array([next(spare) for _ in range(86)])
     kp[0:17] = ib[16::-1]  # contour given from the subject's left
@@ -327,7 +322,7 @@ def test_tencent86_keypoints_map_to_ibug68(ict):
     kp[[74, 75]] = ib[[64, 60]]
     kp[[81, 82, 83]] = ib[[61, 62, 63]]
     kp[[85, 71, 84]] = ib[[67, 66, 65]]
-    mapped = _ibug68_from_tencent86(kp, ict.mean_shape.astype(np.float64))
+    mapped = _ibug68_from_tencent86(kp, model.mean_shape.astype(np.float64))
     np.testing.assert_array_equal(mapped, ib)
 
 

@@ -4,12 +4,13 @@ import numpy as np
 import pytest
 import torch
 
-from facegeo import Camera, load_model
+from facegeo import Camera
 from facegeo.errors import ModelFileError
 from facegeo.landmarks.iris import Iris, iris_colour, sample_iris_ring
 from facegeo.morphable_model import MorphableModel
 from facegeo.parts import DEFAULT_IRIS_SRGB, PART_MATERIALS, eyeball_texture, load_parts, part_assets
 from facegeo.uv.renderer import rasterize_mesh
+from facegeo.landmarks.scheme import LEFT_EYE, RIGHT_EYE
 
 #: Vertices of ICT-FaceKit's OBJs (commit da5f95a, centimetres, as written in the files):
 #: global index -> (part, neutral, identity003.obj, jawOpen.obj).
@@ -23,11 +24,6 @@ ICT_VERTICES = {
 FIRST_VERTEX = {"teeth": 17039, "eyeballs": 21451, "mouth_socket": 11248}
 #: Stored error bound per part (README: max over 1000 random instances; one mode is far below).
 TOLERANCE_MM = {"teeth": 0.1, "eyeballs": 0.03, "mouth_socket": 0.03}
-
-
-@pytest.fixture(scope="module")
-def model():
-    return load_model()
 
 
 @pytest.fixture(scope="module")
@@ -168,8 +164,8 @@ def test_iris_ring_sampling_finds_a_known_colour():
     image[(yy < 31) & (np.abs(xx - 60) < 30)] = (200, 150, 130)  # upper eyelid over the iris top
     polygon = np.array([[30, 40], [45, 30], [75, 30], [90, 40], [75, 50], [45, 50]], np.float64)
     landmarks = np.full((68, 2), np.nan)
-    landmarks[36:42] = polygon
-    landmarks[42:48] = polygon
+    landmarks[RIGHT_EYE] = polygon
+    landmarks[LEFT_EYE] = polygon
     pixels = sample_iris_ring(image, np.array([60.0, 40.0]), 10.0, polygon)
     assert len(pixels) > 50
 

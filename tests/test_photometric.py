@@ -7,8 +7,9 @@ import torch
 
 from facegeo import Camera, load_model, project
 from facegeo.camera import rotation_from_euler
-from facegeo.colour import linear_to_srgb, srgb_to_linear
-from facegeo.fitting import _fit_photometric, fit_landmarks, skin_vertex_mask
+from facegeo.colour import linear_to_srgb, linear_to_srgb_torch, srgb_to_linear, srgb_to_linear_slope, srgb_to_linear_torch
+from facegeo.fitting import _fit_photometric, fit_landmarks
+from facegeo.skin_mask import skin_vertex_mask
 from facegeo.lighting import sh_irradiance
 from facegeo.visibility import vertex_visibility
 
@@ -31,6 +32,25 @@ def test_srgb_round_trip_and_known_values():
     # sRGB 0.5 is linear 0.2140; linear 0.0031308 is the knee at sRGB 0.04045
     assert float(srgb_to_linear(np.float32(0.5))) == pytest.approx(0.21404, abs=1e-5)
     assert float(linear_to_srgb(np.float32(0.0031308))) == pytest.approx(0.04045, abs=1e-5)
+
+
+def test_srgb_twins_agree_with_the_numpy_curves():
+    x = np.linspace(-0.1, 1.2, 263)
+    lin, slope = srgb_to_linear_slope(x)  # float64, clipped to [0, 1]
+    np.testing.assert_allclose(lin, srgb_to_linear(np.clip(x, 0, 1)), atol=1e-6)
+    h = 1e-7
+    inner = (x > 0.01) & (x < 0.99) & (np.abs(x - 0.04045) > 1e-3)
+    numeric = (srgb_to_linear_slope(x + h)[0] - srgb_to_linear_slope(x - h)[0]) / (2 * h)
+    np.testing.assert_allclose(slope[inner], numeric[inner], rtol=1e-6)
+    t = torch.from_numpy(x)
+    np.testing.assert_allclose(srgb_to_linear_torch(t).numpy()[x <= 1], srgb_to_linear(x[x <= 1]), atol=1e-6)
+    np.testing.assert_allclose(linear_to_srgb_torch(t).numpy(), linear_to_srgb(x), atol=1e-6)
+    unclipped = linear_to_srgb_torch(t, clip=False).numpy()
+    np.testing.assert_allclose(unclipped[(x >= 0) & (x <= 1)], linear_to_srgb(x[(x >= 0) & (x <= 1)]), atol=1e-6)
+    assert unclipped[-1] > 1.0 and unclipped[0] == pytest.approx(12.92 * -0.1)
+    g = torch.tensor([0.02, 0.5], dtype=torch.float64, requires_grad=True)
+    srgb_to_linear_torch(g).sum().backward()
+    np.testing.assert_allclose(g.grad.numpy(), srgb_to_linear_slope(g.detach().numpy())[1], rtol=1e-12)
 
 
 def test_recovers_sh_lighting_of_a_rendered_face():

@@ -41,7 +41,7 @@ def test_only_the_requested_maps_are_made(small_asset):
 
 def test_albedo_is_skin_coloured_on_the_cheeks(small_asset):
     _, model, asset, _ = small_asset
-    from facegeo.texturing.regions import vertex_regions
+    from facegeo.skin_mask import vertex_regions
     from facegeo.uv import rasterize_uv
 
     raster = rasterize_uv(model, size=512)

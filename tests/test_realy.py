@@ -7,7 +7,7 @@ code, github czh-98/REALY at commit 3f13e9a (``main.py``'s per-subject steps: ``
 once, in a separate Python 3.11 virtual environment outside the repository with numpy 1.26.4,
 scipy 1.11.4, trimesh 3.12.7, rtree 1.4.1, scikit-sparse 0.4.16 (real CHOLMOD, Debian's
 SuiteSparse 5.12), opencv-python-headless 4.8.1.78, on the data sets that
-``facegeo.eval.realy_synthetic.make_dataset(root, 3, seed=0, subdivisions=0 | 1)`` writes
+``tools/realy_synthetic.py``'s ``make_dataset(root, 3, seed=0, subdivisions=0 | 1)`` writes
 (their SHA-256 digests are checked below), with ``data/ICT-FaceKit.{obj,txt}`` as topology.
 The values are ``error * metrical_scale`` at full precision; the official ``main.py`` run on the
 same folders wrote exactly the 9-character texts in OFFICIAL_TEXT_SMALL to REALY_error.txt.
@@ -24,9 +24,10 @@ import pytest
 
 from facegeo.errors import FacegeoError, InputError
 from facegeo.eval.realy import REGIONS, RealyResult, Settings, evaluate, format_value, summarize
-from facegeo.eval.realy_io import obj_text, read_obj
+from facegeo.eval.realy_io import read_obj
+from facegeo.mesh_io import obj_text
 from facegeo.eval.realy_report import OUTPUT_FILES, markdown_table, write_outputs
-from facegeo.eval.realy_synthetic import dataset_digest, make_dataset
+from realy_synthetic import dataset_digest, make_dataset
 
 DIGEST_SMALL = "982555d768c3d4466507d6c6d294b45dde889891ebc9bb249d399cf2eed862e7"
 DIGEST_LARGE = "dfa3ac615830cd78411a1eb8f7387e1b9a82ea05c78eb280a6872476e940d9f7"
@@ -231,7 +232,8 @@ def test_nan_in_a_region_file_is_an_input_error(small, tmp_path):
 def test_wrong_vertex_count_and_names_are_input_errors(small, tmp_path):
     realy, pred = _copy_tree(small, tmp_path)
     mesh = read_obj(pred / "1.obj")
-    (pred / "1.obj").write_text(obj_text(mesh.vertices[:-1], mesh.triangles[mesh.triangles.max(axis=1) < len(mesh.vertices) - 1]))
+    kept = mesh.triangles[mesh.triangles.max(axis=1) < len(mesh.vertices) - 1]
+    (pred / "1.obj").write_text(obj_text(mesh.vertices[:-1], kept, digits=6, comment=False))
     with pytest.raises(InputError, match="11248"):
         evaluate(pred, realy)
     (pred / "1.obj").unlink()
@@ -307,7 +309,8 @@ def test_region_part_without_keypoints_is_an_error_not_a_number(small, tmp_path)
     mesh = read_obj(path)
     island = mesh.vertices[:3] + [0.0, 0.0, -4.0]
     n = len(mesh.vertices)
-    path.write_text(obj_text(np.vstack([mesh.vertices, island]), np.vstack([mesh.triangles, [[n, n + 1, n + 2]]])))
+    triangles = np.vstack([mesh.triangles, [[n, n + 1, n + 2]]])
+    path.write_text(obj_text(np.vstack([mesh.vertices, island]), triangles, digits=6, comment=False))
     for name in ("2.obj", "3.obj"):
         (pred / name).unlink()
     with pytest.raises(FacegeoError, match="1.obj: nose: .*singular"):

@@ -12,7 +12,7 @@ from facegeo.errors import FacegeoError
 from facegeo.commands.arguments import add_commands
 from facegeo.commands.realy import COMMANDS
 from facegeo.eval.realy_report import OUTPUT_FILES
-from facegeo.eval.realy_synthetic import make_dataset
+from realy_synthetic import make_dataset
 
 
 def run(args, capsys):

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from facegeo.assets import asset_path
-from facegeo.eval.make_ict_keypoints import (
+from make_ict_keypoints import (
     EXTRA_POINTS,
     averaged_table,
     extra_point_positions,
@@ -18,12 +18,7 @@ from facegeo.eval.make_ict_keypoints import (
     measure,
 )
 from facegeo.eval.realy_io import barycentric_points, read_keypoint_file
-from facegeo.model_files import load_model
-
-
-@pytest.fixture(scope="module")
-def model():
-    return load_model()
+from facegeo.landmarks.scheme import EYES, IBUG68, JAW_ENDS, NOSTRILS
 
 
 @pytest.fixture(scope="module")
@@ -34,7 +29,7 @@ def points(model):
 
 def test_file_is_what_the_script_makes(model):
     rows = json.loads(asset_path("realy/ICT-FaceKit.txt").read_text())
-    assert rows == json.loads(json.dumps(ict_keypoints(model.mean_shape, model.triangles, model.landmark_indices[:68])))
+    assert rows == json.loads(json.dumps(ict_keypoints(model.mean_shape, model.triangles, model.landmark_indices[IBUG68])))
     assert len(rows) == 85
     table = np.array(rows, dtype=float)
     w = np.column_stack([table[:, 1], table[:, 2], 1 - table[:, 1] - table[:, 2]])
@@ -42,12 +37,12 @@ def test_file_is_what_the_script_makes(model):
 
 
 def test_first_68_are_icts_multipie_vertices(model, points):
-    assert np.allclose(points[:68], model.mean_shape[model.landmark_indices[:68]], atol=1e-9)
+    assert np.allclose(points[IBUG68], model.mean_shape[model.landmark_indices[IBUG68]], atol=1e-9)
 
 
 def test_extra_points_are_frontal_surface_points_at_their_documented_places(model, points):
     v = model.mean_shape.astype(np.float64)
-    origin, unit, axes = eye_frame(points[:68])
+    origin, unit, axes = eye_frame(points[IBUG68])
     local = (points - origin) @ axes.T / unit
     for index, _, x, y in EXTRA_POINTS:
         assert local[index, :2] == pytest.approx([x, y], abs=1e-9), index
@@ -62,22 +57,22 @@ def test_extra_points_are_frontal_surface_points_at_their_documented_places(mode
 
 def test_extra_points_are_at_the_right_semantic_places(points):
     p = points
-    origin, unit, axes = eye_frame(p[:68])
+    origin, unit, axes = eye_frame(p[IBUG68])
     q = (p - origin) @ axes.T / unit  # eye frame: x to the subject's left, y up, z to the viewer
     x, y, z = q[:, 0], q[:, 1], q[:, 2]
     pairs = [(68, 69), (70, 71), (72, 73), (74, 75), (76, 77), (78, 80), (81, 82), (83, 84)]
     for r, l in pairs:  # mirror pairs: right side (-x) first, symmetric within 2 mm
         assert x[r] < 0 < x[l]
         assert np.linalg.norm(q[r] * [-1, 1, 1] - q[l]) * unit < 2.0, (r, l)
-    eye_y = y[36:48].mean()
-    nose_bottom = y[31:36].mean()
+    eye_y = y[EYES].mean()
+    nose_bottom = y[NOSTRILS].mean()
     assert all(nose_bottom < y[k] < eye_y for k in (68, 69))  # below the eyes, above the nose
     assert all(abs(x[k]) > abs(x[31]) and y[33] - 0.1 < y[k] < y[29] for k in (70, 71))  # beside the nose wing
     assert all(abs(x[k]) > abs(x[48]) and abs(y[k] - y[48]) < 0.15 for k in (72, 73))  # beside the mouth corners
     assert all(y[8] < y[k] < y[57] for k in (78, 79, 80))  # chin: below the lower lip, above the menton
     assert abs(x[79]) < 1e-6 and z[79] > z[8]
     assert all(abs(x[k]) > abs(x[68]) for k in (74, 75, 76, 77, 81, 82, 83, 84))  # lateral cheek points
-    assert np.all(z[68:85] > z[[0, 16]].max() - 0.1)  # on the front of the face, not behind the jaw ends
+    assert np.all(z[68:85] > z[JAW_ENDS].max() - 0.1)  # on the front of the face, not behind the jaw ends
 
 
 def test_measuring_the_table_on_a_topology_gives_its_extra_points(model, tmp_path):
@@ -86,10 +81,10 @@ def test_measuring_the_table_on_a_topology_gives_its_extra_points(model, tmp_pat
     rows = json.loads(asset_path("realy/ICT-FaceKit.txt").read_text())
     xy = extra_point_positions(model.mean_shape, model.triangles, rows)
     assert np.abs(xy - np.array([[x, y] for _, _, x, y in EXTRA_POINTS])).max() < 1e-9
-    from facegeo.eval.realy_io import obj_text
+    from facegeo.mesh_io import obj_text
 
     for name in ("A", "B"):
-        (tmp_path / f"{name}.obj").write_text(obj_text(model.mean_shape, model.triangles))
+        (tmp_path / f"{name}.obj").write_text(obj_text(model.mean_shape, model.triangles, digits=6, comment=False))
         (tmp_path / f"{name}.txt").write_text(json.dumps(rows))
     assert measure(tmp_path, ("A", "B")) == {i: (x, y) for i, _, x, y in EXTRA_POINTS}
     # averaging and symmetrising: a right point measured 0.02 farther out moves both of its pair by 0.01

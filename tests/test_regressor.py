@@ -10,7 +10,7 @@ import torch
 
 pytest.importorskip("transformers")
 
-from facegeo import Camera, load_model, project  # noqa: E402
+from facegeo import Camera, project  # noqa: E402
 from facegeo.assets import asset_path  # noqa: E402
 from facegeo.camera import rotation_from_euler  # noqa: E402
 from facegeo.cli import main  # noqa: E402
@@ -46,11 +46,6 @@ def tiny_config(**train) -> RegressorConfig:
     data = json.loads(json.dumps(TINY))
     data["train"].update(train)
     return RegressorConfig.from_dict(data)
-
-
-@pytest.fixture(scope="module")
-def model():
-    return load_model()
 
 
 @pytest.fixture(scope="module")

@@ -5,7 +5,7 @@ import pytest
 
 from facegeo import Camera, fit_landmarks, load_model, project
 from facegeo.texturing.context import build_context, mirror_vertices
-from facegeo.texturing.regions import REGION_NAMES, vertex_regions
+from facegeo.skin_mask import REGION_NAMES, vertex_regions
 from facegeo.uv.raster import rasterize_uv
 
 

@@ -3,14 +3,8 @@
 import numpy as np
 import pytest
 
-import facegeo
 from facegeo.errors import InputError
 from facegeo.uv import geometry_maps, mesh_tangents, rasterize_uv, vertex_normals
-
-
-@pytest.fixture(scope="module")
-def model():
-    return facegeo.load_model()
 
 
 def test_flat_quad_maps_are_exact():

@@ -3,15 +3,9 @@
 import numpy as np
 import pytest
 
-import facegeo
 from facegeo.errors import InputError
 from facegeo.uv import UVRaster, clear_raster_cache, default_padding, rasterize_uv
-from facegeo.uv.raster import texel_centres_uv
-
-
-@pytest.fixture(scope="module")
-def model():
-    return facegeo.load_model()
+from facegeo.uv.texels import texel_centres_uv
 
 
 def _texel_uv(raster):

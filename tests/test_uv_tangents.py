@@ -4,15 +4,9 @@ binding, where installed) and with values recorded from it; invariants of the ta
 import numpy as np
 import pytest
 
-import facegeo
 from facegeo.errors import InputError
 from facegeo.uv import mesh_tangents, mikktspace_tangents, vertex_normals
 from facegeo.camera import rotation_from_euler
-
-
-@pytest.fixture(scope="module")
-def model():
-    return facegeo.load_model()
 
 
 def small_mesh():
@@ -236,15 +230,6 @@ def test_all_degenerate_and_bad_input():
     bad[0, 0, 0] = np.nan
     with pytest.raises(InputError):
         mikktspace_tangents(bad, P, np.zeros((2, 3, 2)))
-
-
-def test_vertex_normals_match_the_model(model):
-    import torch
-
-    V = model.mean_shape
-    ours = vertex_normals(V, model.triangles)
-    theirs = model.vertex_normals(torch.from_numpy(V)).numpy()
-    np.testing.assert_allclose(ours, theirs, atol=1e-5)
 
 
 def test_angular_threshold_split_path(model, monkeypatch):

@@ -11,11 +11,6 @@ from facegeo.uv import rasterize_uv, render, unwrap, unwrap_details
 
 
 @pytest.fixture(scope="module")
-def model():
-    return facegeo.load_model()
-
-
-@pytest.fixture(scope="module")
 def raster1024(model):
     return rasterize_uv(model, size=1024)
 

@@ -8,11 +8,12 @@ import scipy.sparse as sp
 from scipy.spatial import cKDTree
 
 from facegeo.colour import linear_to_srgb
-from facegeo.fitting import Fit, skin_vertex_mask
+from facegeo.fitting import Fit
 from facegeo.morphable_model import MorphableModel
+from facegeo.skin_mask import skin_vertex_mask, vertex_regions
 from facegeo.texturing.backend import SurfaceOperators, TextureContext
-from facegeo.texturing.regions import vertex_regions
 from facegeo.uv import GeometryMaps, UVRaster, geometry_maps
+from facegeo.uv.texels import nearest_texel
 
 __all__ = ["build_context", "mirror_vertices", "surface_operators"]
 
@@ -83,8 +84,7 @@ def build_context(model: MorphableModel, fit: Fit, raster: UVRaster, camera_maps
     corner_ok = (partner[tri] >= 0).all(axis=1)
     mirror_uv = raster.interpolate(vertex_uv[np.maximum(partner, 0)][tri])
     ok = corner_ok[raster.texel_triangle] & raster.texel_inside
-    cols = np.clip(np.floor(mirror_uv[:, 0] * size), 0, size - 1).astype(np.int32)
-    rows = np.clip(np.floor((1.0 - mirror_uv[:, 1]) * size), 0, size - 1).astype(np.int32)
+    rows, cols = (a.astype(np.int32) for a in nearest_texel(mirror_uv, size, size))
     ok &= cover[rows, cols]
     mirror = raster.scatter(np.where(ok[:, None], np.stack([rows, cols], 1), -1).astype(np.int32), fill=-1)
 

@@ -15,11 +15,14 @@ from facegeo.asset import Asset
 from facegeo.camera import Camera, rotation_from_euler
 from facegeo.colour import linear_to_srgb, srgb_to_linear
 from facegeo.fitting import Fit
+from facegeo.landmarks.scheme import IBUG68
+from facegeo.normals import vertex_normals
 from facegeo.photo import as_rgb_uint8
 from facegeo.texturing.backend import SKIN_CONSTANTS
 from facegeo.texturing.shading import shade_ggx
 from facegeo.uv.renderer import rasterize_mesh
 from facegeo.uv.tangents import mesh_tangents
+from facegeo.uv.texels import sample_uv
 
 __all__ = ["relit_preview", "PREVIEW_VIEWS", "PREVIEW_LIGHTS", "PREVIEW_AMBIENT", "CLAY", "PREVIEW_BACKGROUND"]
 
@@ -75,7 +78,7 @@ def relit_preview(photo: np.ndarray, asset: Asset, fit_result: Fit, *, panel: in
         panel_rgb[:, idx] = pixels[:, start:start + len(idx)]
         start += len(idx)
         columns.append(panel_rgb.reshape(2 * p, p, 3))
-    landmarks = np.asarray(fit_result.landmarks[:68], np.float64)
+    landmarks = np.asarray(fit_result.landmarks[IBUG68], np.float64)
     landmarks = landmarks[np.all(np.isfinite(landmarks), axis=1)]
     lo, hi = landmarks.min(axis=0), landmarks.max(axis=0)
     centre, half = (lo + hi) / 2.0, 0.75 * float(np.max(hi - lo))
@@ -92,10 +95,6 @@ class _PreviewScene:
     and tangents, and per-surface materials (linear albedo, normal map, roughness, specular)."""
 
     def __init__(self, asset: Asset):
-        # the exporters' normals, so the preview shades what the scenes hold (an upward import, listed in
-        # DESIGN.md, "One-way rule", until vertex normals have their one home in the geometry layer)
-        from facegeo.export.displacement import vertex_normals
-
         surfaces = [asset, *asset.parts]
         # framing: the skin's face region
         face = asset.triangles if asset.face_triangles is None else asset.triangles[asset.face_triangles]
@@ -162,7 +161,7 @@ class _PreviewScene:
                 continue
             for name, array in material.items():
                 if array.ndim >= 2:
-                    values[name][sel] = _lookup(array, uv[sel]).reshape(int(sel.sum()), -1)
+                    values[name][sel] = sample_uv(array, uv[sel]).reshape(int(sel.sum()), -1)
                 else:
                     values[name][sel] = array.reshape(1, -1)
 
@@ -179,15 +178,3 @@ class _PreviewScene:
                 image(values["roughness"], clay_roughness), image(values["specular"], clay_specular),
                 torch.zeros(1, 1, 1, len(idx)), shared(position), shared(normal), shared(tangent),
                 torch.ones(1, 1, 1, len(idx))]
-
-
-def _lookup(texture: np.ndarray, uv: np.ndarray) -> np.ndarray:
-    """Bilinear texture values at (N, 2) UVs (texel centres as in DESIGN.md, "Conventions"; edges repeated)."""
-    n = len(uv)
-    rows = -(-n // 1024)  # cv2.remap wants maps shorter than 32767 on each side
-    maps = np.zeros((2, rows * 1024), np.float32)
-    maps[0, :n] = uv[:, 0] * texture.shape[1] - 0.5
-    maps[1, :n] = (1.0 - uv[:, 1]) * texture.shape[0] - 0.5
-    out = cv2.remap(np.ascontiguousarray(texture, dtype=np.float32), maps[0].reshape(rows, 1024), maps[1].reshape(rows, 1024),
-                    cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
-    return out.reshape(rows * 1024, -1)[:n]

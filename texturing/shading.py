@@ -60,6 +60,7 @@ from typing import NamedTuple
 import torch
 from torch import Tensor
 
+from facegeo.asset import SPECULAR_F0_SCALE
 from facegeo.errors import check_finite
 
 __all__ = [
@@ -71,7 +72,6 @@ __all__ = [
     "EPS_PARALLEL",
     "EPS_HALF",
     "EPS_SMITH",
-    "F0_SCALE",
     "CHUNK_TEXELS",
 ]
 
@@ -86,8 +86,6 @@ EPS_PARALLEL = 1e-3
 EPS_HALF = 1e-6
 #: Lower bound of the Smith denominator (n·v)√(…) + (n·l)√(…).
 EPS_SMITH = 1e-8
-#: F0 = F0_SCALE · specular (A.1: non-metallic skin).
-F0_SCALE = 0.08
 #: Texels evaluated together on the CPU: every temporary of a chunk stays in the cache, and the
 #: backward recomputes a chunk instead of keeping its temporaries (memory: inputs and outputs only).
 #: On other devices the whole map is one chunk. Results do not depend on it (up to rounding).
@@ -484,7 +482,7 @@ def _shade_texels(
         torch.stack(n_s, dim=1).expand(batch, 3, n_texels),
         torch.stack(v, dim=1).expand(batch, 3, n_texels),
         (alpha * alpha).expand(batch, 1, n_texels),
-        (F0_SCALE * specular).expand(batch, 1, n_texels),
+        (SPECULAR_F0_SCALE * specular).expand(batch, 1, n_texels),
         lights,
         radiance,
     )

@@ -28,6 +28,7 @@ from facegeo.errors import NoFaceError
 from facegeo.landmarks.dlib_detector import DlibLandmarker
 from facegeo.landmarks.mediapipe_mesh import MEDIAPIPE_LIPS20, MediaPipeFaceMesh, ibug68_from_mesh
 from facegeo.photo import as_rgb_uint8
+from facegeo.landmarks.scheme import MOUTH
 
 __all__ = [
     "FaceLandmarks",
@@ -165,7 +166,7 @@ class DlibDetector(_UprightSearch):
         if not faces:
             raise _no_face(source, self.name)
         face = faces[0]
-        points = np.concatenate([face.points, face.points[48:68]]).astype(np.float32)
+        points = np.concatenate([face.points, face.points[MOUTH]]).astype(np.float32)
         return FaceLandmarks(points, _corner_origin(face.box), len(faces), self.name, _several(len(faces)))
 
 

@@ -35,6 +35,7 @@ import numpy as np
 
 from facegeo.colour import linear_to_srgb, srgb_to_linear
 from facegeo.errors import ModelFileError
+from facegeo.landmarks.scheme import LEFT_EYE, RIGHT_EYE
 
 __all__ = ["IrisDetector", "Iris", "iris_colour", "sample_iris_ring", "IRIS_ASSET", "EYE_CORNERS"]
 
@@ -45,7 +46,7 @@ INPUT_SIZE = 64
 ROI_SCALE = 2.3
 #: iBUG indices (start corner, end corner, eye polygon) and whether the crop is mirrored:
 #: subject's right eye (image left) as the model expects, the left eye mirrored.
-EYE_CORNERS = {"right": (36, 39, tuple(range(36, 42)), False), "left": (42, 45, tuple(range(42, 48)), True)}
+EYE_CORNERS = {"right": (36, 39, tuple(RIGHT_EYE), False), "left": (42, 45, tuple(LEFT_EYE), True)}
 #: The ring sampled, as fractions of the iris radius.
 RING = (0.45, 0.95)
 #: Fewer valid pixels than this in both eyes together: no colour.

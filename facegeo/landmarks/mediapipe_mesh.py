@@ -65,7 +65,7 @@ import cv2
 import numpy as np
 
 from facegeo.errors import InputError, ModelFileError
-from facegeo.landmarks.scheme import IBUG_MIRROR
+from facegeo.landmarks.scheme import IBUG_MIRROR, MOUTH
 from facegeo.native_stderr import silenced_native_stderr
 
 __all__ = [
@@ -236,7 +236,7 @@ MEDIAPIPE_TO_IBUG68 = np.array([vertex for _, vertex, _, _ in _IBUG68_TABLE], dt
 MEDIAPIPE_TO_IBUG68.setflags(write=False)
 #: (20,) int64: the lip points, iBUG order 48..67 (outer 12 from the right corner over the upper
 #: lip, then inner 8).
-MEDIAPIPE_LIPS20 = MEDIAPIPE_TO_IBUG68[48:68]
+MEDIAPIPE_LIPS20 = MEDIAPIPE_TO_IBUG68[MOUTH]
 assert [i for i, _, _, _ in _IBUG68_TABLE] == list(range(68))
 
 

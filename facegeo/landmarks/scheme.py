@@ -19,8 +19,25 @@ if TYPE_CHECKING:  # torch is imported where it is used, so that the detectors' 
 
 __all__ = [
     "N_LANDMARKS",
+    "N_IBUG",
+    "IBUG68",
     "JAW",
     "CHIN",
+    "JAW_ENDS",
+    "RIGHT_BROW",
+    "LEFT_BROW",
+    "BROWS",
+    "NOSE_BRIDGE",
+    "NOSTRILS",
+    "NOSE",
+    "RIGHT_EYE",
+    "LEFT_EYE",
+    "EYES",
+    "OUTER_EYE_CORNERS",
+    "OUTER_LIP",
+    "INNER_LIP",
+    "MOUTH",
+    "INNER_FACE",
     "LIP_POINTS",
     "IBUG_MIRROR",
     "HYBRID_MIRROR",
@@ -30,10 +47,36 @@ __all__ = [
 ]
 
 N_LANDMARKS = 88
+#: The iBUG-68 points: the first 68 of the 88 (and the whole of a 68-point markup).
+N_IBUG = 68
+IBUG68 = np.arange(0, N_IBUG)
+
+# Named groups of the iBUG-68 markup (index arrays, valid in the 68- and the 88-point order; the
+# subject's right is the image's left). Use these, not slice literals such as 17:68 or 36:48.
 #: The 17 jaw-contour points (they slide along the silhouette in fitting, except the chin).
 JAW = np.arange(0, 17)
 CHIN = 8
-#: The 20 MediaPipe lip points in the 88-point order.
+#: The two ends of the jaw contour (beside the ears).
+JAW_ENDS = np.array([0, 16])
+RIGHT_BROW = np.arange(17, 22)
+LEFT_BROW = np.arange(22, 27)
+BROWS = np.arange(17, 27)
+NOSE_BRIDGE = np.arange(27, 31)
+NOSTRILS = np.arange(31, 36)
+NOSE = np.arange(27, 36)
+#: Each eye's six lid points, from the outer corner (36 right, 45 left) round.
+RIGHT_EYE = np.arange(36, 42)
+LEFT_EYE = np.arange(42, 48)
+EYES = np.arange(36, 48)
+#: The outer eye corners (right, left): the inter-ocular distance's ends.
+OUTER_EYE_CORNERS = np.array([36, 45])
+OUTER_LIP = np.arange(48, 60)
+INNER_LIP = np.arange(60, 68)
+#: dlib's 20 mouth points (outer and inner lip), which the MediaPipe lip points repeat.
+MOUTH = np.arange(48, 68)
+#: Every iBUG point but the jaw contour (brows, nose, eyes, mouth): the rigid inner face.
+INNER_FACE = np.arange(17, 68)
+#: The 20 MediaPipe lip points in the 88-point order (at the positions of :data:`MOUTH`).
 LIP_POINTS = np.arange(68, 88)
 
 #: iBUG-68 index of the mirror-symmetric point (left/right swap), an involution.
@@ -47,13 +90,13 @@ IBUG_MIRROR = np.array(
     dtype=np.int64,
 )
 #: The same for the 88-point order (lip points mirror among themselves).
-HYBRID_MIRROR = np.concatenate([IBUG_MIRROR, IBUG_MIRROR[48:68] + 20])
+HYBRID_MIRROR = np.concatenate([IBUG_MIRROR, IBUG_MIRROR[MOUTH] + 20])
 
 
 def _weights() -> np.ndarray:
     w = np.ones(N_LANDMARKS, dtype=np.float32)
     w[JAW] = 0.5  # the contour is ambiguous along its own direction
-    w[48:68] = 0.5  # dlib's mouth points: unstable (the paper's motivation)
+    w[MOUTH] = 0.5  # dlib's mouth points: unstable (the paper's motivation)
     w[LIP_POINTS] = 3.0  # MediaPipe's lip points: weighted up
     return w
 
@@ -66,8 +109,8 @@ def inter_ocular_distance(points: np.ndarray | torch.Tensor) -> float:
     """Distance between the outer eye corners (iBUG 36 and 45) of (≥68, 2) points, in pixels."""
     import torch
 
-    p = torch.as_tensor(points, dtype=torch.float64)
-    return float(torch.linalg.norm(p[36] - p[45]))
+    right, left = torch.as_tensor(points, dtype=torch.float64)[OUTER_EYE_CORNERS]
+    return float(torch.linalg.norm(right - left))
 
 
 def landmark_loss(

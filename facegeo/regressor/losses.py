@@ -29,15 +29,16 @@ import torch
 from torch.nn import functional as F
 
 from facegeo.camera import Camera, project
+from facegeo.colour import linear_to_srgb_torch, srgb_to_linear_torch
 from facegeo.errors import InputError
-from facegeo.fitting import skin_vertex_mask
-from facegeo.landmarks.scheme import CHIN, LANDMARK_WEIGHTS, landmark_loss
+from facegeo.landmarks.scheme import CHIN, IBUG68, LANDMARK_WEIGHTS, OUTER_EYE_CORNERS, landmark_loss
 from facegeo.lighting import AMBIENT_WHITE, sh_irradiance
 from facegeo.morphable_model import MorphableModel
 from facegeo.regressor.config import LossConfig
+from facegeo.skin_mask import skin_vertex_mask
 from facegeo.uv import rasterize_mesh
 
-__all__ = ["BatchCamera", "Objective", "landmark_weights", "slide_jaw", "srgb_to_linear_torch", "linear_to_srgb_torch"]
+__all__ = ["BatchCamera", "Objective", "landmark_weights", "slide_jaw"]
 
 log = logging.getLogger("facegeo.regressor")
 
@@ -62,20 +63,8 @@ def landmark_weights(scheme: str) -> np.ndarray:
     if scheme == "hybrid88":
         return LANDMARK_WEIGHTS.copy()
     w = np.zeros(88, np.float32)
-    w[:68] = 1.0
+    w[IBUG68] = 1.0
     return w
-
-
-# The differentiable sRGB curves (facegeo.colour is NumPy, for I/O).
-def srgb_to_linear_torch(s: torch.Tensor) -> torch.Tensor:
-    """IEC 61966-2-1 decoding of sRGB in [0, 1], any shape."""
-    return torch.where(s <= 0.04045, s / 12.92, ((s.clamp_min(0.0) + 0.055) / 1.055) ** 2.4)
-
-
-def linear_to_srgb_torch(x: torch.Tensor) -> torch.Tensor:
-    """IEC 61966-2-1 encoding of linear RGB (clamped to [0, 1]), any shape."""
-    x = x.clamp(0.0, 1.0)
-    return torch.where(x <= 0.0031308, 12.92 * x, 1.055 * x.clamp_min(0.0031308) ** (1 / 2.4) - 0.055)
 
 
 def slide_jaw(points_cam: torch.Tensor, landmark_indices: np.ndarray, targets: torch.Tensor,
@@ -167,7 +156,8 @@ class Objective:
         subset = None if need_colour else self.landmark_subset
         shape = model.shape(params["alpha"], params["delta"], subset)  # (B, V or K, 3) mm
         posed = shape @ params["rotation"].transpose(1, 2) + params["translation"][:, None]
-        iod = torch.linalg.norm(landmarks[:, 36] - landmarks[:, 45], dim=-1).nan_to_num(1.0).clamp_min(1.0)
+        corners = landmarks[:, OUTER_EYE_CORNERS]
+        iod = torch.linalg.norm(corners[:, 0] - corners[:, 1], dim=-1).nan_to_num(1.0).clamp_min(1.0)
         indices = model.landmark_indices if subset is None else self.landmark_rows
         lan = landmark_loss(slide_jaw(posed, indices, landmarks, cam), landmarks, self.weights, iod)
         terms = {"lan": lan}

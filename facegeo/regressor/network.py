@@ -32,6 +32,7 @@ from facegeo.errors import InputError
 from facegeo.lighting import AMBIENT_WHITE, N_SH
 from facegeo.morphable_model import MorphableModel
 from facegeo.regressor.config import CONVNEXT_PRESETS, DINO_PRESETS, NetworkConfig
+from facegeo.landmarks.scheme import IBUG68
 
 __all__ = ["ModelSignature", "MSSFRegressor", "expression_bounds", "IMAGENET_MEAN", "IMAGENET_STD",
            "CONVNEXT_ENV", "DINO_ENV"]
@@ -85,7 +86,7 @@ class ModelSignature:
     def of(cls, model: MorphableModel) -> "ModelSignature":
         """The signature of a loaded model."""
         lower, upper = expression_bounds(model)
-        points = model.mean_shape[model.landmark_indices[:68]].astype(np.float64)
+        points = model.mean_shape[model.landmark_indices[IBUG68]].astype(np.float64)
         extent = float(np.max(points[:, :2].max(0) - points[:, :2].min(0)))
         return cls(model.name, model.n_id, model.n_exp, model.n_tex, model.n_vertices,
                    tuple(float(x) for x in lower), tuple(float(x) for x in upper),

@@ -3,7 +3,8 @@ occlusion-aware unwrap of a photo (T_inc, M_vis) and the z-buffer renderer that 
 
 Conventions (DESIGN.md, "Conventions"): mm; camera space looks down −Z; UV [0, 1]² with the origin bottom-left,
 maps stored row 0 = top (texel (i, j) centre at u = (j + 0.5)/S, v = 1 − (i + 0.5)/S); image
-pixels continuous with the origin at the top-left corner (centres at +0.5).
+pixels continuous with the origin at the top-left corner (centres at +0.5). In code, these
+conventions live in :mod:`facegeo.uv.texels` (uv ↔ texel, bilinear lookups).
 
     raster = rasterize_uv(model, size=1024)              # cached per layout, size and padding
     maps = geometry_maps(fit.shape_vertices, model, raster)   # position/normal/tangent/sign
@@ -26,7 +27,7 @@ _EXPORTS = {
     "clear_raster_cache": "facegeo.uv.raster",
     "GeometryMaps": "facegeo.uv.maps",
     "geometry_maps": "facegeo.uv.maps",
-    "vertex_normals": "facegeo.uv.tangents",
+    "vertex_normals": "facegeo.normals",
     "mikktspace_tangents": "facegeo.uv.tangents",
     "mesh_tangents": "facegeo.uv.tangents",
     "unwrap": "facegeo.uv.unwrapping",
@@ -44,7 +45,8 @@ if TYPE_CHECKING:
     from facegeo.uv.maps import GeometryMaps, geometry_maps
     from facegeo.uv.raster import UVRaster, clear_raster_cache, default_padding, rasterize_uv
     from facegeo.uv.renderer import Rendering, rasterize_mesh, render
-    from facegeo.uv.tangents import mesh_tangents, mikktspace_tangents, vertex_normals
+    from facegeo.normals import vertex_normals
+    from facegeo.uv.tangents import mesh_tangents, mikktspace_tangents
     from facegeo.uv.unwrapping import FACING_RAMP, Unwrapped, unwrap, unwrap_details
 
 

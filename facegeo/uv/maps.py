@@ -7,7 +7,7 @@ data:
 * ``position`` (S, S, 3) float32, mm, in the frame of the vertices given (model space for
   ``fit.shape_vertices``, camera space for ``fit.vertices``);
 * ``normal`` (S, S, 3) float32: the interpolated area-weighted vertex normals
-  (:func:`facegeo.uv.tangents.vertex_normals`), renormalised;
+  (:func:`facegeo.normals.vertex_normals`), renormalised;
 * ``tangent`` (S, S, 3) float32: the interpolated MikkTSpace corner tangents, renormalised;
 * ``bitangent_sign`` (S, S) float32: ±1 (the triangle's corner sign: MikkTSpace gives all corners
   of a triangle the same sign, except where degenerate triangles copy from others; then the sign
@@ -26,7 +26,8 @@ import numpy as np
 
 from facegeo.errors import InputError
 from facegeo.uv.raster import UVRaster, rasterize_uv
-from facegeo.uv.tangents import mesh_tangents, vertex_normals
+from facegeo.normals import vertex_normals
+from facegeo.uv.tangents import mesh_tangents
 
 __all__ = ["GeometryMaps", "geometry_maps"]
 
@@ -78,7 +79,7 @@ def geometry_maps(vertices: np.ndarray, model, raster: UVRaster | None = None, *
             (cached).
         size: S, used when ``raster`` is None.
         normals: (V, 3) unit vertex normals; default the area-weighted ones
-            (:func:`facegeo.uv.vertex_normals`). Exporters must write the same normals.
+            (:func:`facegeo.normals.vertex_normals`). Exporters must write the same normals.
         tangents: also compute the MikkTSpace tangent and sign maps (about half the time).
     Returns:
         :class:`GeometryMaps`, all float32 (S, S, ·).
@@ -93,7 +94,10 @@ def geometry_maps(vertices: np.ndarray, model, raster: UVRaster | None = None, *
     if raster.n_triangles != triangles.shape[0]:
         raise InputError("<argument>", "raster", f"a UV raster of this model's {triangles.shape[0]} triangles",
                          f"one of {raster.n_triangles}")
-    n = vertex_normals(v, triangles) if normals is None else _check_vertices(normals, triangles, "normals")
+    if normals is None:
+        n = vertex_normals(v, triangles).astype(np.float32)
+    else:
+        n = _check_vertices(normals, triangles, "normals")
     geo = texel_geometry(v, n, model, raster, tangents=tangents)
     S = raster.size
     mask = raster.mask

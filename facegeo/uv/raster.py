@@ -30,8 +30,9 @@ import numpy as np
 
 from facegeo.errors import InputError
 from facegeo.uv._triangles import triangle_fragments
+from facegeo.uv.texels import uv_to_texel
 
-__all__ = ["UVRaster", "rasterize_uv", "default_padding", "clear_raster_cache", "texel_centres_uv"]
+__all__ = ["UVRaster", "rasterize_uv", "default_padding", "clear_raster_cache"]
 
 #: Largest supported map side (flat texel indices are int32).
 MAX_SIZE = 16384
@@ -142,12 +143,6 @@ class UVRaster:
         return sum(a.nbytes for a in (self.texels, self.texel_triangle, self.texel_barycentric, self.texel_inside))
 
 
-def texel_centres_uv(size: int) -> tuple[np.ndarray, np.ndarray]:
-    """(u, v) of the texel centres of an S × S map, each (S, S) float64 (row 0 = top)."""
-    c = (np.arange(size) + 0.5) / size
-    return np.broadcast_to(c[None, :], (size, size)), np.broadcast_to(1.0 - c[:, None], (size, size))
-
-
 def rasterize_uv(model_or_uv, uv_triangles: np.ndarray | None = None, size: int = 1024,
                  padding: int | None = None, *, cache: bool = True) -> UVRaster:
     """Rasterise a UV layout: per texel, the covering triangle and its barycentric coordinates.
@@ -231,10 +226,7 @@ def _layout_digest(uv: np.ndarray, tris: np.ndarray) -> str:
 
 def _rasterize(uv: np.ndarray, tris: np.ndarray, size: int, padding: int, key: str) -> UVRaster:
     S = size
-    # texel-grid coordinates: x = u·S, y = (1 − v)·S (row 0 = top)
-    pts = np.empty((tris.shape[0], 3, 2), dtype=np.float64)
-    pts[..., 0] = uv[tris, 0] * S
-    pts[..., 1] = (1.0 - uv[tris, 1]) * S
+    pts = uv_to_texel(uv[tris], S, S).astype(np.float64)  # (F, 3, 2) texel-grid coordinates
     parts = list(triangle_fragments(pts, S, S))
     if parts:
         pix = np.concatenate([p[0] for p in parts])

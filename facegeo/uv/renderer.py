@@ -17,12 +17,12 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-import cv2
 import numpy as np
 
-from facegeo.camera import Camera
+from facegeo.camera import Camera, to_pixels
 from facegeo.errors import InputError
 from facegeo.uv._triangles import triangle_fragments
+from facegeo.uv.texels import sample_uv
 
 __all__ = ["Rendering", "render", "rasterize_mesh"]
 
@@ -70,12 +70,9 @@ def rasterize_mesh(vertices_cam: np.ndarray, triangles: np.ndarray, camera: Came
     tri = np.asarray(triangles, dtype=np.int64)
     W, H = camera.width, camera.height
     depth_v = -v[:, 2]
-    safe = np.where(depth_v > 0, depth_v, 1.0)
-    px = camera.cx + camera.focal * v[:, 0] / safe
-    py = camera.cy - camera.focal * v[:, 1] / safe
     ok = np.flatnonzero((depth_v[tri] >= near).all(axis=1) & np.isfinite(depth_v[tri]).all(axis=1))
-    pts = np.stack([px, py], axis=1)[tri[ok]]  # (F', 3, 2)
-    inv_d = 1.0 / safe[tri[ok]]  # (F', 3)
+    pts = to_pixels(v, camera)[tri[ok]]  # (F', 3, 2)
+    inv_d = 1.0 / depth_v[tri[ok]]  # (F', 3)
     zbuf = np.full(H * W, np.inf)
     tbuf = np.full(H * W, -1, dtype=np.int32)
     bbuf = np.zeros((H * W, 3), dtype=np.float32) if barycentric else None
@@ -134,13 +131,7 @@ def render(vertices_cam: np.ndarray, model, camera: Camera, texture: np.ndarray 
     if texture is not None:
         if uv_img is None:
             raise InputError("<argument>", "texture", "a model with UVs", "none")
-        tex = _as_float_image(texture, "texture")
-        S_h, S_w = tex.shape[:2]
-        map_x = np.full((H, W), -1.0, dtype=np.float32)
-        map_y = np.full((H, W), -1.0, dtype=np.float32)
-        map_x[mask] = uv_img[..., 0][mask] * S_w - 0.5
-        map_y[mask] = (1.0 - uv_img[..., 1][mask]) * S_h - 0.5
-        image = _remap(tex, map_x, map_y)
+        image = sample_uv(_as_float_image(texture, "texture"), uv_img)  # background replaced below
     elif colours is not None:
         c = np.asarray(colours, dtype=np.float32)
         if c.ndim != 2 or c.shape[0] != v.shape[0]:
@@ -167,17 +158,3 @@ def _as_float_image(a: np.ndarray, name: str) -> np.ndarray:
     if not np.all(np.isfinite(out)):
         raise InputError("<array>", name, "finite values", "NaN/inf values")
     return out
-
-
-def _remap(img: np.ndarray, map_x: np.ndarray, map_y: np.ndarray) -> np.ndarray:
-    """Bilinear lookup at integer-centred coordinates with edge pixels repeated; any number of
-    channels (OpenCV handles up to 4 at a time)."""
-    squeeze = img.ndim == 2
-    src = img[..., None] if squeeze else img
-    outs = []
-    for c0 in range(0, src.shape[2], 4):
-        part = np.ascontiguousarray(src[..., c0:c0 + 4])
-        r = cv2.remap(part, map_x, map_y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
-        outs.append(r[..., None] if r.ndim == 2 else r)
-    out = np.concatenate(outs, axis=-1)
-    return out[..., 0] if squeeze else out

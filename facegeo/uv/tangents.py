@@ -1,4 +1,4 @@
-"""Vertex normals and MikkTSpace tangents (the tangent frame glTF requires and Blender uses).
+"""MikkTSpace tangents (the tangent frame glTF requires and Blender uses).
 
 :func:`mikktspace_tangents` re-implements Morten S. Mikkelsen's MikkTSpace (``genTangSpaceDefault``,
 the reference implementation's default 180° angular threshold) in vectorised NumPy, from the
@@ -41,32 +41,14 @@ from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 
 from facegeo.errors import InputError
+from facegeo.normals import vertex_normals
 
-__all__ = ["vertex_normals", "mikktspace_tangents", "mesh_tangents"]
+__all__ = ["mikktspace_tangents", "mesh_tangents"]
 
 _FLT_MIN = np.float32(np.finfo(np.float32).tiny)
 #: cos of the default 180° angular threshold, as the reference computes it in float: −1.
 _THRESHOLD_COS = np.float32(np.cos(np.float64(np.float32(np.float32(180.0) * np.float32(np.pi)) / np.float32(180.0))))
 _F32 = np.float32
-
-
-def vertex_normals(vertices: np.ndarray, triangles: np.ndarray) -> np.ndarray:
-    """Area-weighted unit vertex normals (the sum of the incident triangles' cross products,
-    normalised): (V, 3) float32. The same formula as :meth:`MorphableModel.vertex_normals`;
-    a vertex with no (or only zero-area) triangles gets (0, 0, 0).
-
-    These are the normals MikkTSpace is given here, so exporters must write these normals with
-    the mesh for a baked normal map to look the same in other tools.
-    """
-    v = np.asarray(vertices, dtype=np.float32)
-    tri = np.asarray(triangles, dtype=np.int64)
-    a, b, c = v[tri[:, 0]], v[tri[:, 1]], v[tri[:, 2]]
-    face = np.cross(b - a, c - a)
-    n = np.zeros_like(v)
-    for k in range(3):
-        np.add.at(n, tri[:, k], face)
-    length = np.linalg.norm(n, axis=1, keepdims=True)
-    return np.where(length > 1e-12, n / np.maximum(length, 1e-30), 0.0).astype(np.float32)
 
 
 def mesh_tangents(vertices: np.ndarray, triangles: np.ndarray, uv: np.ndarray, uv_triangles: np.ndarray,
@@ -76,14 +58,14 @@ def mesh_tangents(vertices: np.ndarray, triangles: np.ndarray, uv: np.ndarray, u
     Args:
         vertices: (V, 3) positions (any units). triangles: (F, 3) vertex indices.
         uv: (T, 2) UV coordinates. uv_triangles: (F, 3) indices into ``uv``.
-        normals: (V, 3) unit vertex normals; default :func:`vertex_normals`.
+        normals: (V, 3) unit vertex normals; default :func:`facegeo.normals.vertex_normals`.
     Returns:
         (F, 3, 4) float32: per corner the unit tangent (x, y, z) and the bitangent sign (±1).
     """
     v = np.asarray(vertices, dtype=np.float32)
     tri = np.asarray(triangles, dtype=np.int64)
     uvt = np.asarray(uv_triangles, dtype=np.int64)
-    n = vertex_normals(v, tri) if normals is None else np.asarray(normals, dtype=np.float32)
+    n = (vertex_normals(v, tri) if normals is None else np.asarray(normals)).astype(np.float32)
     uvs = np.asarray(uv, dtype=np.float32)
     if v.ndim != 2 or v.shape[1] != 3 or n.shape != v.shape or uvs.ndim != 2 or uvs.shape[1] != 2 \
             or tri.ndim != 2 or tri.shape[1] != 3 or uvt.shape != tri.shape:

@@ -44,13 +44,14 @@ import hashlib
 
 import numpy as np
 
-from facegeo.camera import Camera
+from facegeo.camera import Camera, to_pixels
 from facegeo.colour import srgb_to_linear
 from facegeo.errors import InputError
 from facegeo.uv.maps import GeometryMaps, texel_geometry
 from facegeo.uv.raster import UVRaster, rasterize_uv
-from facegeo.uv.renderer import NEAR_MM, _as_float_image, _remap, rasterize_mesh
-from facegeo.uv.tangents import vertex_normals
+from facegeo.uv.renderer import NEAR_MM, _as_float_image, rasterize_mesh
+from facegeo.uv.texels import sample_bilinear
+from facegeo.normals import vertex_normals
 
 __all__ = ["unwrap", "unwrap_details", "Unwrapped", "FACING_RAMP", "DEPTH_TOLERANCE_MM"]
 
@@ -160,7 +161,7 @@ def unwrap_details(image, fit, model, size: int = 1024, *, occlusion: np.ndarray
     else:
         if raster is None:
             raster = rasterize_uv(model, size=size)
-        geo = texel_geometry(vertices, vertex_normals(vertices, triangles), model, raster, tangents=False)
+        geo = texel_geometry(vertices, vertex_normals(vertices, triangles).astype(np.float32), model, raster, tangents=False)
         P, n_s = geo["position"], geo["normal"]
     tri = raster.texel_triangle
     planes = _Planes(vertices, triangles)
@@ -170,9 +171,7 @@ def unwrap_details(image, fit, model, size: int = 1024, *, occlusion: np.ndarray
     # projection (float32 keeps 1e-3 px at 16k pixels)
     depth = -P[:, 2]
     ahead = depth > near
-    inv_depth = np.float32(camera.focal) / np.where(ahead, depth, np.float32(1.0))
-    x = np.float32(camera.cx) + P[:, 0] * inv_depth
-    y = np.float32(camera.cy) - P[:, 1] * inv_depth
+    x, y = to_pixels(P, camera).T
     in_image = ahead & (x >= 0) & (x <= W) & (y >= 0) & (y <= H)
     # the texel lies on its triangle's plane n·X = c, so the plane faces the camera iff c < 0
     front = planes.faces_camera[tri]
@@ -197,12 +196,11 @@ def unwrap_details(image, fit, model, size: int = 1024, *, occlusion: np.ndarray
         seen = todo[~hidden]
         visible[seen] = True
         # bilinear lookups of the photo (and the mask) at the projections of the seen texels
-        map_x = (x[seen] - 0.5).astype(np.float32)
-        map_y = (y[seen] - 0.5).astype(np.float32)
+        at = np.stack([x[seen], y[seen]], axis=1)
         if occ_img is not None:
-            occ[seen] = _sample(occ_img, map_x, map_y)[:, 0]
+            occ[seen] = sample_bilinear(occ_img, at)
         visibility[seen] = np.clip(coverage[seen] * facing[seen] * (1.0 - occ[seen]), 0.0, 1.0)
-        colours[seen] = _sample(img, map_x, map_y)
+        colours[seen] = sample_bilinear(img, at)
         colours[visibility <= 0] = 0.0
     return Unwrapped(
         raster, colour_space,
@@ -434,18 +432,3 @@ def _vertices(vertices, triangles: np.ndarray) -> np.ndarray:
     if not np.all(np.isfinite(v)):
         raise InputError("<array>", "fit.vertices", "finite values", "NaN/inf values")
     return v
-
-
-_ROW = 4096
-
-
-def _sample(img: np.ndarray, map_x: np.ndarray, map_y: np.ndarray) -> np.ndarray:
-    """Bilinear lookups (integer-centred coordinates, edge pixels repeated) at N points:
-    (N, C) float32. The points are laid out as rows of 4096 for OpenCV's remap."""
-    n = map_x.size
-    rows = max(1, -(-n // _ROW))
-    pad = rows * _ROW - n
-    mx = np.concatenate([map_x, np.full(pad, -1.0, np.float32)]).reshape(rows, _ROW)
-    my = np.concatenate([map_y, np.full(pad, -1.0, np.float32)]).reshape(rows, _ROW)
-    out = _remap(img, mx, my)
-    return out.reshape(rows * _ROW, -1)[:n].astype(np.float32, copy=True)

@@ -53,6 +53,7 @@ from facegeo.texturing.diffusion.data import RSD_DISPLACEMENT_MM
 from facegeo.texturing.diffusion.model import (
     LORA_RANK, MATERIAL_BRANCHES, add_adapters, decode, encode, lora_parameters, mixed_adapters, pack, unpack, velocity,
 )  # fmt: skip
+from facegeo.colour import linear_to_srgb_torch, srgb_to_linear_torch
 from facegeo.texturing.shading import shade_ggx
 
 __all__ = [
@@ -61,8 +62,6 @@ __all__ = [
     "TrainConfig",
     "LatentSet",
     "encode_samples",
-    "srgb_to_linear_t",
-    "linear_to_srgb_t",
     "ShadingSupervisor",
     "maps_from_images",
     "flow_matching_step",
@@ -134,23 +133,11 @@ def encode_samples(components: Components, samples: dict[str, np.ndarray], task:
     return LatentSet(pack(cond), torch.stack([pack(t) for t in targets]), images, tuple(cond.shape[-2:]))
 
 
-# Differentiable sRGB transfer functions (facegeo.colour is NumPy-only); no clamp at 1, so
-# gradients pass for decoder overshoot too.
-def srgb_to_linear_t(x: torch.Tensor) -> torch.Tensor:
-    """sRGB -> linear (IEC 61966-2-1), torch, differentiable."""
-    return torch.where(x <= 0.04045, x / 12.92, ((x.clamp_min(0.04045) + 0.055) / 1.055) ** 2.4)
-
-
-def linear_to_srgb_t(x: torch.Tensor) -> torch.Tensor:
-    """linear -> sRGB, torch, differentiable (negative values map linearly)."""
-    return torch.where(x <= 0.0031308, 12.92 * x, 1.055 * x.clamp_min(0.0031308) ** (1 / 2.4) - 0.055)
-
-
 def maps_from_images(albedo: torch.Tensor, normal: torch.Tensor, rsd: torch.Tensor) -> dict[str, torch.Tensor]:
     """Branch images (B, 3, S, S) in [0, 1] -> the five maps as ``shade_ggx`` takes them: albedo
     linear (B, 3), decoded normal 2x − 1 (B, 3), roughness, specular, displacement mm (B, 1)."""
     return {
-        "albedo": srgb_to_linear_t(albedo),
+        "albedo": srgb_to_linear_torch(albedo),
         "normal": normal * 2.0 - 1.0,
         "roughness": rsd[:, 0:1],
         "specular": rsd[:, 1:2],
@@ -215,7 +202,7 @@ class ShadingSupervisor:
         with torch.no_grad():
             ref = self.shade(target, view)
         weight = ref.visibility
-        a, b = linear_to_srgb_t(pred.shaded), linear_to_srgb_t(ref.shaded)
+        a, b = linear_to_srgb_torch(pred.shaded, clip=False), linear_to_srgb_torch(ref.shaded, clip=False)
         mse = (weight * (a - b) ** 2).sum() / (3.0 * weight.sum()).clamp_min(1e-6)
         perceptual = None
         if self.lpips is not None:

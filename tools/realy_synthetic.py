@@ -27,8 +27,10 @@ from pathlib import Path
 
 import numpy as np
 
-from facegeo.eval.make_ict_keypoints import eye_frame
-from facegeo.eval.realy_io import barycentric_points, obj_text, read_keypoint_file
+from facegeo.eval.realy_io import barycentric_points, read_keypoint_file
+from facegeo.mesh_io import obj_text
+from facegeo.landmarks.scheme import IBUG68
+from make_ict_keypoints import eye_frame  # tools/, beside this file
 
 __all__ = ["SyntheticRealy", "make_dataset", "dataset_digest", "REGION_BOXES", "ict_keypoint_file"]
 
@@ -121,7 +123,7 @@ def make_dataset(root: str | Path, n_subjects: int = 3, seed: int = 0, subdivisi
     pred_dir = root / "pred"
     pred_dir.mkdir(parents=True, exist_ok=True)
     shutil.copyfile(kp_file, data / f"{topology}.txt")
-    (data / f"{topology}.obj").write_text(obj_text(mean, tris))
+    (data / f"{topology}.obj").write_text(obj_text(mean, tris, digits=6, comment=False))
 
     scales = np.ones(100)
     subjects = []
@@ -144,10 +146,10 @@ def make_dataset(root: str | Path, n_subjects: int = 3, seed: int = 0, subdivisi
         offset = rng.normal(scale=3.0, size=3)
         to_scan = lambda p: p / scale + offset  # noqa: E731
         scan_units = to_scan(dense_v)
-        (data / "REALY_HIFI3D_keypoints" / f"{k}.obj").write_text(obj_text(to_scan(keypoints_mm)))
+        (data / "REALY_HIFI3D_keypoints" / f"{k}.obj").write_text(obj_text(to_scan(keypoints_mm), digits=6, comment=False))
 
         # ---- regions, by frontal position in the eye frame of the keypoints
-        origin, unit, axes = eye_frame(keypoints_mm[:68])
+        origin, unit, axes = eye_frame(keypoints_mm[IBUG68])
         local = (dense_v - origin) @ axes.T / unit
         front = local[:, 2] > -0.45
         region_dir = data / "REALY_scan_region" / str(k)
@@ -162,7 +164,7 @@ def make_dataset(root: str | Path, n_subjects: int = 3, seed: int = 0, subdivisi
                 rt[5, 1] = len(rv) - 2
             if k == 3 and name == "mouth":  # a degenerate face (a repeated vertex)
                 rt = np.concatenate([rt, [[rt[0, 0], rt[0, 0], rt[0, 1]]]])
-            (region_dir / f"{name}.obj").write_text(obj_text(rv, rt))
+            (region_dir / f"{name}.obj").write_text(obj_text(rv, rt, digits=6, comment=False))
 
         # ---- prediction: another identity, some expression, rotated, scaled, moved (mm)
         beta = 0.7 * rng.normal(size=30)
@@ -172,7 +174,7 @@ def make_dataset(root: str | Path, n_subjects: int = 3, seed: int = 0, subdivisi
                 + np.tensordot(delta, model.exp_basis.astype(np.float64), axes=1))
         rot = _rotation(rng, rng.uniform(8, 20))
         pred = 1.1 * rng.uniform(0.9, 1.1) * pred @ rot.T + rng.normal(scale=20.0, size=3)
-        text = obj_text(pred, tris, quads=(k == 1))
+        text = obj_text(pred, tris, quads=(k == 1), digits=6, comment=False)
         if k == 1:  # "f v/vt" tokens must be read as their vertex index
             text = "\n".join(
                 " ".join([p if i == 0 else f"{p}/{p}" for i, p in enumerate(line.split())]) if line.startswith("f ") else line

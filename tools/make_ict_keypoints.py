@@ -8,7 +8,7 @@ face (the jaw 0..16 on the frontal outline) followed by 17 extra points on the c
 
 How this script places them on ICT-FaceKit's generic neutral mesh (``load_model().mean_shape``):
 
-* 0..67: ICT-FaceKit's own 68 Multi-PIE landmark vertices (``landmark_indices[:68]``, from ICT's
+* 0..67: ICT-FaceKit's own 68 Multi-PIE landmark vertices (``landmark_indices[IBUG68]``, from ICT's
   README), each written as weight 1 on one corner of the first triangle that uses the vertex.
 * 68..84: where a ray along the face's -Z axis first meets the surface, through a point given in
   the *eye frame*: origin half-way between the outer eye corners (36, 45), unit length their
@@ -25,8 +25,8 @@ its chin points 7-9 sit within the spread of the official templates.
 
 Usage (about 1 s)::
 
-    python -m facegeo.eval.make_ict_keypoints          # writes assets/realy/ICT-FaceKit.txt
-    python -m facegeo.eval.make_ict_keypoints --obj /tmp/ICT-FaceKit.obj   # also the template OBJ
+    python tools/make_ict_keypoints.py          # writes assets/realy/ICT-FaceKit.txt
+    python tools/make_ict_keypoints.py --obj /tmp/ICT-FaceKit.obj   # also the template OBJ
 
 The OBJ written with ``--obj`` (mean shape in mm, triangles in facegeo's order) together with the
 ``.txt`` is what the official REALY code needs as ``data/ICT-FaceKit.{obj,txt}``.
@@ -35,7 +35,7 @@ The OBJ written with ``--obj`` (mean shape in mm, triangles in facegeo's order) 
 ``data/{HIFI3D,BFM09,FLAME}.{obj,txt}``: the eye-frame position of each extra point, averaged
 over the three, symmetrised, rounded to 0.01) and prints it beside :data:`EXTRA_POINTS`::
 
-    python -m facegeo.eval.make_ict_keypoints --measure /path/to/REALY/data
+    python tools/make_ict_keypoints.py --measure /path/to/REALY/data
 """
 
 from __future__ import annotations
@@ -45,6 +45,8 @@ import json
 from pathlib import Path
 
 import numpy as np
+
+from facegeo.landmarks.scheme import IBUG68, OUTER_EYE_CORNERS
 
 #: Where the keypoint file lives in the source tree (assets/realy/, installed as facegeo.assets).
 DEFAULT_OUT = Path(__file__).resolve().parent.parent / "assets" / "realy" / "ICT-FaceKit.txt"
@@ -75,8 +77,9 @@ EXTRA_POINTS: tuple[tuple[int, str, float, float], ...] = (
 def eye_frame(landmarks68: np.ndarray) -> tuple[np.ndarray, float, np.ndarray]:
     """(origin, unit length, 3x3 rows = x, y, z axes) of the eye frame of 68 landmark points."""
     p = np.asarray(landmarks68, dtype=np.float64)
-    origin = (p[36] + p[45]) / 2.0
-    ex = p[45] - p[36]
+    right, left = p[OUTER_EYE_CORNERS]
+    origin = (right + left) / 2.0
+    ex = left - right
     unit = float(np.linalg.norm(ex))
     ex = ex / unit
     up = p[27] - p[8]
@@ -154,7 +157,7 @@ def extra_point_positions(vertices: np.ndarray, triangles: np.ndarray, rows: lis
     tri = rows_array[:, 0].astype(np.int64)
     weights = np.column_stack([rows_array[:, 1], rows_array[:, 2], 1.0 - rows_array[:, 1] - rows_array[:, 2]])
     points = barycentric_points(np.asarray(vertices, dtype=np.float64), np.asarray(triangles), tri, weights)
-    origin, unit, axes = eye_frame(points[:68])
+    origin, unit, axes = eye_frame(points[IBUG68])
     return ((points[68:] - origin) @ axes.T / unit)[:, :2]
 
 
@@ -201,15 +204,15 @@ def main(argv: list[str] | None = None) -> None:
         print(f"largest difference from EXTRA_POINTS: {worst:.2f} (eye-corner distances)")
         return
 
-    from facegeo.eval.realy_io import obj_text
+    from facegeo.mesh_io import obj_text
     from facegeo.model_files import load_model
 
     model = load_model()
-    rows = ict_keypoints(model.mean_shape, model.triangles, model.landmark_indices[:68])
+    rows = ict_keypoints(model.mean_shape, model.triangles, model.landmark_indices[IBUG68])
     args.output.write_text(json.dumps(rows) + "\n")
     print(f"wrote {args.output} (85 keypoints on {model.name})")
     if args.obj is not None:
-        args.obj.write_text(obj_text(model.mean_shape, model.triangles))
+        args.obj.write_text(obj_text(model.mean_shape, model.triangles, digits=6, comment=False))
         print(f"wrote {args.obj}")
 
 

@@ -1,0 +1,108 @@
+"""Vertex normals of a triangle mesh: one rule, a NumPy function and its differentiable torch twin.
+
+The rule (used everywhere: fitting, UV maps and MikkTSpace, displacement baking, exporters, the
+preview): a vertex's normal is the normalised sum of the cross products ``(b − a) × (c − a)`` of
+the counter-clockwise triangles that use it (area-weighted face normals). A vertex whose sum has
+no length (no triangle uses it, its triangles have no area, or opposite triangles cancel; length
+≤ 1e-12 × the mesh's longest sum) takes the normalised sum of its neighbours' normals, ring by
+ring (at most :data:`FALLBACK_RINGS` rings, for clusters of degenerate triangles), and +Z (out of
+the face, DESIGN.md) if that has no length either. So every normal is a finite unit vector: the
+one rule that never returns zero vectors or NaN, which the exporters and displacement need (a
+zero normal moves nothing and breaks tangent frames), while it changes nothing on a clean mesh.
+
+:func:`vertex_normals` accumulates in float64 (the reference); :func:`vertex_normals_torch` computes
+in the input's dtype and is differentiable (the fit and the regressor's photometric term);
+``tests/test_normals.py`` checks that the two agree.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import torch
+
+__all__ = ["vertex_normals", "vertex_normals_torch", "FALLBACK_NORMAL", "FALLBACK_RINGS"]
+
+#: The normal of a vertex with no usable triangle and no usable neighbour: +Z, out of the face.
+FALLBACK_NORMAL = (0.0, 0.0, 1.0)
+#: How many rings of neighbours a vertex without a normal of its own looks through.
+FALLBACK_RINGS = 3
+#: A sum shorter than this fraction of the mesh's longest sum counts as having no length.
+_RELATIVE_EPS = 1e-12
+
+
+def _edges(triangles: np.ndarray) -> np.ndarray:
+    """(3F, 2) directed edges (a, b), (b, c), (c, a) of the triangles."""
+    return np.concatenate([triangles[:, [0, 1]], triangles[:, [1, 2]], triangles[:, [2, 0]]])
+
+
+def vertex_normals(vertices: np.ndarray, triangles: np.ndarray) -> np.ndarray:
+    """Unit vertex normals by the module's rule.
+
+    Args:
+        vertices: (V, 3) positions (any float dtype, any units).
+        triangles: (F, 3) counter-clockwise vertex indices.
+    Returns:
+        (V, 3) float64 unit vectors.
+    """
+    v = np.asarray(vertices, dtype=np.float64)
+    f = np.asarray(triangles, dtype=np.int64).reshape(-1, 3)
+    face_n = np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]])  # 2 × area × unit normal
+    corners = f.ravel()
+    n = np.stack([np.bincount(corners, weights=np.repeat(face_n[:, c], 3), minlength=len(v)) for c in range(3)], axis=1)
+    length = np.linalg.norm(n, axis=1)
+    scale = np.max(length) if len(length) else 0.0
+    bad = length <= _RELATIVE_EPS * max(scale, 1e-300)
+    if not bad.any():
+        return n / length[:, None]
+    import scipy.sparse as sp  # only for meshes with such vertices
+
+    unit = np.zeros_like(n)
+    unit[~bad] = n[~bad] / length[~bad, None]
+    e = _edges(f)
+    rows, cols = np.concatenate([e[:, 0], e[:, 1]]), np.concatenate([e[:, 1], e[:, 0]])
+    adjacency = sp.csr_matrix((np.ones(2 * len(e)), (rows, cols)), shape=(len(v), len(v)))
+    for _ in range(FALLBACK_RINGS):
+        neighbour = adjacency[np.flatnonzero(bad)] @ unit
+        nl = np.linalg.norm(neighbour, axis=1)
+        good = nl > 1e-12
+        idx = np.flatnonzero(bad)[good]
+        unit[idx] = neighbour[good] / nl[good, None]
+        bad[idx] = False
+        if not bad.any():
+            break
+    unit[bad] = FALLBACK_NORMAL
+    return unit
+
+
+def vertex_normals_torch(vertices: torch.Tensor, triangles: torch.Tensor | np.ndarray) -> torch.Tensor:
+    """The torch twin of :func:`vertex_normals`: (..., V, 3) vertices (any batch shape) and (F, 3)
+    triangles -> (..., V, 3) unit normals in the vertices' dtype, differentiable.
+
+    The fallback for vertices without a normal of their own (a data-dependent branch, taken only
+    when such a vertex exists) is the same as :func:`vertex_normals`'s, per batch element.
+    """
+    tri = torch.as_tensor(triangles, dtype=torch.long)
+    a, b, c = vertices[..., tri[:, 0], :], vertices[..., tri[:, 1], :], vertices[..., tri[:, 2], :]
+    face_n = torch.cross(b - a, c - a, dim=-1)
+    normals = torch.zeros_like(vertices)
+    for k in range(3):
+        normals = normals.index_add(-2, tri[:, k], face_n)
+    unit = torch.nn.functional.normalize(normals, dim=-1, eps=1e-12)
+    length = torch.linalg.vector_norm(normals, dim=-1)
+    scale = length.amax(dim=-1, keepdim=True) if length.shape[-1] else length
+    bad = length <= _RELATIVE_EPS * scale.clamp_min(1e-300)
+    if not bool(bad.any()):
+        return unit
+    unit = torch.where(bad[..., None], torch.zeros_like(unit), unit)
+    e = torch.from_numpy(_edges(tri.numpy()))
+    src, dst = torch.cat([e[:, 0], e[:, 1]]), torch.cat([e[:, 1], e[:, 0]])
+    for _ in range(FALLBACK_RINGS):
+        neighbour = torch.zeros_like(unit).index_add(-2, src, unit[..., dst, :])
+        nl = torch.linalg.vector_norm(neighbour, dim=-1)
+        fixed = bad & (nl > 1e-12)
+        unit = torch.where(fixed[..., None], neighbour / nl.clamp_min(1e-12)[..., None], unit)
+        bad = bad & ~fixed
+        if not bool(bad.any()):
+            return unit
+    fallback = torch.tensor(FALLBACK_NORMAL, dtype=unit.dtype).expand_as(unit)
+    return torch.where(bad[..., None], fallback, unit)
