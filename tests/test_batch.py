@@ -25,7 +25,7 @@ from facegeo.batch import (FAILURES_FILE, ITEMS_FILE, SUMMARY_FILE, dask_client,
 from facegeo.cli import main
 from facegeo.errors import InputError
 from facegeo.eval.realy import evaluate
-from facegeo.eval.realy_synthetic import make_dataset
+from realy_synthetic import make_dataset  # tools/ (pytest pythonpath)
 from facegeo.jobs import FIT_FILES, FitOptions, JobRecord, fit_into_folder
 from facegeo.staged_output import TEMP_PREFIX, StagedOutput
 
