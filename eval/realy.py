@@ -423,6 +423,7 @@ def evaluate(
     template_mask: str | Path | np.ndarray | None = None,
     settings: Settings = EXACT,
     progress: bool | None = False,
+    client: Any = None,
 ) -> RealyResult:
     """Evaluate every ``PRED_DIR/*.obj`` with the REALY protocol (see the module doc).
 
@@ -433,7 +434,9 @@ def evaluate(
     official ``--template_mask`` (0/1 per vertex, comma separated; only triangles whose three
     vertices are 1 are used in the error step). ``settings``: the speed / exactness knobs
     (:class:`~facegeo.eval.realy_align.Settings`; the default is the official protocol).
-    ``progress``: a tqdm bar (None: only on a terminal).
+    ``progress``: a tqdm bar (None: only on a terminal). ``client``: a
+    :class:`distributed.Client`; the regions are then evaluated on its cluster's workers instead
+    (``workers`` is ignored; the same numbers: each region is the same computation anywhere).
 
     Raises:
         InputError: a wrong folder layout, a missing subject file, a prediction with a wrong
@@ -475,7 +478,18 @@ def evaluate(
     if workers > 1 and len(tasks) > 1 and topo.triangles is not None:
         SurfaceQuery(topo.triangles).rings()  # once here, inherited by the forked workers
     try:
-        if workers <= 1 or len(tasks) == 1:
+        if client is not None:
+            from distributed import as_completed as dask_completed
+
+            futures = [client.submit(_run, t, pure=False) for t in tasks]  # one small graph each (≈1 MB), not one huge one
+            try:
+                for fut in dask_completed(futures):
+                    _collect(results, fut.result())
+                    bar.update(1)
+            except BaseException:
+                client.cancel(futures)
+                raise
+        elif workers <= 1 or len(tasks) == 1:
             for task in tasks:
                 _collect(results, _run(task))
                 bar.update(1)
@@ -507,7 +521,7 @@ def evaluate(
         uncertainty={name: {r: results[name, r][1]["uncertainty"] for r in REGIONS} for name in per_subject},
         settings=settings,
         wall_seconds=time.perf_counter() - start,
-        workers=workers,
+        workers=len(client.scheduler_info()["workers"]) if client is not None else workers,
     )
 
 

@@ -25,10 +25,11 @@ Guarantees (POSIX; the temporary folder and the target are on the same file syst
 * a write that fails for lack of room (ENOSPC, EFBIG, EDQUOT) or on a read-only or failing file
   system becomes one :class:`OutputError` naming the file, after the staged files are removed.
 
-Temporary names are ``.facegeo-tmp-<pid>-<random>``. A process killed outright (SIGKILL, power
-loss) leaves its ``.facegeo-tmp-*`` folder or file behind; the next :class:`StagedOutput` or
-:func:`atomic_write_bytes` into the same place removes those whose process no longer exists
-(:func:`remove_stale_temporaries`; same machine assumed). No file in the output folder is ever
+Temporary names are ``.facegeo-tmp-<pid>-h<host>-<random>`` (``<host>``: a hash of the host
+name). A process killed outright (SIGKILL, power loss) leaves its ``.facegeo-tmp-*`` folder or
+file behind; the next :class:`StagedOutput` or :func:`atomic_write_bytes` into the same place
+removes those of this host whose process no longer exists (:func:`remove_stale_temporaries`);
+those of other hosts (batch workers sharing a file system) are left to their own host. No file in the output folder is ever
 partial. The ``facegeo`` command turns SIGTERM and SIGINT into an exception, so the clean-up
 above runs for them too.
 """
@@ -36,10 +37,12 @@ above runs for them too.
 from __future__ import annotations
 
 import errno
+import hashlib
 import os
 import re
 import secrets
 import shutil
+import socket
 import stat
 from pathlib import Path
 from types import TracebackType
@@ -55,7 +58,10 @@ TEMP_PREFIX = ".facegeo-tmp-"
 #: Files that mark a folder as an earlier facegeo output (``fit``/``reconstruct``, ``unwrap``,
 #: an asset folder), which ``StagedOutput(..., replace=True)`` may replace as a whole.
 OUTPUT_MARKERS = ("fit.json", "unwrap.json", "asset.json")
-_OWNER = re.compile(re.escape(TEMP_PREFIX) + r"(\d+)-")
+_OWNER = re.compile(re.escape(TEMP_PREFIX) + r"(\d+)-(?:h([0-9a-f]{8})-)?")
+#: This host in temporary names: processes of other hosts writing to a shared file system
+#: cannot be checked by process id, so their temporaries are never taken for stale ones.
+_HOST = hashlib.sha1(socket.gethostname().encode("utf-8", "replace")).hexdigest()[:8]
 #: errno values of writes that fail for want of room or of a working file system.
 WRITE_FAULTS = {errno.ENOSPC: "no space left on the device", errno.EFBIG: "file too large for the file system or the process's file size limit",
                 errno.EDQUOT: "disk quota exceeded", errno.EROFS: "read-only file system", errno.EIO: "input/output error"}
@@ -265,8 +271,9 @@ def check_output_location(path: str | os.PathLike[str], *, folder: bool, replace
 
 def remove_stale_temporaries(folder: str | os.PathLike[str]) -> list[Path]:
     """Delete the ``.facegeo-tmp-<pid>-*`` folders and files in ``folder`` whose process no
-    longer exists (left by a run that was killed outright); returns what was removed. Names
-    without a process id, and those of live processes, are left alone."""
+    longer exists on this host (left by a run that was killed outright); returns what was
+    removed. Names without a process id, those of live processes and those of other hosts are
+    left alone."""
     removed: list[Path] = []
     try:
         entries = list(Path(folder).iterdir())
@@ -274,7 +281,7 @@ def remove_stale_temporaries(folder: str | os.PathLike[str]) -> list[Path]:
         return removed
     for entry in entries:
         match = _OWNER.match(entry.name)
-        if match is None or _process_alive(int(match.group(1))):
+        if match is None or match.group(2) not in (None, _HOST) or _process_alive(int(match.group(1))):
             continue
         try:
             if entry.is_dir() and not entry.is_symlink():
@@ -412,12 +419,13 @@ def _make_parents(folder: Path, source: str) -> list[Path]:
 
 
 def _temp_name() -> str:
-    """``.facegeo-tmp-<pid>-<random>``: the process id lets a later run tell a stale one."""
-    return f"{TEMP_PREFIX}{os.getpid()}-{secrets.token_hex(4)}"
+    """``.facegeo-tmp-<pid>-h<host>-<random>``: the process id and host let a later run tell a
+    stale one."""
+    return f"{TEMP_PREFIX}{os.getpid()}-h{_HOST}-{secrets.token_hex(4)}"
 
 
 def _make_hidden_dir(parent: Path) -> Path:
-    """Create ``parent/.facegeo-tmp-<pid>-XXXXXXXX`` with the default (umask) permissions."""
+    """Create ``parent/.facegeo-tmp-<pid>-h<host>-XXXXXXXX`` with the default (umask) permissions."""
     for _ in range(100):
         candidate = parent / _temp_name()
         try:
@@ -429,7 +437,7 @@ def _make_hidden_dir(parent: Path) -> Path:
 
 
 def _open_temp_file(folder: Path) -> tuple[int, Path]:
-    """Open a new file ``folder/.facegeo-tmp-<pid>-XXXXXXXX`` (mode 0o666 & ~umask); the name
+    """Open a new file ``folder/.facegeo-tmp-<pid>-h<host>-XXXXXXXX`` (mode 0o666 & ~umask); the name
     does not repeat the target's, so a target name of NAME_MAX bytes still works."""
     flags = os.O_WRONLY | os.O_CREAT | os.O_EXCL | getattr(os, "O_CLOEXEC", 0)
     for _ in range(100):

@@ -235,3 +235,24 @@ def test_atomic_write_unwritable_simulated(tmp_path, monkeypatch):
     with pytest.raises(InputError, match="permission denied"):
         atomic_write_text(tmp_path / "f.txt", "x")
     assert list(tmp_path.iterdir()) == []
+
+
+def test_stale_temporaries_of_this_host_only(tmp_path):
+    """A dead process's staging folder is removed; one named by another host (a batch worker
+    writing to a shared file system) is not, since its process cannot be checked from here."""
+    import subprocess
+    import sys
+
+    from facegeo.staged_output import _HOST, remove_stale_temporaries
+
+    dead = subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"], capture_output=True, text=True)
+    pid = int(dead.stdout)
+    mine = tmp_path / f"{TEMP_PREFIX}{pid}-h{_HOST}-0000abcd"
+    other = tmp_path / f"{TEMP_PREFIX}{pid}-h{'0' * 8 if _HOST != '0' * 8 else '1' * 8}-0000abcd"
+    old_style = tmp_path / f"{TEMP_PREFIX}{pid}-0000abcd"
+    for d in (mine, other, old_style):
+        d.mkdir()
+    assert sorted(remove_stale_temporaries(tmp_path)) == sorted([mine, old_style])
+    assert other.is_dir()
+    with StagedOutput(tmp_path / "out") as stage:
+        assert stage.staging_dir.name.startswith(f"{TEMP_PREFIX}{os.getpid()}-h{_HOST}-")

@@ -81,16 +81,18 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv: list[str] | None = None) -> int:
     """Entry point of the ``facegeo`` console command; returns the exit status: 0, 2 for bad
-    input or a failed write (one line on stderr), 128 + signal number after SIGINT/SIGTERM."""
+    input or a failed write (one line on stderr), 128 + signal number after SIGINT/SIGTERM; a
+    batch (several photos) also 3 when some photos failed (:data:`facegeo.batch.EXIT_STATUS`)."""
     import threading
 
     on_main_thread = threading.current_thread() is threading.main_thread()  # only there can signals be caught
     previous = {s: signal.signal(s, _raise_interrupted) for s in (signal.SIGINT, signal.SIGTERM)} if on_main_thread else {}
+    status: int | None = None
     try:
         parser = build_parser()
         args = parser.parse_args(argv)
         check_arguments(args)
-        args.run(args)
+        status = args.run(args)
     except FacegeoError as exc:
         print(f"facegeo: error: {exc}", file=sys.stderr)
         return 2
@@ -105,4 +107,4 @@ def main(argv: list[str] | None = None) -> int:
     finally:
         for s, handler in previous.items():
             signal.signal(s, handler)
-    return 0
+    return int(status or 0)

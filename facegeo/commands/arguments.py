@@ -38,7 +38,7 @@ class Command:
     help: str
     description: str
     arguments: Callable[[argparse.ArgumentParser], None]
-    run: Callable[[argparse.Namespace], None]
+    run: Callable[[argparse.Namespace], int | None]
     output_folder: bool = False
 
 
@@ -121,7 +121,11 @@ def check_arguments(args: argparse.Namespace) -> None:
         raise InputError(COMMAND_LINE, "--refine", "--regressor CKPT with it", "no --regressor")
     if getattr(args, "weights", None) is not None and getattr(args, "backend", "diffusion") != "diffusion":
         raise InputError(COMMAND_LINE, "--weights", "--backend diffusion", f"--backend {args.backend}")
-    if getattr(args, "output_folder", False):
+    from facegeo.batch import wants_batch
+
+    if isinstance(getattr(args, "photo", None), list) and not wants_batch(args):
+        args.photo = args.photo[0]  # one photo, no batch option: the single-photo command
+    if getattr(args, "output_folder", False) and not wants_batch(args):  # a batch checks its OUT itself
         check_output_location(args.output, folder=True, replace=True)
         out = Path(args.output).resolve()
         for name, value in vars(args).items():  # an existing OUT is replaced: it must not hold an input
@@ -130,9 +134,12 @@ def check_arguments(args: argparse.Namespace) -> None:
                                  f"{args.output}, which holds {value}")
 
 
-def add_photo_arguments(parser: argparse.ArgumentParser) -> None:
-    """The photo and the output folder (``PHOTO -o OUT``) of the commands that fit a photo."""
-    parser.add_argument("photo", type=Path, help="the photo (PNG, JPEG, ...); EXIF orientation is honoured")
+def add_photo_arguments(parser: argparse.ArgumentParser, many: bool = False) -> None:
+    """The photo and the output folder (``PHOTO -o OUT``) of the commands that fit a photo; with
+    ``many``, ``photo`` takes several (a batch: :mod:`facegeo.batch`)."""
+    parser.add_argument("photo", type=Path, nargs="+" if many else None,
+                        help="the photo (PNG, JPEG, ...); EXIF orientation is honoured"
+                        + ("; or several, folders, glob patterns, manifests (see batch)" if many else ""))
     parser.add_argument("-o", "--output", type=Path, required=True,
                         help="output folder (created; an existing one must be empty or an earlier facegeo output, and is replaced)")
 

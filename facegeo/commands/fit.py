@@ -5,23 +5,27 @@ from __future__ import annotations
 
 import argparse
 
+from facegeo.batch import add_batch_arguments, run_batch, wants_batch
 from facegeo.commands.arguments import Command, add_fit_arguments, add_photo_arguments, add_regressor_arguments
 
 __all__ = ["COMMANDS"]
 
 
 def _arguments(parser: argparse.ArgumentParser) -> None:
-    add_photo_arguments(parser)
+    add_photo_arguments(parser, many=True)
     add_fit_arguments(parser)
     parser.add_argument("--no-photometric", action="store_true", help="skip the albedo and lighting stage")
     add_regressor_arguments(parser)
+    add_batch_arguments(parser)
 
 
-def _run(args: argparse.Namespace) -> None:
+def _run(args: argparse.Namespace) -> int | None:
     from facegeo.jobs import FitOptions, fit_into_folder
 
     options = FitOptions(model=args.model, landmarks=args.landmarks, focal=args.focal, max_side=args.max_side,
                          photometric=not args.no_photometric, regressor=args.regressor, refine=args.refine)
+    if wants_batch(args):
+        return run_batch(args, "fit", options)
     record = fit_into_folder(args.photo, args.output, options)
     for note in record.notes:
         print(f"note: {note}")
@@ -31,6 +35,7 @@ def _run(args: argparse.Namespace) -> None:
     )
     print("timings: " + ", ".join(f"{k} {v:.3f} s" for k, v in record.timings.items()))
     print(f"wrote {args.output}/" + ", ".join(record.files))
+    return None
 
 
 COMMANDS = (

@@ -4,6 +4,8 @@ folder of predicted meshes, written as REALY's files and facegeo's summaries."""
 from __future__ import annotations
 
 import argparse
+import contextlib
+import os
 import sys
 import time
 from pathlib import Path
@@ -37,6 +39,9 @@ def _arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--scale-path", type=Path, default=None, metavar="FILE", help="override data/metrical_scale.txt")
     p.add_argument("--workers", type=int, default=1, metavar="N",
                    help="processes; the regions of all subjects are shared among them (the numbers do not change)")
+    p.add_argument("--scheduler", default=os.environ.get("DASK_SCHEDULER_ADDRESS") or None, metavar="ADDRESS",
+                   help="share the regions among the workers of the Dask cluster at ADDRESS instead "
+                   "(default $DASK_SCHEDULER_ADDRESS; needs facegeo[batch] here and on the workers; the numbers do not change)")
     knobs = p.add_argument_group(
         "speed against exactness", "Loosen the official protocol for speed (the defaults are exact; "
         "benchmarks/RESULTS.md has the error against time of each)")
@@ -63,6 +68,8 @@ def _run(args: argparse.Namespace) -> None:
 
     if args.workers < 1:
         raise InputError("--workers", "value", "a positive number of processes", str(args.workers))
+    if args.scheduler and args.workers != 1:
+        raise InputError("--workers", "value", "no --workers with --scheduler (the cluster has its workers)", str(args.workers))
     if args.template is not None and args.keypoints is None:
         raise InputError(args.template, "--template", "to be used with --keypoints FILE")
     try:
@@ -71,20 +78,27 @@ def _run(args: argparse.Namespace) -> None:
     except ValueError as exc:
         raise InputError("<arguments>", "speed / exactness options", "positive values", str(exc)) from None
     start = time.perf_counter()
-    result = evaluate(
-        args.pred_dir,
-        args.realy_root,
-        topology=args.topology or DEFAULT_TOPOLOGY,
-        keypoints=args.keypoints,
-        workers=args.workers,
-        template=args.template,
-        keypoints_dir=args.keypoints_dir,
-        regions_dir=args.regions_dir,
-        scale_path=args.scale_path,
-        template_mask=args.template_mask,
-        settings=settings,
-        progress=None if sys.stderr.isatty() else False,
-    )
+    with contextlib.ExitStack() as stack:
+        client = None
+        if args.scheduler:
+            from facegeo.batch import dask_client
+
+            client = stack.enter_context(dask_client(scheduler=args.scheduler))
+        result = evaluate(
+            args.pred_dir,
+            args.realy_root,
+            topology=args.topology or DEFAULT_TOPOLOGY,
+            keypoints=args.keypoints,
+            workers=args.workers,
+            template=args.template,
+            keypoints_dir=args.keypoints_dir,
+            regions_dir=args.regions_dir,
+            scale_path=args.scale_path,
+            template_mask=args.template_mask,
+            settings=settings,
+            progress=None if sys.stderr.isatty() else False,
+            client=client,
+        )
     out = args.output if args.output is not None else args.pred_dir / "realy_eval"
     write_outputs(result, out)
     print(markdown_table(result), end="")

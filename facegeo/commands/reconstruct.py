@@ -7,6 +7,7 @@ import argparse
 import sys
 from pathlib import Path
 
+from facegeo.batch import add_batch_arguments, run_batch, wants_batch
 from facegeo.commands.arguments import (
     Command,
     RegistryNames,
@@ -30,7 +31,7 @@ def _arguments(parser: argparse.ArgumentParser) -> None:
     from facegeo.jobs import ReconstructOptions
 
     defaults = option_defaults(ReconstructOptions)
-    add_photo_arguments(parser)
+    add_photo_arguments(parser, many=True)
     add_fit_arguments(parser)
     add_regressor_arguments(parser)
     texture = parser.add_argument_group("texture and export")
@@ -49,9 +50,10 @@ def _arguments(parser: argparse.ArgumentParser) -> None:
                          help=f"comma-separated formats among {', '.join(FORMATS)} (default %(default)s)")
     add_parts_argument(texture)
     parser.add_argument("--no-preview", action="store_true", help="do not render preview.png")
+    add_batch_arguments(parser)
 
 
-def _run(args: argparse.Namespace) -> None:
+def _run(args: argparse.Namespace) -> int | None:
     from tqdm import tqdm
 
     from facegeo.asset import MAP_NAMES
@@ -65,6 +67,8 @@ def _run(args: argparse.Namespace) -> None:
                                  regressor=args.regressor, refine=args.refine, backend=args.backend, weights=args.weights,
                                  size=args.size, upscale=args.upscale, subdiv=args.subdiv, maps=tuple(maps),
                                  formats=tuple(formats), parts=args.parts, preview=not args.no_preview)
+    if wants_batch(args):
+        return run_batch(args, "reconstruct", options)
     bar = tqdm(total=len(STAGES) + 2, desc="reconstruct", unit="stage", disable=not sys.stderr.isatty(), leave=False)
 
     def progress(stage: str) -> None:
@@ -79,6 +83,7 @@ def _run(args: argparse.Namespace) -> None:
           f"at {record.map_size}², formats {', '.join(formats)}")
     print("timings: " + ", ".join(f"{k} {v:.2f} s" for k, v in record.timings.items()))
     print(f"wrote {args.output}")
+    return None
 
 
 COMMANDS = (
