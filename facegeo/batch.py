@@ -74,7 +74,7 @@ if TYPE_CHECKING:  # facegeo.jobs imports torch (its option defaults check the d
     from facegeo.jobs import FitOptions, JobRecord, ReconstructOptions
 
 __all__ = ["BatchRecord", "fit_many", "reconstruct_many", "expand_inputs", "folder_names", "dask_client",
-           "add_batch_arguments", "wants_batch", "run_batch", "EXIT_STATUS", "ITEMS_FILE", "SUMMARY_FILE",
+           "EXIT_STATUS", "SCHEDULER_ENV", "GLOB_CHARS", "ITEMS_FILE", "SUMMARY_FILE",
            "FAILURES_FILE", "MANIFEST_SUFFIXES"]
 
 ITEMS_FILE = "items.csv"
@@ -87,13 +87,13 @@ EXIT_STATUS = {0: "every photo done or skipped", 3: "the batch ran to its end bu
                2: "bad invocation: no inputs, an unusable OUT, an unreachable scheduler",
                130: "interrupted by SIGINT (Ctrl-C)", 143: "interrupted by SIGTERM"}
 _IMAGE_SUFFIXES = {".png", ".jpg", ".jpeg", ".tif", ".tiff", ".bmp", ".dib", ".gif", ".webp", ".ppm", ".pgm", ".pnm", ".avif"}
-_GLOB_CHARS = set("*?[")
+GLOB_CHARS = set("*?[")
 _RESERVED = {ITEMS_FILE, SUMMARY_FILE, FAILURES_FILE}
 _MAX_NAME_BYTES = 200  # leaves room for "-N" and the staging suffix under NAME_MAX (255)
 _FLUSH_SECONDS = 30.0  # summary.csv is rewritten at most this often while a batch runs
 _JOBS = {"fit": "fit_into_folder", "reconstruct": "reconstruct_into_folder"}
 _COMMAND_LINE = "<command line>"
-_SCHEDULER_ENV = "DASK_SCHEDULER_ADDRESS"
+SCHEDULER_ENV = "DASK_SCHEDULER_ADDRESS"
 
 
 @dataclass
@@ -148,7 +148,7 @@ def expand_inputs(specs: Iterable[str | os.PathLike[str]]) -> list[Path]:
             photos += found
         elif path.suffix.lower() in MANIFEST_SUFFIXES and path.is_file():
             photos += _read_manifest(path)
-        elif not path.exists() and _GLOB_CHARS & set(text):
+        elif not path.exists() and GLOB_CHARS & set(text):
             found = sorted(Path(p) for p in glob.glob(os.path.expanduser(text), recursive=True) if Path(p).is_file())
             if not found:
                 raise InputError(text, "glob pattern", "a pattern that matches files", "no match")
@@ -626,74 +626,3 @@ def reconstruct_many(photos: Iterable[str | os.PathLike[str]], out: str | os.Pat
     return _run_many("reconstruct", photos, out, client, options or ReconstructOptions(), workers=workers, scheduler=scheduler, resume=resume,
                      retries=retries, allowed_failures=allowed_failures, files=files, job=job,
                      memory_limit=memory_limit, progress=progress, on_failure=on_failure)
-
-
-# ------------------------------------------------------------------------------------- CLI
-def add_batch_arguments(parser: argparse.ArgumentParser) -> None:
-    """The batch options of ``fit`` and ``reconstruct`` (their ``photo`` argument takes several)."""
-    g = parser.add_argument_group(
-        "batch", "With several photos, a folder, a glob pattern or a manifest (.txt/.lst, one path per line), or "
-        "any option below, -o OUT is a batch folder: OUT/<photo name>/ per photo, items.csv, summary.csv, "
-        "failures.csv. Exit status: 0 all done, 3 some photos failed, 2 bad invocation, 130 interrupted.")
-    g.add_argument("--workers", type=int, default=None, metavar="N",
-                   help="worker processes of the embedded Dask cluster, one thread each (default: the CPU cores)")
-    g.add_argument("--scheduler", default=os.environ.get(_SCHEDULER_ENV) or None, metavar="ADDRESS",
-                   help=f"run on an existing Dask cluster (default ${_SCHEDULER_ENV}); OUT must be on a file "
-                   "system the workers share, unless --send-files")
-    g.add_argument("--send-files", action="store_true",
-                   help="workers send each item's files back and this process writes them (no shared file system)")
-    g.add_argument("--resume", action="store_true",
-                   help="complete the earlier batch in OUT: skip photos whose folder is complete (without it an "
-                   "earlier batch output is refused)")
-    g.add_argument("--retries", type=int, default=2, metavar="N",
-                   help="re-runs of a photo after an unexpected error or a worker death (default 2; a bad photo "
-                   "fails at once)")
-
-
-def wants_batch(args: argparse.Namespace) -> bool:
-    """Whether ``args`` (of ``fit`` / ``reconstruct``, ``photo`` a list) ask for a batch: several
-    photos, a folder, a manifest, a glob pattern, or a batch option. One photo path without
-    batch options is the single-photo command, exactly as before."""
-    photos = getattr(args, "photo", None)
-    if not isinstance(photos, list):
-        return False
-    if len(photos) != 1 or args.workers is not None or args.resume or args.send_files:
-        return True
-    if args.scheduler and args.scheduler != os.environ.get(_SCHEDULER_ENV):
-        return True  # given on the command line (the environment alone does not make one photo a batch)
-    path = Path(photos[0])
-    return path.is_dir() or (path.suffix.lower() in MANIFEST_SUFFIXES and path.is_file()) or (
-        not path.exists() and bool(_GLOB_CHARS & set(str(path))))
-
-
-def run_batch(args: argparse.Namespace, kind: str, options: FitOptions) -> int:
-    """Run the batch ``args`` ask for (``kind``: "fit" or "reconstruct") and print its outcome;
-    returns the exit status (:data:`EXIT_STATUS`). Failed photos are listed on stderr as they fail."""
-    import signal
-
-    many = fit_many if kind == "fit" else reconstruct_many
-    if args.retries < 0:
-        raise InputError(_COMMAND_LINE, "--retries", "a number ≥ 0", str(args.retries))
-
-    def report(record: BatchRecord) -> None:
-        from tqdm import tqdm
-
-        where = "" if record.error.startswith(record.photo) else f"{record.photo}: "
-        tqdm.write(f"facegeo: failed: {where}{record.error}", file=sys.stderr)
-
-    start = time.perf_counter()
-    try:
-        records = many(args.photo, args.output, None, options, workers=args.workers, scheduler=args.scheduler,
-                       resume=args.resume, retries=args.retries, allowed_failures=args.retries,
-                       files="client" if args.send_files else "shared", progress=None, on_failure=report)
-    except KeyboardInterrupt as exc:
-        signum = int(getattr(exc, "signum", signal.SIGINT))
-        print(f"facegeo: interrupted ({signal.Signals(signum).name}); complete item folders kept in {args.output}, "
-              f"finish with --resume", file=sys.stderr)
-        return 128 + signum
-    counts = {s: sum(r.status == s for r in records) for s in ("done", "skipped", "failed")}
-    print(f"{kind} {len(records)} photo(s) in {time.perf_counter() - start:.1f} s: {counts['done']} done, "
-          f"{counts['skipped']} skipped (complete before), {counts['failed']} failed"
-          + (f" (see {args.output}/{FAILURES_FILE})" if counts["failed"] else ""))
-    print(f"wrote {args.output}/{{<photo>/,{ITEMS_FILE},{SUMMARY_FILE},{FAILURES_FILE}}}")
-    return 3 if counts["failed"] else 0

@@ -11,17 +11,19 @@ from __future__ import annotations
 
 import argparse
 import math
+import os
 from collections.abc import Callable, Iterable, Iterator, Sequence
 from dataclasses import dataclass, fields
 from importlib import import_module
 from pathlib import Path
 from typing import Any
 
+from facegeo.batch import GLOB_CHARS, MANIFEST_SUFFIXES, SCHEDULER_ENV
 from facegeo.errors import InputError
 
 __all__ = ["Command", "add_commands", "RegistryNames", "COMMAND_LINE", "DETECTOR_NAMES", "parse_list", "check_arguments", "option_defaults",
            "add_photo_arguments", "add_fit_arguments", "add_model_argument", "add_regressor_arguments", "add_parts_argument",
-           "add_seed_argument", "add_device_argument"]
+           "add_seed_argument", "add_device_argument", "add_batch_arguments", "wants_batch"]
 
 #: The command line as the ``source`` of an :class:`InputError` about an option.
 COMMAND_LINE = "<command line>"
@@ -121,8 +123,6 @@ def check_arguments(args: argparse.Namespace) -> None:
         raise InputError(COMMAND_LINE, "--refine", "--regressor CKPT with it", "no --regressor")
     if getattr(args, "weights", None) is not None and getattr(args, "backend", "diffusion") != "diffusion":
         raise InputError(COMMAND_LINE, "--weights", "--backend diffusion", f"--backend {args.backend}")
-    from facegeo.batch import wants_batch
-
     if isinstance(getattr(args, "photo", None), list) and not wants_batch(args):
         args.photo = args.photo[0]  # one photo, no batch option: the single-photo command
     if getattr(args, "output_folder", False) and not wants_batch(args):  # a batch checks its OUT itself
@@ -200,3 +200,40 @@ def add_seed_argument(parser: argparse.ArgumentParser, what: str = "random seed"
 def add_device_argument(parser: argparse.ArgumentParser) -> None:
     """``--device`` for the training commands."""
     parser.add_argument("--device", default=None, help="torch device, e.g. cuda or cpu (default: cuda when available)")
+
+
+def add_batch_arguments(parser: argparse.ArgumentParser) -> None:
+    """The batch options of ``fit`` and ``reconstruct`` (their ``photo`` argument takes several)."""
+    g = parser.add_argument_group(
+        "batch", "With several photos, a folder, a glob pattern or a manifest (.txt/.lst, one path per line), or "
+        "any option below, -o OUT is a batch folder: OUT/<photo name>/ per photo, items.csv, summary.csv, "
+        "failures.csv. Exit status: 0 all done, 3 some photos failed, 2 bad invocation, 130 interrupted.")
+    g.add_argument("--workers", type=int, default=None, metavar="N",
+                   help="worker processes of the embedded Dask cluster, one thread each (default: the CPU cores)")
+    g.add_argument("--scheduler", default=os.environ.get(SCHEDULER_ENV) or None, metavar="ADDRESS",
+                   help=f"run on an existing Dask cluster (default ${SCHEDULER_ENV}); OUT must be on a file "
+                   "system the workers share, unless --send-files")
+    g.add_argument("--send-files", action="store_true",
+                   help="workers send each item's files back and this process writes them (no shared file system)")
+    g.add_argument("--resume", action="store_true",
+                   help="complete the earlier batch in OUT: skip photos whose folder is complete (without it an "
+                   "earlier batch output is refused)")
+    g.add_argument("--retries", type=int, default=2, metavar="N",
+                   help="re-runs of a photo after an unexpected error or a worker death (default 2; a bad photo "
+                   "fails at once)")
+
+
+def wants_batch(args: argparse.Namespace) -> bool:
+    """Whether ``args`` (of ``fit`` / ``reconstruct``, ``photo`` a list) ask for a batch: several
+    photos, a folder, a manifest, a glob pattern, or a batch option. One photo path without
+    batch options is the single-photo command, exactly as before."""
+    photos = getattr(args, "photo", None)
+    if not isinstance(photos, list):
+        return False
+    if len(photos) != 1 or args.workers is not None or args.resume or args.send_files:
+        return True
+    if args.scheduler and args.scheduler != os.environ.get(SCHEDULER_ENV):
+        return True  # given on the command line (the environment alone does not make one photo a batch)
+    path = Path(photos[0])
+    return path.is_dir() or (path.suffix.lower() in MANIFEST_SUFFIXES and path.is_file()) or (
+        not path.exists() and bool(GLOB_CHARS & set(str(path))))

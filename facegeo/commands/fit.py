@@ -5,8 +5,9 @@ from __future__ import annotations
 
 import argparse
 
-from facegeo.batch import add_batch_arguments, run_batch, wants_batch
-from facegeo.commands.arguments import Command, add_fit_arguments, add_photo_arguments, add_regressor_arguments
+from facegeo.commands.arguments import (Command, add_batch_arguments, add_fit_arguments, add_photo_arguments,
+                                       add_regressor_arguments, wants_batch)
+from facegeo.commands.batch import run_batch
 
 __all__ = ["COMMANDS"]
 

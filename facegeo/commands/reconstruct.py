@@ -7,17 +7,19 @@ import argparse
 import sys
 from pathlib import Path
 
-from facegeo.batch import add_batch_arguments, run_batch, wants_batch
 from facegeo.commands.arguments import (
     Command,
     RegistryNames,
+    add_batch_arguments,
     add_fit_arguments,
     add_parts_argument,
     add_photo_arguments,
     add_regressor_arguments,
     option_defaults,
     parse_list,
+    wants_batch,
 )
+from facegeo.commands.batch import run_batch
 
 __all__ = ["COMMANDS"]
 
