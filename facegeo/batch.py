@@ -52,7 +52,6 @@ to its end but some photos failed (see failures.csv); 2 bad invocation (no input
 
 from __future__ import annotations
 
-import argparse
 import contextlib
 import csv
 import glob
