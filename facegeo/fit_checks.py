@@ -35,7 +35,7 @@ import numpy as np
 
 from facegeo.camera import Camera
 from facegeo.errors import InputError, NoFaceError, check_finite
-from facegeo.landmarks.scheme import IBUG68, INNER_FACE, N_LANDMARKS, inter_ocular_distance
+from facegeo.landmarks.scheme import IBUG68, INNER_FACE, N_LANDMARKS
 
 if TYPE_CHECKING:  # facegeo.fitting imports this module
     from facegeo.fitting import Fit
@@ -111,8 +111,7 @@ def check_fit(result: Fit, image: Any) -> None:
     if not np.all(depth < 0):
         raise InputError(source, "pose", "a face in front of the camera (z < 0 mm)",
                          f"landmark vertices at z up to {float(depth.max()):.4g} mm")
-    iod = inter_ocular_distance(result.landmarks)
-    percent = 100.0 * result.landmark_rms_px / iod if iod > 0 else float("inf")
+    percent = result.landmark_rms_percent_iod
     if not percent <= MAX_RMS_PERCENT_IOD:
         raise NoFaceError(source, "landmarks", f"landmarks the face model can follow (RMS ≤ {MAX_RMS_PERCENT_IOD:g} % of the "
                           "inter-ocular distance; a wrong detection, e.g. a turned face)", f"{percent:.3g} %")

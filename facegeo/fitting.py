@@ -164,6 +164,13 @@ class Fit:
     timings: dict[str, float] = field(default_factory=dict)
     info: dict[str, Any] = field(default_factory=dict)
 
+    @property
+    def landmark_rms_percent_iod(self) -> float:
+        """``landmark_rms_px`` in % of the detected landmarks' inter-ocular distance (inf when
+        that distance is 0)."""
+        iod = inter_ocular_distance(self.landmarks)
+        return 100.0 * self.landmark_rms_px / iod if iod > 0 else float("inf")
+
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready parameters, camera, per-point landmark errors, timings and info."""
         yaw, pitch, roll = euler_from_rotation(self.rotation)

@@ -171,7 +171,6 @@ def fit_into_folder(photo_path: str | Path, output: str | Path, options: FitOpti
     """
     from facegeo.image_files import png_bytes
     from facegeo.fitting import fit
-    from facegeo.landmarks.scheme import inter_ocular_distance
     from facegeo.mesh_io import obj_text
     from facegeo.overlay import draw_overlay
     from facegeo.photo import load_photo
@@ -187,14 +186,13 @@ def fit_into_folder(photo_path: str | Path, output: str | Path, options: FitOpti
                     photometric=options.photometric)
     result.timings["load_model"] = model_seconds
     result.timings["total"] = time.perf_counter() - start
-    iod = inter_ocular_distance(result.landmarks)
-    result.info["landmark_rms_percent_iod"] = 100.0 * result.landmark_rms_px / iod
+    result.info["landmark_rms_percent_iod"] = result.landmark_rms_percent_iod
     with StagedOutput(output, replace=True) as stage:
         stage.path("fit.json").write_text(json.dumps(result.to_dict(), indent=1))
         stage.path("mesh.obj").write_text(obj_text(result.vertices, model.triangles, model.uv, model.uv_triangles))
         stage.path("overlay.png").write_bytes(png_bytes(draw_overlay(photo.image, result, model)))
     return JobRecord(photo=str(photo_path), output=str(output), landmark_rms_px=float(result.landmark_rms_px),
-                     landmark_rms_percent_iod=float(result.info["landmark_rms_percent_iod"]),
+                     landmark_rms_percent_iod=float(result.landmark_rms_percent_iod),
                      timings=dict(result.timings), files=list(FIT_FILES), notes=list(result.info.get("notes", [])))
 
 
@@ -238,7 +236,7 @@ def reconstruct_into_folder(photo_path: str | Path, output: str | Path, options:
         skin = None
     asset, result = reconstruct_with_fit(photo, model, backend=backend, size=options.size, upscale=options.upscale,
                                          maps=options.maps, detector=options.landmarks, skin=skin, progress=progress,
-                                         camera=photo_camera(photo, options.focal) if options.focal is not None else None,
+                                         camera=photo_camera(photo, options.focal),
                                          fitter=predictor or fit)
     timings = dict(asset.metadata["timings_s"])
     files: list[str] = []
@@ -267,9 +265,7 @@ def reconstruct_into_folder(photo_path: str | Path, output: str | Path, options:
         record["parts"] = asset.metadata.get("parts", {})
         stage.path("fit.json").write_text(json.dumps(record, indent=1))
         files = sorted(p.name for p in stage.staging_dir.iterdir())
-    from facegeo.landmarks.scheme import inter_ocular_distance
-
     return JobRecord(photo=str(photo_path), output=str(output), landmark_rms_px=float(result.landmark_rms_px),
-                     landmark_rms_percent_iod=float(100.0 * result.landmark_rms_px / inter_ocular_distance(result.landmarks)),
+                     landmark_rms_percent_iod=float(result.landmark_rms_percent_iod),
                      timings=timings, files=files, notes=list(result.info.get("notes", [])),
                      maps=list(asset.maps), map_size=int(next(iter(asset.maps.values())).shape[0]))
