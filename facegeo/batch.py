@@ -421,7 +421,7 @@ def _run_many(kind: str, photos: Iterable[str | os.PathLike[str]], out: str | os
               allowed_failures: int, files: str, job: Callable[..., JobRecord] | None, memory_limit: str | float | None,
               progress: bool | None, on_failure: Callable[[BatchRecord], None] | None) -> list[BatchRecord]:
     from facegeo import jobs
-    from facegeo.staged_output import StagedOutput, atomic_write_text, remove_stale_temporaries
+    from facegeo.staged_output import StagedOutput, atomic_write_text, remove_other_temporaries, remove_stale_temporaries
 
     if files not in ("shared", "client"):
         raise InputError("<options>", "files", "'shared' or 'client'", repr(files))
@@ -489,7 +489,7 @@ def _run_many(kind: str, photos: Iterable[str | os.PathLike[str]], out: str | os
         finished = [r for r in records if r.status != "pending"]
         _write_reports(out, finished, earlier)
         if not interrupted:  # no job of this batch runs any more: what is staged in OUT is left from killed workers
-            _remove_temporaries(out)
+            remove_other_temporaries(out)
         elif client is None and not scheduler:  # the embedded workers were stopped; their staged folders are stale
             remove_stale_temporaries(out)
     return records
@@ -526,20 +526,6 @@ def _check_workers(dask: Any, own_cluster: bool, since: float | None, futures: d
         future.cancel()
     futures.clear()
     return None
-
-
-def _remove_temporaries(out: Path) -> None:
-    """Remove the staging folders left in ``out`` by workers that died mid-item (on any host);
-    this process's own are kept. Runs only when no job of the batch is running."""
-    from facegeo.staged_output import TEMP_PREFIX
-
-    for entry in out.iterdir():
-        if entry.name.startswith(TEMP_PREFIX) and not entry.name.startswith(f"{TEMP_PREFIX}{os.getpid()}-"):
-            if entry.is_dir() and not entry.is_symlink():
-                shutil.rmtree(entry, ignore_errors=True)
-            else:
-                with contextlib.suppress(OSError):
-                    entry.unlink()
 
 
 def _collect(record: BatchRecord, future: Any, files: str, staged: Any) -> None:

@@ -46,12 +46,12 @@ import socket
 import stat
 from pathlib import Path
 from types import TracebackType
-from typing import Iterable
+from typing import Callable, Iterable
 
 from facegeo.errors import InputError, OutputError
 
 __all__ = ["StagedOutput", "atomic_write_bytes", "atomic_write_text", "check_output_location",
-           "remove_stale_temporaries", "TEMP_PREFIX", "OUTPUT_MARKERS", "WRITE_FAULTS"]
+           "remove_stale_temporaries", "remove_other_temporaries", "TEMP_PREFIX", "OUTPUT_MARKERS", "WRITE_FAULTS"]
 
 #: Name prefix of the hidden staging folders (and of atomic-write temporary files).
 TEMP_PREFIX = ".facegeo-tmp-"
@@ -269,19 +269,16 @@ def check_output_location(path: str | os.PathLike[str], *, folder: bool, replace
         raise InputError(source, field, "a location where files can be created", f"{ancestor} is not writable")
 
 
-def remove_stale_temporaries(folder: str | os.PathLike[str]) -> list[Path]:
-    """Delete the ``.facegeo-tmp-<pid>-*`` folders and files in ``folder`` whose process no
-    longer exists on this host (left by a run that was killed outright); returns what was
-    removed. Names without a process id, those of live processes and those of other hosts are
-    left alone."""
+def _remove_temporaries(folder: str | os.PathLike[str], doomed: Callable[[str], bool]) -> list[Path]:
+    """Delete the temporaries (names starting with :data:`TEMP_PREFIX`) in ``folder`` for whose
+    name ``doomed`` is true; returns what was removed (what cannot be removed is left)."""
     removed: list[Path] = []
     try:
         entries = list(Path(folder).iterdir())
     except OSError:
         return removed
     for entry in entries:
-        match = _OWNER.match(entry.name)
-        if match is None or match.group(2) not in (None, _HOST) or _process_alive(int(match.group(1))):
+        if not entry.name.startswith(TEMP_PREFIX) or not doomed(entry.name):
             continue
         try:
             if entry.is_dir() and not entry.is_symlink():
@@ -292,6 +289,27 @@ def remove_stale_temporaries(folder: str | os.PathLike[str]) -> list[Path]:
             continue
         removed.append(entry)
     return removed
+
+
+def _stale(name: str) -> bool:
+    match = _OWNER.match(name)
+    return match is not None and match.group(2) in (None, _HOST) and not _process_alive(int(match.group(1)))
+
+
+def remove_stale_temporaries(folder: str | os.PathLike[str]) -> list[Path]:
+    """Delete the ``.facegeo-tmp-<pid>-*`` folders and files in ``folder`` whose process no
+    longer exists on this host (left by a run that was killed outright); returns what was
+    removed. Names without a process id, those of live processes and those of other hosts are
+    left alone."""
+    return _remove_temporaries(folder, _stale)
+
+
+def remove_other_temporaries(folder: str | os.PathLike[str]) -> list[Path]:
+    """Delete every temporary in ``folder`` but this process's own, whatever host or process
+    wrote it; returns what was removed. Only for a folder in which nothing else can be writing
+    (a batch's output once none of its jobs runs: what is left there was left by dead workers)."""
+    own = f"{TEMP_PREFIX}{os.getpid()}-"
+    return _remove_temporaries(folder, lambda name: not name.startswith(own))
 
 
 def atomic_write_bytes(path: str | os.PathLike[str], data: bytes) -> Path:

@@ -256,3 +256,19 @@ def test_stale_temporaries_of_this_host_only(tmp_path):
     assert other.is_dir()
     with StagedOutput(tmp_path / "out") as stage:
         assert stage.staging_dir.name.startswith(f"{TEMP_PREFIX}{os.getpid()}-h{_HOST}-")
+
+
+def test_other_temporaries_are_removed_and_this_processs_kept(tmp_path):
+    """What a batch removes once none of its jobs runs: every temporary but its own process's,
+    of any host or process, live or not; files that are not temporaries stay."""
+    from facegeo.staged_output import _HOST, remove_other_temporaries
+
+    own = tmp_path / f"{TEMP_PREFIX}{os.getpid()}-h{_HOST}-0000abcd"
+    others = [tmp_path / f"{TEMP_PREFIX}1-h{_HOST}-0000abcd", tmp_path / f"{TEMP_PREFIX}1-h{'0' * 8}-0000abcd",
+              tmp_path / f"{TEMP_PREFIX}x-file"]
+    keep = tmp_path / "photo-1"
+    for d in (own, others[0], others[1], keep):
+        d.mkdir()
+    others[2].write_text("half")
+    assert sorted(remove_other_temporaries(tmp_path)) == sorted(others)
+    assert own.is_dir() and keep.is_dir()
