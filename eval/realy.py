@@ -45,6 +45,7 @@ digits read as one number).
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import os
 import re
@@ -69,6 +70,8 @@ from facegeo.eval.realy_align import (
 )
 from facegeo.eval.realy_error import region_error
 from facegeo.eval.realy_geometry import SurfaceQuery
+from facegeo.eval.realy_solver import cholmod_available
+from facegeo.eval.realy_solver import resolve as resolve_solver
 from facegeo.eval.realy_io import (
     Mesh,
     barycentric_points,
@@ -444,6 +447,8 @@ def evaluate(
         FacegeoError: a subject whose computation failed (the message names it).
     """
     start = time.perf_counter()
+    # "auto" becomes the backend here, so that every worker uses the same and the result names it
+    settings = dataclasses.replace(settings, solver=resolve_solver(settings.solver))
     layout = _layout(realy_root, keypoints_dir, regions_dir, scale_path)
     topo = load_topology(realy_root, topology, keypoints, template)
     mask = _read_mask(template_mask, topo.n_vertices)
@@ -542,11 +547,12 @@ def _context():
 
 
 def _one_blas_thread() -> None:
-    """Worker set-up: one BLAS thread per process (SuperLU calls BLAS; with N workers, N times
-    the default thread count oversubscribes the cores: 2 workers ran at 1.4 s per subject
-    instead of 0.9 s)."""
+    """Worker set-up: one BLAS thread per process (SuperLU and CHOLMOD call BLAS; with N workers,
+    N times the default thread count oversubscribes the cores: 2 workers ran at 1.4 s per subject
+    instead of 0.9 s). CVXOPT, when installed, is imported first so that its own BLAS is limited too."""
     from threadpoolctl import threadpool_limits
 
+    cholmod_available()
     threadpool_limits(1)
 
 

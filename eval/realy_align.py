@@ -20,11 +20,12 @@ float32).
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
 
 import numpy as np
 
 from facegeo.eval.realy_geometry import SurfaceQuery
+from facegeo.eval.realy_solver import SOLVERS
 
 __all__ = [
     "Settings",
@@ -56,9 +57,14 @@ class Settings:
       (official 1);
     * ``nicp_max_steps``: at most this many solves per stiffness stage (None: the official 11
       with keypoints, no limit for the cheek);
-    * ``solver_rtol``: relative residual of the factor-preconditioned conjugate gradients
-      (1e-10 keeps the official numbers);
-    * ``factor_reuse``: False factors every system (slower, the same numbers to rounding).
+    * ``solver_rtol``: relative residual of the factor-preconditioned conjugate gradients of the
+      ``superlu`` solver (1e-10 keeps the official numbers);
+    * ``factor_reuse``: False makes the ``superlu`` solver factor every system (slower, the same
+      numbers to rounding).
+
+    ``solver`` picks the linear solver (:mod:`facegeo.eval.realy_solver`): ``"cholmod"``,
+    ``"superlu"`` or ``"auto"`` (CHOLMOD when CVXOPT is installed). It does not loosen the
+    protocol: both give the official numbers to rounding.
     """
 
     rigid_tolerance: float = 1e-6
@@ -67,14 +73,26 @@ class Settings:
     nicp_max_steps: int | None = None
     solver_rtol: float = 1e-10
     factor_reuse: bool = True
+    solver: str = "auto"
+
+    #: the fields that keep the official numbers (to rounding) whatever their value
+    EXACT_FIELDS = ("solver", "factor_reuse")
 
     def __post_init__(self) -> None:
+        if self.solver not in SOLVERS:
+            raise ValueError(f"solver must be one of {', '.join(SOLVERS)}, not {self.solver!r}")
         for name in ("rigid_tolerance", "nicp_epsilon_scale", "solver_rtol"):
             value = getattr(self, name)
             if not (isinstance(value, (int, float)) and np.isfinite(value) and value > 0):
                 raise ValueError(f"{name} must be a positive finite number, not {value!r}")
         if self.rigid_max_updates < 0 or (self.nicp_max_steps is not None and self.nicp_max_steps < 1):
             raise ValueError("rigid_max_updates must be >= 0 and nicp_max_steps >= 1")
+
+    def loosened(self) -> dict[str, object]:
+        """The fields that differ from the official protocol and change its numbers ({} when exact)."""
+        default = Settings()
+        return {f.name: getattr(self, f.name) for f in fields(self)
+                if f.name not in self.EXACT_FIELDS and getattr(self, f.name) != getattr(default, f.name)}
 
 
 #: The official protocol (the default everywhere).

@@ -19,12 +19,10 @@ Written from the protocol of the official REALY code (``utils/eval.py``, ``utils
 
 Each least-squares step solves the normal equations ``A^T A X = A^T B`` (the official code
 factors ``A^T A`` with CHOLMOD at every step); here ``A^T A`` is assembled directly, block by
-block, with the vertices in METIS' nested-dissection order. The first system of each stiffness
-stage is factored by SciPy's SuperLU; the stage's later systems are solved by conjugate
-gradients from the previous solution, preconditioned by that factor, to 1e-10 relative residual
-(a system that needs more than 12 iterations is factored anew): about two thirds of the
-factorisations are skipped, and the numbers move by about 1e-10 relative. A singular system (a
-part of the region that nothing holds, where the official CHOLMOD call fails) raises
+block, with the vertices in METIS' nested-dissection order, and solved by
+:mod:`facegeo.eval.realy_solver` (CHOLMOD at every step when CVXOPT is installed, else SuperLU
+with its factor reused within a stiffness stage). A singular system (a part of the region that
+nothing holds, where the official CHOLMOD call fails) raises
 :class:`~facegeo.errors.FacegeoError` instead of giving a number.
 """
 
@@ -35,12 +33,12 @@ import time
 from dataclasses import dataclass
 
 import numpy as np
-import scipy.sparse as sp
 from scipy.spatial import cKDTree
 
 from facegeo.errors import FacegeoError
 from facegeo.eval.realy_align import EXACT, Settings
 from facegeo.eval.realy_geometry import SurfaceQuery, merge_vertices
+from facegeo.eval.realy_solver import make_solver
 
 __all__ = ["region_error", "NonRigidICP", "MAX_STEPS_WITHOUT_KEYPOINTS", "UNCERTAINTY_SCALE"]
 
@@ -57,116 +55,6 @@ _ALPHA_KEYPOINTS = 150.0
 _KEYPOINT_WEIGHT = 50.0
 _STIFFNESS = np.array([1.0, 1.0, 1.0, 1.0])  # diag(G)^2, gamma = 1
 _STIFFNESS_KEYPOINTS = np.array([2.0, 2.0, 3.0, 2.0]) ** 2  # diag(G_KP)^2
-
-
-_SINGULAR = ("the non-rigid ICP's linear system is singular: a part of the region has too few keypoints "
-             "or matches to fix it (the official code fails here too)")
-
-
-def _factor(matrix: sp.csc_matrix):
-    """SuperLU factor of the SPD system (rows already in nested-dissection order), or FacegeoError.
-
-    SciPy's SuperLU with the given order kept (``NATURAL``), no pivoting and symmetric mode: a
-    Cholesky-like LU. With METIS' nested dissection of the vertex graph it factors these systems
-    1.8x faster than with SuperLU's own minimum-degree order, about as fast as CHOLMOD's
-    simplicial factorisation (benchmarks/RESULTS.md).
-    """
-    from scipy.sparse.linalg import splu
-
-    try:
-        # SuperLU's default relax / panel_size: larger ones (16 / 24) corrupted the heap here
-        return splu(matrix, permc_spec="NATURAL", diag_pivot_thresh=0.0, options={"SymmetricMode": True})
-    except RuntimeError as exc:  # "Factor is exactly singular"
-        raise FacegeoError(f"{_SINGULAR} ({exc})") from None
-
-
-def _column_norms(a: np.ndarray) -> np.ndarray:
-    """(k,) Euclidean norms of the columns of a (n, k) array (one pass; np.linalg.norm per column is slower)."""
-    return np.sqrt(np.einsum("ij,ij->j", a, a))
-
-
-def _pcg(matrix: sp.csc_matrix, rhs: np.ndarray, x0: np.ndarray, precondition, rtol: float,
-         max_iterations: int) -> tuple[np.ndarray, int] | None:
-    """Conjugate gradients on the (n, k) columns of ``rhs`` at once, from ``x0``, preconditioned.
-
-    Written here because SciPy's ``cg`` takes one right-hand side at a time: the three columns
-    share each preconditioner call (one triangular solve with three columns). Returns the
-    solution and the iterations once every column's true residual is at most ``rtol`` times its
-    right-hand side's norm, or None after ``max_iterations``.
-    """
-    x = x0.copy()
-    r = rhs - matrix @ x
-    goal = rtol * np.maximum(_column_norms(rhs), 1e-300)
-    if np.all(_column_norms(r) <= goal):
-        return x, 0
-    z = precondition(r)
-    p = z.copy()
-    rz = np.einsum("ij,ij->j", r, z)
-    for iteration in range(1, max_iterations + 1):
-        ap = matrix @ p
-        pap = np.einsum("ij,ij->j", p, ap)
-        alpha = np.divide(rz, pap, out=np.zeros_like(rz), where=pap != 0)
-        x += alpha * p
-        r -= alpha * ap
-        if np.all(_column_norms(r) <= goal):
-            # the recurrence's residual drifts from the true one: confirm with the true residual
-            if np.all(_column_norms(rhs - matrix @ x) <= goal):
-                return x, iteration
-            return None
-        z = precondition(r)
-        rz_new = np.einsum("ij,ij->j", r, z)
-        beta = np.divide(rz_new, rz, out=np.zeros_like(rz), where=rz != 0)
-        p = z + beta * p
-        rz = rz_new
-    return None
-
-
-class _StageSolver:
-    """The ICP's linear solves, reusing a factor within a stiffness stage.
-
-    The first system of a stage is factored (SuperLU) and solved directly. Later systems of the
-    stage differ from it only in their match weights and the deformed vertices, so they are
-    solved by conjugate gradients warm-started from the previous solution and preconditioned by
-    that factor, to ``rtol`` relative residual; a system that needs more than
-    ``max_iterations`` is factored anew (and its factor preconditions the next ones).
-    ``reuse=False`` factors every system. Counts and CPU times are kept for the details.
-    """
-
-    def __init__(self, reuse: bool = True, rtol: float = 1e-10, max_iterations: int = 12):
-        self.reuse = reuse
-        self.rtol = rtol
-        self.max_iterations = max_iterations
-        self._lu = None
-        self.factorisations = 0
-        self.iterations: list[int] = []  # per solve: PCG iterations, 0 for a direct solve
-        self.factor_seconds = 0.0
-        self.solve_seconds = 0.0
-
-    def start_stage(self) -> None:
-        self._lu = None
-
-    def solve(self, matrix: sp.csc_matrix, rhs: np.ndarray, x0: np.ndarray | None) -> np.ndarray:
-        """(n, k) solution of ``matrix @ x = rhs`` (SPD); FacegeoError when it is singular."""
-        start = time.process_time()
-        if self.reuse and self._lu is not None and x0 is not None:
-            found = _pcg(matrix, rhs, x0, self._lu.solve, self.rtol, self.max_iterations)
-            if found is not None:
-                self.solve_seconds += time.process_time() - start
-                self.iterations.append(found[1])
-                return found[0]
-        mid = time.process_time()
-        self._lu = _factor(matrix)
-        done = time.process_time()
-        self.factor_seconds += done - mid
-        self.factorisations += 1
-        x = self._lu.solve(rhs)
-        residual = _column_norms(matrix @ x - rhs)
-        bound = 1e-6 * max(float(np.sqrt(np.sum(rhs * rhs))), 1e-300)
-        self.solve_seconds += (mid - start) + (time.process_time() - done)
-        if not np.all(np.isfinite(residual)) or float(np.sqrt(np.sum(residual**2))) > bound:
-            raise FacegeoError(f"{_SINGULAR} (relative residual {float(np.sqrt(np.sum(residual**2))) / bound * 1e-6:.1e})")
-        self.iterations.append(0)
-        return x
 
 
 def _nested_dissection(n: int, edges: np.ndarray) -> np.ndarray:
@@ -272,7 +160,8 @@ class NonRigidICP:
         self.keypoint_index = None if keypoint_index is None else np.asarray(keypoint_index)
         self.keypoint_targets = keypoint_targets
         self.settings = settings
-        self.solver = _StageSolver(settings.factor_reuse, settings.solver_rtol)
+        self.solver = make_solver(settings.solver, self.pattern.indptr, self.pattern.indices,
+                                  settings.factor_reuse, settings.solver_rtol)
         self.nearest_seconds = 0.0  # CPU time in the nearest-neighbour queries
 
     @property
@@ -289,11 +178,10 @@ class NonRigidICP:
                            minlength=p.size)
         block = (weight2[:, None, None] * d[:, :, None] * d[:, None, :]).reshape(self.n, 16)
         data += np.bincount(p.block_slot.ravel(), weights=block.ravel(), minlength=p.size)
-        matrix = sp.csc_matrix((data, p.indices, p.indptr), shape=(4 * self.n, 4 * self.n))
         rhs = np.zeros((self.n, 4, 3))
         for w2, target in rhs_parts:
             rhs += (w2[:, None, None] * d[:, :, None]) * target[:, None, :]
-        return d, matrix, rhs[p.order].reshape(4 * self.n, 3)
+        return d, data, rhs[p.order].reshape(4 * self.n, 3)
 
     def _step(self, cur, alpha, stiffness, stage0, kp_weight, x0):
         start = time.process_time()
@@ -315,8 +203,8 @@ class NonRigidICP:
             target[self.keypoint_index] = self.keypoint_targets
             weight2 += kpw * kpw
             parts.append((kpw * kpw, target))
-        d, matrix, rhs = self._system(cur, alpha, stiffness, weight2, parts)
-        x_perm = self.solver.solve(matrix, rhs, x0)  # unknowns in nested-dissection order
+        d, data, rhs = self._system(cur, alpha, stiffness, weight2, parts)
+        x_perm = self.solver.solve(data, rhs, x0)  # unknowns in nested-dissection order
         x4 = x_perm.reshape(self.n, 4, 3)[self.pattern.rank]  # back to vertex order
         x = x4.reshape(4 * self.n, 3)
         new = ((d[:, 0:1] * x4[:, 0] + d[:, 1:2] * x4[:, 1]) + d[:, 2:3] * x4[:, 2]) + x4[:, 3]
@@ -362,10 +250,8 @@ class NonRigidICP:
         return cur
 
     def details(self) -> dict:
-        """Solves, factorisations, PCG iterations per solve (0: direct) and seconds."""
-        s = self.solver
-        return {"solves": self.solves, "factorisations": s.factorisations, "pcg_iterations": list(s.iterations),
-                "factor_seconds": s.factor_seconds, "solve_seconds": s.solve_seconds}
+        """The solver's name, solves, analyses, factorisations, PCG iterations per solve (0: direct) and seconds."""
+        return self.solver.details()
 
 
 def region_error(

@@ -21,7 +21,7 @@ import json
 import math
 from pathlib import Path
 
-from facegeo.eval.realy import EXACT, REGIONS, UNCERTAINTY_FLAG, RealyResult
+from facegeo.eval.realy import REGIONS, UNCERTAINTY_FLAG, RealyResult
 from facegeo.staged_output import StagedOutput
 
 __all__ = ["markdown_table", "csv_text", "json_text", "write_outputs", "OUTPUT_FILES"]
@@ -45,9 +45,9 @@ def markdown_table(result: RealyResult) -> str:
     median = "| median (mm) | " + " | ".join(_fmt(s[r]["median"]) for r in REGIONS) + " | |"
     note = (f"\nREALY, {s['n']} prediction(s), topology {result.topology}; std with n - 1; "
             "All = mean of the four region means.\n")
-    if result.settings != EXACT:
-        changed = ", ".join(f"{f.name}={getattr(result.settings, f.name)}" for f in dataclasses.fields(result.settings)
-                            if getattr(result.settings, f.name) != getattr(EXACT, f.name))
+    loosened = result.settings.loosened()
+    if loosened:
+        changed = ", ".join(f"{name}={value}" for name, value in loosened.items())
         note += f"\n**Not the official protocol**: {changed} (the numbers differ from the official ones).\n"
     flagged = result.uncertain(UNCERTAINTY_FLAG)
     if flagged:

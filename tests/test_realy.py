@@ -27,6 +27,7 @@ from facegeo.eval.realy import REGIONS, RealyResult, Settings, evaluate, format_
 from facegeo.eval.realy_io import read_obj
 from facegeo.mesh_io import obj_text
 from facegeo.eval.realy_report import OUTPUT_FILES, markdown_table, write_outputs
+from facegeo.eval.realy_solver import cholmod_available
 from realy_synthetic import dataset_digest, make_dataset
 
 DIGEST_SMALL = "982555d768c3d4466507d6c6d294b45dde889891ebc9bb249d399cf2eed862e7"
@@ -123,25 +124,35 @@ def test_large_subjects_equal_the_official_numbers(tmp_path):
         _close(result.per_subject[name], ref, result.uncertainty[name])
 
 
-def test_workers_factor_reuse_and_knobs_on_one_subject(small, tmp_path):
+def test_workers_solvers_factor_reuse_and_knobs_on_one_subject(small, tmp_path):
     pred = _only(small, tmp_path, ["1"])
     result = evaluate(pred, small.realy_root)
     # the regions are the unit of work: any number of workers gives the same numbers, bit for bit
     parallel = evaluate(pred, small.realy_root, workers=3)
     assert parallel.per_subject == result.per_subject and parallel.uncertainty == result.uncertainty
     _close(result.per_subject["1"], REFERENCE_SMALL["1"], result.uncertainty["1"])
+    backend = result.settings.solver
+    assert backend == ("cholmod" if cholmod_available() else "superlu")
     for region in REGIONS:
         d = result.details["1"][region]
-        # a factorisation at the start of each stage at least; the other solves are CG on an earlier factor
+        assert d["solver"] == backend and d["solves"] == len(d["pcg_iterations"])
+        assert 0.0 <= result.uncertainty["1"][region] < 1e-3
+        if backend == "cholmod":  # one analysis per region, a numeric factorisation per system
+            assert d["analyses"] == 1 and d["factorisations"] == d["solves"] and set(d["pcg_iterations"]) == {0}
+    # SuperLU: a factorisation at the start of each stage at least; the other solves are CG on an earlier factor
+    reuse = evaluate(pred, small.realy_root, settings=Settings(solver="superlu"))
+    _close(reuse.per_subject["1"], REFERENCE_SMALL["1"], reuse.uncertainty["1"])
+    for region in REGIONS:
+        d = reuse.details["1"][region]
         assert 3 <= d["factorisations"] < d["solves"] == len(d["pcg_iterations"])
         assert d["pcg_iterations"][0] == 0 and max(d["pcg_iterations"]) <= 12
-        assert 0.0 <= result.uncertainty["1"][region] < 1e-3
-    # factoring every system gives the same numbers to the solver's tolerance
-    plain = evaluate(pred, small.realy_root, settings=Settings(factor_reuse=False))
+    # SuperLU factoring every system, and CHOLMOD, give the same numbers to rounding
+    plain = evaluate(pred, small.realy_root, settings=Settings(solver="superlu", factor_reuse=False))
     for region in REGIONS:
         assert plain.details["1"][region]["factorisations"] == plain.details["1"][region]["solves"]
-        if max(result.uncertainty["1"][region], plain.uncertainty["1"][region]) < 1e-7:
-            assert plain.per_subject["1"][region] == pytest.approx(result.per_subject["1"][region], rel=1e-8)
+        for other in (reuse, result):
+            if max(other.uncertainty["1"][region], plain.uncertainty["1"][region]) < 1e-7:
+                assert plain.per_subject["1"][region] == pytest.approx(other.per_subject["1"][region], rel=1e-8)
     # loose knobs: fewer steps, numbers close to but not the official ones
     loose = evaluate(pred, small.realy_root, settings=Settings(rigid_max_updates=2, nicp_max_steps=2))
     for region in REGIONS:

@@ -79,3 +79,20 @@ def test_cli_speed_knobs_are_checked_and_written(data, tmp_path, capsys):
     assert "Not the official protocol" in stdout
     settings = json.loads((out / "REALY_result.json").read_text())["settings"]
     assert settings["rigid_max_updates"] == 1 and settings["nicp_max_steps"] == 1 and not settings["factor_reuse"]
+
+
+def test_cli_solver_choice_is_written_and_cholmod_without_cvxopt_is_exit_2(data, tmp_path, capsys, monkeypatch):
+    out = tmp_path / "superlu"
+    code, stdout, err = run(["realy", data.pred_dir, "--realy-root", data.realy_root, "-o", out,
+                             "--solver", "superlu"], capsys)
+    assert code == 0, err
+    assert "Not the official protocol" not in stdout  # another solver keeps the official numbers
+    result = json.loads((out / "REALY_result.json").read_text())
+    assert result["settings"]["solver"] == "superlu"
+    assert {d["solver"] for subject in result["details"].values() for d in subject.values()} == {"superlu"}
+    from facegeo.eval import realy_solver
+
+    monkeypatch.setattr(realy_solver, "cholmod_available", lambda: False)
+    code, _, err = run(["realy", data.pred_dir, "--realy-root", data.realy_root, "-o", tmp_path / "x",
+                        "--solver", "cholmod"], capsys)
+    assert code == 2 and "facegeo[cholmod]" in err and len(err.strip().splitlines()) == 1

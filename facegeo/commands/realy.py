@@ -42,6 +42,10 @@ def _arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--scheduler", default=os.environ.get("DASK_SCHEDULER_ADDRESS") or None, metavar="ADDRESS",
                    help="share the regions among the workers of the Dask cluster at ADDRESS instead "
                    "(default $DASK_SCHEDULER_ADDRESS; needs facegeo[batch] here and on the workers; the numbers do not change)")
+    p.add_argument("--solver", choices=("auto", "cholmod", "superlu"), default=EXACT.solver,
+                   help="linear solver of the non-rigid ICP: CHOLMOD at every step (needs facegeo[cholmod]) or "
+                   "SciPy's SuperLU with its factor reused in each stage; both give the official numbers "
+                   "(default auto: CHOLMOD when installed)")
     knobs = p.add_argument_group(
         "speed against exactness", "Loosen the official protocol for speed (the defaults are exact; "
         "benchmarks/RESULTS.md has the error against time of each)")
@@ -54,8 +58,9 @@ def _arguments(p: argparse.ArgumentParser) -> None:
     knobs.add_argument("--nicp-max-steps", type=int, default=None, metavar="N",
                        help="at most N solves per stiffness stage (default: official, 11 with keypoints, no limit for the cheek)")
     knobs.add_argument("--solver-rtol", type=float, default=EXACT.solver_rtol, metavar="R",
-                       help="relative residual of the factor-preconditioned CG solves (default %(default)g)")
-    knobs.add_argument("--no-factor-reuse", action="store_true", help="factor every linear system (slower)")
+                       help="superlu solver: relative residual of its factor-preconditioned CG solves (default %(default)g)")
+    knobs.add_argument("--no-factor-reuse", action="store_true",
+                       help="superlu solver: factor every linear system (slower, the same numbers to rounding)")
     p.add_argument("-o", "--output", type=Path, default=None, metavar="OUT",
                    help="output folder (default: PRED_DIR/realy_eval)")
 
@@ -64,6 +69,7 @@ def _run(args: argparse.Namespace) -> None:
     from facegeo.errors import InputError
     from facegeo.eval.realy import DEFAULT_TOPOLOGY, evaluate
     from facegeo.eval.realy_align import Settings
+    from facegeo.eval.realy_solver import cholmod_available
     from facegeo.eval.realy_report import OUTPUT_FILES, markdown_table, write_outputs
 
     if args.workers < 1:
@@ -73,10 +79,14 @@ def _run(args: argparse.Namespace) -> None:
     if args.template is not None and args.keypoints is None:
         raise InputError(args.template, "--template", "to be used with --keypoints FILE")
     try:
-        settings = Settings(args.rigid_tol, args.rigid_max_updates, args.nicp_epsilon_scale, args.nicp_max_steps,
-                            args.solver_rtol, not args.no_factor_reuse)
+        settings = Settings(rigid_tolerance=args.rigid_tol, rigid_max_updates=args.rigid_max_updates,
+                            nicp_epsilon_scale=args.nicp_epsilon_scale, nicp_max_steps=args.nicp_max_steps,
+                            solver_rtol=args.solver_rtol, factor_reuse=not args.no_factor_reuse, solver=args.solver)
     except ValueError as exc:
         raise InputError("<arguments>", "speed / exactness options", "positive values", str(exc)) from None
+    if args.solver == "cholmod" and not cholmod_available():
+        raise InputError("--solver", "value", "auto or superlu (cholmod needs CVXOPT: pip install 'facegeo[cholmod]')",
+                         "cholmod")
     start = time.perf_counter()
     with contextlib.ExitStack() as stack:
         client = None
