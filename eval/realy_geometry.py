@@ -39,6 +39,18 @@ _ZERO = 1e-13
 _ONES = np.ones(3)
 #: ring tables by triangulation digest (a few topologies at most)
 _RING_TABLES: dict[bytes, np.ndarray] = {}
+#: AABB trees by digest of (vertices, triangles): the regions of one prediction start from the
+#: same aligned vertices, so in one process they share its tree (the same tree as one built anew)
+_TREES: dict[bytes, tuple[object, np.ndarray, float]] = {}
+_CACHED = 4
+
+
+def _remember(cache: dict, key: bytes, value):
+    """Put ``value`` in a small first-in-first-out cache (at most _CACHED entries)."""
+    if len(cache) >= _CACHED:
+        cache.pop(next(iter(cache)))
+    cache[key] = value
+    return value
 
 
 def closest_points(vertices: np.ndarray, triangles: np.ndarray, queries: np.ndarray) -> np.ndarray:
@@ -78,7 +90,7 @@ class SurfaceQuery:
         self._tree = None
         self._tree_vertices: np.ndarray | None = None
         self._tree_size = 0.0  # largest extent of the tree's vertices
-        self.trees_built = 0
+        self.trees_built = 0  # trees this query needed (built here or shared from an earlier query)
         self.seconds = 0.0  # CPU time spent answering queries (trees included)
         self.prune = True  # False: the exact point on every ring face (the reference in the tests)
         self._jitter = 0.0
@@ -111,9 +123,7 @@ class SurfaceQuery:
             table = np.full((len(f), int(sizes.max())), -1, dtype=np.int64)
             slot = np.arange(len(pairs)) - np.repeat(np.cumsum(sizes) - sizes, sizes)
             table[face, slot] = other
-            if len(_RING_TABLES) >= 4:
-                _RING_TABLES.pop(next(iter(_RING_TABLES)))
-            _RING_TABLES[key] = self._ring_table = table
+            self._ring_table = _remember(_RING_TABLES, key, table)
         return self._ring_table
 
     def _queries_in_tree_frame(self, vertices: np.ndarray, queries: np.ndarray) -> np.ndarray:
@@ -126,12 +136,19 @@ class SurfaceQuery:
             deviation = float(np.abs(ref @ rotation.T + translation - vertices).max())
             if deviation <= self.FRAME_TOLERANCE * self._tree_size:
                 return (queries - translation) @ rotation
-        import igl
+        digest = hashlib.blake2b(digest_size=16)
+        digest.update(np.ascontiguousarray(vertices).tobytes())
+        digest.update(self.triangles.tobytes())
+        key = digest.digest()
+        found = _TREES.get(key)
+        if found is None:
+            import igl
 
-        self._tree_vertices = np.ascontiguousarray(vertices)
-        self._tree = igl.AABB()
-        self._tree.init(self._tree_vertices, self.triangles)
-        self._tree_size = float(np.ptp(self._tree_vertices, axis=0).max())
+            tree_vertices = np.ascontiguousarray(vertices).copy()  # the caller may change its array
+            tree = igl.AABB()
+            tree.init(tree_vertices, self.triangles)
+            found = _remember(_TREES, key, (tree, tree_vertices, float(np.ptp(tree_vertices, axis=0).max())))
+        self._tree, self._tree_vertices, self._tree_size = found
         self.trees_built += 1
         return queries
 
@@ -160,43 +177,52 @@ class SurfaceQuery:
 
     def _trimesh_pick(self, vertices: np.ndarray, queries: np.ndarray, faces: np.ndarray) -> np.ndarray:
         """trimesh's choice among the faces around ``faces`` for each query (see the module doc)."""
-        cand = self.rings()[faces]  # (S, K)
-        # Only the ring faces that can be within trimesh's tie window of the nearest one need the
-        # exact point: a face is skipped when a lower bound of its squared distance (its plane and
-        # its three edge lines) exceeds the tree face's squared distance plus the window, with a
-        # margin for rounding. That leaves 1.4 of the 13 ring faces per query on average (small subject 1).
+        ring = self.rings()[faces]  # (S, K)
+        n_queries = len(faces)
         tri0 = vertices[self.triangles[faces]]
-        vec0 = queries - _closest_tolerant(queries, tri0[:, 0], tri0[:, 1], tri0[:, 2])
+        close0 = _closest_tolerant(queries, tri0[:, 0], tri0[:, 1], tri0[:, 2])
+        vec0 = queries - close0
         d0 = np.dot(vec0 * vec0, _ONES)
-        s_idx, k_idx = np.nonzero(cand >= 0)
-        face = cand[s_idx, k_idx]
-        slot = np.zeros(len(self.triangles), dtype=np.int64)
-        slot[face] = 1
-        used = np.nonzero(slot)[0]
-        slot[used] = np.arange(len(used))
-        slot = slot[face]
-        planes, offsets = _face_planes(vertices, self.triangles[used])
+        s_idx, k_idx = np.nonzero((ring >= 0) & (ring != faces[:, None]))  # the other faces of each ring
+        face = ring[s_idx, k_idx]
+        if self.prune:
+            # Only the ring faces that can be within trimesh's tie window of the tree's face need
+            # the exact point: a face is skipped when a lower bound of its squared distance (its
+            # plane and its three edge lines) exceeds the tree face's squared distance plus the
+            # window, with a margin for rounding. That leaves 0.6 of the 12 other ring faces per
+            # query on average (large subject 1).
+            slot = np.zeros(len(self.triangles), dtype=np.int64)
+            slot[face] = 1
+            used = np.nonzero(slot)[0]
+            slot[used] = np.arange(len(used))
+            slot = slot[face]
+            planes, offsets = _face_planes(vertices, self.triangles[used])
+            q = queries[s_idx]
+            signed = np.einsum("mij,mj->mi", planes[slot], q) - offsets[slot]  # (M, 4)
+            outside = np.maximum(np.maximum(np.maximum(signed[:, 1], signed[:, 2]), signed[:, 3]), 0.0)
+            scale2 = float(np.max(np.abs(vertices))) ** 2 + float(np.max(np.abs(queries))) ** 2
+            limit = (d0[s_idx] + 2 * _MERGE) * (1 + 1e-9) + 1e-12 * scale2
+            keep = ~(signed[:, 0] ** 2 + outside**2 > limit)  # NaN bounds are kept
+            s_idx, k_idx, face = s_idx[keep], k_idx[keep], face[keep]
+        # the candidates: the tree's face of each query first, then the kept ring faces
         q = queries[s_idx]
-        signed = np.einsum("mij,mj->mi", planes[slot], q) - offsets[slot]  # (M, 4)
-        outside = np.maximum(signed[:, 1:].max(axis=1), 0.0)
-        bound = signed[:, 0] ** 2 + outside**2
-        scale2 = float(np.max(np.abs(vertices))) ** 2 + float(np.max(np.abs(queries))) ** 2
-        keep = ~(bound > (d0[s_idx] + 2 * _MERGE) * (1 + 1e-9) + 1e-12 * scale2)  # NaN bounds are kept
-        keep |= not self.prune
-        s_idx, k_idx, face, q = s_idx[keep], k_idx[keep], face[keep], q[keep]
         tri = vertices[self.triangles[face]]
-        close = np.zeros(cand.shape + (3,))
-        close[s_idx, k_idx] = point_triangle_closest(q, tri[:, 0], tri[:, 1], tri[:, 2], tolerant=True)
+        close = np.concatenate([close0, point_triangle_closest(q, tri[:, 0], tri[:, 1], tri[:, 2], tolerant=True)])
         # the same expressions as trimesh, so that near-equal values round the same way
-        vec = queries[:, None, :] - close
-        dist = np.full(cand.shape, np.inf)
-        dist[s_idx, k_idx] = np.dot(vec[s_idx, k_idx] * vec[s_idx, k_idx], _ONES)
-        two = np.argsort(dist, axis=1, kind="stable")[:, :2]
-        rows = np.arange(len(cand))
-        result = close[rows, two[:, 0]]
-        if cand.shape[1] < 2:
+        vec = np.concatenate([vec0, q - close[n_queries:]])
+        dist = np.concatenate([d0, np.dot(vec[n_queries:] * vec[n_queries:], _ONES)])
+        owner = np.concatenate([np.arange(n_queries), s_idx])
+        place = np.concatenate([np.argmax(ring == faces[:, None], axis=1), k_idx])  # place in the ring
+        face = np.concatenate([faces, face])
+        # each query's two nearest candidates (ties in ring order, as a stable sort; NaN last)
+        order = np.lexsort((place, dist, owner))
+        start = np.searchsorted(owner[order], np.arange(n_queries))
+        count = np.diff(np.append(start, len(order)))
+        two = np.column_stack([order[start], order[np.minimum(start + 1, len(order) - 1)]])
+        result = close[two[:, 0]]
+        if ring.shape[1] < 2:
             return result
-        pair = dist[rows[:, None], two]
+        pair = np.column_stack([dist[two[:, 0]], np.where(count > 1, dist[two[:, 1]], np.inf)])
         tie = (np.ptp(pair, axis=1) < _MERGE) & np.all(np.abs(pair) > _MERGE, axis=1)
         jitter = self._jitter
         if jitter > 0:
@@ -206,15 +232,16 @@ class SurfaceQuery:
                 near = np.abs(np.ptp(pair, axis=1) - _MERGE) <= 2 * slack
                 near |= np.any(np.abs(pair - _MERGE) <= slack[:, None], axis=1)
             self.near_ties = near
-            self.alternatives = np.where(np.isfinite(pair)[:, :, None], close[rows[:, None], two], np.nan)
+            self.alternatives = np.where(np.isfinite(pair)[:, :, None], close[two], np.nan)
         if np.any(tie):
-            r = rows[tie]
-            tri2 = vertices[self.triangles[cand[r[:, None], two[tie]]]]  # (T, 2, 3, 3)
+            r = np.nonzero(tie)[0]
+            both = two[r]  # (T, 2) candidates
+            tri2 = vertices[self.triangles[face[both]]]  # (T, 2, 3, 3)
             normals = _unit_normals(tri2.reshape(-1, 3, 3)).reshape(-1, 2, 3)
-            vectors = vec[r[:, None], two[tie]] / pair[tie].reshape(-1, 2, 1) ** 0.5
+            vectors = vec[both] / pair[tie].reshape(-1, 2, 1) ** 0.5
             aligned = (normals * vectors).sum(axis=2)
             pick = aligned.argmax(axis=1)
-            result[r] = close[r, two[tie][np.arange(len(r)), pick]]
+            result[r] = close[both[np.arange(len(r)), pick]]
             if jitter > 0:  # the directions turn by up to about 2 jitter / distance
                 turn = 4 * jitter / np.sqrt(pair[tie].min(axis=1))
                 self.near_ties[r] |= np.abs(aligned[:, 0] - aligned[:, 1]) <= turn
