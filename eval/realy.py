@@ -4,13 +4,14 @@
 nose, mouth, forehead and cheek, with the same numbers as the official REALY code
 (github czh-98/REALY, ``main.py``; equal to 1e-6 relative on the synthetic subjects of
 tests/test_realy.py wherever the reported uncertainty is below 1e-7, to 1e-5 everywhere; the
-rigid alignments bit for bit). Closest points come from one AABB tree (libigl) per region
+rigid alignments bit for bit). Closest points come from one AABB tree (libigl) per prediction
 instead of an R-tree per ICP step and per-point queries in Python, with trimesh's tie rule
 reproduced; the non-rigid ICP's normal equations are assembled block by block, in METIS'
-nested-dissection order, factored by SuperLU at the start of each stiffness stage and solved by
-conjugate gradients preconditioned by that factor in the stage's later steps (the official code
-factors every system with CHOLMOD). The regions of all subjects are shared among ``workers``
-processes, one BLAS thread each; each region is computed the same way in any process, so the
+nested-dissection order, and factored at every step by CHOLMOD as in the official code (through
+CVXOPT, the extra ``facegeo[cholmod]``; without it by SciPy's SuperLU, its factor reused within
+a stiffness stage by preconditioned conjugate gradients: :mod:`facegeo.eval.realy_solver`). The
+regions of all subjects are shared among ``workers`` processes, one BLAS thread each; each
+region is computed the same way in any process, so the
 numbers do not depend on ``workers``.
 
 Every value comes with its numerical uncertainty (``RealyResult.uncertainty``): how much
@@ -132,12 +133,14 @@ class RealyResult:
     "n": number of predictions}, computed from ``text`` as the official code does;
     ``seconds``: CPU time per subject (reading its files, and its four regions in whichever
     process ran them; CPU time, so that it means the same on a busy machine);
-    ``details``: per subject and region, the rigid ICP updates, the non-rigid ICP's solves,
-    factorisations and PCG iterations per solve, and CPU seconds (``factor_seconds``,
+    ``details``: per subject and region, the rigid ICP updates, the non-rigid ICP's ``solver``,
+    its solves, symbolic ``analyses``, ``factorisations`` and ``pcg_iterations`` per solve (0 for
+    a direct solve), and CPU seconds (``factor_seconds``,
     ``solve_seconds``, ``closest_seconds``, ``nearest_seconds``);
     ``uncertainty``: per subject and region, the relative change of the error under round-off
     perturbations of the final deformed vertices (see :func:`~facegeo.eval.realy_error.region_error`);
-    ``settings``: the knobs used; ``wall_seconds``: the whole evaluation (wall clock);
+    ``settings``: the knobs used (``solver`` as resolved: ``"cholmod"`` or ``"superlu"``);
+    ``wall_seconds``: the whole evaluation (wall clock);
     ``workers``: processes.
     """
 

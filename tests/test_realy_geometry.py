@@ -195,3 +195,14 @@ def test_near_ties_are_the_queries_round_off_could_flip():
     assert np.allclose(np.sort(query.alternatives[2, :, 0]), [0.5, 0.5 + off], atol=1e-12)
     query(v, q)  # without jitter nothing is looked for
     assert not query.near_ties.any()
+
+
+def test_queries_on_the_same_vertices_share_one_tree(head):
+    v, f = head
+    q = v[::7] + 0.25
+    first, second = SurfaceQuery(f), SurfaceQuery(f)
+    a, b = first(v, q), second(v.copy(), q)
+    assert second._tree is first._tree and np.array_equal(a, b)  # the regions of one prediction
+    other = SurfaceQuery(f)
+    other(v + 1.0, q)  # other vertices: a tree of their own
+    assert other._tree is not first._tree
