@@ -203,7 +203,11 @@ class SurfaceQuery:
             signed = np.einsum("mij,mj->mi", planes[slot], q) - offsets[slot]  # (M, 4)
             outside = np.maximum(np.maximum(np.maximum(signed[:, 1], signed[:, 2]), signed[:, 3]), 0.0)
             scale2 = float(np.max(np.abs(vertices))) ** 2 + float(np.max(np.abs(queries))) ** 2
-            limit = (d0[s_idx] + 2 * _MERGE) * (1 + 1e-9) + 1e-12 * scale2
+            window = 2 * _MERGE
+            if self._jitter > 0:  # a rival up to M + 2 slack away can become a tie under the jitter
+                j = self._jitter
+                window = window + 8 * np.sqrt(d0[s_idx] + 4 * _MERGE) * j + 4 * j * j
+            limit = (d0[s_idx] + window) * (1 + 1e-9) + 1e-12 * scale2
             keep = ~(signed[:, 0] ** 2 + outside**2 > limit)  # NaN bounds are kept
             s_idx, k_idx, face = s_idx[keep], k_idx[keep], face[keep]
         # the candidates: the tree's face of each query first, then the kept ring faces
