@@ -28,7 +28,7 @@ Every timing is repeated ``--repeat`` times; the tables give the minimum and the
 times count the machine's other load; CPU times (facegeo's own process with one worker, the
 official process's user + system time, the split from facegeo's ``details``) much less.
 
-    python benchmarks/bench_realy.py [--subdivisions 0 1] [--subjects 3] [--repeat 3] [--workers 2]
+    python benchmarks/bench_realy.py [--subdivisions 0 1] [--subjects 3] [--seed 0] [--repeat 3] [--workers 2]
                                      [--baseline-eval DIR] [--knobs]
 """
 
@@ -214,6 +214,7 @@ def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--subdivisions", type=int, nargs="+", default=[0, 1])
     parser.add_argument("--subjects", type=int, default=3)
+    parser.add_argument("--seed", type=int, default=0, help="seed of the synthetic data sets")
     parser.add_argument("--repeat", type=int, default=1, help="runs of each timing; the tables give min / median")
     parser.add_argument("--workers", type=int, default=2)
     parser.add_argument("--baseline-eval", type=Path, default=None, metavar="DIR",
@@ -246,7 +247,7 @@ def main(argv: list[str] | None = None) -> None:
     knob_rows = []
     with tempfile.TemporaryDirectory() as tmp:
         for index, sub in enumerate(args.subdivisions):
-            data = make_dataset(Path(tmp) / f"sub{sub}", n, seed=0, subdivisions=sub)
+            data = make_dataset(Path(tmp) / f"sub{sub}", n, seed=args.seed, subdivisions=sub)
             sizes = [len(read_obj(p).vertices) for p in sorted((data.realy_root / "data" / "REALY_scan_region").rglob("*.obj"))]
             row = {"sub": sub, "vertices": f"{min(sizes)}-{max(sizes)}", "one": [], "many": [], "split": [],
                    "base": [], "base_split": [], "official": [], "diff": 0.0, "unc": 0.0, "loads": [],
@@ -299,7 +300,7 @@ def main(argv: list[str] | None = None) -> None:
     if not rows:
         _print_knobs(args, knob_rows)
         return
-    print("\nCPU time per subject (s; wall time counts the other agents' load, CPU time much less), "
+    print("\nCPU time per subject (s; wall time also counts the machine's other load), "
           "1 worker, min / median:\n")
     print("| synthetic set | official | facegeo | ratio (min / min) |")
     print("|---|---:|---:|---:|")

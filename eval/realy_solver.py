@@ -35,7 +35,7 @@ import scipy.sparse as sp
 
 from facegeo.errors import FacegeoError
 
-__all__ = ["SOLVERS", "cholmod_available", "resolve", "make_solver", "CholmodSolver", "SuperLUSolver"]
+__all__ = ["SOLVERS", "cholmod_available", "resolve", "make_solver", "pcg", "CholmodSolver", "SuperLUSolver"]
 
 #: Accepted values of ``Settings.solver``.
 SOLVERS = ("auto", "cholmod", "superlu")
