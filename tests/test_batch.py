@@ -244,10 +244,11 @@ def test_interrupted_batch_resumes_with_only_what_was_missing(client, tmp_path: 
             time.sleep(0.02)
         _thread.interrupt_main()
 
-    interrupter = threading.Thread(target=interrupt_after_two)
+    interrupter = threading.Thread(target=interrupt_after_two, daemon=True)
     interrupter.start()
     with pytest.raises(KeyboardInterrupt):
-        fit_many(inputs, out, client, job=_quick_job(marks, pause=0.5))
+        records = fit_many(inputs, out, client, job=_quick_job(marks, pause=0.5))
+        pytest.fail(f"the batch ended before the interrupt: {[(r.status, r.error) for r in records]}")
     interrupter.join()
     deadline = time.monotonic() + 30  # cancelled jobs already running on the cluster still finish
     while any(not (marks / f"done-{p.stem}").exists() for p in inputs if _started(marks, p.stem)):
