@@ -3,7 +3,6 @@ facegeo.batch and the batch forms of ``facegeo fit``."""
 
 from __future__ import annotations
 
-import _thread
 import csv
 import json
 import os
@@ -239,16 +238,22 @@ def test_interrupted_batch_resumes_with_only_what_was_missing(client, tmp_path: 
     inputs = [tmp_path / f"p{i}.png" for i in range(6)]
     out = tmp_path / "out"
 
-    def interrupt_after_two() -> None:  # Ctrl-C in the main thread once two items are complete
+    seen: dict[str, object] = {}
+
+    def interrupt_after_two() -> None:  # Ctrl-C once two items are complete: a real SIGINT to this process
         while sum(p.name.startswith("done-") for p in marks.iterdir()) < 2:
             time.sleep(0.02)
-        _thread.interrupt_main()
+        seen["handler"] = signal.getsignal(signal.SIGINT)
+        seen["done"] = sorted(p.name for p in marks.iterdir() if p.name.startswith("done-"))
+        os.kill(os.getpid(), signal.SIGINT)
 
+    assert signal.getsignal(signal.SIGINT) is signal.default_int_handler
     interrupter = threading.Thread(target=interrupt_after_two, daemon=True)
     interrupter.start()
     with pytest.raises(KeyboardInterrupt):
         records = fit_many(inputs, out, client, job=_quick_job(marks, pause=0.5))
-        pytest.fail(f"the batch ended before the interrupt: {[(r.status, r.error) for r in records]}")
+        interrupter.join(timeout=5)
+        pytest.fail(f"the batch ended before the interrupt: {[(r.status, r.error) for r in records]}, {seen}")
     interrupter.join()
     deadline = time.monotonic() + 30  # cancelled jobs already running on the cluster still finish
     while any(not (marks / f"done-{p.stem}").exists() for p in inputs if _started(marks, p.stem)):
