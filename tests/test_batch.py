@@ -247,14 +247,19 @@ def test_interrupted_batch_resumes_with_only_what_was_missing(client, tmp_path: 
         seen["done"] = sorted(p.name for p in marks.iterdir() if p.name.startswith("done-"))
         os.kill(os.getpid(), signal.SIGINT)
 
-    assert signal.getsignal(signal.SIGINT) is signal.default_int_handler
-    interrupter = threading.Thread(target=interrupt_after_two, daemon=True)
-    interrupter.start()
-    with pytest.raises(KeyboardInterrupt):
-        records = fit_many(inputs, out, client, job=_quick_job(marks, pause=0.5))
-        interrupter.join(timeout=5)
-        pytest.fail(f"the batch ended before the interrupt: {[(r.status, r.error) for r in records]}, {seen}")
-    interrupter.join()
+    # Python's own SIGINT handler, also when this process was started with SIGINT ignored (as a
+    # background job of a non-interactive shell is: then Python installs none)
+    previous = signal.signal(signal.SIGINT, signal.default_int_handler)
+    try:
+        interrupter = threading.Thread(target=interrupt_after_two, daemon=True)
+        interrupter.start()
+        with pytest.raises(KeyboardInterrupt):
+            records = fit_many(inputs, out, client, job=_quick_job(marks, pause=0.5))
+            interrupter.join(timeout=5)
+            pytest.fail(f"the batch ended before the interrupt: {[(r.status, r.error) for r in records]}, {seen}")
+        interrupter.join()
+    finally:
+        signal.signal(signal.SIGINT, previous)
     deadline = time.monotonic() + 30  # cancelled jobs already running on the cluster still finish
     while any(not (marks / f"done-{p.stem}").exists() for p in inputs if _started(marks, p.stem)):
         assert time.monotonic() < deadline
