@@ -71,8 +71,7 @@ from facegeo.eval.realy_align import (
 )
 from facegeo.eval.realy_error import region_error
 from facegeo.eval.realy_geometry import SurfaceQuery
-from facegeo.eval.realy_solver import cholmod_available
-from facegeo.eval.realy_solver import resolve as resolve_solver
+from facegeo.eval.realy_solver import cholmod_available, resolve as resolve_solver
 from facegeo.eval.realy_io import (
     Mesh,
     barycentric_points,

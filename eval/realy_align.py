@@ -25,11 +25,11 @@ from dataclasses import dataclass, fields
 import numpy as np
 
 from facegeo.eval.realy_geometry import SurfaceQuery
-from facegeo.eval.realy_solver import SOLVERS
 
 __all__ = [
     "Settings",
     "EXACT",
+    "SOLVERS",
     "SEVEN_KEYPOINTS",
     "RIGID_KEYPOINTS",
     "ERROR_KEYPOINTS",
@@ -44,6 +44,10 @@ _MOUTH = (48, 49, 50, 51, 52, 53, 54, 55, 56, 57, 58, 59, 60, 64)
 _NOSE = (27, 28, 29, 30, 31, 32, 33, 34, 35)
 _NOSE_RIGID = (27, 28, 29, 30, 31, 35, 32, 33, 34, 70, 71)
 _CHEEK = (48, 49, 50, 51, 52, 53, 54, 55, 56, 57, 58, 59, 60, 64, 76, 77, 36, 41, 40, 39, 42, 47, 46, 45, 7, 8, 9)
+
+#: Accepted values of ``Settings.solver`` (:mod:`facegeo.eval.realy_solver`).
+SOLVERS = ("auto", "cholmod", "superlu")
+
 
 @dataclass(frozen=True)
 class Settings:

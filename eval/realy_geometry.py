@@ -185,7 +185,8 @@ class SurfaceQuery:
         close0 = _closest_tolerant(queries, tri0[:, 0], tri0[:, 1], tri0[:, 2])
         vec0 = queries - close0
         d0 = np.dot(vec0 * vec0, _ONES)
-        s_idx, k_idx = np.nonzero((ring >= 0) & (ring != faces[:, None]))  # the other faces of each ring
+        own = ring == faces[:, None]  # the tree's face in its own ring
+        s_idx, k_idx = np.nonzero((ring >= 0) & ~own)  # the other faces of each ring
         face = ring[s_idx, k_idx]
         if self.prune:
             # Only the ring faces that can be within trimesh's tie window of the tree's face need
@@ -218,7 +219,7 @@ class SurfaceQuery:
         vec = np.concatenate([vec0, q - close[n_queries:]])
         dist = np.concatenate([d0, np.dot(vec[n_queries:] * vec[n_queries:], _ONES)])
         owner = np.concatenate([np.arange(n_queries), s_idx])
-        place = np.concatenate([np.argmax(ring == faces[:, None], axis=1), k_idx])  # place in the ring
+        place = np.concatenate([np.argmax(own, axis=1), k_idx])  # place in the ring
         face = np.concatenate([faces, face])
         # each query's two nearest candidates (ties in ring order, as a stable sort; NaN last)
         order = np.lexsort((place, dist, owner))

@@ -34,11 +34,9 @@ import numpy as np
 import scipy.sparse as sp
 
 from facegeo.errors import FacegeoError
+from facegeo.eval.realy_align import SOLVERS
 
-__all__ = ["SOLVERS", "cholmod_available", "resolve", "make_solver", "pcg", "CholmodSolver", "SuperLUSolver"]
-
-#: Accepted values of ``Settings.solver``.
-SOLVERS = ("auto", "cholmod", "superlu")
+__all__ = ["cholmod_available", "resolve", "make_solver", "pcg", "CholmodSolver", "SuperLUSolver"]
 
 _SINGULAR = ("the non-rigid ICP's linear system is singular: a part of the region has too few keypoints "
              "or matches to fix it (the official code fails here too)")

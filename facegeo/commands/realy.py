@@ -16,7 +16,7 @@ __all__ = ["COMMANDS"]
 
 
 def _arguments(p: argparse.ArgumentParser) -> None:
-    from facegeo.eval.realy_align import EXACT
+    from facegeo.eval.realy_align import EXACT, SOLVERS
 
     p.add_argument("pred_dir", type=Path, metavar="PRED_DIR", help="folder of predicted meshes (.obj)")
     p.add_argument("--realy-root", type=Path, default=None,
@@ -42,7 +42,7 @@ def _arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--scheduler", default=os.environ.get("DASK_SCHEDULER_ADDRESS") or None, metavar="ADDRESS",
                    help="share the regions among the workers of the Dask cluster at ADDRESS instead "
                    "(default $DASK_SCHEDULER_ADDRESS; needs facegeo[batch] here and on the workers; the numbers do not change)")
-    p.add_argument("--solver", choices=("auto", "cholmod", "superlu"), default=EXACT.solver,
+    p.add_argument("--solver", choices=SOLVERS, default=EXACT.solver,
                    help="linear solver of the non-rigid ICP: CHOLMOD at every step (needs facegeo[cholmod]) or "
                    "SciPy's SuperLU with its factor reused in each stage; both give the official numbers "
                    "(default auto: CHOLMOD when installed)")
@@ -66,10 +66,10 @@ def _arguments(p: argparse.ArgumentParser) -> None:
 
 
 def _run(args: argparse.Namespace) -> None:
-    from facegeo.errors import InputError
+    from facegeo.errors import FacegeoError, InputError
     from facegeo.eval.realy import DEFAULT_TOPOLOGY, evaluate
     from facegeo.eval.realy_align import Settings
-    from facegeo.eval.realy_solver import cholmod_available
+    from facegeo.eval.realy_solver import resolve as resolve_solver
     from facegeo.eval.realy_report import OUTPUT_FILES, markdown_table, write_outputs
 
     if args.workers < 1:
@@ -84,9 +84,10 @@ def _run(args: argparse.Namespace) -> None:
                             solver_rtol=args.solver_rtol, factor_reuse=not args.no_factor_reuse, solver=args.solver)
     except ValueError as exc:
         raise InputError("<arguments>", "speed / exactness options", "positive values", str(exc)) from None
-    if args.solver == "cholmod" and not cholmod_available():
-        raise InputError("--solver", "value", "auto or superlu (cholmod needs CVXOPT: pip install 'facegeo[cholmod]')",
-                         "cholmod")
+    try:
+        resolve_solver(args.solver)
+    except FacegeoError as exc:  # cholmod without CVXOPT
+        raise InputError("--solver", "value", f"auto or superlu ({exc})", args.solver) from None
     start = time.perf_counter()
     with contextlib.ExitStack() as stack:
         client = None
