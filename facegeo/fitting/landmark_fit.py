@@ -174,7 +174,7 @@ def _estimate_noise(problem: LandmarkProblem, state: dict[str, np.ndarray], prio
     data = a.T @ a / noise**2
     precision = np.concatenate([np.zeros(6), np.ones(model.n_id), prior.exp_scale**-2])[free]
     p_eff = float(np.trace(np.linalg.solve(data + np.diag(precision), data)))
-    n_obs = 2 * problem.n_valid - len(problem.sliding)  # a sliding point only constrains its normal
+    n_obs = 2 * problem.n_observations - len(problem.sliding)  # a sliding point only constrains its normal
     return float(np.sqrt(float(r @ r) / max(n_obs - p_eff, 1.0))), p_eff
 
 
@@ -186,6 +186,7 @@ def fit_landmarks(
     schedule: tuple[LandmarkStage, ...] = LANDMARK_SCHEDULE,
     priors: FitPriors = DEFAULT_PRIORS,
     init: Fit | None = None,
+    surface_points: SurfacePoints | None = None,
 ) -> Fit:
     """Fit pose, identity and expression to 88 given landmarks (no image): the MAP estimate of
     :class:`FitPriors`, with expression weights inside the model's range.
@@ -199,6 +200,8 @@ def fit_landmarks(
         priors: the priors and the landmark noise model.
         init: start from this fit's pose, α and δ (e.g. a regressor's prediction; δ is clipped
             into the model's range) instead of solvePnP on the mean shape.
+        surface_points: dense points on the model surface observed beside the 88
+            (:func:`facegeo.fitting.dense_term.dense_surface_points`), or None.
     Returns:
         A :class:`Fit` with β = 0 and γ = ambient white (no photometric stage);
         ``info["landmark_noise"]`` holds the estimated noise (px and inter-ocular fraction),
@@ -228,7 +231,7 @@ def fit_landmarks(
         timings["pose_init"] = time.perf_counter() - t0
 
         t0 = time.perf_counter()
-        problem = LandmarkProblem(model, targets, camera, weights)
+        problem = LandmarkProblem(model, targets, camera, weights, surface_points)
         state = {
             "rotation": np.array(rotation, dtype=np.float64),
             "translation": np.array(translation, dtype=np.float64),
@@ -282,7 +285,12 @@ def _assemble(
     timings: dict[str, float],
     info: dict[str, Any],
 ) -> Fit:
-    fitted = problem.projected(state["rotation"], state["translation"], state["alpha"], state["delta"])
+    projected = problem.projected(state["rotation"], state["translation"], state["alpha"], state["delta"])
+    fitted = projected[:N_LANDMARKS]
+    if problem.n_points > N_LANDMARKS:  # the surface points' residuals, px
+        dense_errors = np.linalg.norm(projected[N_LANDMARKS:] - problem.targets[N_LANDMARKS:], axis=1)
+        used = problem.sqrt_w[N_LANDMARKS:] > 0
+        info["surface_points"] = {"used": int(used.sum()), "rms_px": float(np.sqrt(np.mean(dense_errors[used] ** 2))) if used.any() else None}
     with torch.no_grad():
         shape_vertices = model.shape(torch.from_numpy(state["alpha"]).float(), torch.from_numpy(state["delta"]).float()).numpy()
     rotation, translation = state["rotation"].astype(np.float32), state["translation"].astype(np.float32)

@@ -71,10 +71,14 @@ class LandmarkProblem:
         extra_valid = np.isfinite(extra.targets).all(axis=1) & (extra.weights > 0)
         w_all = np.concatenate([w, np.where(extra_valid, extra.weights, 0.0)]) * norm
         self.n_valid = int(np.count_nonzero(w_all > 0))
+        # observations for the noise estimate: each valid landmark counts once, a surface point
+        # by its weight (a dense detector's points are correlated: K of them at weight λ carry
+        # about the evidence of λ·K independent points)
+        self.n_observations = float(np.count_nonzero(w > 0) + np.minimum(w_all[N_LANDMARKS:], 1.0).sum())
         self.scale = max(inter_ocular_distance(targets), 1.0)
         self.sqrt_w = np.sqrt(w_all) / self.scale
         all_targets = np.concatenate([targets, extra.targets]).astype(np.float64)
-        self.targets = np.where((w_all > 0)[:, None], all_targets, 0.0)
+        self.targets = np.where(np.isfinite(all_targets), all_targets, 0.0)  # weight 0 where not finite
 
         jaw = model.landmark_indices[:17]
         contours = {"right": jaw[: CHIN + 1], "left": jaw[CHIN:][::-1]}
@@ -88,7 +92,7 @@ class LandmarkProblem:
         self.rows = position[ids]  # (n, 3) rows into subset
         self.bary = np.concatenate([np.tile([1.0, 0.0, 0.0], (N_LANDMARKS, 1)), extra.barycentric])
         self.sliding_rows = np.array([j for j in range(17) if j != CHIN])
-        self.sliding = self.sliding_rows[valid[self.sliding_rows]]
+        self.sliding = self.sliding_rows[(w > 0)[self.sliding_rows]]
         names = model.expression_names
         jaw_articulation = np.array([name.startswith("jaw") for name in names] or [False] * model.n_exp)
         self.exp_mask = np.ones((n, model.n_exp))  # which expressions move which point

@@ -11,12 +11,16 @@ import numpy as np
 
 from facegeo.camera import Camera
 from facegeo.colour import srgb_to_linear
+from facegeo.fitting.camera_estimate import camera_for_face
 from facegeo.fitting.checks import check_fit
+from facegeo.fitting.dense_term import DEFAULT_DENSE, DenseSettings, dense_surface_points, landmark_weights_with_dense
 from facegeo.fitting.landmark_fit import fit_landmarks
 from facegeo.fitting.photometric import fit_photometric
 from facegeo.fitting.priors import DEFAULT_PRIORS, FitPriors
 from facegeo.fitting.result import Fit
+from facegeo.landmarks.dense import load_dense_correspondence
 from facegeo.landmarks.detectors import FaceLandmarks, LandmarkDetector, get_detector
+from facegeo.landmarks.scheme import LANDMARK_WEIGHTS, inter_ocular_distance
 from facegeo.model_files import load_model
 from facegeo.morphable_model import MorphableModel
 from facegeo.photo import Photo, as_rgb_uint8, load_photo
@@ -33,6 +37,7 @@ def fit(
     photometric: bool = True,
     init: Fit | None = None,
     priors: FitPriors = DEFAULT_PRIORS,
+    dense: DenseSettings | None = DEFAULT_DENSE,
 ) -> Fit:
     """Fit the model to one photo: landmarks (detected unless given), pose, shape, expression,
     then albedo and SH lighting.
@@ -42,11 +47,16 @@ def fit(
         model: the morphable model (default: :func:`load_model`'s default).
         landmarks: optional (88, 2) pixel landmarks in the image's coordinates.
         detector: a detector name (``hybrid``, ``dlib``, ``mediapipe``) or instance.
-        camera: intrinsics (default: :meth:`Camera.for_image`, 40° field of view).
+        camera: intrinsics (default: :meth:`Camera.unknown_focal`); a camera whose focal is
+            not known gets the one :func:`~facegeo.fitting.camera_estimate.camera_for_face`
+            estimates from the face.
         photometric: run the albedo + lighting stage.
         init: start the landmark fit from this fit's pose, α and δ (e.g. a regressor's
             prediction) instead of solvePnP on the mean shape.
         priors: the landmark fit's priors (:class:`FitPriors`).
+        dense: the dense term's settings (:mod:`facegeo.fitting.dense_term`): MediaPipe's 468
+            face-mesh points on the model surface beside the 88, when the detector ran the face
+            mesh and the model has a dense correspondence; None: the 88 points alone.
     """
     timings: dict[str, float] = {}
     notes: list[str] = []
@@ -63,7 +73,7 @@ def fit(
     model = load_model() if model is None else model
     timings["load_model"] = time.perf_counter() - t0
     height, width = pixels.shape[:2]
-    camera = Camera.for_image(width, height) if camera is None else camera
+    camera = Camera.unknown_focal(width, height) if camera is None else camera
     detection: FaceLandmarks | None = None
     if landmarks is None:
         t0 = time.perf_counter()
@@ -72,7 +82,19 @@ def fit(
         landmarks = detection.points
         notes.extend(detection.notes)
         timings["detect"] = time.perf_counter() - t0
-    result = fit_landmarks(model, landmarks, camera, priors=priors, init=init)
+    camera, camera_note = camera_for_face(camera, np.asarray(landmarks, dtype=np.float64), model)
+    if camera_note:
+        notes.append(camera_note)
+    weights, surface = None, None
+    if dense is not None and detection is not None and detection.dense is not None:
+        correspondence = load_dense_correspondence(model)
+        if correspondence is None:
+            notes.append("no dense correspondence for this model: fitted to the 88 landmarks alone")
+        else:
+            surface = dense_surface_points(model, detection.dense, correspondence, inter_ocular_distance(landmarks), dense,
+                                           detection.dense_spread)
+            weights = landmark_weights_with_dense(LANDMARK_WEIGHTS, dense)
+    result = fit_landmarks(model, landmarks, camera, weights=weights, priors=priors, init=init, surface_points=surface)
     result.timings = {**timings, **result.timings}
     if photometric:
         t0 = time.perf_counter()
