@@ -12,8 +12,10 @@ converted with the detected inter-ocular distance). Its relative precision is
 with λ (:attr:`DenseSettings.weight`) the share one dense point gets of a nominal landmark's
 weight: a network's 468 outputs are not 468 independent measurements, so λ·468 is about the
 evidence they carry together (chosen on renders of real head scans, benchmarks/RESULTS.md).
-Face-oval points are contour points (on a turned face they mark the silhouette, not a fixed
-place on the skin) and get :attr:`DenseSettings.contour_weight` × that.
+Face-oval points below the eyes are outline points: on a turned or pitched face they mark the
+silhouette, not a fixed place on the skin, so they slide along the model's occluding contour
+(:mod:`facegeo.fitting.silhouette`) with :attr:`DenseSettings.contour_weight` × that weight;
+the face oval's forehead points keep their place on the surface.
 
 When dense points are used, the 16 sliding jaw points of the 88 are left out
 (:attr:`DenseSettings.drop_jaw`): measured on real head scans, the jaw contour as a fixed
@@ -30,7 +32,7 @@ import numpy as np
 from facegeo.errors import InputError
 from facegeo.fitting.landmark_problem import SurfacePoints
 from facegeo.landmarks.dense import DenseCorrespondence
-from facegeo.landmarks.scheme import CHIN, JAW, OUTER_EYE_CORNERS
+from facegeo.landmarks.scheme import CHIN, EYES, JAW, OUTER_EYE_CORNERS
 from facegeo.morphable_model import MorphableModel
 
 __all__ = ["DenseSettings", "DEFAULT_DENSE", "dense_surface_points", "landmark_weights_with_dense"]
@@ -47,7 +49,7 @@ class DenseSettings:
 
     weight: float = 0.25
     nominal_noise: float = 0.03
-    contour_weight: float = 0.0
+    contour_weight: float = 1.0
     drop_jaw: bool = True
 
     def __post_init__(self) -> None:
@@ -89,9 +91,12 @@ def dense_surface_points(model: MorphableModel, points_px: np.ndarray, correspon
         error = error + (np.asarray(spread_px, dtype=np.float64) / max(iod_px, 1.0)) ** 2
     sigma2 = settings.nominal_noise**2
     weights = settings.weight * sigma2 / (sigma2 + error)
-    weights = np.where(correspondence.contour, weights * settings.contour_weight, weights)
+    on_mean = (model.mean_shape[correspondence.vertex_ids] * correspondence.barycentric[..., None]).sum(axis=1)
+    eye_level = float(model.mean_shape[model.landmark_indices[EYES], 1].mean())
+    outline = np.asarray(correspondence.contour, dtype=bool) & (on_mean[:, 1] < eye_level)
+    weights = np.where(outline, weights * settings.contour_weight, weights)
     weights = np.where(np.isfinite(points).all(axis=1), weights, 0.0)
-    return SurfacePoints(points, correspondence.vertex_ids, correspondence.barycentric, weights)
+    return SurfacePoints(points, correspondence.vertex_ids, correspondence.barycentric, weights, outline)
 
 
 def landmark_weights_with_dense(weights: np.ndarray, settings: DenseSettings = DEFAULT_DENSE) -> np.ndarray:

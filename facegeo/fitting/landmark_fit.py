@@ -128,7 +128,7 @@ def _levenberg_marquardt(problem: LandmarkProblem, state: dict[str, np.ndarray],
     prior_precision = np.concatenate([np.zeros(6), np.ones(n_id), inv_var[:n_exp]])
     damping, accepted = 1e-3, 0
     for _ in range(stage.iterations):
-        problem.slide_jaw(state["rotation"], state["translation"], state["alpha"], state["delta"])
+        problem.slide(state["rotation"], state["translation"], state["alpha"], state["delta"])
         r0, cost0 = cost(state["rotation"], state["translation"], state["alpha"], state["delta"])
         jac = problem.jacobian(state["rotation"], state["translation"], state["alpha"], state["delta"], n_id, n_exp, t_unit) / noise
         # normal equations of the landmark residuals plus the (diagonal) priors; grad is half ∇E
@@ -164,7 +164,7 @@ def _levenberg_marquardt(problem: LandmarkProblem, state: dict[str, np.ndarray],
 def _estimate_noise(problem: LandmarkProblem, state: dict[str, np.ndarray], prior: _Prior, noise: float) -> tuple[float, float]:
     """(σ, p_eff): the landmark noise re-estimated from the residuals (:class:`FitPriors`)."""
     model = problem.model
-    problem.slide_jaw(state["rotation"], state["translation"], state["alpha"], state["delta"])
+    problem.slide(state["rotation"], state["translation"], state["alpha"], state["delta"])
     r = problem.residuals(state["rotation"], state["translation"], state["alpha"], state["delta"])
     jac = problem.jacobian(state["rotation"], state["translation"], state["alpha"], state["delta"], model.n_id, model.n_exp, 10.0)
     d = state["delta"]
@@ -174,7 +174,7 @@ def _estimate_noise(problem: LandmarkProblem, state: dict[str, np.ndarray], prio
     data = a.T @ a / noise**2
     precision = np.concatenate([np.zeros(6), np.ones(model.n_id), prior.exp_scale**-2])[free]
     p_eff = float(np.trace(np.linalg.solve(data + np.diag(precision), data)))
-    n_obs = 2 * problem.n_observations - len(problem.sliding)  # a sliding point only constrains its normal
+    n_obs = 2 * problem.n_observations - problem.n_sliding
     return float(np.sqrt(float(r @ r) / max(n_obs - p_eff, 1.0))), p_eff
 
 
@@ -253,7 +253,7 @@ def fit_landmarks(
                 history.append(noise)
             stage = last if round_ == 0 else LandmarkStage(last.name, max(last.iterations // 2, 1), last.n_id, last.expression)
             steps[f"{last.name}@{noise:.4f}"] = _levenberg_marquardt(problem, state, stage, prior, noise)
-        problem.slide_jaw(state["rotation"], state["translation"], state["alpha"], state["delta"])
+        problem.slide(state["rotation"], state["translation"], state["alpha"], state["delta"])
         timings["landmarks"] = time.perf_counter() - t0
     d = state["delta"]
     info = {

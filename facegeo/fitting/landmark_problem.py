@@ -11,10 +11,22 @@ from __future__ import annotations
 import numpy as np
 
 from facegeo.camera import Camera, project
+from facegeo.fitting.silhouette import Silhouette
 from facegeo.landmarks.scheme import CHIN, N_LANDMARKS, inter_ocular_distance
 from facegeo.morphable_model import MorphableModel
 
-__all__ = ["LandmarkProblem", "SurfacePoints"]
+__all__ = ["LandmarkProblem", "SurfacePoints", "silhouette_of"]
+
+_SILHOUETTES: dict[int, tuple[MorphableModel, Silhouette]] = {}
+
+
+def silhouette_of(model: MorphableModel) -> Silhouette:
+    """The :class:`Silhouette` bins of ``model``, built once per model object in a process."""
+    cached = _SILHOUETTES.get(id(model))
+    if cached is None or cached[0] is not model:
+        cached = (model, Silhouette(model))
+        _SILHOUETTES[id(model)] = cached
+    return cached[1]
 
 
 class SurfacePoints:
@@ -22,15 +34,19 @@ class SurfacePoints:
 
     targets (K, 2) px (NaN rows ignored); vertex_ids (K, 3) int model vertices; barycentric
     (K, 3) float weights (rows sum to 1); weights (K,) relative precisions on the scale of the 88
-    points' (a point as reliable as a nominal landmark has weight 1; 0 leaves it out).
+    points' (a point as reliable as a nominal landmark has weight 1; 0 leaves it out); contour
+    (K,) bool: points of the face's outline, which slide along the model's occluding contour
+    (:mod:`facegeo.fitting.silhouette`) instead of keeping their place on the surface.
     """
 
-    def __init__(self, targets: np.ndarray, vertex_ids: np.ndarray, barycentric: np.ndarray, weights: np.ndarray):
+    def __init__(self, targets: np.ndarray, vertex_ids: np.ndarray, barycentric: np.ndarray, weights: np.ndarray,
+                 contour: np.ndarray | None = None):
         self.targets = np.asarray(targets, dtype=np.float64).reshape(-1, 2)
         k = len(self.targets)
         self.vertex_ids = np.asarray(vertex_ids, dtype=np.int64).reshape(k, 3)
         self.barycentric = np.asarray(barycentric, dtype=np.float64).reshape(k, 3)
         self.weights = np.asarray(weights, dtype=np.float64).reshape(k)
+        self.contour = np.zeros(k, dtype=bool) if contour is None else np.asarray(contour, dtype=bool).reshape(k)
 
     def __len__(self) -> int:
         return len(self.targets)
@@ -83,7 +99,10 @@ class LandmarkProblem:
         jaw = model.landmark_indices[:17]
         contours = {"right": jaw[: CHIN + 1], "left": jaw[CHIN:][::-1]}
         ids = np.concatenate([np.repeat(np.asarray(model.landmark_indices)[:, None], 3, axis=1), extra.vertex_ids])
-        self.subset = np.unique(ids)
+        self.silhouette_rows = N_LANDMARKS + np.flatnonzero(extra.contour & (w_all[N_LANDMARKS:] > 0))
+        self.silhouette = silhouette_of(model) if len(self.silhouette_rows) else None
+        silhouette_vertices = self.silhouette.vertices if self.silhouette is not None else np.zeros(0, np.int64)
+        self.subset = np.unique(np.concatenate([ids.ravel(), silhouette_vertices]))
         position = np.full(model.n_vertices, -1, dtype=np.int64)
         position[self.subset] = np.arange(len(self.subset))
         self.mean = model.mean_shape[self.subset].astype(np.float64)
@@ -97,6 +116,10 @@ class LandmarkProblem:
         jaw_articulation = np.array([name.startswith("jaw") for name in names] or [False] * model.n_exp)
         self.exp_mask = np.ones((n, model.n_exp))  # which expressions move which point
         self.exp_mask[self.sliding_rows] = jaw_articulation
+        self.exp_mask[self.silhouette_rows] = jaw_articulation
+        self.silhouette_subset_rows = position[silhouette_vertices]
+        # constraints lost to sliding (a sliding point only constrains its normal)
+        self.n_sliding = float(len(self.sliding) + np.minimum(w_all[self.silhouette_rows], 1.0).sum())
         self.contour_rows = {side: position[np.asarray(c)] for side, c in contours.items()}
         self.contour_vertex_rows = np.unique(np.concatenate(list(self.contour_rows.values())))
         self._update_bases(np.zeros(model.n_exp))
@@ -148,6 +171,36 @@ class LandmarkProblem:
             self.rows[jaw_points] = np.stack([rows[s], rows[s + 1], rows[s + 1]], axis=1)
             self.bary[jaw_points] = np.stack([1.0 - t_best, t_best, np.zeros_like(t_best)], axis=1)
         self._update_bases(delta, self.sliding_rows)
+
+    def slide_silhouette(self, rotation: np.ndarray, translation: np.ndarray, alpha: np.ndarray, delta: np.ndarray) -> None:
+        """Move each outline point to the nearest point of the model's projected occluding
+        contour under the current pose and shape (:mod:`facegeo.fitting.silhouette`), and
+        freeze its expression part (but the jaw's) at ``delta``."""
+        if self.silhouette is None:
+            return
+        rows_all = self.silhouette_subset_rows
+        shape = self.points(alpha, rows_all) + (delta @ self.exp_basis[:, rows_all].reshape(len(delta), -1)).reshape(-1, 3)
+        cam = shape @ rotation.T + translation
+        picks = self.silhouette.contour(cam, rotation)
+        if len(picks) < 2:
+            return
+        rows = rows_all[picks]
+        uv = project(shape[picks], rotation, translation, self.camera)
+        a, b = uv[:-1], uv[1:]
+        ab = b - a
+        q = self.targets[self.silhouette_rows][:, None, :]
+        t = np.clip(((q - a) * ab).sum(-1) / np.maximum((ab * ab).sum(-1), 1e-12), 0.0, 1.0)
+        s = np.argmin(((a + t[..., None] * ab - q) ** 2).sum(-1), axis=1)
+        t_best = t[np.arange(len(s)), s]
+        self.rows[self.silhouette_rows] = np.stack([rows[s], rows[s + 1], rows[s + 1]], axis=1)
+        self.bary[self.silhouette_rows] = np.stack([1.0 - t_best, t_best, np.zeros_like(t_best)], axis=1)
+        self._update_bases(delta, self.silhouette_rows)
+
+    def slide(self, rotation: np.ndarray, translation: np.ndarray, alpha: np.ndarray, delta: np.ndarray) -> None:
+        """Both slides before a step: the jaw points (:meth:`slide_jaw`) and the outline points
+        (:meth:`slide_silhouette`)."""
+        self.slide_jaw(rotation, translation, alpha, delta)
+        self.slide_silhouette(rotation, translation, alpha, delta)
 
     def landmark_points(self, alpha: np.ndarray, delta: np.ndarray) -> np.ndarray:
         """(n, 3) model-space positions of the observed points with the current correspondences."""
