@@ -16,6 +16,7 @@ Axes and units: DESIGN.md, "Conventions" (mm, +Y up, camera looks down −Z); pi
 from __future__ import annotations
 
 import time
+from dataclasses import dataclass
 from typing import Any
 
 import cv2
@@ -33,7 +34,7 @@ from facegeo.landmarks.scheme import INNER_FACE, LANDMARK_WEIGHTS, N_LANDMARKS, 
 from facegeo.lighting import AMBIENT_WHITE
 from facegeo.morphable_model import MorphableModel
 
-__all__ = ["fit_landmarks", "CONVERGED_RELATIVE_DECREASE", "NOISE_TOLERANCE", "LANDMARK_FIT_THREADS", "rotation_step"]
+__all__ = ["fit_landmarks", "solve_landmarks", "LandmarkSolution", "CONVERGED_RELATIVE_DECREASE", "NOISE_TOLERANCE", "LANDMARK_FIT_THREADS", "rotation_step"]
 
 CONVERGED_RELATIVE_DECREASE = 1e-4
 #: The noise re-estimation stops once σ changes by less than this (relative, in log).
@@ -178,7 +179,35 @@ def _estimate_noise(problem: LandmarkProblem, state: dict[str, np.ndarray], prio
     return float(np.sqrt(float(r @ r) / max(n_obs - p_eff, 1.0))), p_eff
 
 
+@dataclass(frozen=True)
+class LandmarkSolution:
+    """What :func:`solve_landmarks` ends with: the ``fit``, its landmark ``problem`` (slid at the
+    final state), the landmark ``noise`` σ (inter-ocular units) and the δ prior's per-weight
+    ``expression_scale`` and ``expression_rate`` (n_exp,): what a later stage that keeps the
+    landmark term (:mod:`facegeo.fitting.shading_refine`) needs."""
+
+    fit: Fit
+    problem: LandmarkProblem
+    noise: float
+    expression_scale: np.ndarray
+    expression_rate: np.ndarray
+
+
 def fit_landmarks(
+    model: MorphableModel,
+    landmarks: np.ndarray | torch.Tensor,
+    camera: Camera,
+    weights: np.ndarray | None = None,
+    schedule: tuple[LandmarkStage, ...] = LANDMARK_SCHEDULE,
+    priors: FitPriors = DEFAULT_PRIORS,
+    init: Fit | None = None,
+    surface_points: SurfacePoints | None = None,
+) -> Fit:
+    """The MAP landmark fit: :func:`solve_landmarks`'s ``fit`` (same arguments, documented there)."""
+    return solve_landmarks(model, landmarks, camera, weights, schedule, priors, init, surface_points).fit
+
+
+def solve_landmarks(
     model: MorphableModel,
     landmarks: np.ndarray | torch.Tensor,
     camera: Camera,
@@ -267,7 +296,8 @@ def fit_landmarks(
             "expression_at_upper": int(((d >= prior.upper - 1e-9) & np.isfinite(prior.upper)).sum()),
         },
     }
-    return _assemble(model, problem, state, camera, targets, timings, info)
+    return LandmarkSolution(_assemble(model, problem, state, camera, targets, timings, info), problem, noise,
+                            prior.exp_scale, prior.exp_rate)
 
 
 #: BLAS threads for the landmark fit's small (176 × ~160) linear algebra: on a loaded 2-core

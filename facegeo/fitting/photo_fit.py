@@ -14,9 +14,10 @@ from facegeo.colour import srgb_to_linear
 from facegeo.fitting.camera_estimate import camera_for_face
 from facegeo.fitting.checks import check_fit
 from facegeo.fitting.dense_term import DEFAULT_DENSE, DenseSettings, dense_surface_points, landmark_weights_with_dense
-from facegeo.fitting.landmark_fit import fit_landmarks
+from facegeo.fitting.landmark_fit import solve_landmarks
 from facegeo.fitting.photometric import fit_photometric
 from facegeo.fitting.priors import DEFAULT_PRIORS, FitPriors
+from facegeo.fitting.shading_refine import ShadingSettings, refine_with_shading
 from facegeo.fitting.result import Fit
 from facegeo.landmarks.dense import load_dense_correspondence
 from facegeo.landmarks.detectors import FaceLandmarks, LandmarkDetector, get_detector
@@ -38,6 +39,7 @@ def fit(
     init: Fit | None = None,
     priors: FitPriors = DEFAULT_PRIORS,
     dense: DenseSettings | None = DEFAULT_DENSE,
+    shading: ShadingSettings | None = None,
 ) -> Fit:
     """Fit the model to one photo: landmarks (detected unless given), pose, shape, expression,
     then albedo and SH lighting.
@@ -57,6 +59,9 @@ def fit(
         dense: the dense term's settings (:mod:`facegeo.fitting.dense_term`): MediaPipe's 468
             face-mesh points on the model surface beside the 88, when the detector ran the face
             mesh and the model has a dense correspondence; None: the 88 points alone.
+        shading: run the analysis-by-synthesis stage against the photo's shading with these
+            settings (:mod:`facegeo.fitting.shading_refine`; implies the photometric stage);
+            None (default): landmarks and the photometric stage only.
     """
     timings: dict[str, float] = {}
     notes: list[str] = []
@@ -94,12 +99,20 @@ def fit(
             surface = dense_surface_points(model, detection.dense, correspondence, inter_ocular_distance(landmarks), dense,
                                            detection.dense_spread)
             weights = landmark_weights_with_dense(LANDMARK_WEIGHTS, dense)
-    result = fit_landmarks(model, landmarks, camera, weights=weights, priors=priors, init=init, surface_points=surface)
+    solution = solve_landmarks(model, landmarks, camera, weights=weights, priors=priors, init=init, surface_points=surface)
+    result = solution.fit
     result.timings = {**timings, **result.timings}
-    if photometric:
+    if photometric or shading is not None:
         t0 = time.perf_counter()
-        fit_photometric(model, result, srgb_to_linear(pixels.astype(np.float32) / 255.0))
+        linear = srgb_to_linear(pixels.astype(np.float32) / 255.0)
+        fit_photometric(model, result, linear)
         result.timings["photometric"] = time.perf_counter() - t0
+        if shading is not None and "skipped" not in result.info.get("photometric", {}):
+            t0 = time.perf_counter()
+            result.info["shading"] = refine_with_shading(model, result, solution.problem, solution.noise, linear,
+                                                         solution.expression_scale, solution.expression_rate, shading)
+            fit_photometric(model, result, linear)  # albedo and light for the refined shape
+            result.timings["shading"] = time.perf_counter() - t0
     result.info.update(
         source=source,
         model=model.name,
