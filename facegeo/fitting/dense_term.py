@@ -34,8 +34,13 @@ from facegeo.fitting.landmark_problem import SurfacePoints
 from facegeo.landmarks.dense import DenseCorrespondence
 from facegeo.landmarks.scheme import CHIN, EYES, JAW, OUTER_EYE_CORNERS
 from facegeo.morphable_model import MorphableModel
+from facegeo.skin_mask import LEFT_BROW, LEFT_EYE, LIPS_INNER, LIPS_OUTER, RIGHT_BROW, RIGHT_EYE
 
-__all__ = ["DenseSettings", "DEFAULT_DENSE", "dense_surface_points", "landmark_weights_with_dense"]
+__all__ = ["DenseSettings", "DEFAULT_DENSE", "dense_surface_points", "landmark_weights_with_dense", "EXPRESSIVE_POINTS"]
+
+#: MediaPipe face-mesh points on the features that expressions move visibly (eyes, brows, lips):
+#: the dense points whose residuals may pull expressions.
+EXPRESSIVE_POINTS = np.unique(np.concatenate([LIPS_OUTER, LIPS_INNER, RIGHT_EYE, LEFT_EYE, RIGHT_BROW, LEFT_BROW]))
 
 
 @dataclass(frozen=True)
@@ -45,12 +50,16 @@ class DenseSettings:
     weight: λ, the relative precision of a dense point with no known error (a nominal landmark
     has 1). nominal_noise: σ_n, inter-ocular units. contour_weight: factor for face-oval points.
     drop_jaw: leave out the 16 sliding jaw points of the 88 (the chin stays).
+    features_only_expressions: only the points of the eyes, brows and lips
+    (:data:`EXPRESSIVE_POINTS`) reach the expressions; the others reach the pose, the identity
+    and the jaw.
     """
 
     weight: float = 0.25
     nominal_noise: float = 0.03
     contour_weight: float = 1.0
     drop_jaw: bool = True
+    features_only_expressions: bool = True
 
     def __post_init__(self) -> None:
         for name in ("weight", "nominal_noise"):
@@ -96,7 +105,11 @@ def dense_surface_points(model: MorphableModel, points_px: np.ndarray, correspon
     outline = np.asarray(correspondence.contour, dtype=bool) & (on_mean[:, 1] < eye_level)
     weights = np.where(outline, weights * settings.contour_weight, weights)
     weights = np.where(np.isfinite(points).all(axis=1), weights, 0.0)
-    return SurfacePoints(points, correspondence.vertex_ids, correspondence.barycentric, weights, outline)
+    expressive = np.zeros(k, dtype=bool)
+    expressive[EXPRESSIVE_POINTS] = True
+    if not settings.features_only_expressions:
+        expressive[:] = True
+    return SurfacePoints(points, correspondence.vertex_ids, correspondence.barycentric, weights, outline, expressive)
 
 
 def landmark_weights_with_dense(weights: np.ndarray, settings: DenseSettings = DEFAULT_DENSE) -> np.ndarray:

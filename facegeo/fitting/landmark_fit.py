@@ -326,7 +326,7 @@ def _assemble(
     rotation, translation = state["rotation"].astype(np.float32), state["translation"].astype(np.float32)
     vertices = shape_vertices @ rotation.T + translation
     errors = np.linalg.norm(fitted - targets, axis=1)
-    valid = np.isfinite(errors)
+    valid = np.isfinite(errors) & (problem.sqrt_w[:N_LANDMARKS] > 0)  # the RMS is over the points the fit used
     return Fit(
         alpha=state["alpha"].astype(np.float32),
         delta=state["delta"].astype(np.float32),

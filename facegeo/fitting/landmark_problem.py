@@ -36,17 +36,21 @@ class SurfacePoints:
     (K, 3) float weights (rows sum to 1); weights (K,) relative precisions on the scale of the 88
     points' (a point as reliable as a nominal landmark has weight 1; 0 leaves it out); contour
     (K,) bool: points of the face's outline, which slide along the model's occluding contour
-    (:mod:`facegeo.fitting.silhouette`) instead of keeping their place on the surface.
+    (:mod:`facegeo.fitting.silhouette`) instead of keeping their place on the surface;
+    expressive (K,) bool: points whose residuals reach every expression (eyes, brows, lips);
+    the others reach only the jaw's (like the jaw contour: a cheek or forehead point that sits
+    off the model is explained by the identity, never by puffed cheeks or a frown).
     """
 
     def __init__(self, targets: np.ndarray, vertex_ids: np.ndarray, barycentric: np.ndarray, weights: np.ndarray,
-                 contour: np.ndarray | None = None):
+                 contour: np.ndarray | None = None, expressive: np.ndarray | None = None):
         self.targets = np.asarray(targets, dtype=np.float64).reshape(-1, 2)
         k = len(self.targets)
         self.vertex_ids = np.asarray(vertex_ids, dtype=np.int64).reshape(k, 3)
         self.barycentric = np.asarray(barycentric, dtype=np.float64).reshape(k, 3)
         self.weights = np.asarray(weights, dtype=np.float64).reshape(k)
         self.contour = np.zeros(k, dtype=bool) if contour is None else np.asarray(contour, dtype=bool).reshape(k)
+        self.expressive = np.ones(k, dtype=bool) if expressive is None else np.asarray(expressive, dtype=bool).reshape(k)
 
     def __len__(self) -> int:
         return len(self.targets)
@@ -117,6 +121,9 @@ class LandmarkProblem:
         self.exp_mask = np.ones((n, model.n_exp))  # which expressions move which point
         self.exp_mask[self.sliding_rows] = jaw_articulation
         self.exp_mask[self.silhouette_rows] = jaw_articulation
+        # surface points off the features: expression frozen at the current δ (updated by :meth:`slide`)
+        self.frozen_rows = N_LANDMARKS + np.flatnonzero(~extra.expressive & ~np.isin(np.arange(len(extra)), self.silhouette_rows - N_LANDMARKS))
+        self.exp_mask[self.frozen_rows] = jaw_articulation
         self.silhouette_subset_rows = position[silhouette_vertices]
         # constraints lost to sliding (a sliding point only constrains its normal)
         self.n_sliding = float(len(self.sliding) + np.minimum(w_all[self.silhouette_rows], 1.0).sum())
@@ -197,10 +204,13 @@ class LandmarkProblem:
         self._update_bases(delta, self.silhouette_rows)
 
     def slide(self, rotation: np.ndarray, translation: np.ndarray, alpha: np.ndarray, delta: np.ndarray) -> None:
-        """Both slides before a step: the jaw points (:meth:`slide_jaw`) and the outline points
-        (:meth:`slide_silhouette`)."""
+        """Before a step: both slides, the jaw points (:meth:`slide_jaw`) and the outline points
+        (:meth:`slide_silhouette`), and the frozen expression part of the surface points that are
+        not expressive (:class:`SurfacePoints`) set to ``delta``."""
         self.slide_jaw(rotation, translation, alpha, delta)
         self.slide_silhouette(rotation, translation, alpha, delta)
+        if len(self.frozen_rows):
+            self._update_bases(delta, self.frozen_rows)
 
     def landmark_points(self, alpha: np.ndarray, delta: np.ndarray) -> np.ndarray:
         """(n, 3) model-space positions of the observed points with the current correspondences."""

@@ -33,7 +33,8 @@ class Fit:
     vertices (V, 3): posed, camera space, mm. shape_vertices (V, 3): model space, unposed, mm.
     landmarks (88, 2) px: the targets; landmarks_fitted (88, 2) px: the model's projections with
     the final (slid) correspondences ``landmark_vertices`` (88,) int64.
-    landmark_errors_px (88,): per-point distance; landmark_rms_px: their RMS over valid points.
+    landmark_errors_px (88,): per-point distance; landmark_rms_px: their RMS over the points the
+    fit used (finite, weight > 0: with dense landmarks the jaw's sliding points are not used).
     timings: seconds per stage; info: detector notes, iterations, photometric statistics.
     """
 
