@@ -106,10 +106,10 @@ def dense_surface_points(model: MorphableModel, points_px: np.ndarray, correspon
     outline = np.asarray(correspondence.contour, dtype=bool) & (on_mean[:, 1] < eye_level)
     weights = np.where(outline, weights * settings.contour_weight, weights)
     weights = np.where(np.isfinite(points).all(axis=1), weights, 0.0)
-    expressive = np.zeros(k, dtype=bool)
-    expressive[EXPRESSIVE_POINTS] = True
-    if not settings.features_only_expressions:
-        expressive[:] = True
+    expressive = np.ones(k, dtype=bool)
+    if settings.features_only_expressions:  # MediaPipe's numbering
+        expressive[:] = False
+        expressive[EXPRESSIVE_POINTS[EXPRESSIVE_POINTS < k]] = True
     return SurfacePoints(points, correspondence.vertex_ids, correspondence.barycentric, weights, outline, expressive)
 
 
