@@ -320,7 +320,13 @@ def _assemble(
     if problem.n_points > N_LANDMARKS:  # the surface points' residuals, px
         dense_errors = np.linalg.norm(projected[N_LANDMARKS:] - problem.targets[N_LANDMARKS:], axis=1)
         used = problem.sqrt_w[N_LANDMARKS:] > 0
-        info["surface_points"] = {"used": int(used.sum()), "rms_px": float(np.sqrt(np.mean(dense_errors[used] ** 2))) if used.any() else None}
+        # each point's noise σ_i = σ / √w_i (px), the landmark noise σ over its relative precision
+        w = (problem.sqrt_w[N_LANDMARKS:] * problem.scale) ** 2
+        sigma = info["landmark_noise"]["px"] / np.sqrt(np.maximum(w, 1e-12))
+        info["surface_points"] = {"used": int(used.sum()),
+                                  "rms_px": float(np.sqrt(np.mean(dense_errors[used] ** 2))) if used.any() else None,
+                                  "sigma_px": [round(float(x), 3) if u else None for x, u in zip(sigma, used)],
+                                  "residual_px": [round(float(x), 3) for x in dense_errors]}
     with torch.no_grad():
         shape_vertices = model.shape(torch.from_numpy(state["alpha"]).float(), torch.from_numpy(state["delta"]).float()).numpy()
     rotation, translation = state["rotation"].astype(np.float32), state["translation"].astype(np.float32)

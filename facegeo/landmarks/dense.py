@@ -49,6 +49,7 @@ __all__ = [
     "DENSE_ASSET",
     "DenseCorrespondence",
     "load_dense_correspondence",
+    "face_mesh_mirror",
     "read_dense_correspondence",
     "register_canonical_mesh",
     "Registration",
@@ -155,8 +156,12 @@ def read_dense_correspondence(path: str | Path, model: MorphableModel) -> DenseC
     return _correspondence(path, data, model, "bundled")
 
 
+_LOADED: dict[tuple[int, bool], tuple[MorphableModel, DenseCorrespondence | None]] = {}
+
+
 def load_dense_correspondence(model: MorphableModel, *, register: bool = True) -> DenseCorrespondence | None:
-    """The 468-point correspondence for ``model``, or None.
+    """The 468-point correspondence for ``model``, or None (made once per model object in a
+    process: a registration takes seconds and the fitter asks for every photo).
 
     The bundled file when ``model`` is the model it was made for (same triangle array sha256 and
     vertex count). Any other model: with ``register``, :func:`register_canonical_mesh` against its
@@ -165,6 +170,37 @@ def load_dense_correspondence(model: MorphableModel, *, register: bool = True) -
     is missing or the registration fails (fewer than 3 landmark pairs, a non-finite result): the
     caller falls back to the 88 landmarks. Never raises for a model that does not match.
     """
+    key = (id(model), register)
+    cached = _LOADED.get(key)
+    if cached is None or cached[0] is not model:
+        cached = (model, _load(model, register))
+        _LOADED[key] = cached
+    return cached[1]
+
+
+def face_mesh_mirror() -> np.ndarray:
+    """(468,) int64: MediaPipe's left-right permutation (point i of a face is point
+    ``mirror[i]`` of its mirror image), from the bundled canonical face mesh, which is
+    symmetric about x = 0: each vertex's mirror image is matched to its nearest vertex."""
+    global _MIRROR
+    if _MIRROR is None:
+        from scipy.spatial import cKDTree
+
+        from facegeo.assets import asset_path
+
+        canonical = _read_npz(asset_path(DENSE_ASSET))["canonical_vertices"].astype(np.float64)
+        _, mirror = cKDTree(canonical).query(canonical * np.array([-1.0, 1.0, 1.0]))
+        if not np.array_equal(mirror[mirror], np.arange(len(mirror))):
+            raise ModelFileError(DENSE_ASSET, "canonical_vertices", "a face mesh symmetric about x = 0", "no left-right pairing")
+        _MIRROR = mirror.astype(np.int64)
+        _MIRROR.setflags(write=False)
+    return _MIRROR
+
+
+_MIRROR: np.ndarray | None = None
+
+
+def _load(model: MorphableModel, register: bool) -> DenseCorrespondence | None:
     from facegeo.assets import asset_path
 
     try:

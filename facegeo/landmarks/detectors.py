@@ -25,6 +25,7 @@ import cv2
 import numpy as np
 
 from facegeo.errors import NoFaceError
+from facegeo.landmarks.dense import face_mesh_mirror
 from facegeo.landmarks.dlib_detector import DlibLandmarker
 from facegeo.landmarks.mediapipe_mesh import MEDIAPIPE_LIPS20, MediaPipeFaceMesh, ibug68_from_mesh
 from facegeo.photo import as_rgb_uint8
@@ -195,7 +196,7 @@ class MediaPipeDetector(_UprightSearch):
         face = faces[0]
         points = np.concatenate([ibug68_from_mesh(face.mesh), face.mesh[MEDIAPIPE_LIPS20, :2]])
         return FaceLandmarks(_corner_origin(points), _corner_origin(face.box), len(faces), self.name, _several(len(faces)),
-                             _corner_origin(face.mesh[:, :2]))
+                             _corner_origin(face.mesh[:, :2]), self.mesh.spread(image, face, face_mesh_mirror()))
 
 
 class HybridDetector(_UprightSearch):
@@ -239,7 +240,7 @@ class HybridDetector(_UprightSearch):
         lips = _corner_origin(face.mesh[MEDIAPIPE_LIPS20, :2])
         points = np.concatenate([self.dlib.landmarker.landmarks(image, box), lips])
         return FaceLandmarks(points, _corner_origin(face.box), len(mp_faces), self.name, tuple(notes),
-                             _corner_origin(face.mesh[:, :2]))
+                             _corner_origin(face.mesh[:, :2]), self.mediapipe.mesh.spread(image, face, face_mesh_mirror()))
 
 
 DETECTORS = {"hybrid": HybridDetector, "dlib": DlibDetector, "mediapipe": MediaPipeDetector}
