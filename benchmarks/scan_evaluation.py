@@ -19,8 +19,9 @@ The protocol (after NoW, Sanyal et al. 2019, adapted to renders with a known cam
    prediction's surface (point to triangle, mm): median, mean, RMSE, 90th percentile, the mean
    per region; and the signed depth errors (mm, along the scan's forward axis +Z, prediction's
    front-most surface minus the scan's, both found by casting a ray along −Z) at the upper lip
-   (iBUG 51), the lower lip (57) and the chin (pogonion: the scan's most forward point on the
-   midline segment from 57 to 8). Positive: the prediction sticks out further than the scan.
+   (iBUG 51), the lower lip (57) and the chin (pogonion: on the midline from 57 to 8, the scan's
+   most forward point below the labiomental fold). Positive: the prediction sticks out further
+   than the scan.
 
 Pose (:func:`relative_rotation_error`): a fit's head rotation R_v of view v against the frontal
 view's R_0 of the same scan: the relative rotation R_v·R_0ᵀ (camera frame), whose yaw, pitch and
@@ -210,10 +211,13 @@ def prepare_scan(vertices: np.ndarray, triangles: np.ndarray, landmarks: np.ndar
     normals /= np.maximum(np.linalg.norm(normals, axis=1, keepdims=True), 1e-12)
     regions = region_of_samples(points, normals, landmarks, frame)
     flat = (landmarks - landmarks[30]) @ frame.T
-    # chin probe: the scan's most forward point on the midline segment from the lower lip to the chin
+    # chin probe (pogonion): on the midline segment from the lower lip (57) to the chin (8), the
+    # scan's most forward point below the deepest point of the upper 60 % (the labiomental fold)
     segment = flat[57, :2][None] + np.linspace(0.0, 1.0, 41)[:, None] * (flat[8, :2] - flat[57, :2])[None]
     depth = _front_depth(vertices, triangles, frame, landmarks[30], segment)
-    chin = segment[int(np.nanargmax(depth))] if np.any(np.isfinite(depth)) else flat[8, :2]
+    depth = np.where(np.isfinite(depth), depth, -np.inf)
+    fold = int(np.argmin(np.where(np.arange(41) <= 24, depth, np.inf)))
+    chin = segment[fold + int(np.argmax(depth[fold:]))] if np.isfinite(depth[fold:]).any() else flat[8, :2]
     probes = np.stack([flat[51, :2], flat[57, :2], chin])
     return ScanReference(vertices=vertices, triangles=triangles, landmarks=landmarks, frame=frame, samples=points,
                          regions=regions, depth_points=probes, crop_radius_mm=crop_radius_mm)
@@ -239,10 +243,11 @@ def surface_distances(vertices: np.ndarray, triangles: np.ndarray, points: np.nd
     return np.linalg.norm(closest - points, axis=1), closest
 
 
-def align_to_scan(prediction: Prediction, reference: ScanReference, iterations: int = 60,
+def align_to_scan(prediction: Prediction, reference: ScanReference, iterations: int = 100,
                   tolerance_mm: float = 1e-4) -> tuple[np.ndarray, dict]:
     """The prediction's vertices (V, 3) float64 in the scan frame: 7-keypoint similarity, then
-    rigid ICP (scale fixed) of the prediction's surface to the scan samples. Returns them and
+    rigid ICP (scale fixed) of the prediction's surface to the scan samples, until the RMS
+    distance falls by less than ``tolerance_mm`` in a step. Returns them and
     ``{"scale", "icp_iterations", "keypoint_rms_mm"}``."""
     ids = np.asarray(prediction.landmark_vertices)[list(KEYPOINTS)]
     vertices = np.asarray(prediction.vertices, dtype=np.float64)
@@ -251,13 +256,13 @@ def align_to_scan(prediction: Prediction, reference: ScanReference, iterations: 
     keypoint_rms = float(np.sqrt(((aligned[ids] - reference.landmarks[list(KEYPOINTS)]) ** 2).sum(1).mean()))
     previous = math.inf
     done = 0
-    for done in range(1, iterations + 1):
+    for done in range(1, iterations + 1):  # the RMS distance never grows from one step to the next
         distance, closest = surface_distances(aligned, prediction.triangles, reference.samples)
-        _, r, t = similarity_transform(closest, reference.samples, with_scale=False)
-        aligned = aligned @ r.T + t
-        current = float(distance.mean())
+        current = float(np.sqrt((distance ** 2).mean()))
         if previous - current < tolerance_mm:
             break
+        _, r, t = similarity_transform(closest, reference.samples, with_scale=False)
+        aligned = aligned @ r.T + t
         previous = current
     return aligned, {"scale": scale, "icp_iterations": done, "keypoint_rms_mm": keypoint_rms}
 

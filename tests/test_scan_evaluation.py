@@ -91,6 +91,8 @@ def test_regions_hold_the_landmarks_they_are_named_after(face, model):
     backwards = region_of_samples(points, -normals, lm, reference.frame)
     assert np.all(backwards == -1)
     assert set(np.unique(reference.regions)) == set(range(-1, len(REGIONS)))
+    upper, lower, chin = reference.depth_points  # face-frame (x, y) of the depth probes
+    assert upper[1] > lower[1] > chin[1] + 10.0  # the chin probe lies well below the lower lip
 
 
 def test_relative_rotation_error_is_exact_on_a_synthetic_rotation():
