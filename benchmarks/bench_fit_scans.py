@@ -14,8 +14,10 @@ every view is fitted WITHOUT the true focal (the fitter's default camera) and, w
 
 Baselines, aligned and measured the same way: the model's mean shape (α = 0, δ = 0; the same for
 every view) and the mean identity with the fit's expression (α = 0, δ = the fit's). "ratio" is the
-fit's mean distance over the mean shape's. Pose: the fitted rotation of each view relative to
-the frontal view (``yaw+00``, same camera mode) against the true relative rotation
+fit's mean distance over the mean shape's; "keypoint scale" the similarity step's scale (the
+factor the prediction is enlarged by to meet the scan's 7 keypoints; kept through the ICP).
+Pose: the fitted rotation of each view relative to the frontal view (``yaw+00``, same camera
+mode) against the true relative rotation
 (:func:`scan_evaluation.relative_rotation_error`).
 
 The fitter is pluggable: ``--fitter MODULE:FACTORY`` imports FACTORY (a callable with no
@@ -60,8 +62,8 @@ def facegeo_fitter(model: MorphableModel | None = None, detector: str = "hybrid"
         result = fit(image_path, model, detector=detector, camera=camera, photometric=False)
         return Prediction(vertices=result.shape_vertices, triangles=model.triangles,
                           landmark_vertices=model.landmark_indices, rotation=result.rotation,
-                          info={"delta": result.delta, "landmark_rms_px": result.landmark_rms_px,
-                                "focal_px": result.camera.focal})
+                          info={"delta": result.delta, "alpha_norm": float(np.linalg.norm(result.alpha)),
+                                "landmark_rms_px": result.landmark_rms_px, "focal_px": result.camera.focal})
 
     return run
 
@@ -124,7 +126,8 @@ def bench_scan(scan_name: str, fitter: ScanFitter, model: MorphableModel, camera
                    "rotation": None if prediction.rotation is None else np.asarray(prediction.rotation).tolist(),
                    "true_rotation": view.rotation.tolist()}
             if "delta" in prediction.info:
-                with_delta = Prediction(_mean_with_delta(model, prediction.info["delta"]), model.triangles, model.landmark_indices)
+                with_delta = Prediction(_mean_with_delta(model, prediction.info["delta"]), model.triangles,
+                                        model.landmark_indices)
                 row["mean_with_delta"] = evaluate(with_delta, reference)
             rows[name] = row
             print(f"{scan_name} {mode:7s} {name:9s} mean {result['mean']:.2f} mm (mean shape {mean_result['mean']:.2f}), "
@@ -150,10 +153,11 @@ def markdown(results: list[dict]) -> str:
         for mode, rows in res["modes"].items():
             camera = "default camera (focal not given)" if mode == "default" else "true camera given"
             lines += [f"**{res['scan']}, {camera}.** Mean shape (α = 0, δ = 0): median {_f(mean['median'])}, "
-                      f"mean {_f(mean['mean'])}, RMSE {_f(mean['rmse'])} mm.", "",
-                      "| view | light, lens | median mm | mean mm | RMSE mm | mean shape + fit's δ: mean mm | fit / mean shape (mean) "
-                      "| landmark RMS px | focal used px | pose err yaw / pitch / roll ° |",
-                      "|---|---|---|---|---|---|---|---|---|---|"]
+                      f"mean {_f(mean['mean'])}, RMSE {_f(mean['rmse'])} mm, keypoint scale "
+                      f"{_f(mean['alignment']['scale'], 3)}.", "",
+                      "| view | light, lens | median mm | mean mm | RMSE mm | mean shape + fit's δ: mean mm "
+                      "| fit / mean shape (mean) | keypoint scale | ‖α‖ | landmark RMS px | focal used px | pose err yaw / pitch / roll ° |",
+                      "|---|---|---|---|---|---|---|---|---|---|---|---|"]
             for name, row in rows.items():
                 fit = row["fit"]
                 delta = row.get("mean_with_delta", {}).get("mean")
@@ -161,7 +165,8 @@ def markdown(results: list[dict]) -> str:
                 pose_text = "(reference)" if name == FRONTAL else (
                     f"{pose['yaw']:+.1f} / {pose['pitch']:+.1f} / {pose['roll']:+.1f}" if pose else "–")
                 lines.append(f"| {name} | {row['light']}, {row['lens_mm']:.0f} mm | {_f(fit['median'])} | {_f(fit['mean'])} | "
-                             f"{_f(fit['rmse'])} | {_f(delta)} | {_f(row['ratio'], 3)} | "
+                             f"{_f(fit['rmse'])} | {_f(delta)} | {_f(row['ratio'], 3)} | {_f(fit['alignment']['scale'], 3)} | "
+                             f"{_f(row['info'].get('alpha_norm', float('nan')), 1)} | "
                              f"{_f(row['info'].get('landmark_rms_px', float('nan')))} | "
                              f"{_f(row['info'].get('focal_px', float('nan')), 0)} | {pose_text} |")
             ratios = [row["ratio"] for row in rows.values()]

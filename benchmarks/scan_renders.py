@@ -347,7 +347,8 @@ def load_view(scan_name: str, view: str, cache: Path = CACHE) -> ScanView:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--scans", nargs="+", default=list(SCANS), choices=list(SCANS))
-    parser.add_argument("--samples", type=int, default=64, help="Cycles samples per pixel (denoised where Blender has OpenImageDenoise; Debian's 3.4 has not)")
+    parser.add_argument("--samples", type=int, default=64,
+                        help="Cycles samples per pixel (denoised where Blender has OpenImageDenoise; Debian's 3.4 has not)")
     args = parser.parse_args()
     for name in args.scans:
         folder = render_views(name, samples=args.samples)
