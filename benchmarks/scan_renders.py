@@ -30,7 +30,11 @@ onto the ICT-FaceKit mean shape's (rotation only): so the views' rotations are i
 canonical frame, up to the scan's own head posture.
 
 The point maps come from ray casting the scan (open3d) through each pixel centre with the true
-camera, not from Blender: exact, and the same convention as facegeo's pixels.
+camera, not from Blender: exact, and the same convention as facegeo's pixels. Checked: a flat
+100 mm square rendered through the same script lands where the true camera projects it (the
+centroid of its albedo coverage within 0.07 px) and its albedo reads back the texture's value
+(200/255 -> 201/255); on ``james`` ``yaw+00`` the albedo PNG matches a direct texture lookup
+through the point map with a median difference of 2/255 per channel.
 Public API: :data:`VIEWS`, :class:`ViewSpec`, :class:`ScanView`, :func:`render_views`,
 :func:`load_view`, :func:`view_names`, :func:`frontal_rotation`, :func:`cast_rays`.
 """
