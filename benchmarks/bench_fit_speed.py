@@ -31,7 +31,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from fit_validation import CAMERA, make_faces  # noqa: E402
 from sample_photos import sample_photos  # noqa: E402
 
-import facegeo.fitting as fitting  # noqa: E402
+import facegeo.fitting.landmark_fit as fitting  # noqa: E402
 from facegeo.landmarks.scheme import IBUG68  # noqa: E402
 from facegeo import Camera, detect_landmarks, load_model, load_photo  # noqa: E402
 

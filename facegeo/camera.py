@@ -43,13 +43,18 @@ DEFAULT_FOV_DEG = 40.0
 @dataclass(frozen=True)
 class Camera:
     """Pinhole intrinsics in pixels: focal length ``focal``, principal point (``cx``, ``cy``),
-    image size ``width`` × ``height``. Square pixels, no skew, no distortion."""
+    image size ``width`` × ``height``. Square pixels, no skew, no distortion.
+
+    ``focal_known`` False marks a focal length that is a placeholder (a photo of unknown lens,
+    :meth:`unknown_focal`): the fitter replaces it with its own estimate
+    (:func:`facegeo.fitting.camera_estimate.camera_for_face`)."""
 
     focal: float
     cx: float
     cy: float
     width: int
     height: int
+    focal_known: bool = True
 
     def __post_init__(self) -> None:
         values = (self.focal, self.cx, self.cy)
@@ -65,6 +70,15 @@ class Camera:
         focal = 0.5 * max(width, height) / math.tan(math.radians(fov_deg) / 2.0)
         return cls(focal=focal, cx=width / 2.0, cy=height / 2.0, width=int(width), height=int(height))
 
+    @classmethod
+    def unknown_focal(cls, width: int, height: int, principal_point: tuple[float, float] | None = None) -> "Camera":
+        """A camera for a photo whose focal length is unknown: principal point at the centre (or
+        ``principal_point``, px, e.g. of a cropped photo), the focal a placeholder (40° field of
+        view) with ``focal_known`` False, for the fitter to estimate."""
+        base = cls.for_image(width, height)
+        cx, cy = (base.cx, base.cy) if principal_point is None else (float(principal_point[0]), float(principal_point[1]))
+        return cls(focal=base.focal, cx=cx, cy=cy, width=base.width, height=base.height, focal_known=False)
+
     def scaled(self, factor: float) -> "Camera":
         """The same camera for the image resized by ``factor`` (continuous pixel coordinates with
         the origin at the top-left image corner scale linearly)."""
@@ -74,6 +88,7 @@ class Camera:
             cy=self.cy * factor,
             width=max(1, round(self.width * factor)),
             height=max(1, round(self.height * factor)),
+            focal_known=self.focal_known,
         )
 
     def matrix(self) -> np.ndarray:
@@ -82,7 +97,8 @@ class Camera:
 
     def as_dict(self) -> dict[str, float | int]:
         """JSON-ready fields."""
-        return {"focal": self.focal, "cx": self.cx, "cy": self.cy, "width": self.width, "height": self.height}
+        return {"focal": self.focal, "cx": self.cx, "cy": self.cy, "width": self.width, "height": self.height,
+                "focal_known": self.focal_known}
 
 
 def project(

@@ -44,7 +44,10 @@ class FitOptions:
     Attributes:
         model: model file (.npz, HIFI3D++ .mat, AI-NExT .mat); None = $FACEGEO_MODEL or the bundled one.
         landmarks: landmark detector name (``facegeo.landmarks.DETECTORS``).
-        focal: focal length in pixels of the (possibly downscaled) photo; None = 40° field of view.
+        focal: focal length in pixels of the (possibly downscaled) photo; None = unknown (the
+            fitter estimates it from the face: :mod:`facegeo.fitting.camera_estimate`).
+        principal_point: (cx, cy) pixels of the (possibly downscaled) photo, e.g. of a crop;
+            None = the centre.
         max_side: photos whose longer side exceeds this many pixels are downscaled.
         photometric: run the albedo and SH lighting stage (``fit`` only; ``reconstruct`` always does).
         regressor: a trained regressor checkpoint to use instead of the analysis-by-synthesis fit.
@@ -54,6 +57,7 @@ class FitOptions:
     model: Path | None = None
     landmarks: str = "hybrid"
     focal: float | None = None
+    principal_point: tuple[float, float] | None = None
     max_side: int = 2048
     photometric: bool = True
     regressor: Path | None = None
@@ -148,16 +152,18 @@ def loaded_resources(model: Path | None, regressor: Path | None, refine: bool, l
     return loaded, load(regressor, model=loaded, detector=landmarks, refine=refine)
 
 
-def photo_camera(photo: Any, focal: float | None) -> Any:
-    """The :class:`facegeo.Camera` of a loaded :class:`facegeo.Photo`: principal point at the
-    centre, ``focal`` in pixels of the (possibly downscaled) photo, or None for
-    :meth:`Camera.for_image`'s 40° field of view (the ``--focal`` option of every command that fits)."""
+def photo_camera(photo: Any, focal: float | None, principal_point: tuple[float, float] | None = None) -> Any:
+    """The :class:`facegeo.Camera` of a loaded :class:`facegeo.Photo` (the ``--focal`` and
+    ``--principal-point`` options of every command that fits): ``focal`` and ``principal_point``
+    in pixels of the (possibly downscaled) photo; the principal point defaults to the centre; no
+    focal gives :meth:`Camera.unknown_focal` (the fitter estimates it from the face)."""
     from facegeo.camera import Camera
 
     height, width = photo.image.shape[:2]
     if focal is None:
-        return Camera.for_image(width, height)
-    return Camera(focal, width / 2.0, height / 2.0, width, height)
+        return Camera.unknown_focal(width, height, principal_point)
+    cx, cy = (width / 2.0, height / 2.0) if principal_point is None else principal_point
+    return Camera(focal, cx, cy, width, height)
 
 
 def fit_into_folder(photo_path: str | Path, output: str | Path, options: FitOptions | None = None) -> JobRecord:
@@ -182,7 +188,7 @@ def fit_into_folder(photo_path: str | Path, output: str | Path, options: FitOpti
     model_seconds = time.perf_counter() - start
     photo = load_photo(photo_path, max_side=options.max_side)
     fitter = predictor or fit
-    result = fitter(photo, model=model, detector=options.landmarks, camera=photo_camera(photo, options.focal),
+    result = fitter(photo, model=model, detector=options.landmarks, camera=photo_camera(photo, options.focal, options.principal_point),
                     photometric=options.photometric)
     result.timings["load_model"] = model_seconds
     result.timings["total"] = time.perf_counter() - start
@@ -236,7 +242,7 @@ def reconstruct_into_folder(photo_path: str | Path, output: str | Path, options:
         skin = None
     asset, result = reconstruct_with_fit(photo, model, backend=backend, size=options.size, upscale=options.upscale,
                                          maps=options.maps, detector=options.landmarks, skin=skin, progress=progress,
-                                         camera=photo_camera(photo, options.focal),
+                                         camera=photo_camera(photo, options.focal, options.principal_point),
                                          fitter=predictor or fit)
     timings = dict(asset.metadata["timings_s"])
     files: list[str] = []

@@ -68,7 +68,7 @@ class Photo:
             ``"downscaled from 8000x6000 to 2048x1536"`` or ``"alpha channel composited over
             white"``; empty for a plain 8-bit RGB file of acceptable size.
         opacity: None for an opaque photo; else (H, W) float32 alpha in [0, 1] on ``image``'s
-            grid (the fit refuses a face that is mostly transparent: facegeo.fit_checks).
+            grid (the fit refuses a face that is mostly transparent: facegeo.fitting.checks).
 
     Equality is identity (``eq=False``): comparing arrays element-wise is left to the caller.
     """

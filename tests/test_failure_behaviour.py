@@ -28,7 +28,7 @@ from facegeo.cli import main
 from facegeo.errors import InputError, NoFaceError, OutputError
 from facegeo.export.asset_io import load_asset, save_asset
 from facegeo.export.writers import export_asset
-from facegeo.fit_checks import MAX_RMS_PERCENT_IOD, check_fit
+from facegeo.fitting.checks import MAX_RMS_PERCENT_IOD, check_fit
 from facegeo.fitting import fit, fit_landmarks
 from facegeo.landmarks.scheme import inter_ocular_distance
 from facegeo.photo import Photo, load_photo

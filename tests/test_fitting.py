@@ -151,11 +151,13 @@ def test_bad_landmarks_raise(model):
 def test_analytic_jacobian_matches_finite_differences(model):
     """The hand-written Levenberg–Marquardt Jacobian equals central finite differences of the
     residuals (float64, step 1e-6)."""
-    from facegeo.fitting import LANDMARK_WEIGHTS, _LandmarkProblem, _rotation
+    from facegeo.fitting.landmark_fit import rotation_step
+    from facegeo.fitting.landmark_problem import LandmarkProblem
+    from facegeo.landmarks.scheme import LANDMARK_WEIGHTS
 
     rng = np.random.default_rng(5)
     _, rotation, landmarks = synthetic(model, rng, 25.0)
-    problem = _LandmarkProblem(model, landmarks, CAMERA, LANDMARK_WEIGHTS)
+    problem = LandmarkProblem(model, landmarks, CAMERA, LANDMARK_WEIGHTS)
     r0 = rotation_from_euler(10, 5, -3)
     t0 = np.array([3.0, -4.0, -550.0])
     a0 = rng.normal(0, 0.3, model.n_id)
@@ -166,7 +168,7 @@ def test_analytic_jacobian_matches_finite_differences(model):
     def residuals(x):
         alpha = np.concatenate([a0[:n_id] + x[6 : 6 + n_id], a0[n_id:]])
         delta = d0 + x[6 + n_id :]
-        return problem.residuals(r0 @ _rotation(x[:3]), t0 + unit * x[3:6], alpha, delta)
+        return problem.residuals(r0 @ rotation_step(x[:3]), t0 + unit * x[3:6], alpha, delta)
 
     n, h = 6 + n_id + n_exp, 1e-6
     expected = np.stack([(residuals(h * e) - residuals(-h * e)) / (2 * h) for e in np.eye(n)], axis=1)
@@ -226,12 +228,12 @@ def test_more_noise_means_a_stronger_prior(model):
 def test_jaw_contour_cannot_pull_expressions(model):
     """The sliding contour points move with identity and jaw articulation only: widening the
     detected jaw line changes no mouth or cheek blendshape (cheekPuff was its favourite)."""
-    from facegeo.fitting import _LandmarkProblem
+    from facegeo.fitting.landmark_problem import LandmarkProblem
     from facegeo.landmarks.scheme import LANDMARK_WEIGHTS
 
     rng = np.random.default_rng(8)
     _, rotation, landmarks = synthetic(model, rng, 0.0, sigma=0.0)
-    problem = _LandmarkProblem(model, landmarks, CAMERA, LANDMARK_WEIGHTS)
+    problem = LandmarkProblem(model, landmarks, CAMERA, LANDMARK_WEIGHTS)
     jac = problem.jacobian(rotation, np.array([0.0, 0.0, -600.0]), np.zeros(model.n_id), np.zeros(model.n_exp), model.n_id, model.n_exp, 10.0)
     exp_cols = jac[:, 6 + model.n_id :].reshape(88, 2, model.n_exp)
     jaw_shapes = np.array([n.startswith("jaw") for n in model.expression_names])

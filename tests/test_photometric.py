@@ -8,7 +8,8 @@ import torch
 from facegeo import Camera, load_model, project
 from facegeo.camera import rotation_from_euler
 from facegeo.colour import linear_to_srgb, linear_to_srgb_torch, srgb_to_linear, srgb_to_linear_slope, srgb_to_linear_torch
-from facegeo.fitting import _fit_photometric, fit_landmarks
+from facegeo.fitting import fit_landmarks
+from facegeo.fitting.photometric import fit_photometric
 from facegeo.skin_mask import skin_vertex_mask
 from facegeo.lighting import sh_irradiance
 from facegeo.visibility import vertex_visibility
@@ -68,7 +69,7 @@ def test_recovers_sh_lighting_of_a_rendered_face():
     normals = model.vertex_normals(torch.from_numpy(result.vertices))
     colours = (model.albedo() * sh_irradiance(normals, torch.from_numpy(gamma))).numpy()
     image = render_flat(result.vertices, model.triangles, colours, camera)
-    _fit_photometric(model, result, srgb_to_linear(image.astype(np.float32) / 255.0))
+    fit_photometric(model, result, srgb_to_linear(image.astype(np.float32) / 255.0))
     info = result.info["photometric"]
     assert info["skin_vertices_used"] > 1000
     # Over the visible half of the sphere the bands 1, n_z and 3n_z² − 1 are nearly collinear, so

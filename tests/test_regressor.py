@@ -16,7 +16,8 @@ from facegeo.assets import asset_path  # noqa: E402
 from facegeo.camera import rotation_from_euler  # noqa: E402
 from facegeo.cli import main  # noqa: E402
 from facegeo.errors import InputError  # noqa: E402
-from facegeo.fitting import Fit, _LandmarkProblem  # noqa: E402
+from facegeo.fitting import Fit  # noqa: E402
+from facegeo.fitting.landmark_problem import LandmarkProblem  # noqa: E402
 from facegeo.landmarks.scheme import LANDMARK_WEIGHTS, landmark_loss  # noqa: E402
 from facegeo.lighting import AMBIENT_WHITE  # noqa: E402
 from facegeo.morphable_model import MorphableModel  # noqa: E402
@@ -205,7 +206,7 @@ def test_jaw_sliding_matches_fit_landmarks(model):
     translation = torch.tensor([5.0, -8.0, -650.0])
     points = model.shape(alpha)
     targets = project(points[model.landmark_indices], rotation, translation, camera) + torch.from_numpy(rng.normal(0, 6, (88, 2))).float()
-    problem = _LandmarkProblem(model, targets.double().numpy(), camera, LANDMARK_WEIGHTS)
+    problem = LandmarkProblem(model, targets.double().numpy(), camera, LANDMARK_WEIGHTS)
     zero_exp = np.zeros(model.n_exp)
     r64, t64, a64 = rotation.double().numpy(), translation.double().numpy(), alpha.double().numpy()
     problem.slide_jaw(r64, t64, a64, zero_exp)

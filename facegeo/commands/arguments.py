@@ -119,6 +119,9 @@ def check_arguments(args: argparse.Namespace) -> None:
     focal = getattr(args, "focal", None)
     if focal is not None and not (math.isfinite(focal) and focal > 0):
         raise InputError(COMMAND_LINE, "--focal", "a finite focal length > 0 in pixels", str(focal))
+    principal_point = getattr(args, "principal_point", None)
+    if principal_point is not None and not all(math.isfinite(v) for v in principal_point):
+        raise InputError(COMMAND_LINE, "--principal-point", "two finite pixel coordinates CX CY", " ".join(map(str, principal_point)))
     if getattr(args, "refine", False) and getattr(args, "regressor", None) is None:
         raise InputError(COMMAND_LINE, "--refine", "--regressor CKPT with it", "no --regressor")
     if getattr(args, "weights", None) is not None and getattr(args, "backend", "diffusion") != "diffusion":
@@ -169,7 +172,10 @@ def add_fit_arguments(parser: argparse.ArgumentParser) -> None:
                        help="landmark detector, one of %(choices)s (default: hybrid = dlib 68 + MediaPipe 20 lip points; "
                        "mediapipe is licence-clean for commercial use)")
     group.add_argument("--focal", type=float, default=None, metavar="PX",
-                       help="focal length in pixels of the (possibly downscaled) photo; default: 40° field of view on the long side")
+                       help="focal length in pixels of the (possibly downscaled) photo; default: estimated from the face "
+                       "(the face is assumed about 1 m from the camera)")
+    group.add_argument("--principal-point", type=float, nargs=2, default=None, metavar=("CX", "CY"),
+                       help="principal point in pixels of the (possibly downscaled) photo, e.g. of a cropped photo; default: the centre")
     group.add_argument("--max-side", type=int, default=defaults["max_side"], metavar="N",
                        help="downscale photos whose longer side exceeds this (pixels; default %(default)d)")
 

@@ -23,7 +23,8 @@ def _arguments(parser: argparse.ArgumentParser) -> None:
 def _run(args: argparse.Namespace) -> int | None:
     from facegeo.jobs import FitOptions, fit_into_folder
 
-    options = FitOptions(model=args.model, landmarks=args.landmarks, focal=args.focal, max_side=args.max_side,
+    options = FitOptions(model=args.model, landmarks=args.landmarks, focal=args.focal,
+                         principal_point=tuple(args.principal_point) if args.principal_point else None, max_side=args.max_side,
                          photometric=not args.no_photometric, regressor=args.regressor, refine=args.refine)
     if wants_batch(args):
         return run_batch(args, "fit", options)

@@ -65,7 +65,8 @@ def _run(args: argparse.Namespace) -> int | None:
 
     maps = parse_list(args.maps, MAP_NAMES, "--maps")
     formats = parse_list(args.format, FORMATS, "--format")
-    options = ReconstructOptions(model=args.model, landmarks=args.landmarks, focal=args.focal, max_side=args.max_side,
+    options = ReconstructOptions(model=args.model, landmarks=args.landmarks, focal=args.focal,
+                         principal_point=tuple(args.principal_point) if args.principal_point else None, max_side=args.max_side,
                                  regressor=args.regressor, refine=args.refine, backend=args.backend, weights=args.weights,
                                  size=args.size, upscale=args.upscale, subdiv=args.subdiv, maps=tuple(maps),
                                  formats=tuple(formats), parts=args.parts, preview=not args.no_preview)

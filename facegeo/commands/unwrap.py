@@ -72,9 +72,9 @@ def _run(args: argparse.Namespace) -> None:
                              f"{mask.shape[1]}x{mask.shape[0]}")
         occlusion = mask.astype(np.float32).mean(axis=2) / 255.0
     model = load_model(args.model)
-    camera = photo_camera(photo, args.focal)
     t = time.perf_counter()
-    result = fit(photo, model=model, detector=args.landmarks, camera=camera)
+    result = fit(photo, model=model, detector=args.landmarks, camera=photo_camera(photo, args.focal, args.principal_point))
+    camera = result.camera
     timings["fit"] = time.perf_counter() - t
 
     skin = None

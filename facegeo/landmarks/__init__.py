@@ -1,5 +1,12 @@
-"""The 88-point hybrid landmarks: detectors (dlib, MediaPipe, hybrid), the scheme and the loss."""
+"""The 88-point hybrid landmarks: detectors (dlib, MediaPipe, hybrid), the scheme and the loss;
+MediaPipe's 468 points on the model's surface (:mod:`facegeo.landmarks.dense`)."""
 
+from facegeo.landmarks.dense import (
+    DenseCorrespondence,
+    load_dense_correspondence,
+    points_on_mesh,
+    points_on_mesh_torch,
+)
 from facegeo.landmarks.detectors import (
     DETECTORS,
     DlibDetector,
@@ -13,6 +20,10 @@ from facegeo.landmarks.detectors import (
 from facegeo.landmarks.scheme import HYBRID_MIRROR, LANDMARK_WEIGHTS, N_LANDMARKS, landmark_loss
 
 __all__ = [
+    "DenseCorrespondence",
+    "load_dense_correspondence",
+    "points_on_mesh",
+    "points_on_mesh_torch",
     "DETECTORS",
     "DlibDetector",
     "FaceLandmarks",

@@ -60,6 +60,9 @@ class FaceLandmarks:
     box: (4,) float32 face box x0, y0, x1, y1 in pixels (same convention).
     n_faces: how many faces the detector found (the largest is the one returned).
     detector: the backend's name. notes: remarks for the user (e.g. several faces).
+    dense: (468, 2) float32 MediaPipe face-mesh points, pixels (same convention), or None when
+    the backend ran no face mesh. dense_spread: (468,) float32 px, the mesh model's own spread of
+    each point on this photo (:meth:`MediaPipeFaceMesh.spread`), or None.
     """
 
     points: np.ndarray
@@ -67,6 +70,8 @@ class FaceLandmarks:
     n_faces: int
     detector: str
     notes: tuple[str, ...] = field(default=())
+    dense: np.ndarray | None = None
+    dense_spread: np.ndarray | None = None
 
 
 @runtime_checkable
@@ -150,7 +155,9 @@ class _UprightSearch:
         box = np.concatenate([corners.min(axis=0), corners.max(axis=0)]).astype(np.float32)
         turn = {1: "90° counter-clockwise", 2: "180°", 3: "90° clockwise"}[k]
         note = f"the face is upright with the photo turned {turn}: landmarks found there and mapped back"
-        return FaceLandmarks(_turn_back(found.points, k, turned.shape), box, found.n_faces, found.detector, found.notes + (note,))
+        dense = None if found.dense is None else _turn_back(found.dense, k, turned.shape)
+        return FaceLandmarks(_turn_back(found.points, k, turned.shape), box, found.n_faces, found.detector, found.notes + (note,),
+                             dense, found.dense_spread)
 
 
 class DlibDetector(_UprightSearch):
@@ -187,7 +194,8 @@ class MediaPipeDetector(_UprightSearch):
             raise _no_face(source, self.name)
         face = faces[0]
         points = np.concatenate([ibug68_from_mesh(face.mesh), face.mesh[MEDIAPIPE_LIPS20, :2]])
-        return FaceLandmarks(_corner_origin(points), _corner_origin(face.box), len(faces), self.name, _several(len(faces)))
+        return FaceLandmarks(_corner_origin(points), _corner_origin(face.box), len(faces), self.name, _several(len(faces)),
+                             _corner_origin(face.mesh[:, :2]))
 
 
 class HybridDetector(_UprightSearch):
@@ -230,7 +238,8 @@ class HybridDetector(_UprightSearch):
             notes.append("dlib's HOG missed the face: its 68 points were placed in MediaPipe's box")
         lips = _corner_origin(face.mesh[MEDIAPIPE_LIPS20, :2])
         points = np.concatenate([self.dlib.landmarker.landmarks(image, box), lips])
-        return FaceLandmarks(points, _corner_origin(face.box), len(mp_faces), self.name, tuple(notes))
+        return FaceLandmarks(points, _corner_origin(face.box), len(mp_faces), self.name, tuple(notes),
+                             _corner_origin(face.mesh[:, :2]))
 
 
 DETECTORS = {"hybrid": HybridDetector, "dlib": DlibDetector, "mediapipe": MediaPipeDetector}

@@ -661,6 +661,29 @@ class MediaPipeFaceMesh:
         mesh = np.concatenate([xy, z[:, None]], axis=1).astype(np.float32)
         return mesh, presence
 
+    def spread(self, image: np.ndarray, face: MediaPipeFace, mirror: np.ndarray) -> np.ndarray:
+        """The mesh model's own uncertainty of each point on this photo: half the distance
+        between ``face.mesh`` and the mesh found on the mirror image of the same crop (points
+        renumbered by ``mirror``, the face mesh's left-right permutation). A network that has
+        learnt a point well puts it at the same place on a face and its mirror image; where it
+        guesses (an occluded cheek, a blurred jaw) the two disagree.
+
+        Args:
+            image: (H, W, 3) uint8 RGB photo the face was found in.
+            face: the face (its last ``roi`` is cropped again).
+            mirror: (468,) int permutation: point i of a face is point mirror[i] of its mirror image.
+        Returns:
+            (468,) float32 pixels.
+        """
+        center, side, angle = face.roi[:2].astype(np.float64), float(face.roi[2]), float(face.roi[3])
+        crop, to_image = roi_crop(image, center, side, angle, MESH_SIZE)
+        out = self.mesh_model((np.ascontiguousarray(crop[:, ::-1]).astype(np.float32) / 255.0)[None])
+        raw = out["mesh"].reshape(N_MESH, 3).astype(np.float64)
+        raw[:, 0] = MESH_SIZE - raw[:, 0]  # back from the mirror image (continuous crop coordinates)
+        raw = raw[np.asarray(mirror)]
+        xy = raw[:, :2] @ to_image[:, :2].T + to_image[:, 2] - 0.5
+        return (0.5 * np.linalg.norm(xy - face.mesh[:, :2], axis=1)).astype(np.float32)
+
     def face_from_detection(self, image: np.ndarray, detection: BlazeFaceDetection) -> MediaPipeFace:
         """The mesh for one detection (detection ROI, then ``refine_passes`` tracking ROIs)."""
         center, side, angle = self.roi_from_detection(detection)

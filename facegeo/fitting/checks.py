@@ -37,8 +37,8 @@ from facegeo.camera import Camera
 from facegeo.errors import InputError, NoFaceError, check_finite
 from facegeo.landmarks.scheme import IBUG68, INNER_FACE, N_LANDMARKS
 
-if TYPE_CHECKING:  # facegeo.fitting imports this module
-    from facegeo.fitting import Fit
+if TYPE_CHECKING:
+    from facegeo.fitting.result import Fit
 
 __all__ = ["check_landmarks", "check_fit", "MAX_OUTSIDE_IMAGE", "MIN_SPREAD_PX", "MIN_ASPECT",
            "MAX_RMS_PERCENT_IOD", "MIN_FACE_OPACITY"]
