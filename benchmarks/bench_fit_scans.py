@@ -137,10 +137,10 @@ def bench_scan(scan_name: str, fitter: ScanFitter, model: MorphableModel, camera
             if row["rotation"] is not None and frontal["rotation"] is not None:
                 row["pose_error_deg"] = relative_rotation_error(row["rotation"], frontal["rotation"], row["true_rotation"],
                                                                 frontal["true_rotation"])
-                # against the truth in the model's frame (the renders' frontal rotation turns the scan's
-                # landmarks onto the mean shape's): meaningful up to the scan's own head posture
+                # against the truth in the model's frame: the true rotation less the scan's frontal
+                # rotation (the frontal view's, which turns the scan's landmarks onto the mean shape's)
                 row["absolute_euler_error_deg"] = relative_rotation_error(row["rotation"], np.eye(3), row["true_rotation"],
-                                                                          np.eye(3))
+                                                                          frontal["true_rotation"])
         out["modes"][mode] = rows
     return out
 
