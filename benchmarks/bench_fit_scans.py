@@ -43,7 +43,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from head_scans import SCANS, load_scan  # noqa: E402
 from scan_evaluation import (  # noqa: E402
-    REGIONS, Prediction, ScanFitter, ScanReference, evaluate, prepare_scan, relative_rotation_error,
+    DEPTH_PROBES, REGIONS, Prediction, ScanFitter, ScanReference, evaluate, prepare_scan, relative_rotation_error,
 )
 from scan_renders import load_view, render_views, view_names, cast_rays  # noqa: E402
 
@@ -160,7 +160,8 @@ def markdown(results: list[dict]) -> str:
                       f"mean {_f(mean['mean'])}, RMSE {_f(mean['rmse'])} mm, keypoint scale "
                       f"{_f(mean['alignment']['scale'], 3)}.", "",
                       "| view | light, lens | median mm | mean mm | RMSE mm | mean shape + fit's δ: mean mm "
-                      "| fit / mean shape (mean) | keypoint scale | ‖α‖ | landmark RMS px | focal used px | pose err yaw / pitch / roll ° |",
+                      "| fit / mean shape (mean) | keypoint scale | ‖α‖ | landmark RMS px | focal used px "
+                      "| pose err yaw / pitch / roll ° |",
                       "|---|---|---|---|---|---|---|---|---|---|---|---|"]
             for name, row in rows.items():
                 fit = row["fit"]
@@ -177,14 +178,14 @@ def markdown(results: list[dict]) -> str:
             angles = [row["pose_error_deg"]["angle"] for n, row in rows.items() if n != FRONTAL and "pose_error_deg" in row]
             lines += ["", f"Median over views: fit / mean shape {np.median(ratios):.3f} (min {min(ratios):.3f}, max "
                       f"{max(ratios):.3f}); relative-rotation error {np.median(angles):.1f}° (max {max(angles):.1f}°).", ""]
-            lines += ["| view | " + " | ".join(REGIONS) + " | upper lip depth | lower lip depth | chin depth |",
+            lines += ["| view | " + " | ".join(REGIONS) + " | " + " | ".join(f"{p} depth" for p in DEPTH_PROBES) + " |",
                       "|---|" + "---|" * (len(REGIONS) + 3)]
             lines.append("| mean shape | " + " | ".join(_f(mean["regions"][r]) for r in REGIONS) + " | "
-                         + " | ".join(f"{mean['depth'][p]:+.1f}" for p in ("upper lip", "lower lip", "chin")) + " |")
+                         + " | ".join(f"{mean['depth'][p]:+.1f}" for p in DEPTH_PROBES) + " |")
             for name, row in rows.items():
                 fit = row["fit"]
                 lines.append(f"| {name} | " + " | ".join(_f(fit["regions"][r]) for r in REGIONS) + " | "
-                             + " | ".join(f"{fit['depth'][p]:+.1f}" for p in ("upper lip", "lower lip", "chin")) + " |")
+                             + " | ".join(f"{fit['depth'][p]:+.1f}" for p in DEPTH_PROBES) + " |")
             lines.append("")
     return "\n".join(lines)
 

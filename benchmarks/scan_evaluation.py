@@ -37,7 +37,7 @@ None: the fitter's own default, i.e. the focal is not given).
 Public API: :class:`Prediction`, :data:`ScanFitter`, :class:`ScanReference`, :func:`prepare_scan`,
 :func:`face_frame`, :func:`region_of_samples`, :func:`sample_surface`, :func:`similarity_transform`,
 :func:`align_to_scan`, :func:`surface_distances`, :func:`evaluate`, :func:`relative_rotation_error`,
-:data:`REGIONS`, :data:`KEYPOINTS`.
+:data:`REGIONS`, :data:`KEYPOINTS`, :data:`DEPTH_PROBES`.
 """
 
 from __future__ import annotations
@@ -55,7 +55,7 @@ from facegeo.eval.realy_geometry import closest_points
 
 __all__ = ["Prediction", "ScanFitter", "ScanReference", "prepare_scan", "face_frame", "region_of_samples",
            "sample_surface", "similarity_transform", "align_to_scan", "surface_distances", "evaluate",
-           "relative_rotation_error", "REGIONS", "KEYPOINTS"]
+           "relative_rotation_error", "REGIONS", "KEYPOINTS", "DEPTH_PROBES"]
 
 #: The keypoints of the similarity step (iBUG-68 indices).
 KEYPOINTS = (36, 39, 42, 45, 33, 48, 54)
@@ -101,6 +101,7 @@ class ScanReference:
     crop_radius_mm: float
 
 
+#: The depth probes' names, in the order of ``ScanReference.depth_points`` and ``evaluate(...)["depth"]``.
 DEPTH_PROBES = ("upper lip", "lower lip", "chin")
 
 

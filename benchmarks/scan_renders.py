@@ -84,6 +84,7 @@ class ViewSpec:
 
     @property
     def focal_px(self) -> float:
+        """The focal length in pixels (the sensor's long side spans the image's)."""
         return self.lens_mm / SENSOR_MM * max(WIDTH, HEIGHT)
 
 
@@ -124,10 +125,12 @@ class ScanView:
 
     @property
     def image(self) -> np.ndarray:
+        """(H, W, 3) uint8 sRGB: the render."""
         return read_png(self.image_path)
 
     @property
     def albedo(self) -> np.ndarray:
+        """(H, W, 3) uint8 sRGB: the ground-truth albedo (the texture's colour, unshaded; black off the scan)."""
         return read_png(self.albedo_path)
 
     def _points_file(self) -> dict[str, np.ndarray]:
@@ -136,10 +139,12 @@ class ScanView:
 
     @property
     def points(self) -> np.ndarray:
+        """(H, W, 3) float32 mm: the scan-space surface point seen at each pixel centre (NaN: none)."""
         return self._points_file()["points"]
 
     @property
     def mask(self) -> np.ndarray:
+        """(H, W) bool: the scan is seen at the pixel centre."""
         return self._points_file()["triangle"] >= 0
 
     @property
