@@ -2,6 +2,7 @@
 
     python benchmarks/bench_fit_scans.py [--scans james] [--true-camera] [--json OUT.json]
                                          [--fitter MODULE:FACTORY] [--scan-landmarks detected|annotation]
+                                         [--sections DIR] [--views NAME ...]
 
 For each scan of :data:`head_scans.SCANS`: the views of :mod:`scan_renders` are rendered (once;
 cached in ``~/.cache/facegeo/scans``), the scan's 68 landmarks are found (default ``detected``:
@@ -27,6 +28,10 @@ return a :data:`scan_evaluation.ScanFitter`: ``fitter(image_path, camera) -> Pre
 (``facegeo.fit`` with the hybrid detector; the photometric stage is skipped: it does not change
 the geometry). A prediction's ``info["delta"]`` (the ICT expression weights), when present,
 gives the "mean + δ" baseline.
+
+``--sections DIR`` saves, per scan, camera mode and view, ``DIR/<scan>_<mode>_<view>.png``: three
+sections of the scan (black), the aligned mean shape (blue) and the aligned fit (red) in the scan's
+face frame (midsagittal, horizontal through the nose tip, horizontal through the mouth), mm.
 """
 
 from __future__ import annotations
@@ -43,7 +48,8 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from head_scans import SCANS, load_scan  # noqa: E402
 from scan_evaluation import (  # noqa: E402
-    DEPTH_PROBES, REGIONS, Prediction, ScanFitter, ScanReference, evaluate, prepare_scan, relative_rotation_error,
+    DEPTH_PROBES, REGIONS, Prediction, ScanFitter, ScanReference, align_to_scan, evaluate, prepare_scan,
+    relative_rotation_error,
 )
 from scan_renders import load_view, render_views, view_names, cast_rays  # noqa: E402
 
@@ -93,6 +99,41 @@ def scan_landmarks(scan_name: str, how: str) -> tuple[np.ndarray, dict]:
     return points, record
 
 
+def save_sections(path: Path, reference: ScanReference, meshes: dict[str, tuple[np.ndarray, np.ndarray]]) -> None:
+    """A PNG of three sections (face frame, mm) through the scan and ``meshes`` ({label: (aligned
+    vertices (V, 3), triangles (F, 3))}, drawn in the order given after the scan)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    import trimesh
+
+    frame, origin = reference.frame, reference.landmarks[30]
+    cuts = [("midsagittal (z, y)", frame[0], origin, (2, 1)),
+            ("horizontal through the nose tip (x, z)", frame[1], origin, (0, 2)),
+            ("horizontal through the mouth (x, z)", frame[1], reference.landmarks[62], (0, 2))]
+    colours = ["k", "tab:blue", "tab:red", "tab:green", "tab:purple"]
+    figure, axes = plt.subplots(1, 3, figsize=(15, 6))
+    everything = {"scan": (reference.vertices, reference.triangles), **meshes}
+    for ax, (title, normal, through, (a, b)) in zip(axes, cuts):
+        for colour, (label, (vertices, triangles)) in zip(colours, everything.items()):
+            section = trimesh.Trimesh(vertices, triangles, process=False).section(plane_origin=through, plane_normal=normal)
+            if section is None:
+                continue
+            for k, entity in enumerate(section.entities):
+                local = (section.vertices[entity.points] - origin) @ frame.T
+                ax.plot(local[:, a], local[:, b], color=colour, lw=2 if label == "scan" else 1,
+                        label=label if k == 0 else None)
+        ax.set_title(title)
+        ax.set_aspect("equal")
+        ax.set_xlim(-110, 110) if a == 0 else ax.set_xlim(-140, 40)
+        if a != 0:
+            ax.set_ylim(-120, 80)
+        ax.legend(fontsize=8)
+    figure.savefig(path, dpi=70)
+    plt.close(figure)
+
+
 def _mean_with_delta(model: MorphableModel, delta: np.ndarray) -> np.ndarray:
     import torch
 
@@ -101,20 +142,22 @@ def _mean_with_delta(model: MorphableModel, delta: np.ndarray) -> np.ndarray:
 
 
 def bench_scan(scan_name: str, fitter: ScanFitter, model: MorphableModel, camera_modes: list[str],
-               landmarks_how: str) -> dict:
-    """All views of one scan: errors, baselines and pose errors per camera mode."""
+               landmarks_how: str, sections: Path | None = None, views: list[str] | None = None) -> dict:
+    """The views of one scan (``views``: these and the frontal one; None: all): errors, baselines
+    and pose errors per camera mode (section plots into ``sections`` when given)."""
     render_views(scan_name)
     landmarks, landmark_record = scan_landmarks(scan_name, landmarks_how)
     scan = load_scan(scan_name)
     reference: ScanReference = prepare_scan(scan.vertices, scan.triangles, landmarks)
-    mean_result = evaluate(Prediction(model.mean_shape, model.triangles, model.landmark_indices), reference)
+    mean_prediction = Prediction(model.mean_shape, model.triangles, model.landmark_indices)
+    mean_result = evaluate(mean_prediction, reference)
     out = {"scan": scan_name, "licence": scan.source.licence, "attribution": scan.source.attribution,
            "landmarks": landmark_record, "n_samples": int(len(reference.samples)),
            "region_samples": {name: int((reference.regions == k).sum()) for k, name in enumerate(REGIONS)},
            "mean_shape": mean_result, "modes": {}}
     for mode in camera_modes:
         rows = {}
-        for name in view_names():
+        for name in [n for n in view_names() if views is None or n in views or n == FRONTAL]:
             view = load_view(scan_name, name)
             t0 = time.perf_counter()
             prediction = fitter(view.image_path, view.camera if mode == "true" else None)
@@ -130,6 +173,11 @@ def bench_scan(scan_name: str, fitter: ScanFitter, model: MorphableModel, camera
                                         model.landmark_indices)
                 row["mean_with_delta"] = evaluate(with_delta, reference)
             rows[name] = row
+            if sections is not None:
+                sections.mkdir(parents=True, exist_ok=True)
+                save_sections(sections / f"{scan_name}_{mode}_{name}.png", reference,
+                              {"mean shape": (align_to_scan(mean_prediction, reference)[0], model.triangles),
+                               "fit": (align_to_scan(prediction, reference)[0], prediction.triangles)})
             print(f"{scan_name} {mode:7s} {name:9s} mean {result['mean']:.2f} mm (mean shape {mean_result['mean']:.2f}), "
                   f"{seconds:.1f} s", file=sys.stderr)
         frontal = rows[FRONTAL]
@@ -204,11 +252,13 @@ def main() -> None:
     parser.add_argument("--fitter", help="MODULE:FACTORY returning a ScanFitter (default: facegeo.fit)")
     parser.add_argument("--scan-landmarks", choices=("detected", "annotation"), default="detected")
     parser.add_argument("--json", type=Path, help="write every number here")
+    parser.add_argument("--sections", type=Path, help="save section plots (scan, mean shape, fit) per view here")
+    parser.add_argument("--views", nargs="+", choices=view_names(), help="only these views (and the frontal one)")
     args = parser.parse_args()
     model = load_model()
     fitter = _load_fitter(args.fitter)
     modes = ["default", "true"] if args.true_camera else ["default"]
-    results = [bench_scan(name, fitter, model, modes, args.scan_landmarks) for name in args.scans]
+    results = [bench_scan(name, fitter, model, modes, args.scan_landmarks, args.sections, args.views) for name in args.scans]
     print(markdown(results))
     if args.json:
         args.json.parent.mkdir(parents=True, exist_ok=True)
