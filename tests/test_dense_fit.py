@@ -1,6 +1,8 @@
 """The dense term of the landmark fit, the occluding contour and the focal of an unknown lens
 (synthetic instances of the bundled model: known answers)."""
 
+import dataclasses
+
 import numpy as np
 import pytest
 import torch
@@ -26,7 +28,7 @@ def _random_correspondence(model, rng, count=400):
     bary = rng.dirichlet(np.ones(3), size=count)
     return DenseCorrespondence(triangle=triangle.astype(np.int32), barycentric=bary.astype(np.float32),
                                transfer_error_mm=np.full(count, 0.5, np.float32), contour=np.zeros(count, bool),
-                               vertex_ids=tris[triangle])
+                               vertex_ids=tris[triangle], source="test")
 
 
 def _face(model, rng, yaw, pitch=5.0, sigma=0.7):
@@ -92,8 +94,7 @@ def test_dense_weights_follow_the_known_errors(model):
     the jaw's sliding points are left out when dense points are used, the chin kept."""
     rng = np.random.default_rng(1)
     corr = _random_correspondence(model, rng, 5)
-    corr = DenseCorrespondence(corr.triangle, corr.barycentric, np.array([0.0, 10.0, 0.0, 0.0, 0.0], np.float32),
-                               corr.contour, corr.vertex_ids)
+    corr = dataclasses.replace(corr, transfer_error_mm=np.array([0.0, 10.0, 0.0, 0.0, 0.0], np.float32))
     points = rng.uniform(100, 200, (5, 2))
     points[4] = np.nan
     spread = np.array([0.0, 0.0, 20.0, 0.0, 0.0])

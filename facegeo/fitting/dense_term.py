@@ -52,14 +52,15 @@ class DenseSettings:
     drop_jaw: leave out the 16 sliding jaw points of the 88 (the chin stays).
     features_only_expressions: only the points of the eyes, brows and lips
     (:data:`EXPRESSIVE_POINTS`) reach the expressions; the others reach the pose, the identity
-    and the jaw.
+    and the jaw (off by default: on the real head scan's renders it moved the error from 1.06×
+    to 1.16× the mean shape's, the identity absorbing what the expressions no longer could).
     """
 
     weight: float = 0.25
     nominal_noise: float = 0.03
     contour_weight: float = 1.0
     drop_jaw: bool = True
-    features_only_expressions: bool = True
+    features_only_expressions: bool = False
 
     def __post_init__(self) -> None:
         for name in ("weight", "nominal_noise"):
@@ -105,10 +106,10 @@ def dense_surface_points(model: MorphableModel, points_px: np.ndarray, correspon
     outline = np.asarray(correspondence.contour, dtype=bool) & (on_mean[:, 1] < eye_level)
     weights = np.where(outline, weights * settings.contour_weight, weights)
     weights = np.where(np.isfinite(points).all(axis=1), weights, 0.0)
-    expressive = np.zeros(k, dtype=bool)
-    expressive[EXPRESSIVE_POINTS] = True
-    if not settings.features_only_expressions:
-        expressive[:] = True
+    expressive = np.ones(k, dtype=bool)
+    if settings.features_only_expressions:  # MediaPipe's numbering
+        expressive[:] = False
+        expressive[EXPRESSIVE_POINTS[EXPRESSIVE_POINTS < k]] = True
     return SurfacePoints(points, correspondence.vertex_ids, correspondence.barycentric, weights, outline, expressive)
 
 
