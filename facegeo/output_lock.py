@@ -21,7 +21,9 @@ Guarantees and limits:
   :class:`~facegeo.staged_output.StagedOutput` into it; another thread of the same process is
   refused like another process. A child created by ``fork`` does not keep its parent's locks;
 * on NFS, Linux maps ``flock`` onto POSIX byte-range locks, which the server arbitrates between
-  hosts; the pid is then qualified with the host name in the message.
+  hosts; the pid is then qualified with the host name in the message. On a file system that
+  cannot lock at all (``flock`` fails with ENOLCK, EINVAL, ...) runs go on unguarded, as before
+  locks existed.
 """
 
 from __future__ import annotations
@@ -212,9 +214,7 @@ class OutputLock:
                 fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
             except OSError as exc:
                 if exc.errno not in (errno.EWOULDBLOCK, errno.EAGAIN, errno.EACCES):
-                    os.close(fd)
-                    raise InputError(str(self.path), self.field, "a file system that supports locks",
-                                     f"flock on {self.file} failed ({exc.strerror or exc})") from None
+                    return fd  # a file system without locks (ENOLCK, EINVAL, ...): the run goes on unguarded
                 self._busy_owner = _owner_text(fd)
                 os.close(fd)
                 return None
