@@ -13,7 +13,7 @@ Guarantees and limits:
 * the kernel releases a ``flock`` when its process dies, however it dies (SIGKILL, a crash), so a
   lock left by a killed run is stale by construction: the next run takes it over; its file stays
   until a facegeo run writes into that folder again (it is then removed,
-  :func:`remove_stale_lock_files`);
+  :func:`remove_stale_lock_file`);
 * a run removes its lock file when it ends (unlinked while still locked; a run that opened the
   old file checks after locking that the name still refers to the file it locked, and tries
   again if not), so a finished run leaves no file behind;
@@ -40,7 +40,7 @@ from types import TracebackType
 
 from facegeo.errors import InputError
 
-__all__ = ["OutputLock", "LOCK_PREFIX", "lock_file", "make_parents", "remove_created_parents", "remove_stale_lock_files"]
+__all__ = ["OutputLock", "LOCK_PREFIX", "lock_file", "make_parents", "remove_created_parents", "remove_stale_lock_file"]
 
 #: Name prefix of the lock files.
 LOCK_PREFIX = ".facegeo-lock-"
@@ -248,30 +248,25 @@ class OutputLock:
         return self._key in _HELD
 
 
-def remove_stale_lock_files(folder: str | os.PathLike[str]) -> list[Path]:
-    """Delete the lock files in ``folder`` that no process holds (left by killed runs); returns
-    what was removed. Those held by a live run, this process's included, are left."""
-    removed: list[Path] = []
-    try:
-        entries = [e for e in Path(folder).resolve().iterdir() if e.name.startswith(LOCK_PREFIX)]
-    except OSError:
-        return removed
+def remove_stale_lock_file(path: str | os.PathLike[str]) -> bool:
+    """Delete the lock file ``path`` if no process holds it (left by a killed run); True when
+    removed. One held by a live run, this process's included, is left (and so is any on a file
+    system that cannot lock)."""
+    entry = Path(path)
     with _HELD_GUARD:
-        ours = {path for _, path in _HELD}
-    for entry in entries:
-        if entry in ours or entry.is_dir():
-            continue
-        try:
-            fd = os.open(entry, os.O_RDWR | getattr(os, "O_CLOEXEC", 0))
-        except OSError:
-            continue
-        try:
-            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-            if _same_file(fd, entry):
-                os.unlink(entry)
-                removed.append(entry)
-        except OSError:
-            pass
-        finally:
-            os.close(fd)
-    return removed
+        if any(held == entry for _, held in _HELD):
+            return False
+    try:
+        fd = os.open(entry, os.O_RDWR | getattr(os, "O_CLOEXEC", 0))
+    except OSError:
+        return False
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        if _same_file(fd, entry):
+            os.unlink(entry)
+            return True
+    except OSError:
+        pass
+    finally:
+        os.close(fd)
+    return False

@@ -65,7 +65,7 @@ from types import TracebackType
 from typing import Callable, Iterable
 
 from facegeo.errors import InputError, OutputError
-from facegeo.output_lock import LOCK_PREFIX, OutputLock, make_parents, remove_created_parents, remove_stale_lock_files
+from facegeo.output_lock import LOCK_PREFIX, OutputLock, make_parents, remove_created_parents, remove_stale_lock_file
 
 __all__ = ["StagedOutput", "locked_output", "atomic_write_bytes", "atomic_write_text", "check_output_location",
            "remove_stale_temporaries", "remove_other_temporaries", "TEMP_PREFIX", "MANIFEST", "OUTPUT_MARKERS",
@@ -152,21 +152,24 @@ class StagedOutput:
             raise RuntimeError("StagedOutput is not re-entrant")
         source = str(self.out_dir)
         check_output_location(self.out_dir, folder=True, replace=self.replace)
+        cleaned = False
         if self.lock:
             self._lock = OutputLock(self.out_dir, "output folder")
+            cleaned = self._lock.held  # by locked_output, which took the lock first
             self._lock.acquire()
         try:
-            self._stage(source)
+            self._stage(source, cleaned)
         except BaseException:
             self._release()
             raise
         return self
 
-    def _stage(self, source: str) -> None:
+    def _stage(self, source: str, cleaned: bool) -> None:
         target = self.out_dir.resolve()
         parent = target.parent
         self._created_parents = make_parents(parent, source)
-        remove_stale_temporaries(parent)
+        if not cleaned:
+            remove_stale_temporaries(parent)
         if target.is_dir():
             remove_stale_temporaries(target)
         if self.lock:  # under the lock: the folder as the earlier run left it
@@ -335,10 +338,14 @@ def _remove_temporaries(folder: str | os.PathLike[str], doomed: Callable[[str], 
     its output folder first, under that folder's lock (left for later while another run holds it)."""
     removed: list[Path] = []
     try:
-        entries = list(Path(folder).iterdir())
+        entries = list(Path(folder).resolve().iterdir())
     except OSError:
         return removed
     for entry in entries:
+        if entry.name.startswith(LOCK_PREFIX):
+            if remove_stale_lock_file(entry):
+                removed.append(entry)
+            continue
         if not entry.name.startswith(TEMP_PREFIX) or not doomed(entry.name):
             continue
         try:
@@ -350,7 +357,7 @@ def _remove_temporaries(folder: str | os.PathLike[str], doomed: Callable[[str], 
         except OSError:
             continue
         removed.append(entry)
-    return removed + remove_stale_lock_files(folder)
+    return removed
 
 
 def _stale(name: str) -> bool:
