@@ -20,7 +20,11 @@ that the machine's load is shared alike:
 * with ``--knobs``, instead, the error against time of the speed knobs and of the SuperLU
   solver (facegeo.eval.realy_align.Settings) on the first set: the largest and mean relative
   deviation from the exact numbers and the time per subject of each setting, as a table and a
-  text plot.
+  text plot;
+* with ``--compare-seeds A-B``, instead, facegeo against the official code value by value on
+  the sets of seeds A..B (each set once, no timing): the relative difference of every value of
+  REALY_error.txt, whether it lies within facegeo's reported uncertainty, and how many values
+  are flagged (``--keep DIR`` keeps the sets and the official outputs, and reuses them).
 
 facegeo runs with its default solver (CHOLMOD when CVXOPT is installed; the table names it).
 
@@ -29,7 +33,7 @@ times count the machine's other load; CPU times (facegeo's own process with one 
 official process's user + system time, the split from facegeo's ``details``) much less.
 
     python benchmarks/bench_realy.py [--subdivisions 0 1] [--subjects 3] [--seed 0] [--repeat 3] [--workers 2]
-                                     [--baseline-eval DIR] [--knobs]
+                                     [--baseline-eval DIR] [--knobs | --compare-seeds A-B [--keep DIR]] [--topology NAME]
 """
 
 from __future__ import annotations
@@ -72,12 +76,13 @@ def _children_cpu() -> float:
     return usage.ru_utime + usage.ru_stime
 
 
-def _official(src: Path, python: Path, data_root: Path, pred: Path, out: Path) -> tuple[float, float, dict]:
+def _official(src: Path, python: Path, data_root: Path, pred: Path, out: Path,
+              topology: str = "ICT-FaceKit") -> tuple[float, float, dict]:
     """(wall seconds for all subjects, CPU seconds for all subjects, {subject: [4 values]}), both
     less the time to start Python and import main.py's modules."""
     cmd = [str(python), str(src / "main.py"),
            "--REALY_HIFI3D_keypoints", "data/REALY_HIFI3D_keypoints", "--REALY_scan_region", "data/REALY_scan_region",
-           "--prediction", str(pred), "--template_topology", "ICT-FaceKit",
+           "--prediction", str(pred), "--template_topology", topology,
            "--scale_path", "data/metrical_scale.txt", "--save", str(out)]
     cpu = _children_cpu()
     start = time.perf_counter()
@@ -90,21 +95,85 @@ def _official(src: Path, python: Path, data_root: Path, pred: Path, out: Path) -
     subprocess.run([str(python), "-c", imports], cwd=data_root, check=True, capture_output=True)
     startup = time.perf_counter() - start
     startup_cpu = _children_cpu() - cpu
+    return total - startup, total_cpu - startup_cpu, _official_values(out / "REALY_error.txt")
+
+
+def _official_values(path: Path) -> dict[str, list[float]]:
+    """{subject: [nose, mouth, forehead, cheek]} from an official REALY_error.txt."""
     values = {}
-    for line in (out / "REALY_error.txt").read_text().splitlines():
+    for line in path.read_text().splitlines():
         fields = line.split("\t")
         values[fields[0]] = [float(x) for x in fields[2:]]
-    return total - startup, total_cpu - startup_cpu, values
+    return values
+
+
+def _compare_seeds(args: argparse.Namespace, seeds: list[int], have_official: bool) -> None:
+    """``--compare-seeds``: facegeo against the official code, value by value, on synthetic sets of
+    many seeds: the relative difference of each REALY_error.txt value and facegeo's reported
+    uncertainty, whether every difference is within it, and how many values are flagged. With
+    ``--keep DIR`` the data sets and the official outputs stay in DIR and are reused."""
+    from facegeo.eval.realy import UNCERTAINTY_FLAG, evaluate
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tools"))
+    from realy_synthetic import make_dataset
+
+    if not have_official:
+        raise SystemExit("--compare-seeds needs the official code (--official-src, --official-python)")
+    keep = args.keep or Path(tempfile.mkdtemp(prefix="bench_realy_"))
+    load_before = os.getloadavg()
+    rows, cpu, cpu_uncertainty = [], 0.0, 0.0
+    print("| set | seed | values | max rel. difference (where) | differences > 1e-6 | of them within the uncertainty | "
+          "flagged (> 1e-6) | largest uncertainty |")
+    print("|---|---:|---:|---|---:|---:|---:|---:|")
+    for sub in args.subdivisions:
+        for seed in seeds:
+            base = keep / f"s{seed}_d{sub}_{args.topology}"
+            if not (base / "pred").is_dir():
+                make_dataset(base, args.subjects, seed=seed, subdivisions=sub, topology=args.topology)
+            ours = evaluate(base / "pred", base / "realy", topology=args.topology, workers=args.workers)
+            cpu += sum(ours.seconds.values())
+            cpu_uncertainty += sum(d[r]["rerun_seconds"] for d in ours.details.values() for r in REGIONS)
+            official = base / "official" / "REALY_error.txt"
+            if not official.is_file():
+                _official(args.official_src, args.official_python, base / "realy", base / "pred", base / "official",
+                          args.topology)
+            here = []
+            for name, values in _official_values(official).items():
+                for region, theirs in zip(REGIONS, values):
+                    diff = abs(float(ours.text[name][region]) - theirs) / theirs
+                    here.append({"set": sub, "seed": seed, "subject": name, "region": region, "diff": diff,
+                                 "uncertainty": ours.uncertainty[name][region], "official": theirs,
+                                 "facegeo": ours.per_subject[name][region]})
+            rows += here
+            worst = max(here, key=lambda r: r["diff"])
+            big = [r for r in here if r["diff"] > 1e-6]
+            covered = sum(r["diff"] <= max(r["uncertainty"], 1e-6) for r in big)
+            print(f"| subdivisions {sub} | {seed} | {len(here)} | {worst['diff']:.1e} (subject {worst['subject']} "
+                  f"{worst['region']}) | {len(big)} | {covered} | {sum(r['uncertainty'] > UNCERTAINTY_FLAG for r in here)} | "
+                  f"{max(r['uncertainty'] for r in here):.1e} |", flush=True)
+    load_after = os.getloadavg()
+    big = [r for r in rows if r["diff"] > 1e-6]
+    uncovered = [r for r in big if r["diff"] > max(r["uncertainty"], 1e-6)]
+    flagged = [r for r in rows if r["uncertainty"] > UNCERTAINTY_FLAG]
+    print(f"\n{len(rows)} values on {len(seeds)} seed(s) x {len(args.subdivisions)} set(s); largest relative difference "
+          f"{max(r['diff'] for r in rows):.1e}; {len(big)} differences above 1e-6 ({sum(r['diff'] > 1e-5 for r in rows)} "
+          f"above 1e-5), {len(uncovered)} of them outside the reported uncertainty; {len(flagged)} values flagged "
+          f"({len(flagged) / len(rows):.0%}). facegeo CPU {cpu:.1f} s, of which {cpu_uncertainty:.1f} s following "
+          f"turned decisions. Load average before {load_before[0]:.2f}, after {load_after[0]:.2f}.")
+    for r in sorted(big, key=lambda r: -r["diff"]):
+        print(f"  set {r['set']} seed {r['seed']} subject {r['subject']} {r['region']}: official {r['official']:.7f}, "
+              f"facegeo {r['facegeo']:.7f}, difference {r['diff']:.1e}, uncertainty {r['uncertainty']:.1e}")
 
 
 def _split(result, subjects: int) -> dict[str, float]:
-    """Seconds per subject: factorisations, solves, closest points, rest, total (processing)."""
+    """Seconds per subject: factorisations, solves, closest points, the uncertainty's re-runs of
+    turned decisions, rest, total (processing)."""
     details = [d[r] for d in result.details.values() for r in REGIONS]
     row = {"factor": sum(d["factor_seconds"] for d in details) / subjects,
            "solve": sum(d["solve_seconds"] for d in details) / subjects,
            "closest": sum(d["closest_seconds"] for d in details) / subjects,
+           "uncertainty": sum(d.get("rerun_seconds", 0.0) for d in details) / subjects,
            "total": sum(result.seconds.values()) / subjects}
-    row["rest"] = row["total"] - row["factor"] - row["solve"] - row["closest"]
+    row["rest"] = row["total"] - row["factor"] - row["solve"] - row["closest"] - row["uncertainty"]
     return row
 
 
@@ -161,6 +230,7 @@ def _baseline(eval_dir: Path, pred: Path, realy_root: Path, subjects: int) -> tu
                          check=True, capture_output=True, text=True, env={**os.environ, "OMP_NUM_THREADS": "1"})
     acc = json.loads(out.stdout.strip().splitlines()[-1])
     row = {k: acc[k] / subjects for k in ("factor", "solve", "closest", "total")}
+    row["uncertainty"] = 0.0
     row["rest"] = row["total"] - row["factor"] - row["solve"] - row["closest"]
     return row, acc["values"]
 
@@ -175,7 +245,7 @@ def _stats(times: list[float]) -> str:
 
 def _split_cells(rows: list[dict[str, float]]) -> str:
     best = min(rows, key=lambda r: r["total"])
-    cells = [f"{best[k]:.2f}" for k in ("factor", "solve", "closest", "rest", "total")]
+    cells = [f"{best[k]:.2f}" for k in ("factor", "solve", "closest", "uncertainty", "rest", "total")]
     return " | ".join(cells + [f"{best['closest'] + best['rest']:.2f}"])
 
 
@@ -221,6 +291,11 @@ def main(argv: list[str] | None = None) -> None:
                         help="an older eval/ folder to split the time of, for comparison")
     parser.add_argument("--knobs", action="store_true",
                         help="instead: the error against time of the speed knobs, on the first set")
+    parser.add_argument("--compare-seeds", default=None, metavar="A-B",
+                        help="instead: facegeo against the official code value by value on the sets of seeds A..B")
+    parser.add_argument("--topology", default="ICT-FaceKit", help="topology name the data sets are written under")
+    parser.add_argument("--keep", type=Path, default=None, metavar="DIR",
+                        help="with --compare-seeds: keep (and reuse) the data sets and official outputs in DIR")
     parser.add_argument("--official-src", type=Path, default=Path(os.environ.get("REALY_OFFICIAL_SRC", "/tmp/realy_src")))
     parser.add_argument("--official-python", type=Path,
                         default=Path(os.environ.get("REALY_OFFICIAL_PYTHON", "/tmp/realy_env/bin/python")))
@@ -241,6 +316,10 @@ def main(argv: list[str] | None = None) -> None:
     if not have_official:
         print(f"note: official REALY code not found ({args.official_src}/main.py with {args.official_python}); "
               "timing facegeo only", file=sys.stderr)
+    if args.compare_seeds:
+        first, _, last = args.compare_seeds.partition("-")
+        _compare_seeds(args, list(range(int(first), int(last or first) + 1)), have_official)
+        return
     load_before = os.getloadavg()
     n = args.subjects
     rows = []
@@ -319,10 +398,10 @@ def main(argv: list[str] | None = None) -> None:
         diff = f"{r['diff']:.1e}" if r["official"] else "n/a"
         print(f"| {n} subjects, subdivisions {r['sub']} | {r['vertices']} | {_stats(r['official'])} | {_stats(r['one'])} | "
               f"{_stats(r['many'])} | {one} | {many} | {diff} | {r['unc']:.1e} |")
-    print("\nPer subject, 1 worker, fastest run (CPU s): factorisations | solves | closest points | rest | total"
-          " | outside the solver (closest points + rest)\n")
-    print("| synthetic set | code | factorisations | solves | closest points | rest | total | outside the solver |")
-    print("|---|---|---:|---:|---:|---:|---:|---:|")
+    print("\nPer subject, 1 worker, fastest run (CPU s): factorisations | solves (of the run itself) | closest points"
+          " | uncertainty (re-runs of turned decisions) | rest | total | outside the solver (closest points + rest)\n")
+    print("| synthetic set | code | factorisations | solves | closest points | uncertainty | rest | total | outside the solver |")
+    print("|---|---|---:|---:|---:|---:|---:|---:|---:|")
     for r in rows:
         if r["base_split"]:
             print(f"| subdivisions {r['sub']} | before ({args.baseline_eval}) | {_split_cells(r['base_split'])} |")

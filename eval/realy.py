@@ -1,10 +1,10 @@
 """The REALY benchmark (Chai et al., ECCV 2022): region-wise error of predicted face meshes.
 
 :func:`evaluate` gives, for every prediction in a folder, the error (mm) on the four scan regions
-nose, mouth, forehead and cheek, with the same numbers as the official REALY code
-(github czh-98/REALY, ``main.py``; equal to 1e-6 relative on the synthetic subjects of
-tests/test_realy.py wherever the reported uncertainty is below 1e-7, to 1e-5 everywhere; the
-rigid alignments bit for bit). Closest points come from one AABB tree (libigl) per prediction
+nose, mouth, forehead and cheek, with the official REALY code's numbers (github czh-98/REALY,
+``main.py``): the rigid alignments bit for bit, and every value within the numerical uncertainty
+facegeo reports for it, or 1e-6 relative where that is smaller (synthetic subjects of 20 seeds
+and two region sizes, benchmarks/RESULTS.md). Closest points come from one AABB tree (libigl) per prediction
 instead of an R-tree per ICP step and per-point queries in Python, with trimesh's tie rule
 reproduced; the non-rigid ICP's normal equations are assembled block by block, in METIS'
 nested-dissection order, and factored at every step by CHOLMOD as in the official code (through
@@ -14,12 +14,17 @@ regions of all subjects are shared among ``workers`` processes, one BLAS thread 
 region is computed the same way in any process, so the
 numbers do not depend on ``workers``.
 
-Every value comes with its numerical uncertainty (``RealyResult.uncertainty``): how much
-round-off in the final deformed vertices can move it, through closest points near one of
-trimesh's tie decisions (:func:`~facegeo.eval.realy_error.region_error`); values above
-``UNCERTAINTY_FLAG`` (1e-6 relative) are flagged in the summary. ``settings``
-(:class:`~facegeo.eval.realy_align.Settings`) loosens the protocol's stopping rules and the
-solver's tolerance for speed; the default is exact.
+Every value comes with its numerical uncertainty (``RealyResult.uncertainty``): how far
+round-off can move it. The protocol amplifies round-off: its non-rigid ICP multiplies float32
+copies of the deformed vertices by each solution, so any two correct implementations (facegeo
+and the official code, or the official code on two BLAS builds) end with vertices that differ by
+about a float32 rounding, and that turns the ICP's discrete decisions (nearest targets, the
+match threshold, the stopping test) and the final closest points' tie decisions when they are
+that close to their thresholds. Each such decision is followed the other way and its effect
+counted (:func:`~facegeo.eval.realy_error.region_error`); one turned decision can move a value
+by up to 1e-2. Values above ``UNCERTAINTY_FLAG`` (1e-6 relative) are flagged in the summary.
+``settings`` (:class:`~facegeo.eval.realy_align.Settings`) loosens the protocol's stopping rules
+and the solver's tolerance for speed; the default is exact.
 
 Per subject (see :mod:`facegeo.eval.realy_align` and :mod:`facegeo.eval.realy_error`):
 the 85 keypoints of the prediction from the topology's barycentric keypoint file; a similarity
@@ -136,8 +141,10 @@ class RealyResult:
     its solves, symbolic ``analyses``, ``factorisations`` and ``pcg_iterations`` per solve (0 for
     a direct solve), and CPU seconds (``factor_seconds``,
     ``solve_seconds``, ``closest_seconds``, ``nearest_seconds``);
-    ``uncertainty``: per subject and region, the relative change of the error under round-off
-    perturbations of the final deformed vertices (see :func:`~facegeo.eval.realy_error.region_error`);
+    ``uncertainty``: per subject and region, how far (relative) round-off can move the error
+    through the decisions it can turn (see :func:`~facegeo.eval.realy_error.region_error`; the
+    ``details`` split it into ``uncertainty_paths`` and ``uncertainty_ties`` and count the
+    decisions followed, ``reruns``);
     ``settings``: the knobs used (``solver`` as resolved: ``"cholmod"`` or ``"superlu"``);
     ``wall_seconds``: the whole evaluation (wall clock);
     ``workers``: processes.

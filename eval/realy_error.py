@@ -17,6 +17,14 @@ Written from the protocol of the official REALY code (``utils/eval.py``, ``utils
    mean distance between those and the *original* region vertices (scan units; the caller
    multiplies by the subject's metrical scale).
 
+Numerical uncertainty (:func:`region_error`): the official D matrix holds the deformed vertices
+in float32, so round-off differences of the solutions (1e-11 between CHOLMOD builds or solvers)
+grow into float32 roundings of the vertices (about 6e-8 of their coordinates) within a few
+steps, in the official code as in any other implementation. Such a move can turn the loop's
+discrete decisions (a vertex's nearest target, whether it counts as matched, whether a stage
+stops) and the final closest points' tie decisions when they are that close to their
+thresholds; :class:`NonRigidICP` records those decisions and follows each the other way.
+
 Each least-squares step solves the normal equations ``A^T A X = A^T B`` (the official code
 factors ``A^T A`` with CHOLMOD at every step); here ``A^T A`` is assembled directly, block by
 block, with the vertices in METIS' nested-dissection order, and solved by
@@ -40,14 +48,22 @@ from facegeo.eval.realy_align import EXACT, Settings
 from facegeo.eval.realy_geometry import SurfaceQuery, merge_vertices
 from facegeo.eval.realy_solver import make_solver
 
-__all__ = ["region_error", "NonRigidICP", "MAX_STEPS_WITHOUT_KEYPOINTS", "UNCERTAINTY_SCALE"]
+__all__ = ["region_error", "NonRigidICP", "Decision", "MAX_STEPS_WITHOUT_KEYPOINTS", "UNCERTAINTY_SCALE", "PATHS_ENOUGH"]
 
 #: The official loop for the cheek has no step limit; facegeo stops with an error after this many.
 MAX_STEPS_WITHOUT_KEYPOINTS = 1000
 
-#: Round-off of the deformed vertices assumed for ``uncertainty``, relative to the region's size
-#: (solvers differ by about 1e-11 here; the CG tolerance is 1e-10).
-UNCERTAINTY_SCALE = 1e-9
+#: Round-off of the deformed vertices assumed for ``uncertainty`` (a distance, relative to their
+#: largest coordinate, scan units). Every step multiplies the vertices, cast to float32 as in the
+#: official D matrix, by the solution, so solutions that differ by round-off (1e-11 between
+#: solvers) give vertices that differ by up to a float32 rounding (2**-24 = 6e-8) a few steps
+#: later: up to 7e-8 measured, between facegeo and the official code and between solvers
+#: (benchmarks/RESULTS.md). 2**-23 = 1.2e-7.
+UNCERTAINTY_SCALE = 2.0 ** -23
+#: The same for the solutions (Frobenius norm, relative), in the stopping tests (measured up to 5e-8).
+_SOLUTION_ROUNDING = 2.0 ** -23
+#: Relative uncertainty from turned decisions past which no more of them are followed.
+PATHS_ENOUGH = 1e-4
 
 _EPSILON = 1.0
 _ALPHA = 50.0
@@ -142,6 +158,37 @@ def _pattern(n: int, triangles: np.ndarray) -> _Pattern:
     )
 
 
+@dataclass(frozen=True)
+class _State:
+    """Where the non-rigid ICP's loop stands before a stopping test: stiffness stage, solves in
+    this stage and in all, the deformed vertices, the last two solutions (vertex order) and the
+    last solution in the solver's order (its start for SuperLU's conjugate gradients)."""
+
+    stage: int
+    step: int
+    count: int
+    cur: np.ndarray
+    x_prev: np.ndarray
+    x: np.ndarray
+    x_perm: np.ndarray | None
+
+
+@dataclass(frozen=True)
+class Decision:
+    """A decision of the non-rigid ICP that round-off could turn (see :meth:`NonRigidICP.run`).
+
+    ``kind``: ``"stop"`` (the stage's stopping test: the change of the solution against its
+    threshold), ``"match"`` (the nearest target of ``vertices``: ``alternative`` holds the other
+    target of each) or ``"weight"`` (whether ``vertices`` count as matched: their distance
+    against the threshold ``max(2 * mean distance, 1)``). ``state``: the loop just before it.
+    """
+
+    kind: str
+    state: _State
+    vertices: np.ndarray | None = None
+    alternative: np.ndarray | None = None
+
+
 class NonRigidICP:
     """The official optimal-step non-rigid ICP of a region towards points on the prediction.
 
@@ -163,6 +210,9 @@ class NonRigidICP:
         self.solver = make_solver(settings.solver, self.pattern.indptr, self.pattern.indices,
                                   settings.factor_reuse, settings.solver_rtol)
         self.nearest_seconds = 0.0  # CPU time in the nearest-neighbour queries
+        self.near_decisions: list[Decision] = []  # of the last run with a deviation
+        self._deviation = 0.0
+        self._trace: dict[tuple[int, int], _State] = {}  # the last run's states, by (stage, step)
         self._stiffness_key: tuple | None = None
         self._stiffness_data = np.zeros(0)
 
@@ -189,14 +239,34 @@ class NonRigidICP:
             rhs += (w2[:, None, None] * d[:, :, None]) * target[:, None, :]
         return d, data, rhs[p.order].reshape(4 * self.n, 3)
 
-    def _step(self, cur, alpha, stiffness, stage0, kp_weight, x0):
+    def _step(self, cur, alpha, stiffness, stage0, kp_weight, x0, deviation: float = 0.0, flip: Decision | None = None):
+        """One solve. With ``deviation`` > 0 also the decisions a move of ``cur`` by up to
+        ``deviation`` could turn: [(kind, vertices, alternative targets)]; ``flip`` turns one."""
         start = time.process_time()
         dist, idx = self.tree.query(cur, 1)
+        near: list[tuple[str, np.ndarray, np.ndarray | None]] = []
+        if deviation > 0 and not stage0:  # the first stage matches nothing but keypoints
+            two_d, two_i = self.tree.query(cur, 2)
+            other = np.where(two_i[:, 0] == idx, two_i[:, 1], two_i[:, 0])
+            rival = ((two_d[:, 1] - two_d[:, 0]) <= 2 * deviation) & np.any(self.targets[other] != self.targets[idx], axis=1)
+            if rival.any():
+                near.append(("match", np.nonzero(rival)[0], other[rival]))
+        if flip is not None and flip.kind == "match":
+            idx = np.array(idx)
+            idx[flip.vertices] = flip.alternative
+            dist = np.array(dist)
+            dist[flip.vertices] = np.sqrt(np.sum((cur[flip.vertices] - self.targets[flip.alternative]) ** 2, axis=1))
         self.nearest_seconds += time.process_time() - start
         dist32 = np.asarray(dist, dtype=np.float32)
         nearest = self.targets[np.asarray(idx, dtype=np.int32)]
         threshold = max(np.mean(dist32) * 2, 1)
         w = (dist32 < threshold).astype(np.float64)
+        if deviation > 0 and not stage0:  # the distances and their mean move by up to ``deviation``
+            close = np.abs(dist32.astype(np.float64) - float(threshold)) <= 4 * deviation
+            if close.any():
+                near.append(("weight", np.nonzero(close)[0], None))
+        if flip is not None and flip.kind == "weight":
+            w[flip.vertices] = 1.0 - w[flip.vertices]
         parts = []
         weight2 = np.zeros(self.n)
         if not stage0:
@@ -214,45 +284,101 @@ class NonRigidICP:
         x4 = x_perm.reshape(self.n, 4, 3)[self.pattern.rank]  # back to vertex order
         x = x4.reshape(4 * self.n, 3)
         new = ((d[:, 0:1] * x4[:, 0] + d[:, 1:2] * x4[:, 1]) + d[:, 2:3] * x4[:, 2]) + x4[:, 3]
-        return x, x_perm, new
+        return x, x_perm, new, near
 
-    def run(self) -> np.ndarray:
-        """The deformed vertices (N, 3) float64."""
-        cur = self.vertices
-        x_prev = np.zeros((4 * self.n, 3))
-        x = np.ones((4 * self.n, 3))
-        x_perm = None
+    def _stage_parameters(self, stage: int) -> tuple[float, float, np.ndarray, bool]:
+        """(alpha, epsilon, stiffness weights, keypoints-only stage) of a stiffness stage."""
+        if self.keypoint_index is not None:
+            alpha = _ALPHA_KEYPOINTS if stage == 0 else _ALPHA * np.exp(-0.5 * (stage - 1))
+            epsilon = _EPSILON * pow(0.5, stage - 1)
+        else:
+            alpha = _ALPHA * np.exp(-0.5 * stage)
+            epsilon = _EPSILON * pow(0.5, stage)
+        stage0 = self.keypoint_index is not None and stage == 0
+        return alpha, epsilon * self.settings.nicp_epsilon_scale, _STIFFNESS_KEYPOINTS if stage0 else _STIFFNESS, stage0
+
+    def run(self, deviation: float = 0.0) -> np.ndarray:
+        """The deformed vertices (N, 3) float64.
+
+        With ``deviation`` > 0 (a length: how far round-off can move the deformed vertices, see
+        :data:`UNCERTAINTY_SCALE`), the decisions that such a move could turn are collected in
+        :attr:`near_decisions`: a stopping test whose change of the solution is within its
+        round-off of the threshold, vertices whose two nearest targets are within
+        ``2 * deviation`` of each other, or whose distance is within ``4 * deviation`` of the
+        match threshold (one :class:`Decision` per kind and step). :meth:`rerun` follows one of
+        them the other way. The numbers of the run itself do not depend on ``deviation``.
+        """
+        self.near_decisions = []
+        self._deviation = deviation
+        self._trace = {}
+        start = _State(0, 0, 0, self.vertices, np.zeros((4 * self.n, 3)), np.ones((4 * self.n, 3)), None)
+        return self._loop(start, deviation, None)
+
+    def rerun(self, decision: Decision) -> np.ndarray | None:
+        """The deformed vertices (N, 3) had ``decision`` gone the other way (the rest of the run
+        as the protocol goes; its decisions are not collected), or None when that run comes back
+        to within round-off (``deviation``) of this one at the same step: from there on it is
+        this run again, whose later decisions are collected on their own."""
+        self.solver.start_stage()
+        return self._loop(decision.state, 0.0, decision)
+
+    def _rejoined(self, state: _State) -> bool:
+        """Whether a re-run's ``state`` is within round-off of the run's own at the same step."""
+        own = self._trace.get((state.stage, state.step))
+        if own is None or own.count != state.count:
+            return False
+        if float(np.abs(state.cur - own.cur).max()) > self._deviation:
+            return False
+        for mine, theirs in ((state.x, own.x), (state.x_prev, own.x_prev)):
+            gap = float(np.sqrt(np.einsum("ij,ij->", mine - theirs, mine - theirs)))
+            if gap > _SOLUTION_ROUNDING * float(np.sqrt(np.einsum("ij,ij->", theirs, theirs))):
+                return False
+        return True
+
+    def _loop(self, state: _State, deviation: float, flip: Decision | None) -> np.ndarray | None:
+        stage, step, count = state.stage, state.step, state.count
+        cur, x_prev, x, x_perm = state.cur, state.x_prev, state.x, state.x_perm
         with_kp = self.keypoint_index is not None
         cap = self.settings.nicp_max_steps
         if cap is None:
             cap = 11 if with_kp else MAX_STEPS_WITHOUT_KEYPOINTS
-        count = 0
-        for stage in range(4 if with_kp else 3):
-            if with_kp:
-                alpha = _ALPHA_KEYPOINTS if stage == 0 else _ALPHA * np.exp(-0.5 * (stage - 1))
-                epsilon = _EPSILON * pow(0.5, stage - 1)
-            else:
-                alpha = _ALPHA * np.exp(-0.5 * stage)
-                epsilon = _EPSILON * pow(0.5, stage)
-            epsilon *= self.settings.nicp_epsilon_scale
-            stage0 = with_kp and stage == 0
-            stiffness = _STIFFNESS_KEYPOINTS if stage0 else _STIFFNESS
-            self.solver.start_stage()
-            step = 0
+        branch = flip is not None
+        while stage < (4 if with_kp else 3):
+            alpha, epsilon, stiffness, stage0 = self._stage_parameters(stage)
+            if step == 0:
+                self.solver.start_stage()
             while True:
+                here = _State(stage, step, count, cur, x_prev, x, x_perm)
+                if deviation > 0:
+                    self._trace[stage, step] = here
+                elif branch and flip is None and self._rejoined(here):
+                    return None
                 diff = x - x_prev
                 delta = math.sqrt(float(np.einsum("ij,ij->", diff, diff)))  # Frobenius norm
-                if delta <= epsilon or step >= cap:
+                stop = delta <= epsilon or step >= cap
+                if flip is not None and flip.kind == "stop":
+                    stop, flip = not stop, None
+                elif deviation > 0 and step < cap and not (stage0 and step > 0):
+                    # the solutions move by round-off too: about 2**-24 of their size per step
+                    slack = _SOLUTION_ROUNDING * (math.sqrt(float(np.einsum("ij,ij->", x, x)))
+                                                  + math.sqrt(float(np.einsum("ij,ij->", x_prev, x_prev))))
+                    if abs(delta - epsilon) <= slack:
+                        self.near_decisions.append(Decision("stop", here))
+                if stop:
                     break
                 x_prev = x
                 kp_weight = _KEYPOINT_WEIGHT if stage0 else _KEYPOINT_WEIGHT * np.exp(-0.9 * count) / 10.0
-                x, x_perm, cur = self._step(cur, alpha, stiffness, stage0, kp_weight, x_perm)
+                x, x_perm, cur, near = self._step(cur, alpha, stiffness, stage0, kp_weight, x_perm, deviation, flip)
+                flip = None
+                self.near_decisions.extend(Decision(kind, here, v, alt) for kind, v, alt in near)
                 step += 1
                 count += 1
                 if stage0:
                     break
             if not with_kp and self.settings.nicp_max_steps is None and step >= cap:
                 raise FacegeoError(f"the non-rigid ICP did not converge in {step} steps")
+            stage += 1
+            step = 0
         return cur
 
     def details(self) -> dict:
@@ -276,14 +402,23 @@ def region_error(
     the region as read (float32, unmerged); ``keypoints`` / ``scan_keypoints``: the region's
     error-step keypoints on the prediction (float64) and the scan (float32), or None (cheek).
 
-    Details: the solver's counts and seconds (:meth:`NonRigidICP.details`), ``vertices`` (merged
-    count), ``nearest_seconds`` (its nearest-neighbour queries) and ``uncertainty``: how much
-    the error (relative) can move when the final deformed vertices move by round-off,
-    ``UNCERTAINTY_SCALE`` times the region's size: the closest points of the vertices that are
-    that near one of trimesh's tie decisions may jump to the other candidate, and the sum of
-    those jumps' effects on the mean distance is the bound reported (the official code's own
-    rounding moves its numbers that way; a smooth move of the points changes the error by
-    about ``UNCERTAINTY_SCALE``, far less).
+    Details: the solver's counts and seconds (:meth:`NonRigidICP.details`, of the run itself),
+    ``vertices`` (merged count), ``nearest_seconds`` (its nearest-neighbour queries) and
+    ``uncertainty``: how far (relative) round-off can move the error, the sum of two parts:
+
+    * ``uncertainty_paths``: the non-rigid ICP's decisions that a move of the deformed vertices
+      by round-off (``deviation`` = :data:`UNCERTAINTY_SCALE` times their largest coordinate)
+      could turn (:meth:`NonRigidICP.run`) are each followed the other way to the end
+      (:meth:`NonRigidICP.rerun`), and the changes of the error they give are summed. One turned
+      decision can move a value by up to 1e-2 (benchmarks/RESULTS.md);
+    * ``uncertainty_ties``: the final closest points of the vertices within ``deviation`` of one of
+      trimesh's tie decisions may jump to the other candidate; the sum of those jumps' effects.
+
+    A smooth move of the points by round-off changes the error by a few 1e-8 (measured), and is
+    not counted. ``reruns`` counts the decisions followed by kind (and those whose other way came
+    back to this run: ``rejoined``), ``rerun_solves`` / ``rerun_seconds`` their cost. Once the
+    followed decisions add up to :data:`PATHS_ENOUGH` the rest are not followed: the
+    uncertainty is then at least that (the value is flagged either way).
     """
     gt_vertices, gt_triangles = merge_vertices(scan_vertices, scan_triangles)
     on_prediction = surface(pred_vertices, gt_vertices)
@@ -292,10 +427,11 @@ def region_error(
         nicp = NonRigidICP(gt_vertices, gt_triangles, on_prediction, kp_index, keypoints, settings)
     else:
         nicp = NonRigidICP(gt_vertices, gt_triangles, on_prediction, settings=settings)
-    deformed = nicp.run()
+    deviation = UNCERTAINTY_SCALE * float(np.abs(gt_vertices).max())
+    deformed = nicp.run(deviation)
+    info = nicp.details()  # of the run itself (the re-runs below are counted apart)
 
-    size = float(np.ptp(deformed, axis=0).max())
-    updated = surface(pred_vertices, deformed, jitter=UNCERTAINTY_SCALE * size)
+    updated = surface(pred_vertices, deformed, jitter=deviation)
     distances = np.sqrt(np.sum((updated - gt_vertices) ** 2, axis=-1))
     error = float(distances.mean())
     if not math.isfinite(error):
@@ -304,7 +440,24 @@ def region_error(
     near = surface.near_ties
     other = np.sqrt(np.sum((surface.alternatives[near] - gt_vertices[near, None]) ** 2, axis=-1))
     jump = np.nan_to_num(np.abs(other - distances[near, None]), nan=0.0).max(axis=1, initial=0.0)
-    uncertainty = float(jump.sum()) / len(distances) / max(error, 1e-300)
-    info = nicp.details()
-    info.update(vertices=len(gt_vertices), nearest_seconds=nicp.nearest_seconds, uncertainty=uncertainty)
+    ties = float(jump.sum()) / len(distances)
+    # decisions of the non-rigid ICP that round-off could turn: each followed the other way
+    start = time.process_time()
+    solves = nicp.solves
+    paths = 0.0
+    kinds: dict[str, int] = {}
+    for decision in nicp.near_decisions:
+        if paths >= PATHS_ENOUGH * error:
+            break
+        kinds[decision.kind] = kinds.get(decision.kind, 0) + 1
+        alternative = nicp.rerun(decision)
+        if alternative is None:
+            kinds["rejoined"] = kinds.get("rejoined", 0) + 1
+            continue
+        other_way = surface(pred_vertices, alternative)
+        paths += abs(float(np.sqrt(np.sum((other_way - gt_vertices) ** 2, axis=-1)).mean()) - error)
+    scale = max(error, 1e-300)
+    info.update(vertices=len(gt_vertices), nearest_seconds=nicp.nearest_seconds, uncertainty=(ties + paths) / scale,
+                uncertainty_ties=ties / scale, uncertainty_paths=paths / scale, reruns=kinds,
+                rerun_solves=nicp.solves - solves, rerun_seconds=time.process_time() - start)
     return error, info

@@ -51,8 +51,9 @@ def markdown_table(result: RealyResult) -> str:
         note += f"\n**Not the official protocol**: {changed} (the numbers differ from the official ones).\n"
     flagged = result.uncertain(UNCERTAINTY_FLAG)
     if flagged:
-        note += (f"\nNumerically uncertain (round-off moves the value by more than {UNCERTAINTY_FLAG:g} "
-                 "relative; the official code's numbers can differ by as much): "
+        note += (f"\nNumerically uncertain (round-off can move the value by more than {UNCERTAINTY_FLAG:g} "
+                 "relative, through decisions of the protocol it can turn; the official code's number can "
+                 "differ by up to the uncertainty given): "
                  + ", ".join(f"{name} {region} ({u:.1e})" for name, region, u in flagged) + ".\n")
     return "\n".join([head, rule, mean, median]) + "\n" + note
 

@@ -23,7 +23,10 @@ Output folder ``OUT`` (see :data:`ITEMS_FILE`, :data:`SUMMARY_FILE`, :data:`FAIL
 An existing ``OUT`` must be empty, or an earlier batch output (it holds ``items.csv``) and
 ``--resume`` given: then the photos whose folder is complete are skipped and the others (failed,
 interrupted, new) are processed. Without ``--resume`` an earlier batch output is refused rather
-than replaced (it may hold days of work).
+than replaced (it may hold days of work). One batch at a time per ``OUT``: the batch holds
+``OUT``'s lock (:func:`facegeo.staged_output.locked_output`) and each item job its folder's, so a
+second batch into ``OUT``, or any run into one of its item folders, is refused at once with the
+other run's process id.
 
 Engine: an embedded :class:`distributed.LocalCluster` (``workers`` processes, one thread each;
 the model and the landmark detectors are loaded once per worker process), an existing cluster
@@ -333,6 +336,7 @@ def dask_client(client: Any = None, scheduler: str | None = None, workers: int |
 def _prepare_output(out: Path, resume: bool) -> dict[str, str]:
     """Check (and create) the batch folder; return the photo -> folder name map of an earlier
     batch in it (``items.csv``) when resuming."""
+    from facegeo.output_lock import LOCK_PREFIX
     from facegeo.staged_output import TEMP_PREFIX, check_output_location, remove_stale_temporaries
 
     check_output_location(out, folder=True)
@@ -347,7 +351,7 @@ def _prepare_output(out: Path, resume: bool) -> dict[str, str]:
                              f"an earlier batch output ({ITEMS_FILE})")
         with items.open(newline="", encoding="utf-8") as fh:
             return {row["photo"]: row["folder"] for row in csv.DictReader(fh)}
-    entries = sorted(e.name for e in out.iterdir() if not e.name.startswith(TEMP_PREFIX))
+    entries = sorted(e.name for e in out.iterdir() if not e.name.startswith((TEMP_PREFIX, LOCK_PREFIX)))
     if entries:
         raise InputError(out, "output folder", f"a new or empty folder, or an earlier batch output (with {ITEMS_FILE})",
                          f"a folder with other files ({', '.join(entries[:3])}{', ...' if len(entries) > 3 else ''})")
@@ -406,8 +410,9 @@ def _read_earlier_summary(out: Path) -> dict[str, dict[str, str]]:
 
 
 def _complete(folder: Path) -> bool:
-    """An item folder is complete when it exists with its fit.json (the staged writes move a
-    folder in as a whole, so one that exists is complete)."""
+    """An item folder is complete when it exists with its fit.json (a new item folder is renamed
+    in as a whole, and a commit into an existing one that a killed worker left half done is rolled
+    back by :func:`_prepare_output` before this is asked)."""
     return (folder / "fit.json").is_file()
 
 
@@ -421,7 +426,8 @@ def _run_many(kind: str, photos: Iterable[str | os.PathLike[str]], out: str | os
               allowed_failures: int, files: str, job: Callable[..., JobRecord] | None, memory_limit: str | float | None,
               progress: bool | None, on_failure: Callable[[BatchRecord], None] | None) -> list[BatchRecord]:
     from facegeo import jobs
-    from facegeo.staged_output import StagedOutput, atomic_write_text, remove_other_temporaries, remove_stale_temporaries
+    from facegeo.staged_output import (StagedOutput, atomic_write_text, check_output_location, locked_output,
+                                       remove_other_temporaries, remove_stale_temporaries)
 
     if files not in ("shared", "client"):
         raise InputError("<options>", "files", "'shared' or 'client'", repr(files))
@@ -434,65 +440,67 @@ def _run_many(kind: str, photos: Iterable[str | os.PathLike[str]], out: str | os
     out = Path(os.path.abspath(out))
     if any(out == p or out in p.parents for p in paths):
         raise InputError(out, "output folder", "a folder that does not hold the input photos", "it holds some")
-    known = _prepare_output(out, resume)
-    names = folder_names(paths, known)
-    atomic_write_text(out / ITEMS_FILE, _csv_text(["photo", "folder", "note"], (
-        {"photo": str(p), "folder": name, "note": note} for p, (name, note) in zip(paths, names))))
-    earlier = _read_earlier_summary(out) if resume else {}
-    records = [BatchRecord(photo=str(p), output=str(out / name), status="pending", note=note)
-               for p, (name, note) in zip(paths, names)]
-    todo = []
-    for i, record in enumerate(records):
-        if resume and _complete(Path(record.output)):
-            record.status = "skipped"
-        else:
-            todo.append(i)
+    check_output_location(out, folder=True)
+    with locked_output(out):  # one batch at a time per OUT (items hold their own folder's lock)
+        known = _prepare_output(out, resume)
+        names = folder_names(paths, known)
+        atomic_write_text(out / ITEMS_FILE, _csv_text(["photo", "folder", "note"], (
+            {"photo": str(p), "folder": name, "note": note} for p, (name, note) in zip(paths, names))))
+        earlier = _read_earlier_summary(out) if resume else {}
+        records = [BatchRecord(photo=str(p), output=str(out / name), status="pending", note=note)
+                   for p, (name, note) in zip(paths, names)]
+        todo = []
+        for i, record in enumerate(records):
+            if resume and _complete(Path(record.output)):
+                record.status = "skipped"
+            else:
+                todo.append(i)
 
-    from tqdm import tqdm
+        from tqdm import tqdm
 
-    interrupted = True
-    bar = tqdm(total=len(todo), desc=kind, unit="photo", disable=not sys.stderr.isatty() if progress is None else not progress,
-               file=sys.stderr, smoothing=0.1)
-    last_flush = time.monotonic()
-    try:
-        with dask_client(client, scheduler, workers, allowed_failures, memory_limit) as dask:
-            distributed = _import_distributed()
-            futures = {}
-            for i in todo:
-                future = dask.submit(_run_item, job, records[i].photo, records[i].output, options, files == "client",
-                                     retries=retries, pure=False, key=f"facegeo-{kind}-{i}-{os.getpid()}-{time.time_ns()}")
-                futures[future] = i
-            own_cluster = client is None and not scheduler
-            completed = distributed.as_completed(list(futures))
-            workerless_since: float | None = None
-            try:
-                with _quiet_dask():
-                    while futures:
-                        ready = completed.next_batch(block=False)
-                        if not ready:
-                            workerless_since = _check_workers(dask, own_cluster, workerless_since, futures, records)
-                            time.sleep(0.05)
-                            continue
-                        workerless_since = None
-                        for future in ready:
-                            _finish(future, futures, records, files, StagedOutput, bar, on_failure)
-                        if time.monotonic() - last_flush > _FLUSH_SECONDS:
-                            _write_reports(out, [r for r in records if r.status != "pending"], earlier)
-                            last_flush = time.monotonic()
-                interrupted = False
-            finally:
-                if futures:  # interrupted: nothing more runs for this batch
-                    with _quiet_dask(), contextlib.suppress(Exception):
-                        dask.cancel(list(futures), force=True)
-    finally:
-        bar.close()
-        finished = [r for r in records if r.status != "pending"]
-        _write_reports(out, finished, earlier)
-        if not interrupted:  # no job of this batch runs any more: what is staged in OUT is left from killed workers
-            remove_other_temporaries(out)
-        elif client is None and not scheduler:  # the embedded workers were stopped; their staged folders are stale
-            remove_stale_temporaries(out)
-    return records
+        interrupted = True
+        bar = tqdm(total=len(todo), desc=kind, unit="photo", disable=not sys.stderr.isatty() if progress is None else not progress,
+                   file=sys.stderr, smoothing=0.1)
+        last_flush = time.monotonic()
+        try:
+            with dask_client(client, scheduler, workers, allowed_failures, memory_limit) as dask:
+                distributed = _import_distributed()
+                futures = {}
+                for i in todo:
+                    future = dask.submit(_run_item, job, records[i].photo, records[i].output, options, files == "client",
+                                         retries=retries, pure=False, key=f"facegeo-{kind}-{i}-{os.getpid()}-{time.time_ns()}")
+                    futures[future] = i
+                own_cluster = client is None and not scheduler
+                completed = distributed.as_completed(list(futures))
+                workerless_since: float | None = None
+                try:
+                    with _quiet_dask():
+                        while futures:
+                            ready = completed.next_batch(block=False)
+                            if not ready:
+                                workerless_since = _check_workers(dask, own_cluster, workerless_since, futures, records)
+                                time.sleep(0.05)
+                                continue
+                            workerless_since = None
+                            for future in ready:
+                                _finish(future, futures, records, files, StagedOutput, bar, on_failure)
+                            if time.monotonic() - last_flush > _FLUSH_SECONDS:
+                                _write_reports(out, [r for r in records if r.status != "pending"], earlier)
+                                last_flush = time.monotonic()
+                    interrupted = False
+                finally:
+                    if futures:  # interrupted: nothing more runs for this batch
+                        with _quiet_dask(), contextlib.suppress(Exception):
+                            dask.cancel(list(futures), force=True)
+        finally:
+            bar.close()
+            finished = [r for r in records if r.status != "pending"]
+            _write_reports(out, finished, earlier)
+            if not interrupted:  # no job of this batch runs any more: what is staged in OUT is left from killed workers
+                remove_other_temporaries(out)
+            elif client is None and not scheduler:  # the embedded workers were stopped; their staged folders are stale
+                remove_stale_temporaries(out)
+        return records
 
 
 _NO_WORKER_SECONDS = 60.0  # the embedded cluster without a live worker this long: its nannies could not restart them

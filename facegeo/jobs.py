@@ -4,7 +4,9 @@ and calls :func:`fit_into_folder` / :func:`reconstruct_into_folder`; batch proce
 same functions once per photo).
 
 The folder is written through :class:`facegeo.staged_output.StagedOutput`: it appears complete
-or not at all, and an existing facegeo output folder is replaced. The morphable model and a
+or not at all; a re-run into an earlier facegeo output replaces that run's files and keeps every
+other file. Each job holds the folder's lock (:func:`facegeo.staged_output.locked_output`) from
+its start, so a second run into the same folder is refused before it fits. The morphable model and a
 regressor checkpoint are loaded once per process and reused (:func:`loaded_resources`), so a
 worker that runs many jobs reads them once.
 """
@@ -169,37 +171,39 @@ def photo_camera(photo: Any, focal: float | None, principal_point: tuple[float, 
 def fit_into_folder(photo_path: str | Path, output: str | Path, options: FitOptions | None = None) -> JobRecord:
     """Fit the model to one photo and write ``fit.json`` (parameters, camera, per-point landmark
     errors, timings), ``mesh.obj`` (posed mesh in camera space, mm, with UVs) and ``overlay.png``
-    into ``output`` (replaced as a whole if it is an earlier facegeo output). ``options``:
-    default ``FitOptions()``.
+    into ``output`` (an earlier facegeo output there: its files are replaced, other files kept).
+    ``options``: default ``FitOptions()``.
 
     Raises:
-        facegeo.errors.FacegeoError: bad photo, no face, failed fit checks, or an unwritable output.
+        facegeo.errors.FacegeoError: bad photo, no face, failed fit checks, an unwritable output,
+            or another run writing into ``output``.
     """
     from facegeo.image_files import png_bytes
     from facegeo.fitting import fit
     from facegeo.mesh_io import obj_text
     from facegeo.overlay import draw_overlay
     from facegeo.photo import load_photo
-    from facegeo.staged_output import StagedOutput
+    from facegeo.staged_output import StagedOutput, locked_output
 
     options = FitOptions() if options is None else options
-    start = time.perf_counter()
-    model, predictor = loaded_resources(options.model, options.regressor, options.refine, options.landmarks)
-    model_seconds = time.perf_counter() - start
-    photo = load_photo(photo_path, max_side=options.max_side)
-    fitter = predictor or fit
-    result = fitter(photo, model=model, detector=options.landmarks, camera=photo_camera(photo, options.focal, options.principal_point),
-                    photometric=options.photometric)
-    result.timings["load_model"] = model_seconds
-    result.timings["total"] = time.perf_counter() - start
-    result.info["landmark_rms_percent_iod"] = result.landmark_rms_percent_iod
-    with StagedOutput(output, replace=True) as stage:
-        stage.path("fit.json").write_text(json.dumps(result.to_dict(), indent=1))
-        stage.path("mesh.obj").write_text(obj_text(result.vertices, model.triangles, model.uv, model.uv_triangles))
-        stage.path("overlay.png").write_bytes(png_bytes(draw_overlay(photo.image, result, model)))
-    return JobRecord(photo=str(photo_path), output=str(output), landmark_rms_px=float(result.landmark_rms_px),
-                     landmark_rms_percent_iod=float(result.landmark_rms_percent_iod),
-                     timings=dict(result.timings), files=list(FIT_FILES), notes=list(result.info.get("notes", [])))
+    with locked_output(output):  # a second run into the same folder is refused now, not after the fit
+        start = time.perf_counter()
+        model, predictor = loaded_resources(options.model, options.regressor, options.refine, options.landmarks)
+        model_seconds = time.perf_counter() - start
+        photo = load_photo(photo_path, max_side=options.max_side)
+        fitter = predictor or fit
+        result = fitter(photo, model=model, detector=options.landmarks, camera=photo_camera(photo, options.focal, options.principal_point),
+                        photometric=options.photometric)
+        result.timings["load_model"] = model_seconds
+        result.timings["total"] = time.perf_counter() - start
+        result.info["landmark_rms_percent_iod"] = result.landmark_rms_percent_iod
+        with StagedOutput(output, replace=True) as stage:
+            stage.path("fit.json").write_text(json.dumps(result.to_dict(), indent=1))
+            stage.path("mesh.obj").write_text(obj_text(result.vertices, model.triangles, model.uv, model.uv_triangles))
+            stage.path("overlay.png").write_bytes(png_bytes(draw_overlay(photo.image, result, model)))
+        return JobRecord(photo=str(photo_path), output=str(output), landmark_rms_px=float(result.landmark_rms_px),
+                         landmark_rms_percent_iod=float(result.landmark_rms_percent_iod),
+                         timings=dict(result.timings), files=list(FIT_FILES), notes=list(result.info.get("notes", [])))
 
 
 def reconstruct_into_folder(photo_path: str | Path, output: str | Path, options: ReconstructOptions | None = None,
@@ -217,7 +221,7 @@ def reconstruct_into_folder(photo_path: str | Path, output: str | Path, options:
             ``export`` and ``preview``).
     Raises:
         facegeo.errors.FacegeoError: bad photo or options, no face, failed fit checks, missing
-            weights, or an unwritable output.
+            weights, an unwritable output, or another run writing into ``output``.
     """
     from facegeo.errors import NoFaceError
     from facegeo.export.asset_io import write_asset_files
@@ -227,51 +231,52 @@ def reconstruct_into_folder(photo_path: str | Path, output: str | Path, options:
     from facegeo.photo import load_photo
     from facegeo.pipeline import reconstruct_with_fit
     from facegeo.skin_mask import skin_mask, skin_mask_image
-    from facegeo.staged_output import StagedOutput
+    from facegeo.staged_output import StagedOutput, locked_output
     from facegeo.texturing.registry import BACKENDS
     from facegeo.texturing.preview import relit_preview
 
     options = ReconstructOptions() if options is None else options
-    start = time.perf_counter()
-    backend = BACKENDS[options.backend](options.weights) if options.backend == "diffusion" else options.backend  # weights checked first
-    model, predictor = loaded_resources(options.model, options.regressor, options.refine, options.landmarks)
-    photo = load_photo(photo_path, max_side=options.max_side)
-    try:  # the skin mask needs MediaPipe's mesh; without it the pipeline builds one from the fit's landmarks
-        skin = skin_mask(photo.image, source=str(photo_path))
-    except NoFaceError:
-        skin = None
-    asset, result = reconstruct_with_fit(photo, model, backend=backend, size=options.size, upscale=options.upscale,
-                                         maps=options.maps, detector=options.landmarks, skin=skin, progress=progress,
-                                         camera=photo_camera(photo, options.focal, options.principal_point),
-                                         fitter=predictor or fit)
-    timings = dict(asset.metadata["timings_s"])
-    files: list[str] = []
-    with StagedOutput(output, replace=True) as stage:
-        if progress is not None:
-            progress("export")
-        t = time.perf_counter()
-        write_asset_files(asset, stage.staging_dir)
-        if skin is not None:
-            stage.path("skin_mask.png").write_bytes(png_bytes(skin_mask_image(skin)))
-        carried = [m for m in asset.maps if m != "displacement" or options.subdiv > 0]  # DISPLACEMENT_BAKE_RULE
-        scene = asset.select(options.parts)
-        for fmt in options.formats:
-            export_asset(scene, stage.path(f"face.{fmt}"), format=fmt, level=options.subdiv, maps=carried)
-        timings["export"] = time.perf_counter() - t
-        if options.preview:
+    with locked_output(output):  # a second run into the same folder is refused now, not after the fit
+        start = time.perf_counter()
+        backend = BACKENDS[options.backend](options.weights) if options.backend == "diffusion" else options.backend  # weights checked first
+        model, predictor = loaded_resources(options.model, options.regressor, options.refine, options.landmarks)
+        photo = load_photo(photo_path, max_side=options.max_side)
+        try:  # the skin mask needs MediaPipe's mesh; without it the pipeline builds one from the fit's landmarks
+            skin = skin_mask(photo.image, source=str(photo_path))
+        except NoFaceError:
+            skin = None
+        asset, result = reconstruct_with_fit(photo, model, backend=backend, size=options.size, upscale=options.upscale,
+                                             maps=options.maps, detector=options.landmarks, skin=skin, progress=progress,
+                                             camera=photo_camera(photo, options.focal, options.principal_point),
+                                             fitter=predictor or fit)
+        timings = dict(asset.metadata["timings_s"])
+        files: list[str] = []
+        with StagedOutput(output, replace=True) as stage:
             if progress is not None:
-                progress("preview")
+                progress("export")
             t = time.perf_counter()
-            stage.path("preview.png").write_bytes(png_bytes(relit_preview(photo.image, asset, result)))
-            timings["preview"] = time.perf_counter() - t
-        timings["total"] = time.perf_counter() - start
-        record = result.to_dict()
-        record["timings_s"] = {**record["timings_s"], "stages": timings}
-        record["texture_report"] = asset.metadata.get("texture_report", {})
-        record["parts"] = asset.metadata.get("parts", {})
-        stage.path("fit.json").write_text(json.dumps(record, indent=1))
-        files = sorted(p.name for p in stage.staging_dir.iterdir())
-    return JobRecord(photo=str(photo_path), output=str(output), landmark_rms_px=float(result.landmark_rms_px),
-                     landmark_rms_percent_iod=float(result.landmark_rms_percent_iod),
-                     timings=timings, files=files, notes=list(result.info.get("notes", [])),
-                     maps=list(asset.maps), map_size=int(next(iter(asset.maps.values())).shape[0]))
+            write_asset_files(asset, stage.staging_dir)
+            if skin is not None:
+                stage.path("skin_mask.png").write_bytes(png_bytes(skin_mask_image(skin)))
+            carried = [m for m in asset.maps if m != "displacement" or options.subdiv > 0]  # DISPLACEMENT_BAKE_RULE
+            scene = asset.select(options.parts)
+            for fmt in options.formats:
+                export_asset(scene, stage.path(f"face.{fmt}"), format=fmt, level=options.subdiv, maps=carried)
+            timings["export"] = time.perf_counter() - t
+            if options.preview:
+                if progress is not None:
+                    progress("preview")
+                t = time.perf_counter()
+                stage.path("preview.png").write_bytes(png_bytes(relit_preview(photo.image, asset, result)))
+                timings["preview"] = time.perf_counter() - t
+            timings["total"] = time.perf_counter() - start
+            record = result.to_dict()
+            record["timings_s"] = {**record["timings_s"], "stages": timings}
+            record["texture_report"] = asset.metadata.get("texture_report", {})
+            record["parts"] = asset.metadata.get("parts", {})
+            stage.path("fit.json").write_text(json.dumps(record, indent=1))
+            files = sorted(p.name for p in stage.staging_dir.iterdir())
+        return JobRecord(photo=str(photo_path), output=str(output), landmark_rms_px=float(result.landmark_rms_px),
+                         landmark_rms_percent_iod=float(result.landmark_rms_percent_iod),
+                         timings=timings, files=files, notes=list(result.info.get("notes", [])),
+                         maps=list(asset.maps), map_size=int(next(iter(asset.maps.values())).shape[0]))

@@ -1,63 +1,86 @@
-"""Writing results so that nothing half-written is ever left behind.
+"""Writing results so that nothing half-written is ever left behind, and nothing of the user's lost.
 
 :class:`StagedOutput` collects all the files of one run in a hidden folder next to the output
 folder and moves them in only when the run succeeded; :func:`atomic_write_bytes` and
-:func:`atomic_write_text` replace a single file atomically.
+:func:`atomic_write_text` replace a single file atomically; :func:`locked_output` holds the
+output location's lock (:mod:`facegeo.output_lock`) for a whole run.
 
-Guarantees (POSIX; the temporary folder and the target are on the same file system):
+Guarantees (POSIX; the staging folder and the output folder on the same file system):
 
-* on success every staged file appears in the output folder under its final name, each one
-  atomically (``os.replace``): a reader sees the old file or the new one, never a partial one;
-  when the output folder did not exist, the whole staged folder is renamed into place at once;
-* on an exception (including KeyboardInterrupt) the staged files are deleted and the output
-  folder is left exactly as it was: if it did not exist before, it does not exist afterwards
-  (nor do parent folders created for it).
-
-* ``StagedOutput(out_dir, replace=True)`` (what the commands use for their output folder):
-  ``out_dir`` ends up holding exactly this run's files. An existing ``out_dir`` must be empty or
-  an earlier facegeo output (it holds one of :data:`OUTPUT_MARKERS`); it is swapped out by two
-  renames and deleted after the commit. Any other non-empty folder is refused
-  (:class:`InputError`), so a mistyped ``-o ~`` can never delete a user's files.
+* **new output folder**: on success the whole staged folder is renamed into place at once;
+* **existing output folder**: on success every staged file is moved in under its final name by
+  ``os.replace``, so a reader sees the old file or the new one, never a partial one. The set of
+  files changes during a commit of a few milliseconds, which is journalled: before the first
+  move, the list of moves is written (fsync) into the staging folder, and every file it replaces
+  or removes is kept there (a hard link) until the last move is done. An exception during the
+  commit (a signal, a disk error) rolls every move back at once; a run *killed* during it
+  (SIGKILL, power loss) leaves the folder mixed until the next facegeo run into the same place,
+  which rolls it back from the journal before anything else (:func:`remove_stale_temporaries`).
+  Either way the folder ends up as it was before the run or as the run left it, never between;
+* **on an exception** before the commit (including KeyboardInterrupt) the staged files are
+  deleted and the output folder is left exactly as it was: if it did not exist before, it does
+  not exist afterwards (nor do parent folders created for it);
+* **re-runs**, ``StagedOutput(out_dir, replace=True)`` (what the commands use for their output
+  folder): the run writes the manifest :data:`MANIFEST` (the list of its files) last. A re-run
+  into an earlier output replaces the files it writes again, removes the files of the earlier
+  run (its manifest) that it does not write, and keeps every other file and folder untouched
+  (the user's notes, a folder of the user's). An earlier output without a manifest (written
+  before facegeo had one) loses only the files the new run writes again. An existing
+  ``out_dir`` must be empty or an earlier facegeo output (it holds one of
+  :data:`OUTPUT_MARKERS`); any other non-empty folder is refused (:class:`InputError`);
+* **one run at a time**: ``replace=True`` (or ``lock=True``) holds the output folder's
+  :class:`~facegeo.output_lock.OutputLock` from entry to exit (re-entrant: a job that holds it
+  through :func:`locked_output` from its start keeps it); a second run into the same place is
+  refused at once with an :class:`InputError` naming the other run's process;
 * before any moving, every destination is checked (an existing folder where a file goes is
-  refused), so a multi-file output is all or nothing; if moving into an *existing* folder in
-  merge mode fails half-way (a disk error while committing), the files already moved stay and
-  the rest are discarded; each file is still whole;
+  refused), so a multi-file output is all or nothing;
 * a write that fails for lack of room (ENOSPC, EFBIG, EDQUOT) or on a read-only or failing file
   system becomes one :class:`OutputError` naming the file, after the staged files are removed.
 
 Temporary names are ``.facegeo-tmp-<pid>-h<host>-<random>`` (``<host>``: a hash of the host
 name). A process killed outright (SIGKILL, power loss) leaves its ``.facegeo-tmp-*`` folder or
-file behind; the next :class:`StagedOutput` or :func:`atomic_write_bytes` into the same place
-removes those of this host whose process no longer exists (:func:`remove_stale_temporaries`);
-those of other hosts (batch workers sharing a file system) are left to their own host. No file in the output folder is ever
-partial. The ``facegeo`` command turns SIGTERM and SIGINT into an exception, so the clean-up
-above runs for them too.
+file (and its lock file) behind; the next :class:`StagedOutput`, :func:`locked_output` or
+:func:`atomic_write_bytes` into the same place removes those of this host whose process no
+longer exists (:func:`remove_stale_temporaries`), after rolling back an interrupted commit;
+those of other hosts (batch workers sharing a file system) are left to their own host. No file
+in the output folder is ever partial. The ``facegeo`` command turns SIGTERM and SIGINT into an
+exception, so the clean-up above runs for them too.
 """
 
 from __future__ import annotations
 
+import contextlib
 import errno
 import hashlib
+import json
 import os
 import re
 import secrets
 import shutil
 import socket
 import stat
+from collections.abc import Iterator
 from pathlib import Path
 from types import TracebackType
 from typing import Callable, Iterable
 
 from facegeo.errors import InputError, OutputError
+from facegeo.output_lock import LOCK_PREFIX, OutputLock, make_parents, remove_created_parents, remove_stale_lock_file
 
-__all__ = ["StagedOutput", "atomic_write_bytes", "atomic_write_text", "check_output_location",
-           "remove_stale_temporaries", "remove_other_temporaries", "TEMP_PREFIX", "OUTPUT_MARKERS", "WRITE_FAULTS"]
+__all__ = ["StagedOutput", "locked_output", "atomic_write_bytes", "atomic_write_text", "check_output_location",
+           "remove_stale_temporaries", "remove_other_temporaries", "TEMP_PREFIX", "MANIFEST", "OUTPUT_MARKERS",
+           "WRITE_FAULTS"]
 
 #: Name prefix of the hidden staging folders (and of atomic-write temporary files).
 TEMP_PREFIX = ".facegeo-tmp-"
+#: The manifest a ``replace=True`` run writes into its output folder: the files it wrote, which a
+#: re-run may replace or remove (JSON: ``{"files": [relative paths]}``).
+MANIFEST = ".facegeo-output.json"
 #: Files that mark a folder as an earlier facegeo output (``fit``/``reconstruct``, ``unwrap``,
-#: an asset folder), which ``StagedOutput(..., replace=True)`` may replace as a whole.
-OUTPUT_MARKERS = ("fit.json", "unwrap.json", "asset.json")
+#: an asset folder, any run with a manifest), into which ``StagedOutput(..., replace=True)`` may write.
+OUTPUT_MARKERS = ("fit.json", "unwrap.json", "asset.json", MANIFEST)
+#: Inside a staging folder: the journal of a commit into an existing folder (plan.json, old/).
+_JOURNAL = TEMP_PREFIX + "commit"
 _OWNER = re.compile(re.escape(TEMP_PREFIX) + r"(\d+)-(?:h([0-9a-f]{8})-)?")
 #: This host in temporary names: processes of other hosts writing to a shared file system
 #: cannot be checked by process id, so their temporaries are never taken for stale ones.
@@ -67,12 +90,30 @@ WRITE_FAULTS = {errno.ENOSPC: "no space left on the device", errno.EFBIG: "file 
                 errno.EDQUOT: "disk quota exceeded", errno.EROFS: "read-only file system", errno.EIO: "input/output error"}
 
 
+@contextlib.contextmanager
+def locked_output(path: str | os.PathLike[str], field: str = "output folder") -> Iterator[OutputLock]:
+    """Hold the lock of the output location ``path`` (a folder, or with ``field="output file"`` a
+    file) for a whole run, so that a second run into it is refused at once, before any work.
+
+    On entry, what killed runs left beside ``path`` is cleaned up first (an interrupted commit is
+    rolled back: :func:`remove_stale_temporaries`). Missing parent folders are created for the
+    lock file and removed on exit when still empty.
+
+    Raises:
+        InputError: another run holds the lock (naming ``path`` and that run's process id), or
+            the lock file cannot be created.
+    """
+    with OutputLock(path, field) as lock:
+        remove_stale_temporaries(lock.file.parent)
+        yield lock
+
+
 class StagedOutput:
     """Context manager that stages files and moves them into ``out_dir`` only on success.
 
     Usage::
 
-        with StagedOutput(out_dir) as stage:
+        with StagedOutput(out_dir, replace=True) as stage:
             np.save(stage.path("coeffs.npy"), coeffs)
             stage.path("fit.json").write_text(text)
 
@@ -81,24 +122,28 @@ class StagedOutput:
     folder at exit is moved, so writers that add side files (a ``.gltf`` with its ``.bin``) are
     covered too.
 
-    ``replace``: False (merge: files in ``out_dir`` that the run did not write are kept,
-    same-named ones are replaced) or True: ``out_dir`` then holds exactly this run's files
-    afterwards, and an existing non-empty ``out_dir`` without one of :data:`OUTPUT_MARKERS`
-    (i.e. not an earlier facegeo output) is refused.
+    ``replace``: False (merge: same-named files in ``out_dir`` are replaced, all others kept) or
+    True (a run's output folder: the earlier run's files that this run does not write are removed
+    as well, and the manifest :data:`MANIFEST` is written; other files are kept; an existing
+    non-empty ``out_dir`` without one of :data:`OUTPUT_MARKERS` is refused). ``lock``: hold the
+    folder's :class:`~facegeo.output_lock.OutputLock` while staging and committing (default:
+    ``replace``). See the module doc for the guarantees.
 
     Raises (on entry):
         InputError: ``out_dir`` (or one of its parents) exists and is not a directory, a name in
-            it is too long, its parent folder is not writable, or (``replace``) it is a non-empty
-            folder that is not an earlier output.
+            it is too long, its parent folder is not writable, (``replace``) it is a non-empty
+            folder that is not an earlier output, or (``lock``) another run writes into it.
         OutputError (at exit): a write failed for want of room or on a failing file system.
     """
 
-    def __init__(self, out_dir: str | os.PathLike[str], *, replace: bool = False):
+    def __init__(self, out_dir: str | os.PathLike[str], *, replace: bool = False, lock: bool | None = None):
         self.out_dir = Path(out_dir)
         self.replace = replace
+        self.lock = replace if lock is None else lock
         self._target: Path | None = None  # out_dir with symlinked parents resolved
         self._tmp: Path | None = None
         self._created_parents: list[Path] = []
+        self._lock: OutputLock | None = None
 
     # -- context protocol --------------------------------------------------------------------
 
@@ -107,12 +152,28 @@ class StagedOutput:
             raise RuntimeError("StagedOutput is not re-entrant")
         source = str(self.out_dir)
         check_output_location(self.out_dir, folder=True, replace=self.replace)
+        cleaned = False
+        if self.lock:
+            self._lock = OutputLock(self.out_dir, "output folder")
+            cleaned = self._lock.held  # by locked_output, which took the lock first
+            self._lock.acquire()
+        try:
+            self._stage(source, cleaned)
+        except BaseException:
+            self._release()
+            raise
+        return self
+
+    def _stage(self, source: str, cleaned: bool) -> None:
         target = self.out_dir.resolve()
         parent = target.parent
-        self._created_parents = _make_parents(parent, source)
-        remove_stale_temporaries(parent)
+        self._created_parents = make_parents(parent, source)
+        if not cleaned:
+            remove_stale_temporaries(parent)
         if target.is_dir():
             remove_stale_temporaries(target)
+        if self.lock:  # under the lock: the folder as the earlier run left it
+            check_output_location(self.out_dir, folder=True, replace=self.replace)
         try:
             if not os.access(parent, os.W_OK | os.X_OK):
                 raise PermissionError(errno.EACCES, "permission denied", str(parent))
@@ -122,7 +183,6 @@ class StagedOutput:
             raise InputError(source, "output folder", "a location where files can be created",
                              f"{parent} is not writable ({exc.strerror or exc})") from None
         self._target = target
-        return self
 
     def __exit__(self, exc_type: type[BaseException] | None, exc: BaseException | None,
                  tb: TracebackType | None) -> bool:
@@ -143,6 +203,7 @@ class StagedOutput:
                     raise fault from None
         finally:
             self._tmp = None
+            self._release()
         return False  # never swallow the exception
 
     # -- API -------------------------------------------------------------------------------
@@ -157,7 +218,8 @@ class StagedOutput:
     def path(self, name: str | os.PathLike[str]) -> Path:
         """Where to write the output file ``name`` (relative, no ``..``); parents are created."""
         rel = Path(name)
-        if rel.is_absolute() or not rel.parts or any(part in ("..", ".") for part in rel.parts):
+        if (rel.is_absolute() or not rel.parts or any(part in ("..", ".") for part in rel.parts)
+                or rel.parts[0] == _JOURNAL):
             raise ValueError(f"staged file name must be a plain relative path, got {str(name)!r}")
         path = self.staging_dir / rel
         path.parent.mkdir(parents=True, exist_ok=True)
@@ -168,21 +230,18 @@ class StagedOutput:
     def _commit(self) -> None:
         assert self._tmp is not None and self._target is not None
         tmp, target = self._tmp, self._target
-        files = sorted(p for p in tmp.rglob("*") if p.is_file() and not p.is_symlink())
+        if self.replace:
+            with contextlib.suppress(FileNotFoundError):
+                (tmp / MANIFEST).unlink()  # a copied manifest (a batch's files sent back): written anew below
+        files = sorted(p.relative_to(tmp).as_posix() for p in tmp.rglob("*") if p.is_file() and not p.is_symlink())
         for f in files:
-            _fsync(f)
-        if self.replace and target.is_dir():
-            check_output_location(self.out_dir, folder=True, replace=self.replace)  # still an earlier output?
-            old = target.parent / _temp_name()
-            os.rename(target, old)  # from here on the old output is a temporary until deleted
-            try:
-                os.rename(tmp, target)
-            except BaseException:
-                os.rename(old, target)
-                raise
-            _fsync(target.parent)
-            shutil.rmtree(old, ignore_errors=True)
-            return
+            _fsync(tmp / f)
+        earlier: list[str] = []
+        if self.replace:
+            earlier = _manifest_files(target) if target.is_dir() else []
+            (tmp / MANIFEST).write_text(_manifest_text(files))
+            _fsync(tmp / MANIFEST)
+            files.append(MANIFEST)  # moved last: a folder whose manifest is new holds the whole run
         if not target.exists():
             try:
                 os.rename(tmp, target)  # the whole folder at once
@@ -194,31 +253,34 @@ class StagedOutput:
         if not target.is_dir():
             raise InputError(str(self.out_dir), "output folder", "a directory",
                              "an existing file (created while the run was going on)")
-        moves = [(f, target / f.relative_to(tmp)) for f in files]
-        for _, dest in moves:  # all checked before any is moved: all or nothing
+        if self.replace:
+            check_output_location(self.out_dir, folder=True, replace=self.replace)  # still an earlier output?
+        written = set(files)
+        removed = [rel for rel in earlier if rel not in written and _inside(target, rel)
+                   and (os.path.islink(target / rel) or (target / rel).is_file())]
+        for rel in files:  # all checked before any is moved: all or nothing
+            dest = target / rel
             if dest.is_dir() and not dest.is_symlink():
                 raise InputError(str(dest), "output file", "a file path", "an existing directory")
-        touched_dirs = {target}
-        for f, dest in moves:
-            dest.parent.mkdir(parents=True, exist_ok=True)
-            os.replace(f, dest)
-            touched_dirs.add(dest.parent)
-        for d in touched_dirs:
-            _fsync(d)
+            for folder in dest.relative_to(target).parents:
+                if folder != Path(".") and (target / folder).exists() and not (target / folder).is_dir():
+                    raise InputError(str(target / folder), "output folder", "a directory", "an existing file")
+        _move_in(tmp, target, files, removed)
         shutil.rmtree(tmp, ignore_errors=True)
 
     def _rollback(self) -> None:
         if self._tmp is not None:
-            shutil.rmtree(self._tmp, ignore_errors=True)
+            _roll_back(self._tmp)  # moves already made (an interrupted commit) are undone first
         self._remove_created_parents()
 
     def _remove_created_parents(self) -> None:
-        for d in self._created_parents:  # deepest first
-            try:
-                d.rmdir()
-            except OSError:
-                break
+        remove_created_parents(self._created_parents)
         self._created_parents = []
+
+    def _release(self) -> None:
+        if self._lock is not None:
+            self._lock.release()
+            self._lock = None
 
 
 def check_output_location(path: str | os.PathLike[str], *, folder: bool, replace: bool = False,
@@ -258,10 +320,10 @@ def check_output_location(path: str | os.PathLike[str], *, folder: bool, replace
         if not folder and target.is_dir():
             raise InputError(source, field, "a file path", "an existing directory")
         if folder and replace and target.resolve() in (Path.cwd(), *Path.cwd().parents):
-            raise InputError(source, field, "a folder other than the current one and its parents (it is replaced as a whole)",
+            raise InputError(source, field, "a folder other than the current one and its parents (facegeo replaces files in it)",
                              f"{target.resolve()}")
         if folder and replace:
-            entries = sorted(e.name for e in target.iterdir() if not e.name.startswith(TEMP_PREFIX))
+            entries = sorted(e.name for e in target.iterdir() if not e.name.startswith((TEMP_PREFIX, LOCK_PREFIX)))
             if entries and not any((target / m).is_file() for m in OUTPUT_MARKERS):
                 raise InputError(source, field, f"a new or empty folder, or an earlier facegeo output (with {' or '.join(OUTPUT_MARKERS)})",
                                  f"a folder with other files ({', '.join(entries[:3])}{', ...' if len(entries) > 3 else ''})")
@@ -271,18 +333,25 @@ def check_output_location(path: str | os.PathLike[str], *, folder: bool, replace
 
 def _remove_temporaries(folder: str | os.PathLike[str], doomed: Callable[[str], bool]) -> list[Path]:
     """Delete the temporaries (names starting with :data:`TEMP_PREFIX`) in ``folder`` for whose
-    name ``doomed`` is true; returns what was removed (what cannot be removed is left)."""
+    name ``doomed`` is true, and the lock files no process holds; returns what was removed (what
+    cannot be removed is left). A staging folder whose commit was interrupted is rolled back into
+    its output folder first, under that folder's lock (left for later while another run holds it)."""
     removed: list[Path] = []
     try:
-        entries = list(Path(folder).iterdir())
+        entries = list(Path(folder).resolve().iterdir())
     except OSError:
         return removed
     for entry in entries:
+        if entry.name.startswith(LOCK_PREFIX):
+            if remove_stale_lock_file(entry):
+                removed.append(entry)
+            continue
         if not entry.name.startswith(TEMP_PREFIX) or not doomed(entry.name):
             continue
         try:
             if entry.is_dir() and not entry.is_symlink():
-                shutil.rmtree(entry)
+                if not _recover(entry):
+                    continue
             else:
                 entry.unlink()
         except OSError:
@@ -298,7 +367,8 @@ def _stale(name: str) -> bool:
 
 def remove_stale_temporaries(folder: str | os.PathLike[str]) -> list[Path]:
     """Delete the ``.facegeo-tmp-<pid>-*`` folders and files in ``folder`` whose process no
-    longer exists on this host (left by a run that was killed outright); returns what was
+    longer exists on this host (left by a run that was killed outright), after rolling back a
+    commit such a run left half done, and the lock files no process holds; returns what was
     removed. Names without a process id, those of live processes and those of other hosts are
     left alone."""
     return _remove_temporaries(folder, _stale)
@@ -306,8 +376,9 @@ def remove_stale_temporaries(folder: str | os.PathLike[str]) -> list[Path]:
 
 def remove_other_temporaries(folder: str | os.PathLike[str]) -> list[Path]:
     """Delete every temporary in ``folder`` but this process's own, whatever host or process
-    wrote it; returns what was removed. Only for a folder in which nothing else can be writing
-    (a batch's output once none of its jobs runs: what is left there was left by dead workers)."""
+    wrote it (interrupted commits rolled back), and the lock files no process holds; returns what
+    was removed. Only for a folder in which nothing else can be writing (a batch's output once
+    none of its jobs runs: what is left there was left by dead workers)."""
     own = f"{TEMP_PREFIX}{os.getpid()}-"
     return _remove_temporaries(folder, lambda name: not name.startswith(own))
 
@@ -374,6 +445,144 @@ def atomic_write_text(path: str | os.PathLike[str], text: str, encoding: str = "
     return atomic_write_bytes(path, text.encode(encoding))
 
 
+# -- the commit into an existing folder, and its roll-back ------------------------------------
+
+
+def _manifest_text(files: list[str]) -> str:
+    return json.dumps({"about": "the files the last facegeo run wrote into this folder; a re-run replaces or removes "
+                       "these and keeps every other file", "files": files}, indent=1) + "\n"
+
+
+def _manifest_files(folder: Path) -> list[str]:
+    """The files an earlier run listed in ``folder``'s manifest ([] without a readable one)."""
+    try:
+        files = json.loads((folder / MANIFEST).read_text(encoding="utf-8")).get("files", [])
+    except (OSError, ValueError, AttributeError):
+        return []
+    return [f for f in files if isinstance(f, str)] if isinstance(files, list) else []
+
+
+def _inside(folder: Path, rel: str) -> bool:
+    """Whether ``rel`` names a file inside ``folder`` itself: relative, no ``..``, no temporary or
+    lock name, no symlinked folder on the way (a manifest is a file the user can edit)."""
+    path = Path(rel)
+    if (not rel or path.is_absolute() or any(p in ("", ".", "..") for p in path.parts)
+            or path.parts[0].startswith((TEMP_PREFIX, LOCK_PREFIX))):
+        return False
+    return (folder / path).parent.resolve() == folder.resolve() / path.parent
+
+
+def _move_in(tmp: Path, target: Path, written: list[str], removed: list[str]) -> None:
+    """Move the staged files ``written`` from ``tmp`` into the existing folder ``target`` and
+    remove the earlier run's files ``removed`` from it, journalled in ``tmp/_JOURNAL``: the plan
+    first, the replaced and removed files kept (hard links) until the end. Any exception rolls
+    every move back (:func:`_roll_back`); the plan is deleted last, the commit point."""
+    journal = tmp / _JOURNAL
+    needed = sorted({d for rel in written for d in Path(rel).parents if d != Path(".")}, key=lambda d: len(d.parts))
+    created = [d.as_posix() for d in needed if not (target / d).exists()]
+    journal.mkdir()
+    part = journal / "plan.part"
+    part.write_text(json.dumps({"target": target.name, "written": written, "removed": removed, "created": created}))
+    _fsync(part)
+    os.rename(part, journal / "plan.json")
+    _fsync(journal)
+    old = journal / "old"
+    touched = {target}
+    try:
+        for d in created:
+            (target / d).mkdir(exist_ok=True)
+        for rel in written:
+            dest = target / rel
+            if os.path.lexists(dest):
+                _keep(dest, old / rel, link=True)
+            os.replace(tmp / rel, dest)
+            touched.add(dest.parent)
+        for rel in removed:
+            dest = target / rel
+            _keep(dest, old / rel, link=False)
+            touched.add(dest.parent)
+            for folder in dest.relative_to(target).parents:  # folders the earlier run's files leave empty
+                if folder == Path("."):
+                    break
+                try:
+                    (target / folder).rmdir()
+                except OSError:
+                    break
+        for d in touched:
+            _fsync(d)
+        os.unlink(journal / "plan.json")  # the commit point
+        _fsync(journal)
+    except BaseException:
+        _roll_back(tmp)
+        raise
+
+
+def _keep(path: Path, backup: Path, link: bool) -> None:
+    """Keep ``path`` as ``backup`` for a roll-back: a hard link (``link``: ``path`` stays, to be
+    replaced) or a move; a file system without hard links gets a move."""
+    backup.parent.mkdir(parents=True, exist_ok=True)
+    if link:
+        try:
+            os.link(path, backup, follow_symlinks=False)
+            return
+        except OSError:
+            pass
+    os.rename(path, backup)
+
+
+def _roll_back(tmp: Path) -> bool:
+    """Undo what a commit from the staging folder ``tmp`` did to its output folder (nothing when it
+    did not start or was completed) and delete ``tmp``; False (``tmp`` left) when its journal
+    cannot be read."""
+    plan_file = tmp / _JOURNAL / "plan.json"
+    if plan_file.exists():
+        try:
+            plan = json.loads(plan_file.read_text(encoding="utf-8"))
+            target = tmp.parent / plan["target"]
+            written, removed, created = plan["written"], plan["removed"], plan["created"]
+        except (OSError, ValueError, KeyError, TypeError):
+            return False
+        old = tmp / _JOURNAL / "old"
+        for rel in removed:
+            if _inside(target, rel) and os.path.lexists(old / rel) and not os.path.lexists(target / rel):
+                (target / rel).parent.mkdir(parents=True, exist_ok=True)
+                os.rename(old / rel, target / rel)
+        for rel in written:
+            if not _inside(target, rel):
+                continue
+            dest = target / rel
+            if os.path.lexists(old / rel):  # it replaced (or was about to replace) an earlier file
+                os.replace(old / rel, dest)
+            elif not os.path.lexists(tmp / rel) and os.path.lexists(dest):  # moved in, nothing before
+                dest.unlink()
+        for d in reversed(created):
+            with contextlib.suppress(OSError):
+                (target / d).rmdir()
+        _fsync(target)
+    shutil.rmtree(tmp, ignore_errors=True)
+    return True
+
+
+def _recover(staging: Path) -> bool:
+    """Remove a dead run's staging folder; one with an interrupted commit is rolled back first,
+    holding its output folder's lock (False, left as it is, while another run holds that lock)."""
+    plan_file = staging / _JOURNAL / "plan.json"
+    if not plan_file.exists():
+        shutil.rmtree(staging)
+        return True
+    try:
+        name = json.loads(plan_file.read_text(encoding="utf-8"))["target"]
+    except (OSError, ValueError, KeyError, TypeError):
+        return False
+    lock = OutputLock(staging.parent / name)
+    if not lock.try_acquire():
+        return False
+    try:
+        return _roll_back(staging)
+    finally:
+        lock.release()
+
+
 # -- helpers ---------------------------------------------------------------------------------
 
 
@@ -404,36 +613,6 @@ def _process_alive(pid: int) -> bool:
     except OSError:
         return True  # exists, owned by someone else
     return True
-
-
-def _make_parents(folder: Path, source: str) -> list[Path]:
-    """Create ``folder`` and missing ancestors; return the ones created, deepest first."""
-    missing: list[Path] = []
-    d = folder
-    while not d.exists():
-        missing.append(d)
-        if d.parent == d:
-            break
-        d = d.parent
-    if d.exists() and not d.is_dir():
-        raise InputError(source, "output folder", "a directory",
-                         f"{d} (one of its parent folders) is a file")
-    created: list[Path] = []
-    for m in reversed(missing):
-        try:
-            m.mkdir()
-        except FileExistsError:
-            continue
-        except OSError as exc:
-            for c in reversed(created):
-                try:
-                    c.rmdir()
-                except OSError:
-                    break
-            raise InputError(source, "output folder", "a location where folders can be created",
-                             f"cannot create {m} ({exc.strerror or exc})") from None
-        created.append(m)
-    return list(reversed(created))
 
 
 def _temp_name() -> str:

@@ -26,10 +26,11 @@ from facegeo.errors import InputError
 from facegeo.eval.realy import evaluate
 from realy_synthetic import make_dataset  # tools/ (pytest pythonpath)
 from facegeo.jobs import FIT_FILES, FitOptions, JobRecord, fit_into_folder
-from facegeo.staged_output import TEMP_PREFIX, StagedOutput
+from facegeo.staged_output import MANIFEST, TEMP_PREFIX, StagedOutput
 
 PHOTO = Path(__file__).resolve().parents[1] / "assets" / "photos" / "astronaut.png"
 FAST = FitOptions(photometric=False, landmarks="mediapipe")  # the quickest fit: no dlib to load per worker
+ITEM_FILES = sorted([*FIT_FILES, MANIFEST])  # an item folder: the fit's files and the run's manifest
 
 
 @pytest.fixture(scope="module")
@@ -160,7 +161,7 @@ def test_cli_batch_equals_single_runs(client, photos: Path, tmp_path: Path, caps
         if row["status"] == "done":
             assert 0 < float(row["landmark_rms_percent_iod"]) < 8 and float(row["seconds_total"]) > 0
             assert float(row["peak_memory_mib"]) > 50
-            assert sorted(p.name for p in (out / items[name]["folder"]).iterdir()) == sorted(FIT_FILES)
+            assert sorted(p.name for p in (out / items[name]["folder"]).iterdir()) == ITEM_FILES
     assert not (out / "text").exists() and _no_temporaries(out)
     # the same outputs as single runs, item by item (each photo fitted in this process)
     for name in ("rotated.png", "sub/flipped.png"):  # all of them: test_every_batch_item_equals_its_single_run
@@ -180,7 +181,7 @@ def test_every_batch_item_equals_its_single_run(client, photos: Path, tmp_path: 
 def test_files_sent_back_to_the_client(client, photos: Path, tmp_path: Path) -> None:
     records = fit_many([photos / "scaled.png"], tmp_path / "out", client, FAST, files="client")
     folder = Path(records[0].output)
-    assert records[0].status == "done" and sorted(p.name for p in folder.iterdir()) == sorted(FIT_FILES)
+    assert records[0].status == "done" and sorted(p.name for p in folder.iterdir()) == ITEM_FILES
     assert _fit_json(folder)["landmark_rms_px"] == pytest.approx(records[0].landmark_rms_px)
     assert records[0].job is not None and records[0].job.output == str(folder)
 
@@ -228,7 +229,8 @@ def test_worker_killed_mid_item_is_retried_elsewhere(own_client, tmp_path: Path)
     assert killed and [r.status for r in records] == ["done"] * 3
     runs = _started(marks, "b")
     assert len(runs) == 2 and killed[0] in runs  # run again, by another process
-    assert records[1].worker and all(sorted(p.name for p in (out / n).iterdir()) == ["fit.json", "mesh.obj"] for n in "abc")
+    assert records[1].worker and all(sorted(p.name for p in (out / n).iterdir()) == [MANIFEST, "fit.json", "mesh.obj"]
+                                     for n in "abc")
     assert _no_temporaries(out)  # the dead worker's staging folder is gone
 
 
@@ -277,6 +279,53 @@ def test_interrupted_batch_resumes_with_only_what_was_missing(client, tmp_path: 
     assert {Path(r.photo).stem for r in records if r.status == "done"} == {p.stem for p in inputs} - complete
     assert {p.stem for p in inputs if _started(marks, p.stem)} == {p.stem for p in inputs} - complete
     assert [r["status"] for r in _rows(out / SUMMARY_FILE)] == [r.status for r in records]
+
+
+#: A batch of one photo into OUT on a one-worker cluster of its own, whose job holds its item
+#: folder's lock and waits for FLAG to go.
+HELD_BATCH = """
+import pathlib, sys, time
+from facegeo.batch import fit_many
+from facegeo.jobs import JobRecord
+from facegeo.staged_output import StagedOutput, locked_output
+out, flag, photo = sys.argv[1:4]
+def job(photo, output, options):
+    with locked_output(output):
+        marker = pathlib.Path(flag)
+        marker.write_text("inside")
+        while marker.exists():
+            time.sleep(0.05)
+        with StagedOutput(output, replace=True) as stage:
+            stage.path("fit.json").write_text("{}")
+    return JobRecord(photo=photo, output=output, landmark_rms_px=1.0, landmark_rms_percent_iod=2.0, timings={}, files=["fit.json"])
+records = fit_many([photo], out, workers=1, job=job)
+sys.exit(0 if [r.status for r in records] == ["done"] else 1)
+"""
+
+
+def test_a_second_batch_or_a_run_into_an_item_is_refused_at_once(client, tmp_path: Path) -> None:
+    out, flag = tmp_path / "out", tmp_path / "flag"
+    batch = subprocess.Popen([sys.executable, "-c", HELD_BATCH, str(out), str(flag), str(tmp_path / "a.png")],
+                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        deadline = time.monotonic() + 180
+        while not flag.exists() and batch.poll() is None and time.monotonic() < deadline:
+            time.sleep(0.05)
+        assert flag.exists(), batch.communicate()[1]
+        start = time.monotonic()
+        with pytest.raises(InputError, match=rf"no other facegeo run .* \(process {batch.pid}\)"):
+            fit_many([tmp_path / "b.png"], out, client, job=_quick_job(tmp_path))
+        with pytest.raises(InputError, match=r"out/a: output folder: expected no other facegeo run"):
+            fit_into_folder(PHOTO, out / "a", FAST)  # the item the batch's worker is writing
+        assert time.monotonic() - start < 10  # refused at once, nothing run
+        flag.unlink()
+        assert batch.wait(180) == 0, batch.communicate()[1]
+    finally:
+        if batch.poll() is None:  # pragma: no cover
+            batch.kill()
+        batch.communicate()
+    assert sorted(p.name for p in out.iterdir()) == sorted(["a", FAILURES_FILE, ITEMS_FILE, SUMMARY_FILE])
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["out"]  # no lock file left beside OUT
 
 
 def test_photo_that_kills_every_worker_fails_after_bounded_tries(own_client, photos: Path, tmp_path: Path) -> None:
@@ -339,7 +388,7 @@ def test_killed_worker_during_a_fit_is_retried_elsewhere(own_client, photos: Pat
     runs = sorted(p.name for p in marks.iterdir() if p.name.startswith("rotated-"))
     assert len(runs) == 2 and f"rotated-{killed[0]}" in runs  # started again, in another process
     assert rotated.worker and _fit_json(Path(rotated.output))["landmark_rms_px"] == pytest.approx(rotated.landmark_rms_px)
-    assert sorted(p.name for p in Path(rotated.output).iterdir()) == sorted(FIT_FILES)
+    assert sorted(p.name for p in Path(rotated.output).iterdir()) == ITEM_FILES
     assert _no_temporaries(out)
 
 
@@ -359,7 +408,7 @@ def test_ctrl_c_on_the_command_then_resume(client, photos: Path, tmp_path: Path)
     assert proc.returncode == 130, err
     assert err.strip().splitlines()[-1].startswith("facegeo: interrupted (SIGINT)") and "--resume" in err
     complete = {n for n in ("scaled", "flipped", "quarter") if (out / n / "fit.json").is_file()}
-    assert complete and all(sorted(p.name for p in (out / n).iterdir()) == sorted(FIT_FILES) for n in complete)
+    assert complete and all(sorted(p.name for p in (out / n).iterdir()) == ITEM_FILES for n in complete)
     assert {p.name for p in out.iterdir() if p.is_dir()} == complete and _no_temporaries(out)  # nothing half-written
     assert main(["fit", *map(str, inputs), "-o", str(out), "--no-photometric", "--scheduler", client.scheduler.address]) == 2
     code = main(["fit", *map(str, inputs), "-o", str(out), "--no-photometric", "--resume", "--scheduler", client.scheduler.address])

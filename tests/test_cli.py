@@ -32,7 +32,7 @@ def test_fit_on_the_bundled_photo(tmp_path, capsys):
     out_dir = tmp_path / "astronaut"
     code, out, err = run(["fit", PHOTO, "-o", out_dir], capsys)
     assert code == 0, err
-    assert sorted(p.name for p in out_dir.iterdir()) == ["fit.json", "mesh.obj", "overlay.png"]
+    assert sorted(p.name for p in out_dir.iterdir()) == [".facegeo-output.json", "fit.json", "mesh.obj", "overlay.png"]
     result = json.loads((out_dir / "fit.json").read_text())
     # the bar: fitted-to-detected landmark RMS ≤ 3 % of the inter-ocular distance
     assert result["info"]["landmark_rms_percent_iod"] <= 3.0

@@ -32,7 +32,8 @@ from facegeo.fitting.checks import MAX_RMS_PERCENT_IOD, check_fit
 from facegeo.fitting import fit, fit_landmarks
 from facegeo.landmarks.scheme import inter_ocular_distance
 from facegeo.photo import Photo, load_photo
-from facegeo.staged_output import TEMP_PREFIX, StagedOutput
+from facegeo.output_lock import LOCK_PREFIX
+from facegeo.staged_output import MANIFEST, TEMP_PREFIX, StagedOutput
 from test_export_support import grid_mesh, synthetic_maps
 from test_shading import call, make_inputs
 
@@ -165,15 +166,205 @@ def test_rerun_into_an_earlier_output_leaves_exactly_one_run(tmp_path):
     with StagedOutput(out, replace=True) as stage:
         stage.path("fit.json").write_text("new")
         stage.path("mesh.obj").write_text("new")
-    assert sorted(p.name for p in out.rglob("*")) == ["fit.json", "mesh.obj"]
+    assert sorted(p.name for p in out.rglob("*")) == [MANIFEST, "fit.json", "mesh.obj"]
     assert (out / "fit.json").read_text() == "new"
     assert leftovers(tmp_path) == []
     # a failed run leaves the earlier output exactly as it was
     with pytest.raises(RuntimeError), StagedOutput(out, replace=True) as stage:
         stage.path("fit.json").write_text("broken")
         raise RuntimeError("stage failed")
-    assert sorted(p.name for p in out.rglob("*")) == ["fit.json", "mesh.obj"]
+    assert sorted(p.name for p in out.rglob("*")) == [MANIFEST, "fit.json", "mesh.obj"]
     assert (out / "fit.json").read_text() == "new" and leftovers(tmp_path) == []
+
+
+# -- re-runs and concurrent runs, with real processes --------------------------------------------
+
+#: ``facegeo ARGS...`` whose job waits, once it holds its output's lock, for FLAG to go: with
+#: ``at=photo`` before reading the photo, with ``at=overlay`` while its files are staged.
+PAUSED = """
+import pathlib, sys, time
+import facegeo.overlay, facegeo.photo
+from facegeo.cli import main
+at, flag = sys.argv[1], pathlib.Path(sys.argv[2])
+module, name = (facegeo.photo, "load_photo") if at == "photo" else (facegeo.overlay, "draw_overlay")
+real = getattr(module, name)
+def paused(*args, **kwargs):
+    flag.write_text("inside")
+    while flag.exists():
+        time.sleep(0.05)
+    return real(*args, **kwargs)
+setattr(module, name, paused)
+sys.exit(main(sys.argv[3:]))
+"""
+
+FIT = ["fit", PHOTO, "--landmarks", "mediapipe", "--no-photometric"]
+
+
+def _cli(*args: object, timeout: float = 300) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "-m", "facegeo.cli", *map(str, args)], capture_output=True, text=True,
+                          timeout=timeout)
+
+
+def _paused(at: str, flag: Path, *args: object) -> subprocess.Popen:
+    proc = subprocess.Popen([sys.executable, "-c", PAUSED, at, str(flag), *map(str, args)],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    deadline = time.monotonic() + 120
+    while not flag.exists() and proc.poll() is None and time.monotonic() < deadline:
+        time.sleep(0.05)
+    if not flag.exists():  # pragma: no cover - diagnostics
+        proc.kill()
+        raise AssertionError(proc.communicate()[1])
+    return proc
+
+
+def _files(folder: Path) -> dict[str, bytes]:
+    return {p.relative_to(folder).as_posix(): p.read_bytes() for p in sorted(folder.rglob("*")) if p.is_file()}
+
+
+def _stray(folder: Path) -> list[str]:
+    """Temporaries and lock files anywhere under ``folder``."""
+    return sorted(p.name for p in folder.rglob("*") if p.name.startswith((TEMP_PREFIX, LOCK_PREFIX)))
+
+
+def test_a_rerun_keeps_the_users_file(tmp_path, capsys):
+    out = tmp_path / "out"
+    code, _, err = run([*FIT, "-o", out], capsys)
+    assert code == 0, err
+    (out / "keep.txt").write_text("my notes")
+    (out / "overlay.png").unlink()  # the user removed one of facegeo's files
+    second = _cli(*FIT, "-o", out)
+    assert second.returncode == 0, second.stderr
+    assert (out / "keep.txt").read_text() == "my notes"
+    assert sorted(p.name for p in out.iterdir()) == [MANIFEST, "fit.json", "keep.txt", "mesh.obj", "overlay.png"]
+    assert json.loads((out / MANIFEST).read_text())["files"] == ["fit.json", "mesh.obj", "overlay.png"]
+    assert _stray(tmp_path) == []
+
+
+def test_a_second_run_into_the_same_folder_fails_at_once_naming_the_other(tmp_path, capsys, no_fit):
+    out, flag = tmp_path / "out", tmp_path / "flag"
+    with StagedOutput(out, replace=True) as stage:  # an earlier output
+        stage.path("fit.json").write_text("{}")
+    (out / "keep.txt").write_text("my notes")
+    before = _files(out)
+    running = _paused("photo", flag, *FIT, "-o", out)
+    try:
+        code, stdout, err = run(["fit", PHOTO, "-o", out], capsys)  # refused before it fits (no_fit)
+        assert code == 2 and stdout == ""
+        assert_one_line(err, str(out), f"process {running.pid}", "no other facegeo run")
+        assert _files(out) == before  # nothing written
+        flag.unlink()
+        assert running.wait(120) == 0, running.communicate()[1]
+    finally:
+        if running.poll() is None:  # pragma: no cover
+            running.kill()
+        running.communicate()
+    assert (out / "keep.txt").read_text() == "my notes" and _stray(tmp_path) == []
+
+
+def test_sigkill_then_a_rerun_leaves_no_staging_folder_and_keeps_the_users_files(tmp_path, capsys):
+    out, flag = tmp_path / "out", tmp_path / "flag"
+    code, _, err = run([*FIT, "-o", out], capsys)
+    assert code == 0, err
+    (out / "keep.txt").write_text("my notes")
+    before = _files(out)
+    killed = _paused("overlay", flag, *FIT, "-o", out)  # its fit.json and mesh.obj are staged
+    killed.kill()
+    killed.communicate()
+    assert _files(out) == before  # the killed run changed nothing in OUT
+    assert _stray(tmp_path)  # but left its staging folder and lock file
+    code, _, err = run([*FIT, "-o", out], capsys)
+    assert code == 0, err
+    assert _stray(tmp_path) == [] and (out / "keep.txt").read_text() == "my notes"
+    assert sorted(p.name for p in out.iterdir()) == [MANIFEST, "fit.json", "keep.txt", "mesh.obj", "overlay.png"]
+
+
+def _texture_sizes(out: Path) -> set[tuple[int, int]]:
+    """The sizes of the face's maps in OUT: its PNGs and the textures inside face.glb and face.usdz
+    (the eyeballs' own texture, of fixed size, left out)."""
+    import io
+    import struct
+    import zipfile
+
+    images = [p.read_bytes() for p in out.glob("*.png") if p.stem in ("albedo", "normal", "roughness", "specular", "displacement")]
+    glb = (out / "face.glb").read_bytes()
+    length = struct.unpack("<I", glb[12:16])[0]
+    doc, binary = json.loads(glb[20:20 + length]), glb[28 + length:]
+    for image in doc["images"]:
+        if not image["name"].startswith("eyeballs"):
+            view = doc["bufferViews"][image["bufferView"]]
+            images.append(binary[view.get("byteOffset", 0):view.get("byteOffset", 0) + view["byteLength"]])
+    with zipfile.ZipFile(out / "face.usdz") as usdz:
+        images += [usdz.read(n) for n in usdz.namelist() if n.endswith(".png") and "eyeballs" not in n]
+    return {Image.open(io.BytesIO(data)).size for data in images}
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("earlier", [True, False], ids=["into-an-earlier-output", "into-a-new-folder"])
+def test_two_reconstructs_at_once_give_one_complete_run_or_a_clean_refusal(tmp_path, capsys, earlier):
+    """The battery's case: two ``reconstruct`` runs at once, --size 128 and --size 256, into a
+    folder holding an earlier run and the user's file, or into a new folder."""
+    out = tmp_path / "out"
+    args = ["reconstruct", PHOTO, "-o", out, "--landmarks", "mediapipe", "--no-preview"]
+    if earlier:
+        code, _, err = run([*args, "--size", "64"], capsys)
+        assert code == 0, err
+        (out / "keep.txt").write_text("my notes")
+    procs = [subprocess.Popen([sys.executable, "-m", "facegeo.cli", *map(str, args), "--size", str(size)],
+                              stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True) for size in (128, 256)]
+    results = [(p.wait(600), *p.communicate()) for p in procs]
+    codes = sorted(code for code, _, _ in results)
+    assert codes in ([0, 0], [0, 2]), results  # one after the other, or one refused
+    for (code, _, err), other in zip(results, reversed(procs)):
+        if code == 2:
+            assert_one_line(err, str(out), f"process {other.pid}")
+    sizes = _texture_sizes(out)
+    assert len(sizes) == 1 and sizes <= {(128, 128), (256, 256)}, sizes  # one run's textures, not a mix
+    listed = json.loads((out / MANIFEST).read_text())["files"]
+    present = sorted(p.relative_to(out).as_posix() for p in out.rglob("*") if p.is_file())
+    assert present == sorted([*listed, MANIFEST, *(["keep.txt"] if earlier else [])])
+    assert not earlier or (out / "keep.txt").read_text() == "my notes"
+    assert _stray(tmp_path) == []
+
+
+#: ``facegeo export ...`` paused (FLAG) after its first file is staged.
+PAUSED_EXPORT = """
+import pathlib, sys, time
+import facegeo.export.writers as writers
+from facegeo.cli import main
+real = writers.export_asset
+flag = pathlib.Path(sys.argv[1])
+def paused(asset, path, **kwargs):
+    written = real(asset, path, **kwargs)
+    flag.write_text("staged")
+    while flag.exists():
+        time.sleep(0.05)
+    return written
+writers.export_asset = paused
+sys.exit(main(sys.argv[2:]))
+"""
+
+
+def test_a_second_export_to_the_same_file_fails_at_once(tmp_path, capsys, asset_dir):
+    flag, out = tmp_path / "flag", tmp_path / "out" / "face.glb"
+    running = subprocess.Popen([sys.executable, "-c", PAUSED_EXPORT, str(flag), "export", str(asset_dir), "-o", str(out)],
+                               stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        deadline = time.monotonic() + 120
+        while not flag.exists() and running.poll() is None and time.monotonic() < deadline:
+            time.sleep(0.05)
+        assert flag.exists(), running.communicate()[1]
+        code, _, err = run(["export", asset_dir, "-o", out], capsys)
+        assert code == 2
+        assert_one_line(err, str(out), "output file", f"process {running.pid}")
+        code, _, err = run(["export", asset_dir, "-o", out.with_name("other.glb")], capsys)  # another file: not locked
+        assert code == 0, err
+        flag.unlink()
+        assert running.wait(120) == 0, running.communicate()[1]
+    finally:
+        if running.poll() is None:  # pragma: no cover
+            running.kill()
+        running.communicate()
+    assert sorted(p.name for p in out.parent.iterdir()) == ["face.glb", "other.glb"] and _stray(tmp_path) == []
 
 
 # -- signals during writing -----------------------------------------------------------------

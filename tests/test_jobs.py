@@ -9,6 +9,7 @@ import pytest
 
 from facegeo.errors import InputError
 from facegeo.jobs import FIT_FILES, FitOptions, ReconstructOptions, fit_into_folder, loaded_resources
+from facegeo.staged_output import MANIFEST
 
 PHOTO = Path(__file__).resolve().parents[1] / "assets" / "photos" / "astronaut.png"
 
@@ -37,7 +38,8 @@ def test_resources_are_loaded_once_per_process() -> None:
 
 def test_fit_into_folder_writes_the_files_it_reports(tmp_path: Path) -> None:
     record = fit_into_folder(PHOTO, tmp_path / "fit", FitOptions(photometric=False))
-    assert sorted(p.name for p in (tmp_path / "fit").iterdir()) == sorted(FIT_FILES) == sorted(record.files)
+    assert sorted(p.name for p in (tmp_path / "fit").iterdir()) == sorted([*FIT_FILES, MANIFEST])
+    assert sorted(FIT_FILES) == sorted(record.files)
     written = json.loads((tmp_path / "fit" / "fit.json").read_text())
     assert written["landmark_rms_px"] == pytest.approx(record.landmark_rms_px)
     assert 0 < record.landmark_rms_percent_iod < 6

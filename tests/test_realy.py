@@ -58,14 +58,14 @@ REFERENCE_LARGE = {
 # rigid ICP updates per region in the official run (nose, mouth, forehead, cheek)
 OFFICIAL_ICP_UPDATES_SMALL = {"1": [6, 6, 8, 13], "2": [7, 7, 7, 14], "3": [6, 9, 10, 18]}
 
-REL = 1e-6  # where facegeo reports an uncertainty below 1e-7
-REL_UNCERTAIN = 1e-5  # everywhere
+REL = 1e-6  # the smooth part of round-off, which the reported uncertainty leaves out (a few 1e-8 measured)
 
 
 def _close(ours: dict, ref: dict, uncertainty: dict | None = None) -> None:
+    """Equal to the official values within the reported uncertainty (at least REL)."""
     for region in REGIONS:
-        sure = uncertainty is None or uncertainty[region] < 1e-7
-        assert ours[region] == pytest.approx(ref[region], rel=REL if sure else REL_UNCERTAIN), region
+        tolerance = REL if uncertainty is None else max(REL, uncertainty[region])
+        assert ours[region] == pytest.approx(ref[region], rel=tolerance), region
 
 
 @pytest.fixture(scope="module")
@@ -112,7 +112,8 @@ def test_all_small_subjects_equal_the_official_numbers_and_text(small, tmp_path)
     assert len(ours) == len(theirs)
     for a, b in zip(ours, theirs):
         assert a[:2] == b[:2] and all(len(x) <= 9 for x in a[2:])
-        assert [float(x) for x in a[2:]] == pytest.approx([float(x) for x in b[2:]], rel=REL_UNCERTAIN, abs=1e-7)
+        for x, y, region in zip(a[2:], b[2:], REGIONS):
+            assert float(x) == pytest.approx(float(y), rel=max(REL, result.uncertainty[a[0]][region]), abs=1e-7)
 
 
 @pytest.mark.slow
@@ -136,7 +137,8 @@ def test_workers_solvers_factor_reuse_and_knobs_on_one_subject(small, tmp_path):
     for region in REGIONS:
         d = result.details["1"][region]
         assert d["solver"] == backend and d["solves"] == len(d["pcg_iterations"])
-        assert 0.0 <= result.uncertainty["1"][region] < 1e-3
+        assert result.uncertainty["1"][region] == pytest.approx(d["uncertainty_ties"] + d["uncertainty_paths"], rel=1e-12)
+        assert d["uncertainty_ties"] >= 0.0 and d["uncertainty_paths"] >= 0.0
         if backend == "cholmod":  # one analysis per region, a numeric factorisation per system
             assert d["analyses"] == 1 and d["factorisations"] == d["solves"] and set(d["pcg_iterations"]) == {0}
     # SuperLU: a factorisation at the start of each stage at least; the other solves are CG on an earlier factor
@@ -146,13 +148,14 @@ def test_workers_solvers_factor_reuse_and_knobs_on_one_subject(small, tmp_path):
         d = reuse.details["1"][region]
         assert 3 <= d["factorisations"] < d["solves"] == len(d["pcg_iterations"])
         assert d["pcg_iterations"][0] == 0 and max(d["pcg_iterations"]) <= 12
-    # SuperLU factoring every system, and CHOLMOD, give the same numbers to rounding
+    # SuperLU factoring every system, and CHOLMOD, give the same numbers to rounding: within the
+    # uncertainty that each reports
     plain = evaluate(pred, small.realy_root, settings=Settings(solver="superlu", factor_reuse=False))
     for region in REGIONS:
         assert plain.details["1"][region]["factorisations"] == plain.details["1"][region]["solves"]
         for other in (reuse, result):
-            if max(other.uncertainty["1"][region], plain.uncertainty["1"][region]) < 1e-7:
-                assert plain.per_subject["1"][region] == pytest.approx(other.per_subject["1"][region], rel=1e-8)
+            bound = max(REL, other.uncertainty["1"][region] + plain.uncertainty["1"][region])
+            assert plain.per_subject["1"][region] == pytest.approx(other.per_subject["1"][region], rel=bound)
     # loose knobs: fewer steps, numbers close to but not the official ones
     loose = evaluate(pred, small.realy_root, settings=Settings(rigid_max_updates=2, nicp_max_steps=2))
     for region in REGIONS:
@@ -162,6 +165,45 @@ def test_workers_solvers_factor_reuse_and_knobs_on_one_subject(small, tmp_path):
         assert loose.per_subject["1"][region] != pytest.approx(REFERENCE_SMALL["1"][region], rel=1e-5)
     md = markdown_table(loose)
     assert "Not the official protocol" in md and "nicp_max_steps=2" in md
+
+
+def _bumpy_grid(n: int = 8) -> tuple[np.ndarray, np.ndarray]:
+    """An n x n grid of unit spacing on a gentle bump (not flat: a flat region leaves the affine
+    transforms' z column free), integer x and y, and its triangles."""
+    ys, xs = np.mgrid[0:n, 0:n]
+    x, y = xs.ravel().astype(np.float64), ys.ravel().astype(np.float64)
+    vertices = np.column_stack([x, y, 0.3 * np.sin(0.7 * x) + 0.2 * np.cos(0.9 * y)])
+    corner = (np.arange(n - 1)[None, :] + n * np.arange(n - 1)[:, None]).ravel()
+    triangles = np.concatenate([np.column_stack([corner, corner + 1, corner + n + 1]),
+                                np.column_stack([corner, corner + n + 1, corner + n])])
+    return vertices, triangles
+
+
+def test_a_decision_round_off_could_turn_is_found_and_followed_the_other_way():
+    """A vertex whose two nearest targets are exactly equidistant (x +- 0.125 from an integer x):
+    the run records the decision; following it the other way gives, bit for bit, the run in
+    which the other target is the nearer by construction, and it changes the result."""
+    from facegeo.eval.realy_error import NonRigidICP
+
+    vertices, triangles = _bumpy_grid()
+    v = 28  # an inner vertex
+    lift = np.array([0.0, 0.0, 0.5])
+    others = np.delete(np.arange(len(vertices)), v)
+    pair = vertices[v] + lift + np.array([[0.125, 0.0, 0.0], [-0.125, 0.0, 0.0]])
+    targets = np.concatenate([vertices[others] + lift, pair])
+    icp = NonRigidICP(vertices, triangles, targets)
+    plain = icp.run()
+    watched = icp.run(deviation=1e-9)
+    np.testing.assert_array_equal(watched, plain)  # watching changes nothing of the run itself
+    decisions = [(d.kind, d.state.stage, d.state.step, d.vertices.tolist()) for d in icp.near_decisions]
+    assert decisions == [("match", 0, 0, [v])]
+    chosen = int(icp.tree.query(vertices[v], 1)[1])
+    assert icp.near_decisions[0].alternative.tolist() == [len(targets) - 1 if chosen == len(targets) - 2 else len(targets) - 2]
+    other_way = icp.rerun(icp.near_decisions[0])
+    moved = targets.copy()
+    moved[chosen] += np.sign(moved[chosen, 0] - vertices[v, 0]) * np.array([1e-9, 0.0, 0.0])  # now the farther one
+    np.testing.assert_array_equal(other_way, NonRigidICP(vertices, triangles, moved).run())
+    assert np.abs(other_way - plain).max() > 1e-3
 
 
 def test_uncertain_values_are_flagged_in_the_summary_and_written_to_the_json(tmp_path):

@@ -38,7 +38,7 @@ def read_exr(path):
 def test_unwrap_the_bundled_photo(tmp_path, capsys):
     out = tmp_path / "astronaut"
     run(["unwrap", PHOTO, "-o", out, "--size", "256", "--landmarks", "mediapipe"])
-    assert sorted(p.name for p in out.iterdir()) == sorted(OUTPUT_FILES)
+    assert sorted(p.name for p in out.iterdir()) == sorted([*OUTPUT_FILES, ".facegeo-output.json"])
     texture = np.asarray(Image.open(out / "texture_incomplete.png"))
     vis = np.asarray(Image.open(out / "visibility.png"))
     assert texture.shape == (256, 256, 3) and vis.shape == (256, 256)

@@ -34,7 +34,8 @@ class Command:
     """One subcommand: its name, one-line ``help`` (the ``facegeo --help`` list), ``description``
     (its own ``--help``), ``arguments`` (adds its options to its parser) and ``run`` (does the work
     for the parsed namespace; raises :class:`facegeo.errors.FacegeoError`). ``output_folder``: its
-    ``-o`` is a folder replaced as a whole, checked by :func:`check_arguments` before any work."""
+    ``-o`` is a run's output folder (its earlier run's files are replaced, other files kept),
+    checked by :func:`check_arguments` before any work."""
 
     name: str
     help: str
@@ -105,7 +106,7 @@ def check_arguments(args: argparse.Namespace) -> None:
     write an output folder (:attr:`Command.output_folder`), the ``-o`` location
     (:func:`facegeo.staged_output.check_output_location`: name lengths, parents, writability,
     an existing folder must be empty or an earlier facegeo output; and it must not hold an input
-    file such as the photo, since it is replaced as a whole).
+    file such as the photo, whose name a facegeo file could have).
 
     Raises:
         InputError: naming the option and what was expected.
@@ -131,9 +132,9 @@ def check_arguments(args: argparse.Namespace) -> None:
     if getattr(args, "output_folder", False) and not wants_batch(args):  # a batch checks its OUT itself
         check_output_location(args.output, folder=True, replace=True)
         out = Path(args.output).resolve()
-        for name, value in vars(args).items():  # an existing OUT is replaced: it must not hold an input
+        for name, value in vars(args).items():  # facegeo replaces files in OUT: it must not hold an input
             if name != "output" and isinstance(value, Path) and value.exists() and out in value.resolve().parents:
-                raise InputError(COMMAND_LINE, "-o", "an output folder that does not hold the inputs (it is replaced as a whole)",
+                raise InputError(COMMAND_LINE, "-o", "an output folder that does not hold the inputs (facegeo replaces files in it)",
                                  f"{args.output}, which holds {value}")
 
 
@@ -144,7 +145,8 @@ def add_photo_arguments(parser: argparse.ArgumentParser, many: bool = False) -> 
                         help="the photo (PNG, JPEG, ...); EXIF orientation is honoured"
                         + ("; or several, folders, glob patterns, manifests (see batch)" if many else ""))
     parser.add_argument("-o", "--output", type=Path, required=True,
-                        help="output folder (created; an existing one must be empty or an earlier facegeo output, and is replaced)")
+                        help="output folder (created; an existing one must be empty or an earlier facegeo output: the earlier "
+                        "run's files are replaced, your own files in it are kept)")
 
 
 def add_model_argument(parser: argparse.ArgumentParser | argparse._ArgumentGroup) -> None:

@@ -36,12 +36,16 @@ def _arguments(parser: argparse.ArgumentParser) -> None:
 def _run(args: argparse.Namespace) -> None:
     """Run ``facegeo export`` with parsed arguments (raises FacegeoError on bad input).
 
-    The output files are checked before the asset is read, written into one staging folder and
-    moved into place together: with several formats, either all files appear or none does."""
+    The output files are checked and locked (one run at a time per file,
+    :func:`facegeo.staged_output.locked_output`) before the asset is read, written into one
+    staging folder and moved into place together: with several formats, either all files appear
+    or none does."""
+    import contextlib
+
     from facegeo.asset import MAP_NAMES
     from facegeo.export.asset_io import load_asset
     from facegeo.export.writers import FORMATS, export_asset
-    from facegeo.staged_output import StagedOutput, check_output_location
+    from facegeo.staged_output import StagedOutput, check_output_location, locked_output
 
     start = time.perf_counter()
     maps = parse_list(args.maps, MAP_NAMES, "--maps") if args.maps is not None else None
@@ -63,10 +67,13 @@ def _run(args: argparse.Namespace) -> None:
         raise InputError(COMMAND_LINE, "--displacement", "'bake' when writing glb (glTF has no displacement input)", "texture")
     for path, fmt in targets:  # before any work: names, parents, an existing folder in the way
         check_output_location(path, folder=False, extra_names=[path.stem + "_textures"] if fmt in ("usda", "usdc") else [])
-    asset = load_asset(args.asset_dir).select(args.parts)
-    with StagedOutput(out.parent) as stage:
-        for path, fmt in targets:
-            export_asset(asset, stage.path(path.name), format=fmt, level=args.subdiv, displacement=args.displacement, maps=maps)
+    with contextlib.ExitStack() as locks:
+        for path, _ in sorted(targets):
+            locks.enter_context(locked_output(path, "output file"))
+        asset = load_asset(args.asset_dir).select(args.parts)
+        with StagedOutput(out.parent) as stage:
+            for path, fmt in targets:
+                export_asset(asset, stage.path(path.name), format=fmt, level=args.subdiv, displacement=args.displacement, maps=maps)
     seconds = time.perf_counter() - start
     print(f"wrote {', '.join(str(path) for path, _ in targets)} from {args.asset_dir} "
           f"(parts {args.parts}, subdivision level {args.subdiv}, {seconds:.2f} s)")

@@ -44,7 +44,16 @@ def _arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def _run(args: argparse.Namespace) -> None:
-    """Run ``facegeo unwrap`` for parsed ``args`` (raises :class:`facegeo.errors.FacegeoError`)."""
+    """Run ``facegeo unwrap`` for parsed ``args`` (raises :class:`facegeo.errors.FacegeoError`),
+    holding the output folder's lock from the start (a second run into it is refused before it fits)."""
+    from facegeo.staged_output import locked_output
+
+    with locked_output(args.output):
+        _unwrap(args)
+
+
+def _unwrap(args: argparse.Namespace) -> None:
+    """The work of :func:`_run`."""
     from facegeo.camera import euler_from_rotation
     from facegeo.fitting import fit
     from facegeo.image_files import exr_bytes, png_bytes
