@@ -1,0 +1,65 @@
+"""The fitted identity on real photos of different people, before and after dense landmarks.
+
+    python benchmarks/contact_sheet_identity.py [-o docs/fit_identity_real_photos.jpg]
+
+Rows: :func:`sample_photos.sample_photos` with ``people=True`` (seven photos, six people: slim
+and round faces, glasses, greyscale, turned about 40°). Columns: the photo; the fit as it was
+before issue 25 (the 88 hybrid landmarks with the sliding jaw, a 40° field of view); the fit now
+(``facegeo.fit``'s defaults: MediaPipe's 468 points on the model surface with per-point noise, the
+face outline on the occluding contour, the focal from the face). Each fit's unposed shape (model
+space, with its expression) is rendered as grey clay from the front, three-quarter (35°) and
+profile (80°) by :func:`contact_sheet_fit.clay_views`.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from contact_sheet_fit import TILE, clay_views  # noqa: E402
+from sample_photos import sample_photos  # noqa: E402
+
+from facegeo import Camera, load_model, load_photo  # noqa: E402
+from facegeo.errors import FacegeoError  # noqa: E402
+from facegeo.fitting import fit  # noqa: E402
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("-o", "--output", type=Path, default=Path("docs/fit_identity_real_photos.jpg"))
+    args = parser.parse_args()
+    model = load_model()
+    rows = []
+    for path in sample_photos(people=True):
+        photo = load_photo(path)
+        h, w = photo.image.shape[:2]
+        tiles = []
+        for kwargs in (dict(camera=Camera.for_image(w, h), dense=None), {}):
+            try:
+                result = fit(photo, model, photometric=False, **kwargs)
+                tiles.append(clay_views(model, result.shape_vertices))
+                print(f"{path.name}: |α| {np.linalg.norm(result.alpha):.2f}, focal {result.camera.focal:.0f} px, "
+                      f"landmark RMS {result.landmark_rms_percent_iod:.1f} % IOD", file=sys.stderr)
+            except FacegeoError as error:  # the fit's own checks refused it: say so in the tile
+                tile = np.full((TILE, 3 * TILE), 40, np.uint8)
+                cv2.putText(tile, "refused: " + str(error).split("found")[-1].strip()[:40], (10, TILE // 2), cv2.FONT_HERSHEY_SIMPLEX, 0.5, 255, 1)
+                tiles.append(tile)
+        scale = TILE / max(h, w)
+        thumb = cv2.resize(cv2.cvtColor(photo.image, cv2.COLOR_RGB2GRAY), (round(w * scale), round(h * scale)), interpolation=cv2.INTER_AREA)
+        thumb = np.pad(thumb, ((0, TILE - thumb.shape[0]), (0, TILE - thumb.shape[1])))
+        rows.append(np.concatenate([thumb, *tiles], axis=1))
+    sheet = np.concatenate(rows, axis=0)
+    cv2.putText(sheet, "before: 88 points, sliding jaw, 40 deg field of view", (TILE + 10, 20), cv2.FONT_HERSHEY_SIMPLEX, 0.5, 255, 1)
+    cv2.putText(sheet, "now: 468 dense points, occluding contour, focal from the face", (4 * TILE + 10, 20), cv2.FONT_HERSHEY_SIMPLEX, 0.5, 255, 1)
+    args.output.parent.mkdir(parents=True, exist_ok=True)
+    cv2.imwrite(str(args.output), sheet, [cv2.IMWRITE_JPEG_QUALITY, 80])
+    print(f"wrote {args.output}")
+
+
+if __name__ == "__main__":
+    main()
