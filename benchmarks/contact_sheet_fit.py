@@ -49,6 +49,14 @@ def clay_views(model, vertices: np.ndarray) -> np.ndarray:
     return np.concatenate(tiles, axis=1)
 
 
+def photo_thumbnail(image: np.ndarray) -> np.ndarray:
+    """(TILE, TILE) uint8: an (H, W, 3) uint8 RGB photo in grey, fitted into the tile's top-left."""
+    h, w = image.shape[:2]
+    scale = TILE / max(h, w)
+    thumb = cv2.resize(cv2.cvtColor(image, cv2.COLOR_RGB2GRAY), (round(w * scale), round(h * scale)), interpolation=cv2.INTER_AREA)
+    return np.pad(thumb, ((0, TILE - thumb.shape[0]), (0, TILE - thumb.shape[1])))
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("-o", "--output", type=Path, default=Path("docs/fit_clay_before_after.jpg"))
@@ -65,10 +73,7 @@ def main() -> None:
         old = before(model, points, camera)
         old_shape = model.shape(torch.from_numpy(old.alpha), torch.from_numpy(old.delta)).numpy()
         new = fit_landmarks(model, points, camera)
-        scale = TILE / max(h, w)
-        thumb = cv2.resize(cv2.cvtColor(photo.image, cv2.COLOR_RGB2GRAY), (round(w * scale), round(h * scale)), interpolation=cv2.INTER_AREA)
-        thumb = np.pad(thumb, ((0, TILE - thumb.shape[0]), (0, TILE - thumb.shape[1])))
-        rows.append(np.concatenate([thumb, clay_views(model, old_shape), clay_views(model, new.shape_vertices)], axis=1))
+        rows.append(np.concatenate([photo_thumbnail(photo.image), clay_views(model, old_shape), clay_views(model, new.shape_vertices)], axis=1))
     sheet = np.concatenate(rows, axis=0)
     cv2.putText(sheet, "before: unbounded expressions", (TILE + 10, 20), cv2.FONT_HERSHEY_SIMPLEX, 0.5, 255, 1)
     cv2.putText(sheet, "MAP fit: bounded expressions, noise-weighted priors", (4 * TILE + 10, 20), cv2.FONT_HERSHEY_SIMPLEX, 0.5, 255, 1)

@@ -21,7 +21,7 @@ import cv2
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from contact_sheet_fit import TILE, clay_views  # noqa: E402
+from contact_sheet_fit import TILE, clay_views, photo_thumbnail  # noqa: E402
 from sample_photos import sample_photos  # noqa: E402
 
 from facegeo import Camera, load_model, load_photo  # noqa: E402
@@ -49,10 +49,7 @@ def main() -> None:
                 tile = np.full((TILE, 3 * TILE), 40, np.uint8)
                 cv2.putText(tile, "refused: " + str(error).split("found")[-1].strip()[:40], (10, TILE // 2), cv2.FONT_HERSHEY_SIMPLEX, 0.5, 255, 1)
                 tiles.append(tile)
-        scale = TILE / max(h, w)
-        thumb = cv2.resize(cv2.cvtColor(photo.image, cv2.COLOR_RGB2GRAY), (round(w * scale), round(h * scale)), interpolation=cv2.INTER_AREA)
-        thumb = np.pad(thumb, ((0, TILE - thumb.shape[0]), (0, TILE - thumb.shape[1])))
-        rows.append(np.concatenate([thumb, *tiles], axis=1))
+        rows.append(np.concatenate([photo_thumbnail(photo.image), *tiles], axis=1))
     sheet = np.concatenate(rows, axis=0)
     cv2.putText(sheet, "before: 88 points, sliding jaw, 40 deg field of view", (TILE + 10, 20), cv2.FONT_HERSHEY_SIMPLEX, 0.5, 255, 1)
     cv2.putText(sheet, "now: 468 dense points, occluding contour, focal from the face", (4 * TILE + 10, 20), cv2.FONT_HERSHEY_SIMPLEX, 0.5, 255, 1)

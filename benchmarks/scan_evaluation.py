@@ -52,6 +52,7 @@ import numpy as np
 from facegeo import Camera
 from facegeo.camera import euler_from_rotation
 from facegeo.eval.realy_geometry import closest_points
+from facegeo.similarity_transform import similarity_transform
 
 __all__ = ["Prediction", "ScanFitter", "ScanReference", "prepare_scan", "face_frame", "region_of_samples",
            "sample_surface", "similarity_transform", "align_to_scan", "surface_distances", "evaluate",
@@ -222,20 +223,6 @@ def prepare_scan(vertices: np.ndarray, triangles: np.ndarray, landmarks: np.ndar
     probes = np.stack([flat[51, :2], flat[57, :2], chin])
     return ScanReference(vertices=vertices, triangles=triangles, landmarks=landmarks, frame=frame, samples=points,
                          regions=regions, depth_points=probes, crop_radius_mm=crop_radius_mm)
-
-
-def similarity_transform(source: np.ndarray, target: np.ndarray, with_scale: bool = True) -> tuple[float, np.ndarray, np.ndarray]:
-    """(s, R (3, 3), t (3,)) minimising Σ‖s·R·source_i + t − target_i‖² (Umeyama 1991; s = 1
-    when ``with_scale`` is False), float64. ``source``, ``target``: (N, 3), N ≥ 3."""
-    src = np.asarray(source, dtype=np.float64)
-    tgt = np.asarray(target, dtype=np.float64)
-    ms, mt = src.mean(0), tgt.mean(0)
-    a, b = src - ms, tgt - mt
-    u, sv, vt = np.linalg.svd(b.T @ a)
-    d = np.diag([1.0, 1.0, np.sign(np.linalg.det(u @ vt))])
-    rotation = u @ d @ vt
-    scale = float((sv * np.diag(d)).sum() / (a ** 2).sum()) if with_scale else 1.0
-    return scale, rotation, mt - scale * rotation @ ms
 
 
 def surface_distances(vertices: np.ndarray, triangles: np.ndarray, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -81,11 +81,12 @@ from facegeo.landmarks.dense import (
     register_canonical_mesh,
     triangles_sha256,
 )
-from facegeo.landmarks.mediapipe_mesh import MEDIAPIPE_TO_IBUG68, N_MESH, MediaPipeFaceMesh
+from facegeo.landmarks.mediapipe_mesh import N_MESH, MediaPipeFaceMesh
 from facegeo.landmarks.scheme import OUTER_EYE_CORNERS
 from facegeo.lighting import sh_irradiance
 from facegeo.model_files import load_model
 from facegeo.morphable_model import MorphableModel
+from facegeo.similarity_transform import similarity_transform
 from facegeo.normals import vertex_normals
 from facegeo.parts import PART_MATERIALS, PartModel, eyeball_texture, load_parts, part_vertices
 from facegeo.regressor.network import ModelSignature
@@ -254,14 +255,8 @@ def mesh_edges(triangles: np.ndarray) -> set[tuple[int, int]]:
 
 def procrustes_residual(source: np.ndarray, target: np.ndarray) -> np.ndarray:
     """Per-point distances (target units) after the best similarity transform of source onto target."""
-    mu_s, mu_t = source.mean(0), target.mean(0)
-    a, b = source - mu_s, target - mu_t
-    u, sigma, vt = np.linalg.svd(b.T @ a)
-    d = np.ones(3)
-    d[2] = np.sign(np.linalg.det(u @ vt))
-    rotation = (u * d) @ vt
-    scale = (sigma * d).sum() / (a**2).sum()
-    return np.linalg.norm(scale * a @ rotation.T - b, axis=1)
+    scale, rotation, translation = similarity_transform(source, target)
+    return np.linalg.norm(scale * np.asarray(source, np.float64) @ rotation.T + translation - target, axis=1)
 
 
 def order_check(canonical: np.ndarray, detections: list[np.ndarray]) -> dict[str, float]:

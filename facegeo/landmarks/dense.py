@@ -39,6 +39,7 @@ import numpy as np
 from facegeo.errors import InputError, ModelFileError
 from facegeo.landmarks.mediapipe_mesh import MEDIAPIPE_TO_IBUG68, N_MESH
 from facegeo.landmarks.scheme import CHIN, INNER_FACE
+from facegeo.similarity_transform import similarity_transform
 
 if TYPE_CHECKING:
     import torch
@@ -274,18 +275,6 @@ def _correspondence(path: str | Path, data: dict[str, np.ndarray], model: Morpha
 # ------------------------------------------------------------------------------- registration
 
 
-def _similarity(source: np.ndarray, target: np.ndarray) -> tuple[float, np.ndarray, np.ndarray]:
-    """Scale s, rotation R (3, 3), translation t (3,) minimising Σ‖s·R·p + t − q‖² (Umeyama)."""
-    mu_s, mu_t = source.mean(0), target.mean(0)
-    a, b = source - mu_s, target - mu_t
-    u, sigma, vt = np.linalg.svd(b.T @ a)
-    d = np.ones(3)
-    d[2] = np.sign(np.linalg.det(u @ vt))
-    rotation = (u * d) @ vt
-    scale = float((sigma * d).sum() / (a**2).sum())
-    return scale, rotation, mu_t - scale * rotation @ mu_s
-
-
 class Registration(NamedTuple):
     """What :func:`register_canonical_mesh` finds: ``triangle`` (468,) int64 into
     ``model.triangles`` and ``barycentric`` (468, 3) float32 of each point's closest point on the
@@ -331,7 +320,7 @@ def register_canonical_mesh(model: MorphableModel, canonical_vertices: np.ndarra
     mean = model.mean_shape.astype(np.float64)
     targets = mean[model.landmark_indices[REGISTRATION_IBUG]]
     pinned = MEDIAPIPE_TO_IBUG68[REGISTRATION_IBUG]
-    scale, rotation, translation = _similarity(source[pinned], targets)
+    scale, rotation, translation = similarity_transform(source[pinned], targets)
     rigid = scale * source @ rotation.T + translation
     face = np.flatnonzero(model.face_mask[model.triangles].all(axis=1))
     if face.size == 0:
