@@ -4,10 +4,13 @@ from __future__ import annotations
 
 import os
 from pathlib import Path
-from typing import Iterable
+from typing import TYPE_CHECKING, Iterable
 
 from facegeo.asset import Asset
 from facegeo.errors import InputError
+
+if TYPE_CHECKING:
+    from facegeo.export.live_link import ArkitTake
 
 __all__ = ["export_asset", "FORMATS", "DEFAULT_FORMATS"]
 
@@ -26,13 +29,19 @@ def export_asset(
     displacement: str = "bake",
     maps: Iterable[str] | None = None,
     uv_interpolation: str = "surface",
+    blendshapes: str | None = "arkit",
+    animation: ArkitTake | None = None,
 ) -> Path:
     """Write ``asset`` to ``path`` as USD (usdz, usdc, usda) or glTF binary (glb).
 
     ``format``: one of FORMATS; default: the suffix of ``path``. A path without a suffix gets
     ``.<format>`` appended. ``level``: Loop subdivision levels (0-3 are practical); ``displacement``:
     "bake" (into the geometry) or "texture" (USD's displacement input; not possible in glTF);
-    ``maps``: the map names to carry (default: all the asset has). Returns the path written.
+    ``maps``: the map names to carry (default: all the asset has); ``blendshapes``: the names of
+    the asset's blendshapes in the file, "arkit" (default) or "ict" (glTF morph targets, UsdSkel
+    blend shapes; an asset without blendshapes is written static), or None to leave them out;
+    ``animation``: a Live Link Face take (:func:`facegeo.export.live_link.read_live_link_csv`)
+    to animate the face with. Returns the path written.
 
     Raises:
         InputError: unknown format, a suffix that contradicts ``format``, glb with
@@ -56,7 +65,9 @@ def export_asset(
             raise InputError(target, "displacement", "'bake' for glTF (glTF has no displacement input)", repr(displacement))
         from facegeo.export.gltf import write_glb
 
-        return write_glb(asset, target, level=level, maps=maps, uv_interpolation=uv_interpolation)
+        return write_glb(asset, target, level=level, maps=maps, uv_interpolation=uv_interpolation, blendshapes=blendshapes,
+                         animation=animation)
     from facegeo.export.usd import write_usd
 
-    return write_usd(asset, target, level=level, displacement=displacement, maps=maps, uv_interpolation=uv_interpolation)
+    return write_usd(asset, target, level=level, displacement=displacement, maps=maps, uv_interpolation=uv_interpolation,
+                     blendshapes=blendshapes, animation=animation)

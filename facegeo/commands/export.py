@@ -10,7 +10,7 @@ import argparse
 import time
 from pathlib import Path
 
-from facegeo.commands.arguments import COMMAND_LINE, Command, add_parts_argument, parse_list
+from facegeo.commands.arguments import COMMAND_LINE, Command, add_blendshape_arguments, add_parts_argument, parse_list
 from facegeo.errors import InputError
 
 __all__ = ["COMMANDS"]
@@ -31,6 +31,7 @@ def _arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--displacement", choices=["bake", "texture"], default="bake",
                         help="bake the displacement into the geometry (default) or, USD only, write it as the material's displacement input")
     add_parts_argument(parser)
+    add_blendshape_arguments(parser)
 
 
 def _run(args: argparse.Namespace) -> None:
@@ -66,7 +67,8 @@ def _run(args: argparse.Namespace) -> None:
     asset = load_asset(args.asset_dir).select(args.parts)
     with StagedOutput(out.parent) as stage:
         for path, fmt in targets:
-            export_asset(asset, stage.path(path.name), format=fmt, level=args.subdiv, displacement=args.displacement, maps=maps)
+            export_asset(asset, stage.path(path.name), format=fmt, level=args.subdiv, displacement=args.displacement, maps=maps,
+                         blendshapes=None if args.blendshapes == "none" else args.blendshape_names)
     seconds = time.perf_counter() - start
     print(f"wrote {', '.join(str(path) for path, _ in targets)} from {args.asset_dir} "
           f"(parts {args.parts}, subdivision level {args.subdiv}, {seconds:.2f} s)")
