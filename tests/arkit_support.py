@@ -46,3 +46,29 @@ def write_take(path: Path, frames: int = 300, fps: int = 60, seed: int = 0, rota
         lines.append(",".join(row))
     path.write_text("\n".join(lines) + "\n")
     return times, w, (angles if rotations else {})
+
+
+#: The expression of the test face: model weights by name (asymmetric browInnerUp halves).
+TEST_EXPRESSION = {"jawOpen": 0.45, "eyeBlink_L": 0.7, "mouthSmile_R": 0.5, "browInnerUp_L": 0.2, "browInnerUp_R": 0.6,
+                   "cheekPuff_L": 0.3, "cheekPuff_R": 0.3, "noseSneer_L": 0.25}
+
+
+def shaped_asset(maps: dict | None = None, parts: bool = True):
+    """The bundled model with a random identity and :data:`TEST_EXPRESSION`, its skin and parts
+    carrying blendshapes (as the pipeline builds them): ``(asset, model, alpha, delta)``."""
+    from facegeo.asset import Asset
+    from facegeo.blendshapes import model_blendshapes
+    from facegeo.model_files import load_model
+    from facegeo.parts import load_parts, part_assets
+
+    m = load_model()
+    alpha = np.random.default_rng(3).normal(0.0, 0.7, m.n_id).astype(np.float32)
+    delta = np.zeros(m.n_exp, np.float32)
+    for name, value in TEST_EXPRESSION.items():
+        delta[m.expression_names.index(name)] = value
+    vertices = m.shape(alpha, delta).numpy()
+    asset = Asset(vertices, m.triangles, m.uv, m.uv_triangles, maps=maps or {},
+                  constants={} if maps else {"albedo": (0.7, 0.5, 0.45), "roughness": 0.5},
+                  face_triangles=np.all(m.face_mask[m.triangles], axis=1), blendshapes=model_blendshapes(m, delta),
+                  parts=part_assets(load_parts(m), m, alpha, delta, texture_size=32) if parts else [])
+    return asset, m, alpha, delta
