@@ -32,6 +32,7 @@ from __future__ import annotations
 
 import json
 import os
+import zipfile
 from pathlib import Path
 from typing import Any
 
@@ -121,7 +122,8 @@ def _write_surface(asset: Asset, out: Path, prefix: str, linear_bits: int) -> di
 
 def _write_blendshapes(path: Path, shaped: list[tuple[str, Blendshapes]]) -> None:
     """``blendshapes.npz``: per surface (key prefix ``<surface>__``, ``skin`` for the skin) the
-    shape and vertex index and the (n, 3) delta of every nonzero delta."""
+    shape and vertex index and the (n, 3) delta of every nonzero delta. Deflated at level 1 (a
+    third of the time of NumPy's default level for 6 % more bytes)."""
     arrays: dict[str, np.ndarray] = {}
     for surface, shapes in shaped:
         key = surface or "skin"
@@ -132,7 +134,10 @@ def _write_blendshapes(path: Path, shaped: list[tuple[str, Blendshapes]]) -> Non
         arrays[f"{key}__shape"] = shape.astype(np.int32)
         arrays[f"{key}__vertex"] = vertex.astype(np.int32)
         arrays[f"{key}__delta"] = half if lossless else delta
-    np.savez_compressed(path, **arrays)
+    with zipfile.ZipFile(path, "w", zipfile.ZIP_DEFLATED, compresslevel=1) as archive:
+        for name, array in arrays.items():
+            with archive.open(f"{name}.npy", "w") as member:
+                np.lib.format.write_array(member, array, allow_pickle=False)
 
 
 def _read_blendshapes(root: Path, meta_path: Path, doc: dict[str, Any], surfaces: dict[str, int]) -> dict[str, Blendshapes]:

@@ -27,6 +27,21 @@ vertex (the same on both sides of a seam). The material:
 Parts (``asset.parts``) follow the skin as their own meshes, nodes and materials (``<part>``,
 ``<part>_material``, textures named ``<part>_<map>``), all nodes in the one scene.
 
+Blendshapes (``blendshapes="arkit"``, the default, or ``"ict"``; issue 28): each mesh with
+blendshapes is written neutral with one morph target per name
+(:mod:`facegeo.export.morph_targets`): ``POSITION`` displacements as normalized shorts (metres,
+1/32767 m steps) and ``NORMAL`` changes as normalized bytes, both as sparse accessors, which needs
+the ``KHR_mesh_quantization`` extension (listed as required); ``mesh.weights`` are the fitted
+weights (the file shows the photo's expression), ``mesh.extras.targetNames`` the names, the same
+on every mesh; ``asset.extras`` records the naming (``blendshapeNames``) and what the targets lack
+(``blendshapeNotes``: ARKit's ``tongueOut``, merged halves that differed).
+
+With an ``animation`` (a Live Link Face take) the scene is a ``head`` node holding every mesh
+node, and the eyeballs become two meshes on ``eye_left`` / ``eye_right`` nodes placed at the
+eyes' centres (:mod:`facegeo.export.animation`); one animation keys the take: a ``weights``
+channel per mesh with targets and ``rotation`` channels for the head and the eyes, linear, at the
+take's times.
+
 ``TEXCOORD_0`` is written only when a texture uses it, ``TANGENT`` only with a normal texture.
 Textures are clamped to the edge and mip-mapped. :func:`validate_glb` runs the Khronos
 glTF-Validator (npm ``gltf-validator``) when node and the package are available.
@@ -171,7 +186,6 @@ def glb_bytes(asset: Asset, *, level: int = 0, maps: Iterable[str] | None = None
         return len(doc.textures) - 1
 
     materials: dict[str, int] = {}
-    naming_notes: list[str] = []
     for index, (name, contents) in enumerate(surfaces):
         material_name = rig.material_of(name) if rig is not None else name
         attributes, indices, vert = _geometry(contents, accessor)
@@ -188,14 +202,12 @@ def glb_bytes(asset: Asset, *, level: int = 0, maps: Iterable[str] | None = None
             primitive.targets = _morph_targets(contents.targets, vert, len(contents.mesh.vertices), sparse_accessors)
             mesh.weights = [float(w) for w in contents.targets.weights.astype(np.float32)]
             mesh.extras = {"targetNames": list(contents.targets.names)}
-            naming_notes = naming_notes or contents.targets.notes
-            if "KHR_mesh_quantization" not in extensions:
-                extensions.append("KHR_mesh_quantization")
         doc.meshes.append(mesh)
         doc.nodes.append(gl.Node(name=name, mesh=len(doc.meshes) - 1))
-    if any(m.extras for m in doc.meshes):
-        naming = next(c.targets.naming.naming for _, c in surfaces if c.targets is not None)
-        doc.asset.extras = {"blendshapeNames": naming, "blendshapeNotes": naming_notes}
+    shaped = [c.targets for _, c in surfaces if c.targets is not None]
+    if shaped:  # every surface's targets have the same names and notes
+        doc.asset.extras = {"blendshapeNames": shaped[0].naming.naming, "blendshapeNotes": shaped[0].notes}
+        extensions.append("KHR_mesh_quantization")
     if rig is not None and animation is not None:
         roots = _animated_nodes(doc, rig, surfaces)
         _animation(doc, animation, surfaces, accessor)

@@ -40,6 +40,15 @@ Only inputs the scene uses are authored: no texture for a constant map (a value 
 ``.usdc`` root layer and its PNGs; ``.usda``/``.usdc`` write their textures next to the layer in
 ``<stem>_textures/`` (relative paths). Files are written atomically (nothing partial on failure).
 
+Blendshapes (``blendshapes="arkit"``, the default, or ``"ict"``; issue 28): the root is a
+``UsdSkel`` ``SkelRoot``; the meshes' points are the neutral mesh; each mesh with blendshapes gets
+``skel:blendShapes`` and ``skel:blendShapeTargets`` and one ``BlendShape`` prim per name under it
+(sparse ``pointIndices``, ``offsets`` in mm, ``normalOffsets``); a ``Skeleton``
+(``/<name>/skeleton``: ``head``, and the eyes when there are eyeballs) with a ``SkelAnimation``
+(``/<name>/animation``) holds the fitted weights, or a take's time samples
+(:func:`_write_skeleton`); ``customData`` of the root records the naming and its notes.
+:func:`skel_points` evaluates a file with UsdSkel's own queries.
+
 :func:`validate_usd` runs every validator usd-core registers (``pxr.UsdValidation``) on a file;
 :func:`check_usd` checks that the stage opens, every texture path resolves (inside the package for
 usdz) and the material binds.
@@ -404,16 +413,32 @@ def validate_usd(path: str | os.PathLike[str]) -> list[tuple[str, str, str]]:
     return out
 
 
-def skel_points(path: str | os.PathLike[str], time: float | None = None) -> dict[str, np.ndarray]:
+def skel_points(path: str | os.PathLike[str], time: float | None = None,
+                weights: dict[str, float] | None = None) -> dict[str, np.ndarray]:
     """The points of every skinned mesh of a USD file as UsdSkel itself evaluates them
     (``UsdSkel.Cache``, ``UsdSkel.BlendShapeQuery``, then the skeleton's linear blend skinning) at
     ``time`` (a time code; None: the default values, i.e. the fitted weights of a static file):
-    mesh prim path -> (V, 3) float64, the stage's units (mm). Meshes outside a ``SkelRoot`` are
-    left out."""
+    mesh prim path -> (V, 3) float64, the stage's units (mm). ``weights``: blend shape name ->
+    weight to evaluate instead of the animation's (the others 0; in the session layer, the file
+    is not changed). Meshes outside a ``SkelRoot`` are left out.
+
+    Raises:
+        InputError: a name in ``weights`` that no animation has.
+    """
     from pxr import Usd, UsdSkel, Vt
 
     stage = Usd.Stage.Open(str(path))
     code = Usd.TimeCode.Default() if time is None else Usd.TimeCode(float(time))
+    if weights is not None:
+        stage.SetEditTarget(stage.GetSessionLayer())
+        animations = [UsdSkel.Animation(p) for p in stage.Traverse() if p.IsA(UsdSkel.Animation)]
+        known = {str(n) for a in animations for n in a.GetBlendShapesAttr().Get()}
+        unknown = sorted(set(weights) - known)
+        if unknown:
+            raise InputError(path, "blend shape", f"names among the animation's ({len(known)})", ", ".join(unknown))
+        for anim in animations:
+            names = [str(n) for n in anim.GetBlendShapesAttr().Get()]
+            anim.GetBlendShapeWeightsAttr().Set(Vt.FloatArray([float(weights.get(n, 0.0)) for n in names]), code)
     cache = UsdSkel.Cache()
     out: dict[str, np.ndarray] = {}
     for root_prim in stage.Traverse():
