@@ -66,7 +66,7 @@ from facegeo.export.animation import EYE_NAMES, HEAD_NAME, FaceRig, face_rig, ro
 from facegeo.export.facevarying import wedges
 from facegeo.export.live_link import ArkitTake
 from facegeo.export.morph_targets import NORMAL_TARGET_MIN, SurfaceTargets
-from facegeo.export.scene import SceneContents, scene_contents
+from facegeo.export.scene import SceneContents, scene_contents, scene_surfaces
 from facegeo.export.textures import DEFAULT_ROUGHNESS, encode_map
 from facegeo.image_files import png_bytes, to_uint
 from facegeo.staged_output import atomic_write_bytes
@@ -87,11 +87,14 @@ _UNSIGNED_INT = 5125
 
 
 def write_glb(asset: Asset, path: str | os.PathLike[str], *, level: int = 0, maps: Iterable[str] | None = None,
-              uv_interpolation: str = "surface", blendshapes: str | None = "arkit", animation: ArkitTake | None = None) -> Path:
+              uv_interpolation: str = "surface", blendshapes: str | None = "arkit", animation: ArkitTake | None = None,
+              surfaces: list[tuple[str, SceneContents]] | None = None) -> Path:
     """Write ``asset`` as a ``.glb`` (atomically). ``level``: Loop subdivision levels before
     baking the displacement; ``maps``: the map names to carry (default: all the asset has);
     ``blendshapes``: the morph targets' names, "arkit" or "ict", or None to leave them out;
-    ``animation``: a take to animate the face with. Returns the path.
+    ``animation``: a take to animate the face with; ``surfaces``: the asset's
+    :func:`facegeo.export.scene.scene_surfaces` with these options, if already computed (shared
+    with another format). Returns the path.
 
     Raises:
         InputError: the suffix is not .glb, bad options, or a map asked for that the asset lacks.
@@ -99,14 +102,16 @@ def write_glb(asset: Asset, path: str | os.PathLike[str], *, level: int = 0, map
     target = Path(path)
     if target.suffix.lower() != ".glb":
         raise InputError(target, "file name", "a .glb suffix (glTF 2.0 binary)", target.suffix or "none")
-    data = glb_bytes(asset, level=level, maps=maps, uv_interpolation=uv_interpolation, blendshapes=blendshapes, animation=animation)
+    data = glb_bytes(asset, level=level, maps=maps, uv_interpolation=uv_interpolation, blendshapes=blendshapes, animation=animation,
+                     surfaces=surfaces)
     target.parent.mkdir(parents=True, exist_ok=True)
     atomic_write_bytes(target, data)
     return target
 
 
 def glb_bytes(asset: Asset, *, level: int = 0, maps: Iterable[str] | None = None, uv_interpolation: str = "surface",
-              blendshapes: str | None = "arkit", animation: ArkitTake | None = None) -> bytes:
+              blendshapes: str | None = "arkit", animation: ArkitTake | None = None,
+              surfaces: list[tuple[str, SceneContents]] | None = None) -> bytes:
     """The ``.glb`` file of ``asset`` as bytes (see :func:`write_glb`): the skin is mesh, node
     and material 0; each part follows as its own mesh, node and material (named after it).
     ``blendshapes``: the targets' naming ("arkit", "ict") or None for none (module docstring);
@@ -115,14 +120,12 @@ def glb_bytes(asset: Asset, *, level: int = 0, maps: Iterable[str] | None = None
 
     if animation is not None and blendshapes is None:
         raise InputError("<export>", "blendshapes", "a naming (arkit or ict) to animate the face with", "none")
-    surfaces = [(asset.name, scene_contents(asset, level=level, displacement="bake", maps=maps, uv_interpolation=uv_interpolation,
-                                            blendshapes=blendshapes))]
+    if surfaces is None:
+        surfaces = scene_surfaces(asset, level=level, maps=maps, uv_interpolation=uv_interpolation, blendshapes=blendshapes)
     rig = face_rig(asset) if animation is not None else None
-    for part in asset.parts:
-        if rig is not None and part.name == rig.eyeballs:
-            surfaces += [(eye.name, scene_contents(eye, blendshapes=blendshapes)) for eye in rig.eyes]
-        else:
-            surfaces.append((part.name, scene_contents(part, blendshapes=blendshapes)))
+    if rig is not None:  # the eyeballs become the two eyes
+        eyes = [(eye.name, scene_contents(eye, blendshapes=blendshapes)) for eye in rig.eyes]
+        surfaces = [s for name, c in surfaces for s in (eyes if name == rig.eyeballs else [(name, c)])]
 
     blob = bytearray()
     doc = gl.GLTF2(asset=gl.Asset(version="2.0", generator="facegeo"))

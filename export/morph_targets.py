@@ -119,8 +119,9 @@ def surface_targets(shapes: Blendshapes, neutral: np.ndarray, triangles: np.ndar
             positions, normal_changes = (np.ascontiguousarray(fine[..., c].transpose(1, 0, 2)) for c in (slice(0, 3), slice(3, 6)))
         else:
             positions, normal_changes = combined[start:stop], changes[start:stop]
-        for j, (p, n) in enumerate(zip(positions, normal_changes)):
-            moved = np.flatnonzero(np.any(p != 0.0, axis=1) | (np.einsum("vc,vc->v", n, n) > NORMAL_TARGET_MIN**2))
+        moves = np.any(positions != 0.0, axis=2) | (np.einsum("tvc,tvc->tv", normal_changes, normal_changes) > NORMAL_TARGET_MIN**2)
+        for j, (p, n, m) in enumerate(zip(positions, normal_changes, moves)):
+            moved = np.flatnonzero(m)
             targets.append(MorphTarget(naming.names[start + j], moved, p[moved].astype(np.float32), n[moved].astype(np.float32)))
     return SurfaceTargets(naming, targets, weights, _notes(naming, shapes))
 

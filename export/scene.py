@@ -29,7 +29,7 @@ from facegeo.export.morph_targets import SurfaceTargets, surface_targets
 from facegeo.export.subdivision import subdivide_with_operators
 from facegeo.export.textures import MaterialInput, material_inputs
 
-__all__ = ["SceneContents", "scene_contents", "DISPLACEMENT_MODES"]
+__all__ = ["SceneContents", "scene_contents", "scene_surfaces", "DISPLACEMENT_MODES"]
 
 #: ``displacement=`` values: bake into the geometry, or a material input (USD only).
 DISPLACEMENT_MODES = ("bake", "texture")
@@ -80,3 +80,14 @@ def scene_contents(asset: Asset, *, level: int = 0, displacement: str = "bake", 
     if shapes is not None and naming is not None:
         targets = surface_targets(shapes, coarse, asset.triangles, naming, operators)
     return SceneContents(mesh, normals, inputs, int(level), displacement, targets)
+
+
+def scene_surfaces(asset: Asset, *, level: int = 0, displacement: str = "bake", maps: Iterable[str] | None = None,
+                   uv_interpolation: str = "surface", blendshapes: str | None = None) -> list[tuple[str, SceneContents]]:
+    """``(name, contents)`` of every surface a scene of ``asset`` holds: the skin (at ``level``,
+    with ``maps``, ``displacement``) and each part (level 0, its own material). The writers take
+    them from here; computing them once serves every format that bakes the displacement
+    (:func:`facegeo.export.writers.export_scenes`)."""
+    surfaces = [(asset.name, scene_contents(asset, level=level, displacement=displacement, maps=maps,
+                                            uv_interpolation=uv_interpolation, blendshapes=blendshapes))]
+    return surfaces + [(part.name, scene_contents(part, blendshapes=blendshapes)) for part in asset.parts]

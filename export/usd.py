@@ -70,7 +70,7 @@ from facegeo.colour import srgb_to_linear
 from facegeo.errors import InputError, OutputError
 from facegeo.export.animation import EYE_NAMES, HEAD_NAME, rotations, target_weights
 from facegeo.export.live_link import ArkitTake
-from facegeo.export.scene import SceneContents, scene_contents
+from facegeo.export.scene import SceneContents, scene_surfaces
 from facegeo.parts import EYEBALLS_PART, eyeball_centres
 from facegeo.export.textures import DEFAULT_ROUGHNESS, encode_map
 from facegeo.image_files import png_bytes
@@ -92,13 +92,16 @@ def write_usd(
     uv_interpolation: str = "surface",
     blendshapes: str | None = "arkit",
     animation: ArkitTake | None = None,
+    surfaces: list[tuple[str, SceneContents]] | None = None,
 ) -> Path:
     """Write ``asset`` as a USD file; the suffix of ``path`` picks the format (.usda, .usdc,
     .usd = usdc, .usdz). ``level``: Loop subdivision levels; ``displacement``: "bake" or
     "texture"; ``maps``: the map names to carry (default all the asset has); ``linear_bits``:
     8 or 16 for the normal, roughness and specular textures (albedo is 8-bit sRGB, displacement
     16-bit); ``blendshapes``: the blend shapes' names, "arkit" or "ict", or None to leave them
-    out (a static asset); ``animation``: a take to animate the face with. Returns the path written.
+    out (a static asset); ``animation``: a take to animate the face with; ``surfaces``: the
+    asset's :func:`facegeo.export.scene.scene_surfaces` with these options, if already computed
+    (shared with another format). Returns the path written.
 
     Raises:
         InputError: unknown suffix, bad options, or a map asked for that the asset lacks.
@@ -111,9 +114,11 @@ def write_usd(
         raise InputError(target, "linear_bits", "8 or 16", repr(linear_bits))
     if animation is not None and blendshapes is None:
         raise InputError(target, "blendshapes", "a naming (arkit or ict) to animate the face with", "none")
-    contents = scene_contents(asset, level=level, displacement=displacement, maps=maps, uv_interpolation=uv_interpolation,
-                              blendshapes=blendshapes)
-    parts = [(_prim_name(part.name), scene_contents(part, blendshapes=blendshapes)) for part in asset.parts]
+    if surfaces is None:
+        surfaces = scene_surfaces(asset, level=level, displacement=displacement, maps=maps, uv_interpolation=uv_interpolation,
+                                  blendshapes=blendshapes)
+    contents = surfaces[0][1]
+    parts = [(_prim_name(name), part) for name, part in surfaces[1:]]
     if animation is not None and contents.targets is None and not any(p.targets for _, p in parts):
         raise InputError(target, "blendshapes", "an asset with blendshapes to animate", "none")
     name = _prim_name(asset.name)

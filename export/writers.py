@@ -1,10 +1,11 @@
-"""One entry point for all formats: :func:`export_asset` picks the writer from the format or suffix."""
+"""One entry point for all formats: :func:`export_asset` picks the writer from the format or suffix;
+:func:`export_scenes` writes several formats of one asset, computing the shared scene once."""
 
 from __future__ import annotations
 
 import os
 from pathlib import Path
-from typing import TYPE_CHECKING, Iterable
+from typing import TYPE_CHECKING, Iterable, Sequence
 
 from facegeo.asset import Asset
 from facegeo.errors import InputError
@@ -12,7 +13,7 @@ from facegeo.errors import InputError
 if TYPE_CHECKING:
     from facegeo.export.live_link import ArkitTake
 
-__all__ = ["export_asset", "FORMATS", "DEFAULT_FORMATS"]
+__all__ = ["export_asset", "export_scenes", "FORMATS", "DEFAULT_FORMATS"]
 
 #: Formats :func:`export_asset` writes (the file suffixes).
 FORMATS = ("usdz", "usdc", "usda", "glb")
@@ -47,7 +48,53 @@ def export_asset(
         InputError: unknown format, a suffix that contradicts ``format``, glb with
             ``displacement="texture"``, or any writer's input error.
     """
-    target = Path(path)
+    return export_scenes(asset, [(path, format)], level=level, displacement=displacement, maps=maps,
+                         uv_interpolation=uv_interpolation, blendshapes=blendshapes, animation=animation)[0]
+
+
+def export_scenes(
+    asset: Asset,
+    outputs: Sequence[tuple[str | os.PathLike[str], str | None]],
+    *,
+    level: int = 0,
+    displacement: str = "bake",
+    maps: Iterable[str] | None = None,
+    uv_interpolation: str = "surface",
+    blendshapes: str | None = "arkit",
+    animation: ArkitTake | None = None,
+) -> list[Path]:
+    """:func:`export_asset` for several ``(path, format)`` outputs of one asset (format None: the
+    suffix's), with the same options: the scene's geometry, materials and blendshape targets
+    (:func:`facegeo.export.scene.scene_surfaces`) are computed once for every output that bakes
+    the displacement (glb always, USD with ``displacement="bake"``). Every output is checked
+    before anything is written. Returns the paths written, in order."""
+    resolved = [_resolve(Path(path), format, displacement) for path, format in outputs]
+    maps = None if maps is None else list(maps)
+    shared = None
+    written = []
+    for target, fmt in resolved:
+        surfaces = None
+        if fmt == "glb" or displacement == "bake":
+            if shared is None:
+                from facegeo.export.scene import scene_surfaces
+
+                shared = scene_surfaces(asset, level=level, maps=maps, uv_interpolation=uv_interpolation, blendshapes=blendshapes)
+            surfaces = shared
+        if fmt == "glb":
+            from facegeo.export.gltf import write_glb
+
+            written.append(write_glb(asset, target, level=level, maps=maps, uv_interpolation=uv_interpolation,
+                                     blendshapes=blendshapes, animation=animation, surfaces=surfaces))
+        else:
+            from facegeo.export.usd import write_usd
+
+            written.append(write_usd(asset, target, level=level, displacement=displacement, maps=maps, uv_interpolation=uv_interpolation,
+                                     blendshapes=blendshapes, animation=animation, surfaces=surfaces))
+    return written
+
+
+def _resolve(target: Path, format: str | None, displacement: str) -> tuple[Path, str]:
+    """The path and format of one output (the checks of :func:`export_asset`)."""
     suffix = target.suffix.lower().lstrip(".")
     if format is None:
         if suffix not in FORMATS:
@@ -60,14 +107,6 @@ def export_asset(
         target = target.with_name(target.name + "." + format)
     elif suffix != format:
         raise InputError(target, "file name", f"the .{format} suffix for format {format}", target.suffix)
-    if format == "glb":
-        if displacement != "bake":
-            raise InputError(target, "displacement", "'bake' for glTF (glTF has no displacement input)", repr(displacement))
-        from facegeo.export.gltf import write_glb
-
-        return write_glb(asset, target, level=level, maps=maps, uv_interpolation=uv_interpolation, blendshapes=blendshapes,
-                         animation=animation)
-    from facegeo.export.usd import write_usd
-
-    return write_usd(asset, target, level=level, displacement=displacement, maps=maps, uv_interpolation=uv_interpolation,
-                     blendshapes=blendshapes, animation=animation)
+    if format == "glb" and displacement != "bake":
+        raise InputError(target, "displacement", "'bake' for glTF (glTF has no displacement input)", repr(displacement))
+    return target, format

@@ -224,7 +224,7 @@ def reconstruct_into_folder(photo_path: str | Path, output: str | Path, options:
     """
     from facegeo.errors import NoFaceError
     from facegeo.export.asset_io import write_asset_files
-    from facegeo.export.writers import export_asset
+    from facegeo.export.writers import export_scenes
     from facegeo.fitting import fit
     from facegeo.image_files import png_bytes
     from facegeo.photo import load_photo
@@ -258,9 +258,8 @@ def reconstruct_into_folder(photo_path: str | Path, output: str | Path, options:
             stage.path("skin_mask.png").write_bytes(png_bytes(skin_mask_image(skin)))
         carried = [m for m in asset.maps if m != "displacement" or options.subdiv > 0]  # DISPLACEMENT_BAKE_RULE
         scene = asset.select(options.parts)
-        for fmt in options.formats:
-            export_asset(scene, stage.path(f"face.{fmt}"), format=fmt, level=options.subdiv, maps=carried,
-                         blendshapes=options.blendshape_names if options.blendshapes else None)
+        export_scenes(scene, [(stage.path(f"face.{fmt}"), fmt) for fmt in options.formats], level=options.subdiv, maps=carried,
+                      blendshapes=options.blendshape_names if options.blendshapes else None)
         timings["export"] = time.perf_counter() - t
         if options.preview:
             if progress is not None:

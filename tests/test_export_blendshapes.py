@@ -327,3 +327,20 @@ def test_animation_needs_blendshapes(face, tmp_path):
     with pytest.raises(InputError, match="blendshapes"):
         write_usd(plain, tmp_path / "x.usda", animation=take)
     assert not list(tmp_path.glob("x.*"))
+
+
+def test_export_scenes_shares_the_scene(face, tmp_path):
+    """Several formats at once (what facegeo reconstruct writes) give the files one call per format
+    gives: the same glb bytes, the same UsdSkel evaluation; a bad output is refused first."""
+    from facegeo.export.writers import export_asset, export_scenes
+
+    asset, *_ = face
+    head = asset.select("head")
+    glb, usdc = export_scenes(head, [(tmp_path / "a.glb", None), (tmp_path / "a", "usdc")])
+    assert usdc == tmp_path / "a.usdc"
+    assert glb.read_bytes() == export_asset(head, tmp_path / "b.glb").read_bytes()
+    alone = export_asset(head, tmp_path / "b.usdc")
+    np.testing.assert_array_equal(skel_points(usdc)["/face/mesh"], skel_points(alone)["/face/mesh"])
+    with pytest.raises(InputError, match="displacement"):
+        export_scenes(head, [(tmp_path / "c.usdc", None), (tmp_path / "c.glb", None)], displacement="texture")
+    assert not list(tmp_path.glob("c.*"))

@@ -41,7 +41,7 @@ def _run(args: argparse.Namespace) -> None:
     moved into place together: with several formats, either all files appear or none does."""
     from facegeo.asset import MAP_NAMES
     from facegeo.export.asset_io import load_asset
-    from facegeo.export.writers import FORMATS, export_asset
+    from facegeo.export.writers import FORMATS, export_scenes
     from facegeo.staged_output import StagedOutput, check_output_location
 
     start = time.perf_counter()
@@ -66,9 +66,8 @@ def _run(args: argparse.Namespace) -> None:
         check_output_location(path, folder=False, extra_names=[path.stem + "_textures"] if fmt in ("usda", "usdc") else [])
     asset = load_asset(args.asset_dir).select(args.parts)
     with StagedOutput(out.parent) as stage:
-        for path, fmt in targets:
-            export_asset(asset, stage.path(path.name), format=fmt, level=args.subdiv, displacement=args.displacement, maps=maps,
-                         blendshapes=None if args.blendshapes == "none" else args.blendshape_names)
+        export_scenes(asset, [(stage.path(path.name), fmt) for path, fmt in targets], level=args.subdiv,
+                      displacement=args.displacement, maps=maps, blendshapes=None if args.blendshapes == "none" else args.blendshape_names)
     seconds = time.perf_counter() - start
     print(f"wrote {', '.join(str(path) for path, _ in targets)} from {args.asset_dir} "
           f"(parts {args.parts}, subdivision level {args.subdiv}, {seconds:.2f} s)")
