@@ -48,13 +48,11 @@ class FaceRig:
             the eye rotations are not written).
         eyes: the eye surfaces (named as :data:`EYE_NAMES`), vertices relative to their centres.
         centres: (2, 3) float64 mm, the left and right eye's centre (model space).
-        notes: what the animation leaves out.
     """
 
     eyeballs: str | None
     eyes: list[Asset] = field(default_factory=list)
     centres: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
-    notes: list[str] = field(default_factory=list)
 
     def material_of(self, surface: str) -> str:
         """The material a surface uses (both eyes share the eyeballs')."""
@@ -65,7 +63,7 @@ def face_rig(asset: Asset) -> FaceRig:
     """The :class:`FaceRig` of an asset (its eyeballs part, if any, split per eye)."""
     eyeballs = next((p for p in asset.parts if p.name == EYEBALLS_PART), None)
     if eyeballs is None:
-        return FaceRig(None, notes=["no eyeballs part: the eye rotations are not written"])
+        return FaceRig(None)
     side, centres = eyeball_centres(eyeballs.vertices)
     eyes = []
     for name, mask, centre in zip(EYE_NAMES, (side, ~side), centres):

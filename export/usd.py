@@ -328,7 +328,7 @@ def _write_skeleton(stage: Any, root: str, surfaces: list[tuple[str, SceneConten
     anim.CreateTranslationsAttr(Vt.Vec3fArray([Gf.Vec3f(m.ExtractTranslation()) for m in rest]))
     anim.CreateScalesAttr(Vt.Vec3hArray([Gf.Vec3h(1.0, 1.0, 1.0)] * len(joints)))
     rotations_attr = anim.CreateRotationsAttr(Vt.QuatfArray([Gf.Quatf(1.0)] * len(joints)))
-    naming = None
+    shaped = None  # the targets of a surface (every surface's have the same names and weights)
     for path, contents in surfaces:
         prim = stage.GetPrimAtPath(path)
         binding = UsdSkel.BindingAPI.Apply(prim)
@@ -343,7 +343,7 @@ def _write_skeleton(stage: Any, root: str, surfaces: list[tuple[str, SceneConten
         targets = contents.targets
         if targets is None:
             continue
-        naming = targets
+        shaped = targets
         binding.CreateBlendShapesAttr(Vt.TokenArray(list(targets.names)))
         shape_paths = []
         for target in targets.targets:
@@ -353,12 +353,12 @@ def _write_skeleton(stage: Any, root: str, surfaces: list[tuple[str, SceneConten
             shape.CreateNormalOffsetsAttr(Vt.Vec3fArray.FromNumpy(target.normals))
             shape_paths.append(shape.GetPath())
         binding.CreateBlendShapeTargetsRel().SetTargets(shape_paths)
-    assert naming is not None  # _write_layer calls this only with targets
-    anim.CreateBlendShapesAttr(Vt.TokenArray(list(naming.names)))
-    weights_attr = anim.CreateBlendShapeWeightsAttr(Vt.FloatArray.FromNumpy(naming.weights.astype(np.float32)))
+    assert shaped is not None  # _write_layer calls this only with targets
+    anim.CreateBlendShapesAttr(Vt.TokenArray(list(shaped.names)))
+    weights_attr = anim.CreateBlendShapeWeightsAttr(Vt.FloatArray.FromNumpy(shaped.weights.astype(np.float32)))
     root_prim = stage.GetPrimAtPath(root)
-    root_prim.SetCustomDataByKey("blendshapeNames", naming.naming.naming)
-    root_prim.SetCustomDataByKey("blendshapeNotes", Vt.StringArray(naming.notes))
+    root_prim.SetCustomDataByKey("blendshapeNames", shaped.naming.naming)
+    root_prim.SetCustomDataByKey("blendshapeNotes", Vt.StringArray(shaped.notes))
     if take is None:
         return
     fps = take.fps
@@ -366,7 +366,7 @@ def _write_skeleton(stage: Any, root: str, surfaces: list[tuple[str, SceneConten
     stage.SetFramesPerSecond(fps)
     stage.SetStartTimeCode(0.0)
     stage.SetEndTimeCode(float(take.times[-1] * fps))
-    frames = target_weights(take, naming.naming).astype(np.float32)
+    frames = target_weights(take, shaped.naming).astype(np.float32)
     quats = {group: rotations(take.rotations[group]) for group in ("head", *EYE_NAMES.values()) if group in take.rotations}
     groups = ["head", *EYE_NAMES.values()][:len(joints)]
     for k, t in enumerate(take.times):

@@ -12,6 +12,7 @@ from facegeo.errors import InputError
 
 if TYPE_CHECKING:
     from facegeo.export.live_link import ArkitTake
+    from facegeo.export.scene import SceneContents
 
 __all__ = ["export_asset", "export_scenes", "FORMATS", "DEFAULT_FORMATS"]
 
@@ -32,6 +33,7 @@ def export_asset(
     uv_interpolation: str = "surface",
     blendshapes: str | None = "arkit",
     animation: ArkitTake | None = None,
+    surfaces: list[tuple[str, SceneContents]] | None = None,
 ) -> Path:
     """Write ``asset`` to ``path`` as USD (usdz, usdc, usda) or glTF binary (glb).
 
@@ -42,14 +44,24 @@ def export_asset(
     the asset's blendshapes in the file, "arkit" (default) or "ict" (glTF morph targets, UsdSkel
     blend shapes; an asset without blendshapes is written static), or None to leave them out;
     ``animation``: a Live Link Face take (:func:`facegeo.export.live_link.read_live_link_csv`)
-    to animate the face with. Returns the path written.
+    to animate the face with; ``surfaces``: the asset's
+    :func:`facegeo.export.scene.scene_surfaces` with these options, if already computed
+    (:func:`export_scenes` shares them between formats). Returns the path written.
 
     Raises:
         InputError: unknown format, a suffix that contradicts ``format``, glb with
             ``displacement="texture"``, or any writer's input error.
     """
-    return export_scenes(asset, [(path, format)], level=level, displacement=displacement, maps=maps,
-                         uv_interpolation=uv_interpolation, blendshapes=blendshapes, animation=animation)[0]
+    target, format = _resolve(Path(path), format, displacement)
+    if format == "glb":
+        from facegeo.export.gltf import write_glb
+
+        return write_glb(asset, target, level=level, maps=maps, uv_interpolation=uv_interpolation, blendshapes=blendshapes,
+                         animation=animation, surfaces=surfaces)
+    from facegeo.export.usd import write_usd
+
+    return write_usd(asset, target, level=level, displacement=displacement, maps=maps, uv_interpolation=uv_interpolation,
+                     blendshapes=blendshapes, animation=animation, surfaces=surfaces)
 
 
 def export_scenes(
@@ -68,28 +80,19 @@ def export_scenes(
     (:func:`facegeo.export.scene.scene_surfaces`) are computed once for every output that bakes
     the displacement (glb always, USD with ``displacement="bake"``). Every output is checked
     before anything is written. Returns the paths written, in order."""
+    from facegeo.export.scene import scene_surfaces
+
     resolved = [_resolve(Path(path), format, displacement) for path, format in outputs]
     maps = None if maps is None else list(maps)
     shared = None
     written = []
     for target, fmt in resolved:
-        surfaces = None
-        if fmt == "glb" or displacement == "bake":
-            if shared is None:
-                from facegeo.export.scene import scene_surfaces
-
-                shared = scene_surfaces(asset, level=level, maps=maps, uv_interpolation=uv_interpolation, blendshapes=blendshapes)
-            surfaces = shared
-        if fmt == "glb":
-            from facegeo.export.gltf import write_glb
-
-            written.append(write_glb(asset, target, level=level, maps=maps, uv_interpolation=uv_interpolation,
-                                     blendshapes=blendshapes, animation=animation, surfaces=surfaces))
-        else:
-            from facegeo.export.usd import write_usd
-
-            written.append(write_usd(asset, target, level=level, displacement=displacement, maps=maps, uv_interpolation=uv_interpolation,
-                                     blendshapes=blendshapes, animation=animation, surfaces=surfaces))
+        bakes = fmt == "glb" or displacement == "bake"
+        if bakes and shared is None:
+            shared = scene_surfaces(asset, level=level, maps=maps, uv_interpolation=uv_interpolation, blendshapes=blendshapes)
+        written.append(export_asset(asset, target, format=fmt, level=level, displacement=displacement, maps=maps,
+                                    uv_interpolation=uv_interpolation, blendshapes=blendshapes, animation=animation,
+                                    surfaces=shared if bakes else None))
     return written
 
 
