@@ -1,6 +1,7 @@
 """Asset export (installed as ``facegeo.export``): Loop subdivision with face-varying UVs,
-displacement baking, USD (usda/usdc/usdz, UsdPreviewSurface) and glTF 2.0 (glb) writers, and
-the asset folder format. Names are imported lazily (USD and glTF libraries load on first use).
+displacement baking, USD (usda/usdc/usdz, UsdPreviewSurface) and glTF 2.0 (glb) writers, the
+asset folder format, and the animatable face: blendshapes as glTF morph targets and UsdSkel blend
+shapes under ARKit's names, driven by Live Link Face takes. Names are imported lazily (USD and glTF libraries load on first use).
 """
 
 from __future__ import annotations
@@ -24,6 +25,11 @@ _EXPORTS = {
     "save_asset": "facegeo.export.asset_io",
     "load_asset": "facegeo.export.asset_io",
     "write_asset_files": "facegeo.export.asset_io",
+    "skel_points": "facegeo.export.usd",
+    "ARKIT_NAMES": "facegeo.export.arkit",
+    "target_naming": "facegeo.export.arkit",
+    "read_live_link_csv": "facegeo.export.live_link",
+    "ArkitTake": "facegeo.export.live_link",
 }
 
 __all__ = list(_EXPORTS)

@@ -27,6 +27,21 @@ vertex (the same on both sides of a seam). The material:
 Parts (``asset.parts``) follow the skin as their own meshes, nodes and materials (``<part>``,
 ``<part>_material``, textures named ``<part>_<map>``), all nodes in the one scene.
 
+Blendshapes (``blendshapes="arkit"``, the default, or ``"ict"``; issue 28): each mesh with
+blendshapes is written neutral with one morph target per name
+(:mod:`facegeo.export.morph_targets`): ``POSITION`` displacements as normalized shorts (metres,
+1/32767 m steps) and ``NORMAL`` changes as normalized bytes, both as sparse accessors, which needs
+the ``KHR_mesh_quantization`` extension (listed as required); ``mesh.weights`` are the fitted
+weights (the file shows the photo's expression), ``mesh.extras.targetNames`` the names, the same
+on every mesh; ``asset.extras`` records the naming (``blendshapeNames``) and what the targets lack
+(``blendshapeNotes``: ARKit's ``tongueOut``, merged halves that differed).
+
+With an ``animation`` (a Live Link Face take) the scene is a ``head`` node holding every mesh
+node, and the eyeballs become two meshes on ``eye_left`` / ``eye_right`` nodes placed at the
+eyes' centres (:mod:`facegeo.export.animation`); one animation keys the take: a ``weights``
+channel per mesh with targets and ``rotation`` channels for the head and the eyes, linear, at the
+take's times.
+
 ``TEXCOORD_0`` is written only when a texture uses it, ``TANGENT`` only with a normal texture.
 Textures are clamped to the edge and mip-mapped. :func:`validate_glb` runs the Khronos
 glTF-Validator (npm ``gltf-validator``) when node and the package are available.
@@ -47,8 +62,11 @@ import numpy as np
 from facegeo.asset import SPECULAR_F0_SCALE, Asset
 from facegeo.colour import linear_to_srgb, srgb_to_linear
 from facegeo.errors import InputError
+from facegeo.export.animation import EYE_NAMES, HEAD_NAME, FaceRig, face_rig, rotations, target_weights
 from facegeo.export.facevarying import wedges
-from facegeo.export.scene import SceneContents, scene_contents
+from facegeo.export.live_link import ArkitTake
+from facegeo.export.morph_targets import NORMAL_TARGET_MIN, SurfaceTargets
+from facegeo.export.scene import SceneContents, scene_contents, scene_surfaces
 from facegeo.export.textures import DEFAULT_ROUGHNESS, encode_map
 from facegeo.image_files import png_bytes, to_uint
 from facegeo.staged_output import atomic_write_bytes
@@ -62,15 +80,21 @@ VALIDATOR_ENV_VAR = "FACEGEO_GLTF_VALIDATOR"
 _ARRAY_BUFFER = 34962
 _ELEMENT_ARRAY_BUFFER = 34963
 _FLOAT = 5126
+_BYTE = 5120
+_SHORT = 5122
 _UNSIGNED_SHORT = 5123
 _UNSIGNED_INT = 5125
 
 
 def write_glb(asset: Asset, path: str | os.PathLike[str], *, level: int = 0, maps: Iterable[str] | None = None,
-              uv_interpolation: str = "surface") -> Path:
+              uv_interpolation: str = "surface", blendshapes: str | None = "arkit", animation: ArkitTake | None = None,
+              surfaces: list[tuple[str, SceneContents]] | None = None) -> Path:
     """Write ``asset`` as a ``.glb`` (atomically). ``level``: Loop subdivision levels before
-    baking the displacement; ``maps``: the map names to carry (default: all the asset has).
-    Returns the path.
+    baking the displacement; ``maps``: the map names to carry (default: all the asset has);
+    ``blendshapes``: the morph targets' names, "arkit" or "ict", or None to leave them out;
+    ``animation``: a take to animate the face with; ``surfaces``: the asset's
+    :func:`facegeo.export.scene.scene_surfaces` with these options, if already computed (shared
+    with another format). Returns the path.
 
     Raises:
         InputError: the suffix is not .glb, bad options, or a map asked for that the asset lacks.
@@ -78,23 +102,35 @@ def write_glb(asset: Asset, path: str | os.PathLike[str], *, level: int = 0, map
     target = Path(path)
     if target.suffix.lower() != ".glb":
         raise InputError(target, "file name", "a .glb suffix (glTF 2.0 binary)", target.suffix or "none")
-    data = glb_bytes(asset, level=level, maps=maps, uv_interpolation=uv_interpolation)
+    data = glb_bytes(asset, level=level, maps=maps, uv_interpolation=uv_interpolation, blendshapes=blendshapes, animation=animation,
+                     surfaces=surfaces)
     target.parent.mkdir(parents=True, exist_ok=True)
     atomic_write_bytes(target, data)
     return target
 
 
-def glb_bytes(asset: Asset, *, level: int = 0, maps: Iterable[str] | None = None, uv_interpolation: str = "surface") -> bytes:
+def glb_bytes(asset: Asset, *, level: int = 0, maps: Iterable[str] | None = None, uv_interpolation: str = "surface",
+              blendshapes: str | None = "arkit", animation: ArkitTake | None = None,
+              surfaces: list[tuple[str, SceneContents]] | None = None) -> bytes:
     """The ``.glb`` file of ``asset`` as bytes (see :func:`write_glb`): the skin is mesh, node
-    and material 0; each part follows as its own mesh, node and material (named after it)."""
+    and material 0; each part follows as its own mesh, node and material (named after it).
+    ``blendshapes``: the targets' naming ("arkit", "ict") or None for none (module docstring);
+    ``animation``: a Live Link Face take to animate the face with (needs ``blendshapes``)."""
     import pygltflib as gl
 
-    surfaces = [(asset.name, scene_contents(asset, level=level, displacement="bake", maps=maps, uv_interpolation=uv_interpolation))]
-    surfaces += [(part.name, scene_contents(part)) for part in asset.parts]
+    if animation is not None and blendshapes is None:
+        raise InputError("<export>", "blendshapes", "a naming (arkit or ict) to animate the face with", "none")
+    if surfaces is None:
+        surfaces = scene_surfaces(asset, level=level, maps=maps, uv_interpolation=uv_interpolation, blendshapes=blendshapes)
+    rig = face_rig(asset) if animation is not None else None
+    if rig is not None:  # the eyeballs become the two eyes
+        eyes = [(eye.name, scene_contents(eye, blendshapes=blendshapes)) for eye in rig.eyes]
+        surfaces = [s for name, c in surfaces for s in (eyes if name == rig.eyeballs else [(name, c)])]
 
     blob = bytearray()
     doc = gl.GLTF2(asset=gl.Asset(version="2.0", generator="facegeo"))
     doc.scene = 0
+    extensions: list[str] = []
 
     def view(data: bytes, target: int | None = None) -> int:
         while len(blob) % 4:
@@ -103,7 +139,7 @@ def glb_bytes(asset: Asset, *, level: int = 0, maps: Iterable[str] | None = None
         blob.extend(data)
         return len(doc.bufferViews) - 1
 
-    def accessor(array: np.ndarray, kind: str, component: int, target: int, bounds: bool = False) -> int:
+    def accessor(array: np.ndarray, kind: str, component: int, target: int | None, bounds: bool = False) -> int:
         array = np.ascontiguousarray(array)
         index = view(array.tobytes(), target)
         acc = gl.Accessor(bufferView=index, componentType=component, count=len(array), type=kind)
@@ -114,6 +150,37 @@ def glb_bytes(asset: Asset, *, level: int = 0, maps: Iterable[str] | None = None
         doc.accessors.append(acc)
         return len(doc.accessors) - 1
 
+    def sparse_accessors(count: int, items: list[tuple[np.ndarray, np.ndarray, int]]) -> list[int]:
+        """Normalized VEC3 accessors of ``count`` zeros with ``values`` (n, 3) at ``indices``
+        (ascending), one per ``(indices, values, componentType)`` item; all the items' indices
+        share one buffer view and all their values another. Bounds are the stored integers
+        (zeros included); an item without values is an accessor without a buffer view (zeros)."""
+        index_type = np.uint16 if count <= 65535 else np.uint32
+        index_bytes, value_bytes = bytearray(), bytearray()
+        placed = []
+        for indices, values, _ in items:
+            placed.append((len(index_bytes), len(value_bytes)))
+            index_bytes.extend(indices.astype(index_type).tobytes())
+            value_bytes.extend(np.ascontiguousarray(values).tobytes())
+            index_bytes.extend(b"\0" * (-len(index_bytes) % 4))
+            value_bytes.extend(b"\0" * (-len(value_bytes) % 4))
+        index_view = view(bytes(index_bytes)) if index_bytes else None
+        value_view = view(bytes(value_bytes)) if value_bytes else None
+        lows, highs = _bounds([values for _, values, _ in items])
+        out = []
+        for (indices, values, component), (index_offset, value_offset), low, high in zip(items, placed, lows, highs):
+            acc = gl.Accessor(componentType=component, normalized=True, count=count, type="VEC3", byteOffset=None,
+                              min=[float(x) for x in low], max=[float(x) for x in high])
+            if len(indices):
+                acc.sparse = gl.Sparse(
+                    count=len(indices),
+                    indices=gl.AccessorSparseIndices(bufferView=index_view, byteOffset=index_offset,
+                                                     componentType=_UNSIGNED_SHORT if index_type is np.uint16 else _UNSIGNED_INT),
+                    values=gl.AccessorSparseValues(bufferView=value_view, byteOffset=value_offset))
+            doc.accessors.append(acc)
+            out.append(len(doc.accessors) - 1)
+        return out
+
     def texture(name: str, image: np.ndarray) -> int:
         if not doc.samplers:
             doc.samplers.append(gl.Sampler(magFilter=9729, minFilter=9987, wrapS=33071, wrapT=33071))
@@ -121,24 +188,127 @@ def glb_bytes(asset: Asset, *, level: int = 0, maps: Iterable[str] | None = None
         doc.textures.append(gl.Texture(sampler=0, source=len(doc.images) - 1, name=name))
         return len(doc.textures) - 1
 
+    materials: dict[str, int] = {}
     for index, (name, contents) in enumerate(surfaces):
-        prefix = "" if index == 0 else f"{name}_"
-        attributes, indices = _geometry(contents, accessor)
-        material = _material(name, contents, lambda map_name, image: texture(prefix + map_name, image))
-        doc.materials.append(material)
-        doc.meshes.append(gl.Mesh(name=name, primitives=[gl.Primitive(attributes=attributes, indices=indices, material=index, mode=4)]))
-        doc.nodes.append(gl.Node(name=name, mesh=index))
-        if material.extensions:
-            doc.extensionsUsed = ["KHR_materials_specular"]
-    doc.scenes.append(gl.Scene(nodes=list(range(len(surfaces)))))
+        material_name = rig.material_of(name) if rig is not None else name
+        attributes, indices, vert = _geometry(contents, accessor)
+        if material_name not in materials:
+            prefix = "" if index == 0 else f"{material_name}_"
+            material = _material(material_name, contents, lambda map_name, image, p=prefix: texture(p + map_name, image))
+            doc.materials.append(material)
+            materials[material_name] = len(doc.materials) - 1
+            if material.extensions and "KHR_materials_specular" not in extensions:
+                extensions.append("KHR_materials_specular")
+        primitive = gl.Primitive(attributes=attributes, indices=indices, material=materials[material_name], mode=4)
+        mesh = gl.Mesh(name=name, primitives=[primitive])
+        if contents.targets is not None:
+            primitive.targets = _morph_targets(contents.targets, vert, len(contents.mesh.vertices), sparse_accessors)
+            mesh.weights = [float(w) for w in contents.targets.weights.astype(np.float32)]
+            mesh.extras = {"targetNames": list(contents.targets.names)}
+        doc.meshes.append(mesh)
+        doc.nodes.append(gl.Node(name=name, mesh=len(doc.meshes) - 1))
+    shaped = [c.targets for _, c in surfaces if c.targets is not None]
+    if shaped:  # every surface's targets have the same names and notes
+        doc.asset.extras = {"blendshapeNames": shaped[0].naming.naming, "blendshapeNotes": shaped[0].notes}
+        extensions.append("KHR_mesh_quantization")
+    if rig is not None and animation is not None:
+        roots = _animated_nodes(doc, rig, surfaces)
+        _animation(doc, animation, surfaces, accessor)
+    else:
+        roots = list(range(len(surfaces)))
+    doc.scenes.append(gl.Scene(nodes=roots))
+    if extensions:
+        doc.extensionsUsed = extensions
+    if "KHR_mesh_quantization" in extensions:
+        doc.extensionsRequired = ["KHR_mesh_quantization"]
     doc.buffers.append(gl.Buffer(byteLength=len(blob)))
     doc.set_binary_blob(bytes(blob))
     out = doc.save_to_bytes()
     return b"".join(out) if isinstance(out, list) else bytes(out)
 
 
-def _geometry(contents: SceneContents, accessor: Any) -> tuple[Any, int]:
-    """The primitive's attributes and index accessor of one surface (wedges, tangents)."""
+def _bounds(arrays: list[np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
+    """Per (n_i, 3) array, the componentwise min and max of its values and 0 (a sparse accessor's
+    elements not stored are zeros): two (len(arrays), 3) arrays, computed in one pass."""
+    lengths = np.array([len(a) for a in arrays])
+    low, high = np.zeros((len(arrays), 3)), np.zeros((len(arrays), 3))
+    filled = np.flatnonzero(lengths)
+    if len(filled):
+        stacked = np.concatenate([arrays[i] for i in filled]).astype(np.int32)
+        starts = np.concatenate([[0], np.cumsum(lengths[filled])[:-1]])
+        low[filled] = np.minimum(np.minimum.reduceat(stacked, starts, axis=0), 0)
+        high[filled] = np.maximum(np.maximum.reduceat(stacked, starts, axis=0), 0)
+    return low, high
+
+
+def _morph_targets(targets: SurfaceTargets, vert: np.ndarray, n_vertices: int, sparse_accessors: Any) -> list[Any]:
+    """One ``{"POSITION", "NORMAL"}`` target per name, sparse, on the written vertices (wedges):
+    displacements in metres as normalized shorts (1/32767 m ≈ 31 µm steps; a wedge is stored when
+    its displacement does not round to zero) and normal changes as normalized bytes (1/127 steps),
+    stored where the normal turns by more than :data:`NORMAL_TARGET_MIN` (elsewhere a renderer
+    keeps the neutral normal)."""
+    import pygltflib as gl
+
+    items = []
+    lookup = np.full(n_vertices, -1, dtype=np.int64)
+    for target in targets.targets:
+        lookup[:] = -1
+        lookup[target.indices] = np.arange(len(target.indices))
+        rows = lookup[vert]
+        wedge = np.flatnonzero(rows >= 0)
+        rows = rows[wedge]
+        position = np.rint(np.clip(target.positions[rows] * (0.001 * 32767), -32767, 32767)).astype(np.int16)
+        turned = np.linalg.norm(target.normals[rows], axis=1) > NORMAL_TARGET_MIN
+        normal = np.rint(np.clip(target.normals[rows[turned]], -1.0, 1.0) * 127).astype(np.int8)
+        keep = np.any(position != 0, axis=1)
+        items += [(wedge[keep], position[keep], _SHORT), (wedge[turned], normal, _BYTE)]
+    accessors = sparse_accessors(len(vert), items)
+    return [gl.Attributes(POSITION=p, NORMAL=n) for p, n in zip(accessors[0::2], accessors[1::2])]
+
+
+def _animated_nodes(doc: Any, rig: FaceRig, surfaces: list[tuple[str, SceneContents]]) -> list[int]:
+    """Put the surfaces' nodes (one per surface, in order) under a ``head`` node; the eyes' nodes
+    sit at their centres (metres). Returns the scene's root nodes."""
+    import pygltflib as gl
+
+    centres = dict(zip(EYE_NAMES, rig.centres))
+    for index, (name, _) in enumerate(surfaces):
+        if name in centres:
+            doc.nodes[index].translation = [float(x) * 0.001 for x in centres[name]]
+    doc.nodes.append(gl.Node(name=HEAD_NAME, children=list(range(len(surfaces)))))
+    return [len(doc.nodes) - 1]
+
+
+def _animation(doc: Any, take: ArkitTake, surfaces: list[tuple[str, SceneContents]], accessor: Any) -> None:
+    """One animation: a ``weights`` channel per node with targets (the take's weights mapped to
+    the targets, one shared sampler) and ``rotation`` channels for the head and eye nodes whose
+    rotations the take has; keys at the take's times, linear."""
+    import pygltflib as gl
+
+    named = {node.name: i for i, node in enumerate(doc.nodes)}
+    with_targets = [(name, c.targets) for name, c in surfaces if c.targets is not None]
+    if not with_targets:
+        raise InputError("<export>", "blendshapes", "an asset with blendshapes to animate", "none")
+    times = accessor(take.times.astype(np.float32), "SCALAR", _FLOAT, None, bounds=True)
+    animation = gl.Animation(name=Path(take.source).stem or "take")
+    weights = target_weights(take, with_targets[0][1].naming)
+    animation.samplers.append(gl.AnimationSampler(input=times, output=accessor(weights.astype(np.float32).ravel(), "SCALAR", _FLOAT, None),
+                                                  interpolation="LINEAR"))
+    for name, _ in with_targets:
+        animation.channels.append(gl.AnimationChannel(sampler=0, target=gl.AnimationChannelTarget(node=named[name], path="weights")))
+    for node, group in ((HEAD_NAME, "head"), *EYE_NAMES.items()):
+        if group not in take.rotations or node not in named:
+            continue
+        output = accessor(rotations(take.rotations[group]).astype(np.float32), "VEC4", _FLOAT, None)
+        animation.samplers.append(gl.AnimationSampler(input=times, output=output, interpolation="LINEAR"))
+        animation.channels.append(gl.AnimationChannel(sampler=len(animation.samplers) - 1,
+                                                      target=gl.AnimationChannelTarget(node=named[node], path="rotation")))
+    doc.animations.append(animation)
+
+
+def _geometry(contents: SceneContents, accessor: Any) -> tuple[Any, int, np.ndarray]:
+    """The primitive's attributes and index accessor of one surface (wedges, tangents), and the
+    vertex of each written wedge (W,)."""
     import pygltflib as gl
 
     mesh = contents.mesh
@@ -163,7 +333,7 @@ def _geometry(contents: SceneContents, accessor: Any) -> tuple[Any, int]:
         indices = accessor(tris.astype(np.uint16).ravel(), "SCALAR", _UNSIGNED_SHORT, _ELEMENT_ARRAY_BUFFER)
     else:
         indices = accessor(tris.astype(np.uint32).ravel(), "SCALAR", _UNSIGNED_INT, _ELEMENT_ARRAY_BUFFER)
-    return attributes, indices
+    return attributes, indices, vert
 
 
 def _material(name: str, contents: SceneContents, texture: Any) -> Any:

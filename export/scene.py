@@ -4,6 +4,12 @@
 the geometry (``displacement="bake"``) or leaves it for a material input (``"texture"``, USD
 only), computes smooth vertex normals of the final geometry, and resolves which maps become
 textures and which factors (:func:`facegeo.export.textures.material_inputs`).
+
+With ``blendshapes`` (a naming of :data:`facegeo.export.arkit.BLENDSHAPE_NAMINGS`) and an asset
+that carries :class:`facegeo.blendshapes.Blendshapes`, the mesh written is the **neutral** one
+(identity only, subdivided and displaced the same way) and ``targets`` holds the morph targets
+that pose it (:func:`facegeo.export.morph_targets.surface_targets`); the writers set the targets'
+weights to the fitted ones, so the file still shows the photo's expression.
 """
 
 from __future__ import annotations
@@ -18,10 +24,12 @@ from facegeo.errors import InputError
 from facegeo.export.displacement import bake_displacement
 from facegeo.normals import vertex_normals
 from facegeo.export.facevarying import FaceVaryingMesh
-from facegeo.export.subdivision import subdivide_arrays
+from facegeo.export.arkit import target_naming
+from facegeo.export.morph_targets import SurfaceTargets, surface_targets
+from facegeo.export.subdivision import subdivide_with_operators
 from facegeo.export.textures import MaterialInput, material_inputs
 
-__all__ = ["SceneContents", "scene_contents", "DISPLACEMENT_MODES"]
+__all__ = ["SceneContents", "scene_contents", "scene_surfaces", "DISPLACEMENT_MODES"]
 
 #: ``displacement=`` values: bake into the geometry, or a material input (USD only).
 DISPLACEMENT_MODES = ("bake", "texture")
@@ -30,13 +38,15 @@ DISPLACEMENT_MODES = ("bake", "texture")
 @dataclass
 class SceneContents:
     """The mesh to write (float64 mm, face-varying UVs, (V, 3) unit normals) and the material
-    inputs (``inputs`` never holds a baked displacement)."""
+    inputs (``inputs`` never holds a baked displacement); ``targets``: the morph targets of the
+    mesh (then the neutral mesh), or None."""
 
     mesh: FaceVaryingMesh
     normals: np.ndarray
     inputs: dict[str, MaterialInput]
     level: int
     displacement: str
+    targets: SurfaceTargets | None = None
 
     @property
     def textured(self) -> bool:
@@ -45,19 +55,39 @@ class SceneContents:
 
 
 def scene_contents(asset: Asset, *, level: int = 0, displacement: str = "bake", maps: Iterable[str] | None = None,
-                   uv_interpolation: str = "surface") -> SceneContents:
-    """Subdivide, bake (or not) and resolve the material of ``asset`` for a writer."""
+                   uv_interpolation: str = "surface", blendshapes: str | None = None) -> SceneContents:
+    """Subdivide, bake (or not) and resolve the material of ``asset`` for a writer; with
+    ``blendshapes`` ("arkit" or "ict") and an asset that has them, the neutral mesh and its
+    morph targets under that naming (None: the posed mesh, no targets)."""
     if not isinstance(asset, Asset):
         raise InputError("<export>", "asset", "a facegeo.asset.Asset", type(asset).__name__)
     asset.validate("<export>")  # again: the maps may have been changed since construction
     if displacement not in DISPLACEMENT_MODES:
         raise InputError("<export>", "displacement", f"one of {', '.join(DISPLACEMENT_MODES)}", repr(displacement))
     inputs = material_inputs(asset, maps)
-    v, f, uv, ut = subdivide_arrays(asset.vertices, asset.triangles, asset.uv, asset.uv_triangles, level, uv_interpolation=uv_interpolation)
+    shapes = asset.blendshapes if blendshapes is not None else None
+    naming = target_naming(shapes.names, blendshapes) if shapes is not None else None
+    coarse = asset.neutral_vertices() if shapes is not None else asset.vertices
+    v, f, uv, ut, operators = subdivide_with_operators(coarse, asset.triangles, asset.uv, asset.uv_triangles, level,
+                                                       uv_interpolation=uv_interpolation)
     mesh = FaceVaryingMesh(v, f, uv, ut)
     disp = inputs.get("displacement")
     if disp is not None and displacement == "bake":
         mesh = bake_displacement(mesh, disp.texture if disp.is_texture else float(disp.value), 1.0)
         del inputs["displacement"]
     normals = vertex_normals(mesh.vertices, mesh.triangles)
-    return SceneContents(mesh, normals, inputs, int(level), displacement)
+    targets = None
+    if shapes is not None and naming is not None:
+        targets = surface_targets(shapes, coarse, asset.triangles, naming, operators)
+    return SceneContents(mesh, normals, inputs, int(level), displacement, targets)
+
+
+def scene_surfaces(asset: Asset, *, level: int = 0, displacement: str = "bake", maps: Iterable[str] | None = None,
+                   uv_interpolation: str = "surface", blendshapes: str | None = None) -> list[tuple[str, SceneContents]]:
+    """``(name, contents)`` of every surface a scene of ``asset`` holds: the skin (at ``level``,
+    with ``maps``, ``displacement``) and each part (level 0, its own material). The writers take
+    them from here; computing them once serves every format that bakes the displacement
+    (:func:`facegeo.export.writers.export_scenes`)."""
+    surfaces = [(asset.name, scene_contents(asset, level=level, displacement=displacement, maps=maps,
+                                            uv_interpolation=uv_interpolation, blendshapes=blendshapes))]
+    return surfaces + [(part.name, scene_contents(part, blendshapes=blendshapes)) for part in asset.parts]

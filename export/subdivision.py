@@ -47,7 +47,7 @@ from facegeo.asset import Asset
 from facegeo.errors import InputError
 from facegeo.export.facevarying import FaceVaryingMesh, as_face_varying
 
-__all__ = ["subdivide", "subdivide_arrays", "UV_INTERPOLATIONS", "MAX_LEVEL"]
+__all__ = ["subdivide", "subdivide_arrays", "subdivide_with_operators", "apply_operators", "UV_INTERPOLATIONS", "MAX_LEVEL"]
 
 #: Accepted ``uv_interpolation`` values.
 UV_INTERPOLATIONS = ("surface", "linear")
@@ -90,14 +90,33 @@ def subdivide_arrays(
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray | None, np.ndarray | None]:
     """:func:`subdivide` on arrays: (V, 3) mm, (F, 3), (T, 2) or None, (F, 3) or None ->
     the subdivided ``(vertices float64, triangles int64, uv float64 | None, uv_triangles | None)``."""
+    v, f, uv_, ut, _ = subdivide_with_operators(vertices, triangles, uv, uv_triangles, level, uv_interpolation=uv_interpolation)
+    return v, f, uv_, ut
+
+
+def subdivide_with_operators(
+    vertices: np.ndarray,
+    triangles: np.ndarray,
+    uv: np.ndarray | None,
+    uv_triangles: np.ndarray | None,
+    level: int,
+    *,
+    uv_interpolation: str = "surface",
+) -> tuple[np.ndarray, np.ndarray, np.ndarray | None, np.ndarray | None, list[sp.csr_matrix]]:
+    """:func:`subdivide_arrays` plus the geometry's subdivision operators, one sparse matrix per
+    level (level i maps the V_i values of level i to the V_(i+1) of level i+1; empty at level 0).
+    Loop subdivision is linear in the vertex positions, so any per-vertex quantity that moves
+    with the surface (a blendshape's displacement, a normal's change) is subdivided exactly by
+    :func:`apply_operators` with the same matrices."""
     if isinstance(level, bool) or not isinstance(level, (int, np.integer)) or not 0 <= level <= MAX_LEVEL:
         raise InputError("<subdivide>", "level", f"an integer in [0, {MAX_LEVEL}]", repr(level))
     if uv_interpolation not in UV_INTERPOLATIONS:
         raise InputError("<subdivide>", "uv_interpolation", f"one of {', '.join(UV_INTERPOLATIONS)}", repr(uv_interpolation))
     fv = FaceVaryingMesh(vertices, triangles, uv, uv_triangles)
     v, f, uv_, ut = fv.vertices, fv.triangles, fv.uv, fv.uv_triangles
+    operators: list[sp.csr_matrix] = []
     if level == 0:
-        return v, f, uv_, ut
+        return v, f, uv_, ut, operators
     keep = (f[:, 0] != f[:, 1]) & (f[:, 1] != f[:, 2]) & (f[:, 2] != f[:, 0])
     if not keep.all():
         f = f[keep]
@@ -123,7 +142,17 @@ def subdivide_arrays(
             ut = nft
         v = s_geo @ v
         f = nf
-    return v, f, uv_, ut
+        operators.append(s_geo)
+    return v, f, uv_, ut, operators
+
+
+def apply_operators(operators: list[sp.csr_matrix], values: np.ndarray) -> np.ndarray:
+    """(V, C) per-vertex values of the coarse mesh -> (V_L, C) on the subdivided one, through the
+    operators of :func:`subdivide_with_operators` (float64)."""
+    out = np.asarray(values, dtype=np.float64)
+    for s in operators:
+        out = s @ out
+    return out
 
 
 # -- internals ---------------------------------------------------------------------------------

@@ -40,6 +40,15 @@ Only inputs the scene uses are authored: no texture for a constant map (a value 
 ``.usdc`` root layer and its PNGs; ``.usda``/``.usdc`` write their textures next to the layer in
 ``<stem>_textures/`` (relative paths). Files are written atomically (nothing partial on failure).
 
+Blendshapes (``blendshapes="arkit"``, the default, or ``"ict"``; issue 28): the root is a
+``UsdSkel`` ``SkelRoot``; the meshes' points are the neutral mesh; each mesh with blendshapes gets
+``skel:blendShapes`` and ``skel:blendShapeTargets`` and one ``BlendShape`` prim per name under it
+(sparse ``pointIndices``, ``offsets`` in mm, ``normalOffsets``); a ``Skeleton``
+(``/<name>/skeleton``: ``head``, and the eyes when there are eyeballs) with a ``SkelAnimation``
+(``/<name>/animation``) holds the fitted weights, or a take's time samples
+(:func:`_write_skeleton`); ``customData`` of the root records the naming and its notes.
+:func:`skel_points` evaluates a file with UsdSkel's own queries.
+
 :func:`validate_usd` runs every validator usd-core registers (``pxr.UsdValidation``) on a file;
 :func:`check_usd` checks that the stage opens, every texture path resolves (inside the package for
 usdz) and the material binds.
@@ -59,12 +68,15 @@ import numpy as np
 from facegeo.asset import SPECULAR_F0_SCALE, Asset
 from facegeo.colour import srgb_to_linear
 from facegeo.errors import InputError, OutputError
-from facegeo.export.scene import SceneContents, scene_contents
+from facegeo.export.animation import EYE_NAMES, HEAD_NAME, rotations, target_weights
+from facegeo.export.live_link import ArkitTake
+from facegeo.export.scene import SceneContents, scene_surfaces
+from facegeo.parts import EYEBALLS_PART, eyeball_centres
 from facegeo.export.textures import DEFAULT_ROUGHNESS, encode_map
 from facegeo.image_files import png_bytes
 from facegeo.staged_output import WRITE_FAULTS, StagedOutput, atomic_write_bytes
 
-__all__ = ["write_usd", "validate_usd", "check_usd", "UsdCheck", "USD_SUFFIXES"]
+__all__ = ["write_usd", "validate_usd", "check_usd", "skel_points", "UsdCheck", "USD_SUFFIXES"]
 
 USD_SUFFIXES = (".usda", ".usdc", ".usd", ".usdz")
 
@@ -78,12 +90,18 @@ def write_usd(
     maps: Iterable[str] | None = None,
     linear_bits: int = 8,
     uv_interpolation: str = "surface",
+    blendshapes: str | None = "arkit",
+    animation: ArkitTake | None = None,
+    surfaces: list[tuple[str, SceneContents]] | None = None,
 ) -> Path:
     """Write ``asset`` as a USD file; the suffix of ``path`` picks the format (.usda, .usdc,
     .usd = usdc, .usdz). ``level``: Loop subdivision levels; ``displacement``: "bake" or
     "texture"; ``maps``: the map names to carry (default all the asset has); ``linear_bits``:
     8 or 16 for the normal, roughness and specular textures (albedo is 8-bit sRGB, displacement
-    16-bit). Returns the path written.
+    16-bit); ``blendshapes``: the blend shapes' names, "arkit" or "ict", or None to leave them
+    out (a static asset); ``animation``: a take to animate the face with; ``surfaces``: the
+    asset's :func:`facegeo.export.scene.scene_surfaces` with these options, if already computed
+    (shared with another format). Returns the path written.
 
     Raises:
         InputError: unknown suffix, bad options, or a map asked for that the asset lacks.
@@ -94,14 +112,21 @@ def write_usd(
         raise InputError(target, "file name", f"a USD suffix ({', '.join(USD_SUFFIXES)})", target.suffix or "none")
     if linear_bits not in (8, 16):
         raise InputError(target, "linear_bits", "8 or 16", repr(linear_bits))
-    contents = scene_contents(asset, level=level, displacement=displacement, maps=maps, uv_interpolation=uv_interpolation)
-    parts = [(_prim_name(part.name), scene_contents(part)) for part in asset.parts]
+    if animation is not None and blendshapes is None:
+        raise InputError(target, "blendshapes", "a naming (arkit or ict) to animate the face with", "none")
+    if surfaces is None:
+        surfaces = scene_surfaces(asset, level=level, displacement=displacement, maps=maps, uv_interpolation=uv_interpolation,
+                                  blendshapes=blendshapes)
+    contents = surfaces[0][1]
+    parts = [(_prim_name(name), part) for name, part in surfaces[1:]]
+    if animation is not None and contents.targets is None and not any(p.targets for _, p in parts):
+        raise InputError(target, "blendshapes", "an asset with blendshapes to animate", "none")
     name = _prim_name(asset.name)
     if suffix == ".usdz":
         try:
             with tempfile.TemporaryDirectory(prefix="facegeo-usdz-") as tmp:
                 root = Path(tmp) / f"{name}.usdc"
-                _write_layer(contents, parts, root, name, "textures", linear_bits)
+                _write_layer(contents, parts, root, name, "textures", linear_bits, animation)
                 package = Path(tmp) / f"{name}.usdz"
                 from pxr import Sdf, UsdUtils
 
@@ -119,7 +144,7 @@ def write_usd(
         return target
     with StagedOutput(target.parent) as stage:
         layer = stage.path(target.name)
-        _write_layer(contents, parts, layer, name, f"{target.stem}_textures", linear_bits)
+        _write_layer(contents, parts, layer, name, f"{target.stem}_textures", linear_bits, animation)
     return target
 
 
@@ -134,15 +159,17 @@ def _prim_name(name: str) -> str:
 
 
 def _write_layer(contents: SceneContents, parts: list[tuple[str, SceneContents]], layer_path: Path, name: str,
-                 texture_dir: str, linear_bits: int) -> None:
+                 texture_dir: str, linear_bits: int, animation: ArkitTake | None = None) -> None:
     """The stage: the skin at ``/<name>/mesh`` with ``/<name>/mtl/material``, and each part at
-    ``/<name>/parts/<part>`` with ``/<name>/mtl/<part>`` (its textures ``<part>_<map>.png``)."""
-    from pxr import Kind, Tf, Usd, UsdGeom
+    ``/<name>/parts/<part>`` with ``/<name>/mtl/<part>`` (its textures ``<part>_<map>.png``);
+    with blend shapes the root is a ``SkelRoot`` holding the skeleton (:func:`_write_skeleton`)."""
+    from pxr import Kind, Tf, Usd, UsdGeom, UsdSkel
 
     stage = Usd.Stage.CreateNew(str(layer_path))
     UsdGeom.SetStageUpAxis(stage, UsdGeom.Tokens.y)
     UsdGeom.SetStageMetersPerUnit(stage, 0.001)
-    root = UsdGeom.Xform.Define(stage, f"/{name}")
+    skinned = contents.targets is not None or any(p.targets is not None for _, p in parts)
+    root = (UsdSkel.Root if skinned else UsdGeom.Xform).Define(stage, f"/{name}")
     stage.SetDefaultPrim(root.GetPrim())
     Usd.ModelAPI(root.GetPrim()).SetKind(Kind.Tokens.component)
     UsdGeom.Scope.Define(stage, f"/{name}/mtl")
@@ -153,6 +180,9 @@ def _write_layer(contents: SceneContents, parts: list[tuple[str, SceneContents]]
     for part_name, part in parts:
         _write_surface(stage, part, f"/{name}/parts/{part_name}", f"/{name}/mtl/{part_name}",
                        f"{texture_dir}/{part_name}_", linear_bits, textures)
+    if skinned:
+        surfaces = [(f"/{name}/mesh", contents)] + [(f"/{name}/parts/{p}", c) for p, c in parts]
+        _write_skeleton(stage, f"/{name}", surfaces, animation)
     for rel, data in textures.items():
         out = layer_path.parent / rel
         out.parent.mkdir(parents=True, exist_ok=True)
@@ -265,6 +295,95 @@ def _write_surface(stage: Any, contents: SceneContents, mesh_path: str, material
     binding.Bind(material)
 
 
+def _write_skeleton(stage: Any, root: str, surfaces: list[tuple[str, SceneContents]], take: ArkitTake | None) -> None:
+    """UsdSkel: the blend shapes of every surface with targets, a ``Skeleton`` (``<root>/skeleton``)
+    and its ``SkelAnimation`` (``<root>/animation``) with the fitted weights, or the take's
+    time-sampled weights and joint rotations.
+
+    Joints: ``head`` (every mesh is bound to it rigidly; it turns about the model's origin) and,
+    with an eyeballs part, ``head/eye_left`` and ``head/eye_right`` at the eyes' centres (each
+    eyeball vertex is bound to its eye; :mod:`facegeo.export.animation`). Each mesh with targets
+    gets ``skel:blendShapes`` (the target names) and ``skel:blendShapeTargets``: one
+    ``BlendShape`` prim per target under the mesh, with sparse ``pointIndices``, ``offsets``
+    (mm) and ``normalOffsets``. UsdSkel evaluates the mesh at the animation's weights as
+    points + Σ weight × offsets (``UsdSkel.BlendShapeQuery``)."""
+    from pxr import Gf, Usd, UsdSkel, Vt
+
+    eyeballs = next((c for path, c in surfaces if path.rsplit("/", 1)[-1] == _prim_name(EYEBALLS_PART)), None)
+    joints = [HEAD_NAME]
+    rest = [Gf.Matrix4d(1.0)]
+    side = None
+    if eyeballs is not None:
+        side, centres = eyeball_centres(eyeballs.mesh.vertices)
+        for eye, centre in zip(EYE_NAMES, centres):
+            joints.append(f"{HEAD_NAME}/{eye}")
+            rest.append(Gf.Matrix4d(1.0).SetTranslate(Gf.Vec3d(*map(float, centre))))
+    skeleton = UsdSkel.Skeleton.Define(stage, f"{root}/skeleton")
+    skeleton.CreateJointsAttr(Vt.TokenArray(joints))
+    skeleton.CreateBindTransformsAttr(Vt.Matrix4dArray(rest))
+    skeleton.CreateRestTransformsAttr(Vt.Matrix4dArray(rest))
+    anim = UsdSkel.Animation.Define(stage, f"{root}/animation")
+    UsdSkel.BindingAPI.Apply(skeleton.GetPrim()).CreateAnimationSourceRel().SetTargets([anim.GetPath()])
+    anim.CreateJointsAttr(Vt.TokenArray(joints))
+    anim.CreateTranslationsAttr(Vt.Vec3fArray([Gf.Vec3f(m.ExtractTranslation()) for m in rest]))
+    anim.CreateScalesAttr(Vt.Vec3hArray([Gf.Vec3h(1.0, 1.0, 1.0)] * len(joints)))
+    rotations_attr = anim.CreateRotationsAttr(Vt.QuatfArray([Gf.Quatf(1.0)] * len(joints)))
+    shaped = None  # the targets of a surface (every surface's have the same names and weights)
+    for path, contents in surfaces:
+        prim = stage.GetPrimAtPath(path)
+        binding = UsdSkel.BindingAPI.Apply(prim)
+        binding.CreateSkeletonRel().SetTargets([skeleton.GetPath()])
+        binding.CreateGeomBindTransformAttr(Gf.Matrix4d(1.0))
+        if contents is eyeballs and side is not None:
+            binding.CreateJointIndicesPrimvar(False, 1).Set(Vt.IntArray.FromNumpy(np.where(side, 1, 2).astype(np.int32)))
+            binding.CreateJointWeightsPrimvar(False, 1).Set(Vt.FloatArray.FromNumpy(np.ones(len(side), np.float32)))
+        else:
+            binding.CreateJointIndicesPrimvar(True, 1).Set(Vt.IntArray([0]))
+            binding.CreateJointWeightsPrimvar(True, 1).Set(Vt.FloatArray([1.0]))
+        targets = contents.targets
+        if targets is None:
+            continue
+        shaped = targets
+        binding.CreateBlendShapesAttr(Vt.TokenArray(list(targets.names)))
+        shape_paths = []
+        for target in targets.targets:
+            shape = UsdSkel.BlendShape.Define(stage, f"{path}/{target.name}")
+            shape.CreatePointIndicesAttr(Vt.IntArray.FromNumpy(target.indices.astype(np.int32)))
+            shape.CreateOffsetsAttr(Vt.Vec3fArray.FromNumpy(target.positions))
+            shape.CreateNormalOffsetsAttr(Vt.Vec3fArray.FromNumpy(target.normals))
+            shape_paths.append(shape.GetPath())
+        binding.CreateBlendShapeTargetsRel().SetTargets(shape_paths)
+    assert shaped is not None  # _write_layer calls this only with targets
+    anim.CreateBlendShapesAttr(Vt.TokenArray(list(shaped.names)))
+    weights_attr = anim.CreateBlendShapeWeightsAttr(Vt.FloatArray.FromNumpy(shaped.weights.astype(np.float32)))
+    root_prim = stage.GetPrimAtPath(root)
+    root_prim.SetCustomDataByKey("blendshapeNames", shaped.naming.naming)
+    root_prim.SetCustomDataByKey("blendshapeNotes", Vt.StringArray(shaped.notes))
+    if take is None:
+        return
+    fps = take.fps
+    stage.SetTimeCodesPerSecond(fps)
+    stage.SetFramesPerSecond(fps)
+    stage.SetStartTimeCode(0.0)
+    stage.SetEndTimeCode(float(take.times[-1] * fps))
+    frames = target_weights(take, shaped.naming).astype(np.float32)
+    quats = {group: rotations(take.rotations[group]) for group in ("head", *EYE_NAMES.values()) if group in take.rotations}
+    groups = ["head", *EYE_NAMES.values()][:len(joints)]
+    for k, t in enumerate(take.times):
+        code = Usd.TimeCode(float(t * fps))
+        weights_attr.Set(Vt.FloatArray.FromNumpy(frames[k]), code)
+        if quats:
+            rotations_attr.Set(Vt.QuatfArray([_quatf(quats[g][k]) if g in quats else Gf.Quatf(1.0) for g in groups]), code)
+
+
+def _quatf(xyzw: np.ndarray) -> Any:
+    """Gf.Quatf (real first) of an (x, y, z, w) quaternion."""
+    from pxr import Gf
+
+    x, y, z, w = (float(v) for v in xyzw)
+    return Gf.Quatf(w, x, y, z)
+
+
 def _usd_reason(exc: Exception) -> str:
     """The first quoted reason of a usd-core error (its message lists every C++ frame)."""
     reasons = re.findall(r": '([^']+)'", str(exc))
@@ -296,6 +415,56 @@ def validate_usd(path: str | os.PathLike[str]) -> list[tuple[str, str, str]]:
         validator = error.GetValidator()
         vname = validator.GetMetadata().name if validator is not None else ""
         out.append((str(error.GetType()).rsplit(".", 1)[-1], str(vname), error.GetErrorAsString()))
+    return out
+
+
+def skel_points(path: str | os.PathLike[str], time: float | None = None,
+                weights: dict[str, float] | None = None) -> dict[str, np.ndarray]:
+    """The points of every skinned mesh of a USD file as UsdSkel itself evaluates them
+    (``UsdSkel.Cache``, ``UsdSkel.BlendShapeQuery``, then the skeleton's linear blend skinning) at
+    ``time`` (a time code; None: the default values, i.e. the fitted weights of a static file):
+    mesh prim path -> (V, 3) float64, the stage's units (mm). ``weights``: blend shape name ->
+    weight to evaluate instead of the animation's (the others 0; in the session layer, the file
+    is not changed). Meshes outside a ``SkelRoot`` are left out.
+
+    Raises:
+        InputError: a name in ``weights`` that no animation has.
+    """
+    from pxr import Usd, UsdSkel, Vt
+
+    stage = Usd.Stage.Open(str(path))
+    code = Usd.TimeCode.Default() if time is None else Usd.TimeCode(float(time))
+    if weights is not None:
+        stage.SetEditTarget(stage.GetSessionLayer())
+        animations = [UsdSkel.Animation(p) for p in stage.Traverse() if p.IsA(UsdSkel.Animation)]
+        known = {str(n) for a in animations for n in a.GetBlendShapesAttr().Get()}
+        unknown = sorted(set(weights) - known)
+        if unknown:
+            raise InputError(path, "blend shape", f"names among the animation's ({len(known)})", ", ".join(unknown))
+        for anim in animations:
+            names = [str(n) for n in anim.GetBlendShapesAttr().Get()]
+            anim.GetBlendShapeWeightsAttr().Set(Vt.FloatArray([float(weights.get(n, 0.0)) for n in names]), code)
+    cache = UsdSkel.Cache()
+    out: dict[str, np.ndarray] = {}
+    for root_prim in stage.Traverse():
+        if not root_prim.IsA(UsdSkel.Root):
+            continue
+        cache.Populate(UsdSkel.Root(root_prim), Usd.PrimDefaultPredicate)
+        for binding in cache.ComputeSkelBindings(UsdSkel.Root(root_prim), Usd.PrimDefaultPredicate):
+            skel_query = cache.GetSkelQuery(binding.GetSkeleton())
+            anim_query = skel_query.GetAnimQuery()
+            xforms = skel_query.ComputeSkinningTransforms(code)
+            for skinning in binding.GetSkinningTargets():
+                prim = skinning.GetPrim()
+                points = prim.GetAttribute("points").Get(code)
+                if skinning.HasBlendShapes() and anim_query:
+                    weights = skinning.GetBlendShapeMapper().Remap(anim_query.ComputeBlendShapeWeights(code))
+                    shapes = UsdSkel.BlendShapeQuery(UsdSkel.BindingAPI(prim))
+                    sub_weights, indices, sub_indices = shapes.ComputeSubShapeWeights(weights)
+                    shapes.ComputeDeformedPoints(sub_weights, indices, sub_indices, shapes.ComputeBlendShapePointIndices(),
+                                                 shapes.ComputeSubShapePointOffsets(), points)
+                skinning.ComputeSkinnedPoints(xforms, points, code)
+                out[str(prim.GetPath())] = np.array(points, dtype=np.float64)
     return out
 
 

@@ -1,15 +1,20 @@
-"""One entry point for all formats: :func:`export_asset` picks the writer from the format or suffix."""
+"""One entry point for all formats: :func:`export_asset` picks the writer from the format or suffix;
+:func:`export_scenes` writes several formats of one asset, computing the shared scene once."""
 
 from __future__ import annotations
 
 import os
 from pathlib import Path
-from typing import Iterable
+from typing import TYPE_CHECKING, Iterable, Sequence
 
 from facegeo.asset import Asset
 from facegeo.errors import InputError
 
-__all__ = ["export_asset", "FORMATS", "DEFAULT_FORMATS"]
+if TYPE_CHECKING:
+    from facegeo.export.live_link import ArkitTake
+    from facegeo.export.scene import SceneContents
+
+__all__ = ["export_asset", "export_scenes", "FORMATS", "DEFAULT_FORMATS"]
 
 #: Formats :func:`export_asset` writes (the file suffixes).
 FORMATS = ("usdz", "usdc", "usda", "glb")
@@ -26,19 +31,73 @@ def export_asset(
     displacement: str = "bake",
     maps: Iterable[str] | None = None,
     uv_interpolation: str = "surface",
+    blendshapes: str | None = "arkit",
+    animation: ArkitTake | None = None,
+    surfaces: list[tuple[str, SceneContents]] | None = None,
 ) -> Path:
     """Write ``asset`` to ``path`` as USD (usdz, usdc, usda) or glTF binary (glb).
 
     ``format``: one of FORMATS; default: the suffix of ``path``. A path without a suffix gets
     ``.<format>`` appended. ``level``: Loop subdivision levels (0-3 are practical); ``displacement``:
     "bake" (into the geometry) or "texture" (USD's displacement input; not possible in glTF);
-    ``maps``: the map names to carry (default: all the asset has). Returns the path written.
+    ``maps``: the map names to carry (default: all the asset has); ``blendshapes``: the names of
+    the asset's blendshapes in the file, "arkit" (default) or "ict" (glTF morph targets, UsdSkel
+    blend shapes; an asset without blendshapes is written static), or None to leave them out;
+    ``animation``: a Live Link Face take (:func:`facegeo.export.live_link.read_live_link_csv`)
+    to animate the face with; ``surfaces``: the asset's
+    :func:`facegeo.export.scene.scene_surfaces` with these options, if already computed
+    (:func:`export_scenes` shares them between formats). Returns the path written.
 
     Raises:
         InputError: unknown format, a suffix that contradicts ``format``, glb with
             ``displacement="texture"``, or any writer's input error.
     """
-    target = Path(path)
+    target, format = _resolve(Path(path), format, displacement)
+    if format == "glb":
+        from facegeo.export.gltf import write_glb
+
+        return write_glb(asset, target, level=level, maps=maps, uv_interpolation=uv_interpolation, blendshapes=blendshapes,
+                         animation=animation, surfaces=surfaces)
+    from facegeo.export.usd import write_usd
+
+    return write_usd(asset, target, level=level, displacement=displacement, maps=maps, uv_interpolation=uv_interpolation,
+                     blendshapes=blendshapes, animation=animation, surfaces=surfaces)
+
+
+def export_scenes(
+    asset: Asset,
+    outputs: Sequence[tuple[str | os.PathLike[str], str | None]],
+    *,
+    level: int = 0,
+    displacement: str = "bake",
+    maps: Iterable[str] | None = None,
+    uv_interpolation: str = "surface",
+    blendshapes: str | None = "arkit",
+    animation: ArkitTake | None = None,
+) -> list[Path]:
+    """:func:`export_asset` for several ``(path, format)`` outputs of one asset (format None: the
+    suffix's), with the same options: the scene's geometry, materials and blendshape targets
+    (:func:`facegeo.export.scene.scene_surfaces`) are computed once for every output that bakes
+    the displacement (glb always, USD with ``displacement="bake"``). Every output is checked
+    before anything is written. Returns the paths written, in order."""
+    from facegeo.export.scene import scene_surfaces
+
+    resolved = [_resolve(Path(path), format, displacement) for path, format in outputs]
+    maps = None if maps is None else list(maps)
+    shared = None
+    written = []
+    for target, fmt in resolved:
+        bakes = fmt == "glb" or displacement == "bake"
+        if bakes and shared is None:
+            shared = scene_surfaces(asset, level=level, maps=maps, uv_interpolation=uv_interpolation, blendshapes=blendshapes)
+        written.append(export_asset(asset, target, format=fmt, level=level, displacement=displacement, maps=maps,
+                                    uv_interpolation=uv_interpolation, blendshapes=blendshapes, animation=animation,
+                                    surfaces=shared if bakes else None))
+    return written
+
+
+def _resolve(target: Path, format: str | None, displacement: str) -> tuple[Path, str]:
+    """The path and format of one output (the checks of :func:`export_asset`)."""
     suffix = target.suffix.lower().lstrip(".")
     if format is None:
         if suffix not in FORMATS:
@@ -51,12 +110,6 @@ def export_asset(
         target = target.with_name(target.name + "." + format)
     elif suffix != format:
         raise InputError(target, "file name", f"the .{format} suffix for format {format}", target.suffix)
-    if format == "glb":
-        if displacement != "bake":
-            raise InputError(target, "displacement", "'bake' for glTF (glTF has no displacement input)", repr(displacement))
-        from facegeo.export.gltf import write_glb
-
-        return write_glb(asset, target, level=level, maps=maps, uv_interpolation=uv_interpolation)
-    from facegeo.export.usd import write_usd
-
-    return write_usd(asset, target, level=level, displacement=displacement, maps=maps, uv_interpolation=uv_interpolation)
+    if format == "glb" and displacement != "bake":
+        raise InputError(target, "displacement", "'bake' for glTF (glTF has no displacement input)", repr(displacement))
+    return target, format

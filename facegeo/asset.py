@@ -24,6 +24,11 @@ Parts: an asset may carry ``parts``, further assets (eyeballs, teeth, ...; see
 :mod:`facegeo.parts`) in the same space, each with its own UVs and material; the exporters write
 each as its own mesh and material. ``face_triangles`` marks the skin's face region, so that a scene
 can be cut down to it (:meth:`Asset.select`, ``--parts face|head|full``).
+
+Blendshapes: an asset (and each part the expressions move) may carry ``blendshapes``
+(:class:`facegeo.blendshapes.Blendshapes`): its vertices are then the neutral mesh plus the
+shapes at the fitted weights, so the exporters can write morph targets / blend shapes and the
+asset can be animated (:meth:`Asset.neutral_vertices`).
 """
 
 from __future__ import annotations
@@ -33,6 +38,7 @@ from typing import Any
 
 import numpy as np
 
+from facegeo.blendshapes import Blendshapes
 from facegeo.errors import InputError
 
 __all__ = ["Asset", "MAP_NAMES", "MAP_CHANNELS", "PART_CHOICES", "SPECULAR_F0_SCALE"]
@@ -61,6 +67,8 @@ class Asset:
     parts: further assets (eyeballs, teeth, ...) in the same space, each with its own UVs and
     material; they have no parts themselves and their names are distinct.
     face_triangles: (F,) bool, the triangles of the face region, or None (all of them).
+    blendshapes: the expression shapes of these vertices and the fitted weights, or None (a
+    static surface); the skin and the parts that have them share names and weights.
     """
 
     vertices: np.ndarray
@@ -73,6 +81,7 @@ class Asset:
     metadata: dict[str, Any] = field(default_factory=dict)
     parts: list["Asset"] = field(default_factory=list)
     face_triangles: np.ndarray | None = None
+    blendshapes: Blendshapes | None = None
 
     def __post_init__(self) -> None:
         self.vertices = np.ascontiguousarray(self.vertices, dtype=np.float32)
@@ -133,6 +142,22 @@ class Asset:
             if part.name in names:
                 raise InputError(source, "parts", "distinct names", repr(part.name))
             names.append(part.name)
+        if self.blendshapes is not None and not isinstance(self.blendshapes, Blendshapes):
+            raise InputError(source, "blendshapes", "a facegeo.blendshapes.Blendshapes", type(self.blendshapes).__name__)
+        shaped = [(s, s.blendshapes) for s in (self, *self.parts) if s.blendshapes is not None]
+        for surface, shapes in shaped:
+            shapes.validate(source if surface is self else f"{source}: parts[{surface.name!r}]", len(surface.vertices))
+            first = shaped[0][1]
+            if shapes.names != first.names or not np.array_equal(shapes.weights, first.weights):
+                raise InputError(source, f"parts[{surface.name!r}].blendshapes", "the same blendshape names and weights as the other surfaces",
+                                 "others")
+
+    def neutral_vertices(self) -> np.ndarray:
+        """(V, 3) float32 mm: the vertices at blendshape weights 0 (the identity without the
+        expression); the vertices themselves for an asset without blendshapes."""
+        if self.blendshapes is None:
+            return self.vertices
+        return (self.vertices.astype(np.float64) - self.blendshapes.offset()).astype(np.float32)
 
     def select(self, parts: str = "full") -> "Asset":
         """The scene ``parts`` asks for (one of :data:`PART_CHOICES`): ``"full"`` this asset,
@@ -146,4 +171,5 @@ class Asset:
         used, triangles = np.unique(self.triangles[keep], return_inverse=True)
         return Asset(self.vertices[used], triangles.reshape(-1, 3), self.uv, self.uv_triangles[keep],
                      maps=self.maps, constants=dict(self.constants), name=self.name, metadata=self.metadata,
-                     face_triangles=None if parts == "face" or self.face_triangles is None else self.face_triangles)
+                     face_triangles=None if parts == "face" or self.face_triangles is None else self.face_triangles,
+                     blendshapes=None if self.blendshapes is None else self.blendshapes.subset(used))

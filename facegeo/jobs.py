@@ -86,6 +86,9 @@ class ReconstructOptions(FitOptions):
         formats: scene formats to write (names from ``facegeo.export.writers.FORMATS``).
         parts: what the scenes hold: face, head or full (``facegeo.asset.PART_CHOICES``).
         preview: render preview.png.
+        blendshapes: write the expression blendshapes into the scenes (glTF morph targets,
+            UsdSkel blend shapes) so that they can be animated; False: a static asset.
+        blendshape_names: their names, ``arkit`` or ``ict`` (``facegeo.export.arkit.BLENDSHAPE_NAMINGS``).
     """
 
     backend: str = "default"
@@ -97,6 +100,8 @@ class ReconstructOptions(FitOptions):
     formats: tuple[str, ...] = ("usdz", "glb")
     parts: str = "full"
     preview: bool = True
+    blendshapes: bool = True
+    blendshape_names: str = "arkit"
 
     def __post_init__(self) -> None:
         super().__post_init__()
@@ -117,6 +122,10 @@ class ReconstructOptions(FitOptions):
             raise InputError(_SOURCE, "subdiv", "0, 1, 2 or 3", str(self.subdiv))
         if self.parts not in PART_CHOICES:
             raise InputError(_SOURCE, "parts", f"one of {', '.join(PART_CHOICES)}", repr(self.parts))
+        from facegeo.export.arkit import BLENDSHAPE_NAMINGS
+
+        if self.blendshape_names not in BLENDSHAPE_NAMINGS:
+            raise InputError(_SOURCE, "blendshape_names", f"one of {', '.join(BLENDSHAPE_NAMINGS)}", repr(self.blendshape_names))
 
 
 @dataclass
@@ -225,7 +234,7 @@ def reconstruct_into_folder(photo_path: str | Path, output: str | Path, options:
     """
     from facegeo.errors import NoFaceError
     from facegeo.export.asset_io import write_asset_files
-    from facegeo.export.writers import export_asset
+    from facegeo.export.writers import export_scenes
     from facegeo.fitting import fit
     from facegeo.image_files import png_bytes
     from facegeo.photo import load_photo
@@ -260,8 +269,8 @@ def reconstruct_into_folder(photo_path: str | Path, output: str | Path, options:
                 stage.path("skin_mask.png").write_bytes(png_bytes(skin_mask_image(skin)))
             carried = [m for m in asset.maps if m != "displacement" or options.subdiv > 0]  # DISPLACEMENT_BAKE_RULE
             scene = asset.select(options.parts)
-            for fmt in options.formats:
-                export_asset(scene, stage.path(f"face.{fmt}"), format=fmt, level=options.subdiv, maps=carried)
+            export_scenes(scene, [(stage.path(f"face.{fmt}"), fmt) for fmt in options.formats], level=options.subdiv, maps=carried,
+                          blendshapes=options.blendshape_names if options.blendshapes else None)
             timings["export"] = time.perf_counter() - t
             if options.preview:
                 if progress is not None:

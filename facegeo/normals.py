@@ -39,13 +39,16 @@ def vertex_normals(vertices: np.ndarray, triangles: np.ndarray) -> np.ndarray:
     """Unit vertex normals by the module's rule.
 
     Args:
-        vertices: (V, 3) positions (any float dtype, any units).
+        vertices: (V, 3) positions (any float dtype, any units), or (B, V, 3): B meshes on the
+            same triangles (e.g. a mesh's blendshapes), computed together.
         triangles: (F, 3) counter-clockwise vertex indices.
     Returns:
-        (V, 3) float64 unit vectors.
+        (V, 3) or (B, V, 3) float64 unit vectors.
     """
     v = np.asarray(vertices, dtype=np.float64)
     f = np.asarray(triangles, dtype=np.int64).reshape(-1, 3)
+    if v.ndim == 3:
+        return _batched_vertex_normals(v, f)
     face_n = np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]])  # 2 × area × unit normal
     corners = f.ravel()
     n = np.stack([np.bincount(corners, weights=np.repeat(face_n[:, c], 3), minlength=len(v)) for c in range(3)], axis=1)
@@ -70,6 +73,44 @@ def vertex_normals(vertices: np.ndarray, triangles: np.ndarray) -> np.ndarray:
         bad[idx] = False
         if not bad.any():
             break
+    unit[bad] = FALLBACK_NORMAL
+    return unit
+
+
+def _batched_vertex_normals(v: np.ndarray, f: np.ndarray) -> np.ndarray:
+    """:func:`vertex_normals` of (B, V, 3) meshes: the face normals' sums by one sparse product,
+    and the same fallback (neighbours' normals, ring by ring) for all meshes at once."""
+    import scipy.sparse as sp
+
+    b, n = v.shape[:2]
+    rows = np.ascontiguousarray(v.transpose(1, 0, 2))  # (V, B, 3): a triangle's corners gather whole rows
+    e1, e2 = rows[f[:, 1]] - rows[f[:, 0]], rows[f[:, 2]] - rows[f[:, 0]]
+    face_n = np.empty_like(e1)  # (F, B, 3) cross products
+    face_n[..., 0] = e1[..., 1] * e2[..., 2] - e1[..., 2] * e2[..., 1]
+    face_n[..., 1] = e1[..., 2] * e2[..., 0] - e1[..., 0] * e2[..., 2]
+    face_n[..., 2] = e1[..., 0] * e2[..., 1] - e1[..., 1] * e2[..., 0]
+    incidence = sp.csr_matrix((np.ones(f.size), (f.ravel(), np.repeat(np.arange(len(f)), 3))), shape=(n, len(f)))
+    sums = (incidence @ face_n.reshape(len(f), 3 * b)).reshape(n, b, 3).transpose(1, 0, 2)
+    length = np.sqrt(np.einsum("bvc,bvc->bv", sums, sums))
+    scale = length.max(axis=1, keepdims=True) if n else length
+    bad = length <= _RELATIVE_EPS * np.maximum(scale, 1e-300)
+    unit = np.where(bad[..., None], 0.0, sums / np.where(bad, 1.0, length)[..., None])
+    if not bad.any():
+        return unit
+    e = _edges(f)  # the fallback of vertex_normals, ring by ring, for all meshes at once
+    adjacency = sp.csr_matrix((np.ones(2 * len(e)), (np.concatenate([e[:, 0], e[:, 1]]), np.concatenate([e[:, 1], e[:, 0]]))),
+                              shape=(n, n))
+    for _ in range(FALLBACK_RINGS):
+        rows = np.flatnonzero(bad.any(axis=0))
+        neighbour = (adjacency[rows] @ unit.transpose(1, 0, 2).reshape(n, 3 * b)).reshape(len(rows), b, 3).transpose(1, 0, 2)
+        nl = np.sqrt(np.einsum("brc,brc->br", neighbour, neighbour))
+        fixed = bad[:, rows] & (nl > 1e-12)
+        block = unit[:, rows]
+        block[fixed] = neighbour[fixed] / nl[fixed][:, None]
+        unit[:, rows] = block
+        bad[:, rows] &= ~fixed
+        if not bad.any():
+            return unit
     unit[bad] = FALLBACK_NORMAL
     return unit
 

@@ -30,6 +30,7 @@ import numpy as np
 import torch
 
 from facegeo.asset import Asset
+from facegeo.blendshapes import Blendshapes, model_blendshapes
 from facegeo.errors import ModelFileError
 from facegeo.morphable_model import MorphableModel, _dtype_of
 
@@ -42,6 +43,8 @@ __all__ = [
     "PART_MATERIALS",
     "DEFAULT_IRIS_SRGB",
     "PARTS_ASSET",
+    "EYEBALLS_PART",
+    "eyeball_centres",
 ]
 
 #: The bundled parts file, relative to ``facegeo.assets``.
@@ -130,6 +133,12 @@ class PartModel:
         batch = torch.broadcast_shapes(out.shape[:-2], skin.shape[:-2])
         out, skin = out.expand(*batch, *out.shape[-2:]), skin.expand(*batch, *skin.shape[-2:])
         return torch.cat([out, skin], dim=-2)
+
+    def expression_deltas(self, model: MorphableModel) -> np.ndarray:
+        """(n_exp, V + K, 3) float32 mm per unit weight: how each expression moves the vertices
+        :meth:`shape` returns (the own vertices' B_exp,p, then the shared skin vertices' rows of
+        the model's B_exp), so that ``shape(α, δ) = shape(α, 0) + Σ_k δ_k · deltas[k]`` exactly."""
+        return np.concatenate([self.exp_basis, model.exp_basis[:, self.skin_index]], axis=1)
 
 
 def _default_parts_path() -> Path | None:
@@ -222,6 +231,42 @@ def part_vertices(parts: tuple[PartModel, ...], model: MorphableModel, alpha: np
         return {p.name: p.shape(model, alpha, delta).numpy().astype(np.float32) for p in parts}
 
 
+#: The part that holds both eyeballs (ICT-FaceKit's name): the one an animation turns per eye.
+EYEBALLS_PART = "eyeballs"
+
+
+def eyeball_centres(vertices: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The rotation centres of the two eyeballs of an eyeballs part, mm (model space).
+
+    ``vertices`` (V, 3): both eyeballs; a vertex at x > 0 belongs to the subject's left eye (+X
+    is the subject's left, DESIGN.md "Conventions"). Each eye's centre is the least-squares
+    sphere through its vertices, fitted again without the 20 % that sit farthest off that
+    sphere (the cornea's bulge), so it is the globe's centre, the point an eye turns about.
+
+    Returns:
+        ``(side (V,) bool, True for the left eye; centres (2, 3) float64: left, right)``.
+    Raises:
+        ValueError: an eye with fewer than 4 vertices.
+    """
+    p = np.asarray(vertices, dtype=np.float64)
+    left = p[:, 0] > 0.0
+    centres = []
+    for mask in (left, ~left):
+        q = p[mask]
+        if len(q) < 4:
+            raise ValueError(f"eyeball_centres: an eye with {len(q)} vertices (at least 4 needed)")
+        keep = np.ones(len(q), bool)
+        for _ in range(2):
+            a = np.concatenate([2.0 * q[keep], np.ones((int(keep.sum()), 1))], axis=1)
+            solution = np.linalg.lstsq(a, np.sum(q[keep] ** 2, axis=1), rcond=None)[0]
+            centre = solution[:3]
+            radius = np.sqrt(solution[3] + centre @ centre)
+            off = np.abs(np.linalg.norm(q - centre, axis=1) - radius)
+            keep = off <= np.quantile(off, 0.8)
+        centres.append(centre)
+    return left, np.stack(centres)
+
+
 def _smoothstep(edge0: float, edge1: float, x: np.ndarray) -> np.ndarray:
     t = np.clip((x - edge0) / (edge1 - edge0), 0.0, 1.0)
     return t * t * (3.0 - 2.0 * t)
@@ -260,8 +305,12 @@ def part_assets(parts: tuple[PartModel, ...], model: MorphableModel, alpha: np.n
                 delta: np.ndarray | None, iris_srgb: tuple[float, float, float] = DEFAULT_IRIS_SRGB,
                 texture_size: int = 256) -> list[Asset]:
     """One :class:`Asset` per part (model space, mm) with its material: eyeballs textured
-    (:func:`eyeball_texture`), the others constants from :data:`PART_MATERIALS`."""
+    (:func:`eyeball_texture`), the others constants from :data:`PART_MATERIALS`. A part that the
+    expressions move carries :class:`facegeo.blendshapes.Blendshapes` (:meth:`PartModel.expression_deltas`
+    at the weights ``delta``) when the skin has them (:func:`facegeo.blendshapes.model_blendshapes`);
+    ICT-FaceKit's eyeballs do not move with any expression and carry none."""
     vertices = part_vertices(parts, model, alpha, delta)
+    skin_shapes = model_blendshapes(model, delta)
     out = []
     for part in parts:
         material = dict(PART_MATERIALS.get(part.name, PART_MATERIALS["mouth_socket"]))
@@ -269,6 +318,10 @@ def part_assets(parts: tuple[PartModel, ...], model: MorphableModel, alpha: np.n
         if part.radial_mm is not None:
             maps["albedo"] = eyeball_texture(part, iris_srgb, texture_size)
             del material["albedo"]
+        shapes = None
+        if skin_shapes is not None:
+            shapes = Blendshapes(skin_shapes.names, part.expression_deltas(model), skin_shapes.weights.copy())
+            shapes = shapes if shapes.moves else None
         out.append(Asset(vertices[part.name], part.triangles, part.uv, part.uv_triangles, maps=maps,
-                         constants=material, name=part.name))
+                         constants=material, name=part.name, blendshapes=shapes))
     return out

@@ -16,6 +16,7 @@ from pathlib import Path
 import numpy as np
 
 from facegeo.asset import MAP_NAMES, Asset
+from facegeo.blendshapes import model_blendshapes
 from facegeo.camera import Camera
 from facegeo.errors import InputError
 from facegeo.fitting import Fit, Fitter, fit
@@ -168,6 +169,7 @@ def reconstruct_with_fit(
         name="face",
         parts=part_list,
         face_triangles=np.all(model.face_mask[model.triangles], axis=1),
+        blendshapes=model_blendshapes(model, result.delta),
         metadata={
             "parts": parts_report,
             "model": model.name,

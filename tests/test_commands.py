@@ -71,7 +71,7 @@ def test_reconstruct_passes_focal_to_the_job(tmp_path, monkeypatch, capsys):
     assert (options.focal, options.landmarks, options.maps) == (900.0, "dlib", ("albedo",))
 
 
-@pytest.mark.parametrize("name", [None, *("fit", "reconstruct", "unwrap", "export", "realy", "train-regressor",
+@pytest.mark.parametrize("name", [None, *("fit", "reconstruct", "unwrap", "export", "animate", "realy", "train-regressor",
                                           "make-synthetic-faces", "train-lora", "make-texture-pairs")])
 def test_help_of_every_subcommand(name, capsys):
     with pytest.raises(SystemExit) as exit_:
@@ -84,7 +84,7 @@ def test_the_subcommands_are_those_of_the_command_modules():
     from importlib import import_module
 
     declared = [c.name for m in COMMAND_MODULES for c in import_module(f"facegeo.commands.{m}").COMMANDS]
-    assert list(_subparsers()) == declared and len(declared) == 9
+    assert list(_subparsers()) == declared and len(declared) == 10
 
 
 def test_building_the_parser_imports_nothing_heavy():

@@ -44,3 +44,34 @@ def test_glb_imports_into_blender_with_textures_bound(tmp_path):
     colourspaces = {t["image"]: t["colorspace"] for textures in material.values() if isinstance(textures, list) for t in textures}
     assert colourspaces["albedo"] == "sRGB" and colourspaces["normal"] == "Non-Color"
     assert all(t["has_data"] and t["size"][0] > 0 for textures in material.values() if isinstance(textures, list) for t in textures)
+
+
+@pytest.mark.slow
+def test_blender_imports_the_targets_as_shape_keys_and_jaw_open_opens_the_mouth(tmp_path):
+    """Blender 3.4 imports face.glb with one shape key per target, named as the file's
+    targetNames; jawOpen = 1 drops the chin by more than 10 mm and moves the teeth and tongue."""
+    import pygltflib
+
+    from arkit_support import shaped_asset
+
+    blender = shutil.which("blender")
+    if blender is None:
+        pytest.skip("blender is not installed (apt-get install blender python3-numpy)")
+    asset, model, alpha, _ = shaped_asset()
+    glb = write_glb(asset, tmp_path / "face.glb")
+    names = {m.name: (m.extras or {}).get("targetNames") for m in pygltflib.GLTF2().load_binary(str(glb)).meshes}
+    chin = model.shape(alpha).numpy()[model.landmark_indices[8]] * 0.001  # iBUG 8 on the neutral mesh, metres
+    report_path = tmp_path / "report.json"
+    result = subprocess.run([blender, "-b", "--factory-startup", "--python", str(SCRIPT.parent / "shape_keys_glb.py"), "--",
+                             str(glb), str(report_path), "jawOpen", *map(str, chin)], capture_output=True, text=True, timeout=600)
+    assert report_path.is_file(), result.stdout[-2000:] + result.stderr[-2000:]
+    report = json.loads(report_path.read_text())
+    assert report["import"] == ["FINISHED"]
+    meshes = report["meshes"]
+    for name, targets in names.items():
+        assert meshes[name]["shape_keys"] == ([] if targets is None else ["Basis", *targets]), name
+    assert len(names["face"]) == 51
+    chin_drop_mm = -meshes["face"]["point"]["displacement"][1] * 1000.0
+    assert chin_drop_mm > 10.0, meshes["face"]["point"]
+    for part in ("teeth", "gums_tongue"):
+        assert meshes[part]["max_down"] * 1000.0 > 10.0, (part, meshes[part])

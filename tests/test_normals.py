@@ -93,3 +93,17 @@ def test_torch_twin_is_differentiable():
     minus[k, 2] -= h
     numeric = ((vertex_normals(plus, f) - vertex_normals(minus, f)) * weights.numpy()).sum() / (2 * h)
     assert abs(analytic - numeric) < 1e-6 * max(1.0, abs(numeric))
+
+
+def test_batched_normals_equal_one_mesh_at_a_time(model):
+    """(B, V, 3) meshes on one triangulation: the same normals as each mesh alone, the degenerate
+    fallback (ring neighbours, then +Z) included."""
+    shapes = model.mean_shape[None] + model.exp_basis[:6]
+    batched = vertex_normals(shapes, model.triangles)
+    assert batched.shape == shapes.shape
+    np.testing.assert_allclose(batched, np.stack([vertex_normals(s, model.triangles) for s in shapes]), atol=1e-14)
+    v, f, _, _ = grid_mesh(2)
+    v = np.vstack([v, [[2.5, 0.0, 0.0]], [[99.0, 99.0, 99.0]]])
+    f = np.vstack([f, [[0, 1, 9]]])
+    meshes = np.stack([v, v * [1.0, 1.0, -1.0], v + np.random.default_rng(0).normal(0, 0.1, v.shape)])
+    np.testing.assert_allclose(vertex_normals(meshes, f), np.stack([vertex_normals(x, f) for x in meshes]), atol=1e-14)

@@ -200,3 +200,40 @@ def test_iris_model_finds_the_irises_of_the_bundled_photo():
         along = (iris.centre - landmarks[a]) @ (landmarks[b] - landmarks[a]) / width**2
         assert 0.2 < along < 0.8  # between the eye corners
         assert 0.12 < iris.radius / width < 0.35  # an iris is about 40 % of the eye's width across
+
+
+def test_expression_deltas_pose_the_part_exactly(model, parts):
+    """shape(α, δ) = shape(α, 0) + Σ δ_k · expression_deltas[k] (the blendshapes the exporters
+    write), shared skin vertices included."""
+    rng = np.random.default_rng(1)
+    alpha = rng.normal(0, 0.8, model.n_id)
+    delta = rng.uniform(0, 1, model.n_exp) * (rng.random(model.n_exp) < 0.3)
+    for part in parts.values():
+        deltas = part.expression_deltas(model)
+        assert deltas.shape == (model.n_exp, part.n_vertices, 3)
+        with torch.no_grad():
+            posed = part.shape(model, alpha, delta).numpy()
+            neutral = part.shape(model, alpha).numpy()
+        np.testing.assert_allclose(posed, neutral + np.tensordot(delta, deltas.astype(np.float64), axes=1), atol=1e-9)
+    assert not parts["eyeballs"].expression_deltas(model).any()  # ICT's eyeballs move with no shape
+
+
+def test_eyeball_centres_are_the_globes_centres(model, parts):
+    from facegeo.parts import eyeball_centres
+
+    with torch.no_grad():
+        vertices = parts["eyeballs"].shape(model).numpy()
+    left, centres = eyeball_centres(vertices)
+    assert np.all(vertices[left, 0] > 0) and np.all(vertices[~left, 0] < 0)
+    np.testing.assert_allclose(centres[0] * [-1, 1, 1], centres[1], atol=0.05)  # ICT's eyes are mirror images
+    eye_corners = model.mean_shape[model.landmark_indices[42:48]].mean(axis=0)  # the subject's left eye
+    assert 8.0 < eye_corners[2] - centres[0][2] < 16.0  # the globe's centre sits behind the lids
+    pupil = vertices[left][np.argmin(parts["eyeballs"].radial_mm[left])]  # on the optical axis
+    axis = (pupil - centres[0]) / np.linalg.norm(pupil - centres[0])
+    assert axis[2] > 0.98  # the centre is on the axis, behind the pupil
+    # a known sphere: the centre comes back
+    rng = np.random.default_rng(0)
+    d = rng.normal(size=(500, 3))
+    sphere = 12.0 * d / np.linalg.norm(d, axis=1, keepdims=True)
+    both = np.concatenate([sphere + [30, 35, 80], sphere + [-30, 35, 80]])
+    np.testing.assert_allclose(eyeball_centres(both)[1], [[30, 35, 80], [-30, 35, 80]], atol=1e-9)

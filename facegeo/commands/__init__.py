@@ -10,6 +10,7 @@ module                         subcommands
 ``commands.reconstruct``       ``reconstruct`` (:func:`facegeo.jobs.reconstruct_into_folder`)
 ``commands.unwrap``            ``unwrap``
 ``commands.export``            ``export``
+``commands.animate``           ``animate``
 ``commands.realy``             ``realy``
 ``commands.regressor``         ``train-regressor``, ``make-synthetic-faces``
 ``commands.diffusion``         ``train-lora``, ``make-texture-pairs``
@@ -44,7 +45,7 @@ from facegeo.errors import FacegeoError
 __all__ = ["main", "build_parser", "Interrupted", "COMMAND_MODULES"]
 
 #: The command modules, in the order ``facegeo --help`` lists their subcommands.
-COMMAND_MODULES = ("fit", "reconstruct", "unwrap", "export", "realy", "regressor", "diffusion")
+COMMAND_MODULES = ("fit", "reconstruct", "unwrap", "export", "animate", "realy", "regressor", "diffusion")
 
 
 class Interrupted(KeyboardInterrupt):

@@ -23,7 +23,8 @@ from facegeo.errors import InputError
 
 __all__ = ["Command", "add_commands", "RegistryNames", "COMMAND_LINE", "DETECTOR_NAMES", "parse_list", "check_arguments", "option_defaults",
            "add_photo_arguments", "add_fit_arguments", "add_model_argument", "add_regressor_arguments", "add_parts_argument",
-           "add_seed_argument", "add_device_argument", "add_batch_arguments", "wants_batch"]
+           "add_seed_argument", "add_device_argument", "add_batch_arguments", "wants_batch", "add_blendshape_arguments",
+           "BLENDSHAPE_NAMINGS"]
 
 #: The command line as the ``source`` of an :class:`InputError` about an option.
 COMMAND_LINE = "<command line>"
@@ -198,6 +199,22 @@ def add_parts_argument(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--parts", choices=PART_CHOICES, default="full",
                         help="what the USD/glTF scenes hold: face = the face region of the skin, head = all the skin, "
                         "full = the head with eyes and mouth interior (default; the model's parts, if it has any)")
+
+
+#: The blendshape namings (``facegeo.export.arkit.BLENDSHAPE_NAMINGS``).
+BLENDSHAPE_NAMINGS = RegistryNames("facegeo.export.arkit", "BLENDSHAPE_NAMINGS")
+
+
+def add_blendshape_arguments(parser: argparse.ArgumentParser | argparse._ArgumentGroup, choose: bool = True) -> None:
+    """``--blendshapes all|none`` (with ``choose``) and ``--blendshape-names arkit|ict``: whether
+    and how the scenes carry the expression blendshapes (``reconstruct``, ``export``, ``animate``)."""
+    if choose:
+        parser.add_argument("--blendshapes", choices=("all", "none"), default="all",
+                            help="all (default): the expression blendshapes as glTF morph targets and UsdSkel blend shapes, "
+                            "set to the photo's expression (animatable); none: a static asset (smaller files)")
+    parser.add_argument("--blendshape-names", choices=BLENDSHAPE_NAMINGS, default="arkit", metavar="NAMES",
+                        help="the blendshapes' names, one of %(choices)s (default arkit: jawOpen, eyeBlinkLeft, ... as Live Link "
+                        "Face, Unreal and three.js name them; ict: the model's own, eyeBlink_L, ...)")
 
 
 def add_seed_argument(parser: argparse.ArgumentParser, what: str = "random seed") -> None:

@@ -10,7 +10,7 @@ import argparse
 import time
 from pathlib import Path
 
-from facegeo.commands.arguments import COMMAND_LINE, Command, add_parts_argument, parse_list
+from facegeo.commands.arguments import COMMAND_LINE, Command, add_blendshape_arguments, add_parts_argument, parse_list
 from facegeo.errors import InputError
 
 __all__ = ["COMMANDS"]
@@ -31,6 +31,7 @@ def _arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--displacement", choices=["bake", "texture"], default="bake",
                         help="bake the displacement into the geometry (default) or, USD only, write it as the material's displacement input")
     add_parts_argument(parser)
+    add_blendshape_arguments(parser)
 
 
 def _run(args: argparse.Namespace) -> None:
@@ -44,7 +45,7 @@ def _run(args: argparse.Namespace) -> None:
 
     from facegeo.asset import MAP_NAMES
     from facegeo.export.asset_io import load_asset
-    from facegeo.export.writers import FORMATS, export_asset
+    from facegeo.export.writers import FORMATS, export_scenes
     from facegeo.staged_output import StagedOutput, check_output_location, locked_output
 
     start = time.perf_counter()
@@ -72,8 +73,8 @@ def _run(args: argparse.Namespace) -> None:
             locks.enter_context(locked_output(path, "output file"))
         asset = load_asset(args.asset_dir).select(args.parts)
         with StagedOutput(out.parent) as stage:
-            for path, fmt in targets:
-                export_asset(asset, stage.path(path.name), format=fmt, level=args.subdiv, displacement=args.displacement, maps=maps)
+            export_scenes(asset, [(stage.path(path.name), fmt) for path, fmt in targets], level=args.subdiv,
+                          displacement=args.displacement, maps=maps, blendshapes=None if args.blendshapes == "none" else args.blendshape_names)
     seconds = time.perf_counter() - start
     print(f"wrote {', '.join(str(path) for path, _ in targets)} from {args.asset_dir} "
           f"(parts {args.parts}, subdivision level {args.subdiv}, {seconds:.2f} s)")

@@ -11,6 +11,7 @@ from facegeo.commands.arguments import (
     Command,
     RegistryNames,
     add_batch_arguments,
+    add_blendshape_arguments,
     add_fit_arguments,
     add_parts_argument,
     add_photo_arguments,
@@ -51,6 +52,7 @@ def _arguments(parser: argparse.ArgumentParser) -> None:
     texture.add_argument("--format", default=",".join(defaults["formats"]), metavar="FMT[,FMT]",
                          help=f"comma-separated formats among {', '.join(FORMATS)} (default %(default)s)")
     add_parts_argument(texture)
+    add_blendshape_arguments(texture)
     parser.add_argument("--no-preview", action="store_true", help="do not render preview.png")
     add_batch_arguments(parser)
 
@@ -69,7 +71,8 @@ def _run(args: argparse.Namespace) -> int | None:
                          principal_point=tuple(args.principal_point) if args.principal_point else None, max_side=args.max_side,
                                  regressor=args.regressor, refine=args.refine, backend=args.backend, weights=args.weights,
                                  size=args.size, upscale=args.upscale, subdiv=args.subdiv, maps=tuple(maps),
-                                 formats=tuple(formats), parts=args.parts, preview=not args.no_preview)
+                                 formats=tuple(formats), parts=args.parts, preview=not args.no_preview,
+                                 blendshapes=args.blendshapes != "none", blendshape_names=args.blendshape_names)
     if wants_batch(args):
         return run_batch(args, "reconstruct", options)
     bar = tqdm(total=len(STAGES) + 2, desc="reconstruct", unit="stage", disable=not sys.stderr.isatty(), leave=False)

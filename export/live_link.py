@@ -1,0 +1,207 @@
+"""Live Link Face recordings: the CSV that Epic's Live Link Face app exports for a take.
+
+The file (one header row, one row per captured frame)::
+
+    Timecode,BlendShapeCount,EyeBlinkLeft,EyeLookDownLeft,...,TongueOut,HeadYaw,HeadPitch,HeadRoll,
+        LeftEyeYaw,LeftEyePitch,LeftEyeRoll,RightEyeYaw,RightEyePitch,RightEyeRoll
+    12:24:24:19.960,61,0.0179804321,0.2226290256,...
+
+* ``Timecode``: ``HH:MM:SS:FF`` or ``HH:MM:SS:FF.fff`` (SMPTE time code with a fractional frame);
+  the frame field counts at the take's time code rate, which the CSV does not record (it is in the
+  take's JSON; Live Link Face's default is 60): :func:`read_live_link_csv` takes it as ``fps``.
+  Times are relative to the first row and must increase.
+* ``BlendShapeCount``: how many values the app sent (61 = 52 shapes + 9 rotations); checked to be
+  a whole number, not used.
+* The 52 ARKit blendshapes (:data:`facegeo.export.arkit.ARKIT_NAMES` with a capital first
+  letter), weights in [0, 1]. All 52 are required, in any order.
+* ``HeadYaw/HeadPitch/HeadRoll`` and ``LeftEye…/RightEye…`` ``Yaw/Pitch/Roll``: rotations in
+  radians. Each group of three (head, left eye, right eye) is optional but all or nothing.
+  Their signs, measured on a recorded take (a public Live Link Face sample: the eyes turn
+  towards the subject's left while ``EyeLookOutLeft``/``EyeLookInRight`` rise and ``LeftEyeYaw``
+  and ``RightEyeYaw`` fall; they look up while ``EyeLookUp*`` rise and the pitches fall): a
+  positive yaw turns towards the subject's right, a positive pitch looks down. Roll is taken in
+  the same mirrored frame (a positive roll tilts the top of the head towards the subject's
+  left); no recording checked its sign. :func:`facegeo.export.animation.rotations` turns them
+  into rotations in the model's axes.
+
+Bad input gets one :class:`facegeo.errors.InputError` naming the file, the row (the file's line
+number, the header is row 1) and the column. Weights outside [0, 1] are an error unless
+``clamp=True``, which clamps them and records a note.
+"""
+
+from __future__ import annotations
+
+import csv
+import math
+import os
+import re
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from facegeo.errors import InputError
+from facegeo.export.arkit import ARKIT_NAMES
+
+__all__ = ["ArkitTake", "read_live_link_csv", "LIVE_LINK_COLUMNS", "ROTATION_GROUPS", "DEFAULT_FPS"]
+
+#: Live Link Face's default time code rate (frames per second of the ``Timecode`` frame field).
+DEFAULT_FPS = 60.0
+#: The optional rotation columns, by group, each (yaw, pitch, roll) in radians.
+ROTATION_GROUPS = {
+    "head": ("HeadYaw", "HeadPitch", "HeadRoll"),
+    "left_eye": ("LeftEyeYaw", "LeftEyePitch", "LeftEyeRoll"),
+    "right_eye": ("RightEyeYaw", "RightEyePitch", "RightEyeRoll"),
+}
+_SHAPE_COLUMNS = tuple(name[0].upper() + name[1:] for name in ARKIT_NAMES)
+#: Every column of a Live Link Face CSV, in the app's order.
+LIVE_LINK_COLUMNS = ("Timecode", "BlendShapeCount", *_SHAPE_COLUMNS, *(c for g in ROTATION_GROUPS.values() for c in g))
+_TIMECODE = re.compile(r"^(\d{1,2}):(\d{2}):(\d{2})[:;](\d{1,3}(?:\.\d+)?)$")
+
+
+@dataclass
+class ArkitTake:
+    """A recorded take (N frames).
+
+    Attributes:
+        source: the file it was read from.
+        fps: the time code rate used to read ``Timecode``.
+        times: (N,) float64 seconds from the first frame, strictly increasing.
+        weights: (N, 52) float32 blendshape weights in [0, 1], in :data:`ARKIT_NAMES` order.
+        rotations: group name (``head``, ``left_eye``, ``right_eye``) -> (N, 3) float64 yaw,
+            pitch, roll in radians (Live Link Face's signs); only the groups the file has.
+        notes: what reading changed (clamped weights).
+    """
+
+    source: str
+    fps: float
+    times: np.ndarray
+    weights: np.ndarray
+    rotations: dict[str, np.ndarray] = field(default_factory=dict)
+    notes: list[str] = field(default_factory=list)
+
+    @property
+    def n_frames(self) -> int:
+        return int(len(self.times))
+
+
+def read_live_link_csv(path: str | os.PathLike[str], fps: float = DEFAULT_FPS, clamp: bool = False) -> ArkitTake:
+    """Read a Live Link Face CSV (module docstring).
+
+    Args:
+        path: the CSV file.
+        fps: the take's time code rate (frames per second of the ``Timecode`` frame field).
+        clamp: clamp weights outside [0, 1] (with a note) instead of refusing the file.
+    Raises:
+        InputError: an unreadable file, a missing or unknown column, a malformed time code,
+            times that do not increase, a value that is not a finite number, a weight outside
+            [0, 1] (without ``clamp``), a rotation beyond ±π, or no frames.
+    """
+    source = Path(path)
+    if not (isinstance(fps, (int, float)) and math.isfinite(fps) and fps > 0):
+        raise InputError(source, "fps", "a finite time code rate > 0 (frames per second)", repr(fps))
+    try:
+        with open(source, newline="", encoding="utf-8-sig") as handle:
+            rows = list(csv.reader(handle))
+    except FileNotFoundError:
+        raise InputError(source, "file", "a Live Link Face CSV", "no such file") from None
+    except (OSError, UnicodeDecodeError, csv.Error) as exc:
+        raise InputError(source, "file", "a readable UTF-8 CSV", str(exc)) from None
+    while rows and not any(cell.strip() for cell in rows[-1]):
+        rows.pop()  # trailing blank lines
+    if not rows:
+        raise InputError(source, "row 1", "the header row (Timecode,BlendShapeCount,EyeBlinkLeft,...)", "an empty file")
+    header = [cell.strip() for cell in rows[0]]
+    columns = _columns(source, header)
+    data = rows[1:]
+    if not data:
+        raise InputError(source, "row 2", "at least one frame (an empty take)", "no data rows")
+    n = len(data)
+    values = np.empty((n, len(header)), dtype=np.float64)
+    times = np.empty(n, dtype=np.float64)
+    for r, row in enumerate(data):
+        line = r + 2
+        if len(row) != len(header):
+            raise InputError(source, f"row {line}", f"{len(header)} comma-separated values (as the header)", str(len(row)))
+        times[r] = _seconds(source, line, row[columns["Timecode"]].strip(), fps)
+        for c, cell in enumerate(row):
+            if c == columns["Timecode"]:
+                continue
+            values[r, c] = _number(source, line, header[c], cell)
+    count = values[:, columns["BlendShapeCount"]]
+    bad = np.flatnonzero((count != np.round(count)) | (count < 0))
+    if len(bad):
+        raise InputError(source, f"row {bad[0] + 2}, column BlendShapeCount", "a whole number", repr(data[bad[0]][columns["BlendShapeCount"]]))
+    steps = np.diff(times)
+    if np.any(steps <= 0):
+        r = int(np.flatnonzero(steps <= 0)[0]) + 1
+        raise InputError(source, f"row {r + 2}, column Timecode", f"a time after the previous row's (at {fps:g} frames per second)",
+                         repr(data[r][columns["Timecode"]].strip()))
+    weights = values[:, [columns[c] for c in _SHAPE_COLUMNS]]
+    notes = []
+    outside = (weights < 0.0) | (weights > 1.0)
+    if outside.any():
+        r, c = (int(i) for i in np.argwhere(outside)[0])
+        if not clamp:
+            raise InputError(source, f"row {r + 2}, column {_SHAPE_COLUMNS[c]}", "a weight in [0, 1] (or --clamp)", repr(data[r][columns[_SHAPE_COLUMNS[c]]]))
+        notes.append(f"{source}: {int(outside.sum())} weights outside [0, 1] clamped (first at row {r + 2}, column {_SHAPE_COLUMNS[c]})")
+        weights = np.clip(weights, 0.0, 1.0)
+    rotations = {}
+    for group, names in ROTATION_GROUPS.items():
+        if names[0] not in columns:
+            continue
+        angles = values[:, [columns[c] for c in names]]
+        beyond = np.abs(angles) > math.pi
+        if beyond.any():
+            r, c = (int(i) for i in np.argwhere(beyond)[0])
+            raise InputError(source, f"row {r + 2}, column {names[c]}", "an angle in radians within [-pi, pi]", repr(data[r][columns[names[c]]]))
+        rotations[group] = angles
+    return ArkitTake(str(source), float(fps), times - times[0], weights.astype(np.float32), rotations, notes)
+
+
+def _columns(source: Path, header: list[str]) -> dict[str, int]:
+    """Column name -> index, after checking the header: no unknown or repeated names, the time
+    code, the count and the 52 shapes present, each rotation group complete or absent."""
+    known = set(LIVE_LINK_COLUMNS)
+    columns: dict[str, int] = {}
+    for c, name in enumerate(header):
+        if name not in known:
+            hint = next((k for k in LIVE_LINK_COLUMNS if k.lower() == name.lower()), None)
+            expected = f"the name {hint!r}" if hint else "a Live Link Face column (Timecode, BlendShapeCount, the 52 ARKit shapes, head and eye rotations)"
+            raise InputError(source, f"row 1, column {c + 1}", expected, repr(name))
+        if name in columns:
+            raise InputError(source, f"row 1, column {c + 1}", "each column once", f"a second {name!r}")
+        columns[name] = c
+    for name in ("Timecode", "BlendShapeCount", *_SHAPE_COLUMNS):
+        if name not in columns:
+            raise InputError(source, f"row 1, column {name}", "every Live Link Face blendshape column", "none")
+    for names in ROTATION_GROUPS.values():
+        present = [n for n in names if n in columns]
+        if present and len(present) != len(names):
+            missing = next(n for n in names if n not in columns)
+            raise InputError(source, f"row 1, column {missing}", f"all of {', '.join(names)} or none", f"only {', '.join(present)}")
+    return columns
+
+
+def _seconds(source: Path, line: int, text: str, fps: float) -> float:
+    """Seconds of a ``HH:MM:SS:FF[.fff]`` time code at ``fps`` frames per second."""
+    match = _TIMECODE.match(text)
+    if match is None:
+        raise InputError(source, f"row {line}, column Timecode", "a time code HH:MM:SS:FF or HH:MM:SS:FF.fff", repr(text))
+    hours, minutes, seconds = (int(match.group(i)) for i in (1, 2, 3))
+    frames = float(match.group(4))
+    if minutes >= 60 or seconds >= 60 or frames >= math.ceil(fps):
+        raise InputError(source, f"row {line}, column Timecode",
+                         f"minutes and seconds below 60 and frames below {math.ceil(fps)} (at {fps:g} frames per second)", repr(text))
+    return hours * 3600.0 + minutes * 60.0 + seconds + frames / fps
+
+
+def _number(source: Path, line: int, column: str, cell: str) -> float:
+    """A finite number, or an InputError naming the cell."""
+    try:
+        value = float(cell)
+    except ValueError:
+        raise InputError(source, f"row {line}, column {column}", "a number", repr(cell)) from None
+    if not math.isfinite(value):
+        raise InputError(source, f"row {line}, column {column}", "a finite number", repr(cell))
+    return value
