@@ -54,6 +54,7 @@ REGIONS = ("nose", "mouth", "forehead", "cheek")
 #: the knob settings of ``--knobs`` (name, Settings keyword arguments)
 KNOBS = (
     ("exact (default: CHOLMOD every step)", {}),
+    ("exact, turned decisions not followed", {"follow_decisions": False}),
     ("SuperLU, factor reuse", {"solver": "superlu"}),
     ("SuperLU, no factor reuse", {"solver": "superlu", "factor_reuse": False}),
     ("SuperLU, reuse, rtol 1e-6", {"solver": "superlu", "solver_rtol": 1e-6}),
