@@ -212,9 +212,9 @@ def _baseline_child(eval_dir: str, pred: str, realy_root: str) -> None:
     sla.splu = timed_splu
     call = realy_geometry.SurfaceQuery.__call__
 
-    def timed_call(self, vertices, queries):
+    def timed_call(self, vertices, queries, *args, **kwargs):
         start = time.process_time()
-        out = call(self, vertices, queries)
+        out = call(self, vertices, queries, *args, **kwargs)
         acc["closest"] += time.process_time() - start
         return out
 
