@@ -54,6 +54,7 @@ REGIONS = ("nose", "mouth", "forehead", "cheek")
 #: the knob settings of ``--knobs`` (name, Settings keyword arguments)
 KNOBS = (
     ("exact (default: CHOLMOD every step)", {}),
+    ("exact, turned decisions not followed", {"follow_decisions": False}),
     ("SuperLU, factor reuse", {"solver": "superlu"}),
     ("SuperLU, no factor reuse", {"solver": "superlu", "factor_reuse": False}),
     ("SuperLU, reuse, rtol 1e-6", {"solver": "superlu", "solver_rtol": 1e-6}),
@@ -211,9 +212,9 @@ def _baseline_child(eval_dir: str, pred: str, realy_root: str) -> None:
     sla.splu = timed_splu
     call = realy_geometry.SurfaceQuery.__call__
 
-    def timed_call(self, vertices, queries):
+    def timed_call(self, vertices, queries, *args, **kwargs):
         start = time.process_time()
-        out = call(self, vertices, queries)
+        out = call(self, vertices, queries, *args, **kwargs)
         acc["closest"] += time.process_time() - start
         return out
 

@@ -428,7 +428,7 @@ def region_error(
     else:
         nicp = NonRigidICP(gt_vertices, gt_triangles, on_prediction, settings=settings)
     deviation = UNCERTAINTY_SCALE * float(np.abs(gt_vertices).max())
-    deformed = nicp.run(deviation)
+    deformed = nicp.run(deviation if settings.follow_decisions else 0.0)
     info = nicp.details()  # of the run itself (the re-runs below are counted apart)
 
     updated = surface(pred_vertices, deformed, jitter=deviation)
@@ -458,6 +458,7 @@ def region_error(
         paths += abs(float(np.sqrt(np.sum((other_way - gt_vertices) ** 2, axis=-1)).mean()) - error)
     scale = max(error, 1e-300)
     info.update(vertices=len(gt_vertices), nearest_seconds=nicp.nearest_seconds, uncertainty=(ties + paths) / scale,
-                uncertainty_ties=ties / scale, uncertainty_paths=paths / scale, reruns=kinds,
+                uncertainty_ties=ties / scale, uncertainty_paths=paths / scale if settings.follow_decisions else None,
+                reruns=kinds,
                 rerun_solves=nicp.solves - solves, rerun_seconds=time.process_time() - start)
     return error, info

@@ -49,6 +49,9 @@ def markdown_table(result: RealyResult) -> str:
     if loosened:
         changed = ", ".join(f"{name}={value}" for name, value in loosened.items())
         note += f"\n**Not the official protocol**: {changed} (the numbers differ from the official ones).\n"
+    if not result.settings.follow_decisions:
+        note += ("\nThe uncertainties count the final closest points' ties only (--no-follow-decisions): "
+                 "they are lower bounds.\n")
     flagged = result.uncertain(UNCERTAINTY_FLAG)
     if flagged:
         note += (f"\nNumerically uncertain (round-off can move the value by more than {UNCERTAINTY_FLAG:g} "

@@ -141,6 +141,14 @@ def test_workers_solvers_factor_reuse_and_knobs_on_one_subject(small, tmp_path):
         assert d["uncertainty_ties"] >= 0.0 and d["uncertainty_paths"] >= 0.0
         if backend == "cholmod":  # one analysis per region, a numeric factorisation per system
             assert d["analyses"] == 1 and d["factorisations"] == d["solves"] and set(d["pcg_iterations"]) == {0}
+    # not following the turned decisions: the same numbers, the ties alone as uncertainty
+    quick = evaluate(pred, small.realy_root, settings=Settings(follow_decisions=False))
+    assert quick.per_subject == result.per_subject and not quick.settings.loosened()
+    for region in REGIONS:
+        d = quick.details["1"][region]
+        assert d["uncertainty_paths"] is None and d["reruns"] == {} and d["rerun_solves"] == 0
+        assert quick.uncertainty["1"][region] == result.details["1"][region]["uncertainty_ties"]
+    assert "lower bounds" in markdown_table(quick)
     # SuperLU: a factorisation at the start of each stage at least; the other solves are CG on an earlier factor
     reuse = evaluate(pred, small.realy_root, settings=Settings(solver="superlu"))
     _close(reuse.per_subject["1"], REFERENCE_SMALL["1"], reuse.uncertainty["1"])

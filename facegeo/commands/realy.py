@@ -61,6 +61,9 @@ def _arguments(p: argparse.ArgumentParser) -> None:
                        help="superlu solver: relative residual of its factor-preconditioned CG solves (default %(default)g)")
     knobs.add_argument("--no-factor-reuse", action="store_true",
                        help="superlu solver: factor every linear system (slower, the same numbers to rounding)")
+    knobs.add_argument("--no-follow-decisions", action="store_true",
+                       help="do not follow the non-rigid ICP's decisions that round-off could turn (a third less time; "
+                       "the same numbers, but their reported uncertainty then counts the final ties only: a lower bound)")
     p.add_argument("-o", "--output", type=Path, default=None, metavar="OUT",
                    help="output folder (default: PRED_DIR/realy_eval)")
 
@@ -81,7 +84,8 @@ def _run(args: argparse.Namespace) -> None:
     try:
         settings = Settings(rigid_tolerance=args.rigid_tol, rigid_max_updates=args.rigid_max_updates,
                             nicp_epsilon_scale=args.nicp_epsilon_scale, nicp_max_steps=args.nicp_max_steps,
-                            solver_rtol=args.solver_rtol, factor_reuse=not args.no_factor_reuse, solver=args.solver)
+                            solver_rtol=args.solver_rtol, factor_reuse=not args.no_factor_reuse, solver=args.solver,
+                            follow_decisions=not args.no_follow_decisions)
     except ValueError as exc:
         raise InputError("<arguments>", "speed / exactness options", "positive values", str(exc)) from None
     try:
