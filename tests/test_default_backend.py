@@ -61,8 +61,8 @@ def test_protocol_is_satisfied():
 def test_homogenise_removes_known_white_sh_shading_and_keeps_chroma():
     gamma = np.zeros((3, 9), np.float32)
     gamma[:, 0] = 0.9
-    gamma[:, 2] = 0.35  # frontal light
-    gamma[:, 3] = -0.2  # from the side
+    gamma[:, 2] = 0.2  # frontal light
+    gamma[:, 3] = -0.35  # from the side: clearly directional (a weaker one is left in, DIRECTIONAL_RANGE)
     gamma[:, 1] = 0.1
     ctx = hemisphere_context(128)
     albedo = skin_albedo(128)
@@ -101,7 +101,7 @@ def test_warm_light_is_removed_with_the_sclera_as_white_reference():
         results[name] = np.median(chroma(srgb_to_linear(out)[ctx.coverage]), axis=0)
     truth = chroma(skin)
     photo_error = np.linalg.norm(chroma(skin * np.array([1.0, 0.78, 0.55])) - truth)
-    assert np.linalg.norm(results["warm"] - truth) < 0.25 * photo_error
+    assert np.linalg.norm(results["warm"] - truth) < 0.35 * photo_error  # NEUTRAL_TOLERANCE (0.12) is kept back
     assert np.linalg.norm(results["white"] - truth) < 0.05
 
 
@@ -114,6 +114,23 @@ def test_greyscale_photo_gets_an_invented_skin_chroma_and_a_note():
     lin = srgb_to_linear(out[ctx.coverage])
     assert np.all(lin[:, 0] > 1.2 * lin[:, 1]) and np.all(lin[:, 1] > lin[:, 2])  # skin: R > G > B
     assert backend.report["illuminant"]["greyscale"] and any("greyscale" in n for n in backend.report["notes"])
+
+
+def test_even_light_leaves_albedo_that_correlates_with_the_normals_alone():
+    """Under an even light (constant shading) an albedo darker towards one side (a beard zone)
+    correlates with the normals: an SH fit finds a 'light' there, but it is too weakly directional
+    to be divided out (DIRECTIONAL_RANGE): the albedo keeps its gradient."""
+    ctx = hemisphere_context(128)
+    x = ctx.normal_camera[..., 0]
+    albedo = linear_to_srgb(srgb_to_linear(np.float32([0.78, 0.58, 0.48])) * (1.0 - 0.12 * x)[..., None])
+    backend = DefaultBackend()
+    out = srgb_to_linear(backend.homogenise(albedo, ctx))
+    lum_in, lum_out = srgb_to_linear(albedo).mean(-1), out.mean(-1)
+    m = ctx.coverage & (ctx.normal_camera[..., 2] > 0.3)
+    left, right = m & (x < -0.4), m & (x > 0.4)
+    ratio_in = lum_in[left].mean() / lum_in[right].mean()
+    assert backend.report["analyse"]["delighting_strength"] < 0.5
+    assert abs(lum_out[left].mean() / lum_out[right].mean() / ratio_in - 1) < 0.05
 
 
 def test_highlights_are_found_removed_and_make_the_skin_glossier():

@@ -79,10 +79,20 @@ DEFAULT_PRIOR = (SKIN_CONSTANTS["roughness"], SKIN_CONSTANTS["specular"])
 MAX_GAIN = 2.0
 #: Largest gain at grazing angles (camera-space normal z → 0).
 GRAZING_GAIN = 1.25
+#: SH terms of the shading fit: order 1 (constant + the three linear terms). Order 2 over the
+#: half-sphere of normals a photo shows is ill-conditioned: on renders of a real head scan under
+#: an even light it fitted a dark centre and bright sides (the albedo's beard zone and cheeks),
+#: anti-correlated with the true shading (benchmarks/bench_albedo_scans.py, RESULTS.md).
+SH_TERMS = 4
+#: (none, full): the shading is applied as shading^strength, the strength rising from 0 to 1 as the
+#: fit's directional part (the standard deviation of its linear terms over the fitted skin over
+#: its mean) goes from the first value to the second: an even light's fit finds 0.15–0.21 there
+#: (albedo that correlates with the normals), a hard side light 0.29–0.33.
+DIRECTIONAL_RANGE = (0.2, 0.3)
 #: Log-luminance dips (local vs neighbourhood) shallower than this are albedo, deeper ones shadow.
-SHADOW_TOLERANCE = 0.05
+SHADOW_TOLERANCE = 0.15
 #: (start, full): a texel is a highlight where its de-lit luminance exceeds its neighbourhood's by these ratios.
-HIGHLIGHT_RATIO = (1.15, 1.4)
+HIGHLIGHT_RATIO = (1.3, 1.6)
 #: Displacement in mm per unit of high-frequency log-luminance detail (dark = deeper), clipped to
 #: ±DETAIL_LIMIT_MM: skin detail of 3 % contrast (the typical σ of a photo's fine skin detail) is
 #: 0.03 mm of relief, a crease that darkens the skin by a quarter 0.29 mm (pores are 0.05–0.1 mm
@@ -248,13 +258,16 @@ class DefaultBackend:
         lin = srgb_to_linear(T_inc)
         w = np.clip(M_vis, 0.0, 1.0).astype(np.float32) * cover
         lum = luminance(lin)
-        fit_mask = _skin(ctx) & (w > 0.5) & (lum > 1e-4)
+        # the fit trusts only reliable skin: facing the camera, away from silhouettes and occluders
+        # (at a silhouette the photo mixes in the background: a white wall made grazing skin "lit")
+        fit_mask = _skin(ctx) & (self.reliability(w, ctx) > 0.5) & (lum > 1e-4)
         normals = ctx.normal_camera
         shading = np.ones(cover.shape, np.float32)
         n_fit = int(fit_mask.sum())
+        directional = strength = 0.0
         if n_fit >= 100:
             rows = _subsample(np.flatnonzero(fit_mask.ravel()))
-            basis = sh_basis(torch.from_numpy(normals.reshape(-1, 3)[rows].astype(np.float32))).numpy().astype(np.float64)
+            basis = sh_basis(torch.from_numpy(normals.reshape(-1, 3)[rows].astype(np.float32))).numpy().astype(np.float64)[:, :SH_TERMS]
             y = lum.ravel()[rows].astype(np.float64)
             keep = np.ones(len(rows), bool)
             for _ in range(4):  # trimmed least squares on the log-ratio
@@ -262,12 +275,16 @@ class DefaultBackend:
                 r = np.log(y / np.maximum(basis @ coeffs, 1e-6))
                 med = np.median(r[keep])
                 keep = np.abs(r - med) < 2.5 * 1.4826 * np.median(np.abs(r[keep] - med)) + 1e-6
+            # how directional the fitted light is: under an even light the fit only finds albedo that
+            # happens to correlate with the normals, and dividing by it would put that into the albedo
+            directional = float(np.std(basis[keep][:, 1:4] @ coeffs[1:4]) / max(float(np.mean(basis[keep] @ coeffs)), 1e-12))
+            strength = float(_smoothstep(np.float32((directional - DIRECTIONAL_RANGE[0]) / (DIRECTIONAL_RANGE[1] - DIRECTIONAL_RANGE[0]))))
             flat = np.flatnonzero(cover.ravel())
             e = np.zeros(cover.size)
-            e[flat] = sh_basis(torch.from_numpy(normals.reshape(-1, 3)[flat].astype(np.float32))).numpy() @ coeffs
+            e[flat] = sh_basis(torch.from_numpy(normals.reshape(-1, 3)[flat].astype(np.float32))).numpy()[:, :SH_TERMS] @ coeffs
             e = e.reshape(cover.shape)
             ref = float(np.median(e[fit_mask]))
-            shading = np.where(cover, np.maximum(e / max(ref, 1e-6), 1e-3), 1.0).astype(np.float32)
+            shading = np.where(cover, np.maximum(e / max(ref, 1e-6), 1e-3) ** strength, 1.0).astype(np.float32)
             # cast shadows / occlusion: local dips of the de-lit log-luminance below the neighbourhood
             log_a = np.log(np.maximum(lum / shading, 1e-4))
             local = masked_blur(log_a, fit_mask, size / 128.0)
@@ -291,6 +308,8 @@ class DefaultBackend:
         self._analysis = (ctx, analysis)
         self.report["analyse"] = {
             "fit_texels": n_fit,
+            "directional": directional,
+            "delighting_strength": strength,
             "gain_p05_p95": [float(x) for x in np.percentile(1.0 / shading[fit_mask], [5, 95])] if n_fit else [1.0, 1.0],
             "highlight_fraction_of_seen_skin": float(highlight[fit_mask].mean()) if n_fit else 0.0,
         }
