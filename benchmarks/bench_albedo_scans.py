@@ -40,7 +40,8 @@ least-squares scaled onto the truth's over the seen skin; chroma is not fitted):
 * **off-skin**: share of skin texels whose albedo is ΔE2000 > 20 from the truth (glasses,
   hair, background, cast shadows left in).
 
-    python benchmarks/bench_albedo_scans.py --write /tmp/albedo_scans.md    # ~6 min on 2 cores
+    python benchmarks/bench_albedo_scans.py --write /tmp/albedo_scans.md    # ~20 min on 2 cores
+    python benchmarks/bench_albedo_scans.py --time-stages 5                  # texture-stage times
 """
 
 from __future__ import annotations
@@ -357,17 +358,54 @@ def report(rows: list[dict]) -> list[str]:
     return lines
 
 
+def time_stages(rounds: int) -> list[str]:
+    """Wall time of the texture stages (inpaint + homogenise + materials, all maps) at S = 1024 on
+    the bundled photo, the previous backend and the new one alternating on one fit, unwrap and
+    context (the new skin mask for both): markdown lines with min and median."""
+    from facegeo.assets import asset_path
+    from facegeo.photo import load_photo
+    from facegeo.texturing.context import build_context
+    from facegeo.uv import unwrap
+
+    model = facegeo.load_model()
+    photo = load_photo(asset_path("photos/astronaut.png"))
+    fit = facegeo.fit(photo, model)
+    raster = rasterize_uv(model, size=1024)
+    maps = geometry_maps(fit.vertices, model, raster, tangents=False)
+    mask = skin_mask(photo.image, fit.landmarks)
+    t_inc, m_vis = unwrap(photo.image, fit, model, maps=maps, occlusion=mask.occlusion)
+    ctx = build_context(model, fit, raster, maps, white_reference=mask.white_reference)
+    previous = Previous()
+    times: dict[str, list[float]] = {"previous": [], "new": []}
+    start = load()
+    for _ in range(rounds):
+        for label, backend in (("previous", previous.backend()), ("new", DefaultBackend())):
+            t = time.perf_counter()
+            backend.materials(backend.homogenise(backend.inpaint(t_inc, m_vis, ctx), ctx), ctx)
+            times[label].append(time.perf_counter() - t)
+    lines = [f"Texture stages (inpaint + homogenise + materials, all maps) on `photos/astronaut.png`, S = 1024, "
+             f"torch threads {torch.get_num_threads()}, {rounds} alternating rounds; load average {start} at the start, "
+             f"{load()} at the end:", "", "| backend | min s | median s |", "|---|---|---|"]
+    for label, values in times.items():
+        lines.append(f"| {label} | {min(values):.2f} | {statistics.median(values):.2f} |")
+    return lines
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--size", type=int, default=1024, help="map size S")
     ap.add_argument("--views", default="", help="comma-separated indices into VIEWS (default all)")
     ap.add_argument("--write", type=Path, default=None, help="also write the markdown report here")
     ap.add_argument("--json", type=Path, default=None, help="also write the raw numbers here")
+    ap.add_argument("--time-stages", type=int, default=0, metavar="ROUNDS", help="only time the texture stages, this many rounds")
     ap.add_argument("--dump", type=Path, default=None, help="write the compared UV maps (truth seen, truth 3-D, methods) here")
     args = ap.parse_args(argv)
     global DUMP
     DUMP = args.dump
     torch.set_num_threads(max(1, os.cpu_count() or 1))
+    if args.time_stages:
+        print("\n".join(time_stages(args.time_stages)))
+        return 0
     load_start, t_start = load(), time.perf_counter()
     model = facegeo.load_model()
     raster = rasterize_uv(model, size=args.size)

@@ -1,38 +1,53 @@
 """The weight-free, deterministic default texture backend.
 
 Colour textures are sRGB in [0, 1], float32, S × S, image-style rows (see
-:mod:`facegeo.texturing.backend`). Every step below works on linear RGB and changes luminance
-only where it removes lighting, so the albedo keeps the photo's chroma.
+:mod:`facegeo.texturing.backend`). Every step below works on linear RGB.
 
-* **Shading** (:meth:`DefaultBackend.analyse`): one scalar per texel. Order-2 spherical harmonics of
-  the camera-space normal are fitted to the luminance of the seen skin (iteratively trimmed least
-  squares: texels whose log-ratio to the fit is beyond 2.5 robust σ, highlights, creases, stray
-  occluders, are left out); then the cast shadows and occlusion SH cannot explain: dips of the
-  de-lit log-luminance at ~S/128 texels below the brighter of its ~S/12 and ~S/5 neighbourhoods (~25 and ~60 mm; broad shadows such as the jaw's on the neck), deeper than
+* **Shading** (:meth:`DefaultBackend.analyse`): one scalar per texel. Order-1 spherical harmonics
+  (:data:`SH_TERMS`) of the camera-space normal are fitted to the luminance of the reliably seen
+  skin (:meth:`DefaultBackend.reliability` > 0.5; iteratively trimmed least squares: texels whose
+  log-ratio to the fit is beyond 2.5 robust σ, highlights, creases, stray occluders, are left
+  out) and applied as shading^strength, the strength rising with how directional the fitted light
+  is (:data:`DIRECTIONAL_RANGE`): under an even light the fit finds only albedo that correlates
+  with the normals and leaves it alone; then the cast shadows and occlusion SH cannot explain: dips
+  of the de-lit log-luminance at ~S/128 texels below the brighter of its ~S/12 and ~S/5
+  neighbourhoods (~25 and ~60 mm; broad shadows such as the jaw's on the neck), deeper than
   :data:`SHADOW_TOLERANCE`. The de-lighting gain 1/shading is bounded to [1/g, g] with g =
   :data:`MAX_GAIN` where the surface faces the camera, falling to :data:`GRAZING_GAIN` at grazing
   angles (SH fits underestimate grazing irradiance; unbounded gains made metallic streaks).
 * **Highlights**: de-lit luminance above :data:`HIGHLIGHT_RATIO` × its neighbourhood's (Gaussian,
   σ = S/48 texels, ~6 mm at 1K, re-estimated without the first pass's candidates); they are
   treated as unseen (filled) and are the specular map's evidence.
-* **inpaint** (fill of what the photo does not show, and of the highlights), on the de-lit texture:
-  a smooth base colour from the subject's own seen skin, extrapolated over the mesh surface by a
-  screened Poisson problem (vertex values tied to the seen texels' weighted means, the edge
-  Laplacian spreading them; far from anything seen it settles on the seen skin's mean colour) —
-  continuous across UV seams, the mirror line and the visibility boundary because it lives on
-  the vertices; then detail: where the mirror texel is seen, its ratio to a coarse (~15 mm) base
-  around it times the coarse base here (so the hidden half of a turned face gets the seen half's
-  texture and blotches in the local tone, without its lighting); elsewhere multiplicative 3-D value noise of the model-space position (continuous
-  across seams) with the seen skin's fine-detail contrast. Seen texels are kept, blended by
-  their visibility. Without :class:`SurfaceOperators` the base is a UV-space push-pull
-  (masked blurs at growing scales).
-* **homogenise**: the filled texture divided by the shading (luminance only).
+* **The light's colour** (:mod:`facegeo.texturing.illuminant`): estimated from the reliably seen
+  skin's mean chroma (the skin locus) and the photo's white references (sclera, teeth:
+  ``ctx.white_reference``) and divided out of the whole map, luminance kept. A greyscale photo
+  gets a generic skin chroma, and ``report["notes"]`` says so (the pipeline copies the notes
+  into ``fit.json``).
+* **inpaint** (fill of what the photo does not show, and of the highlights), on the de-lit,
+  white-balanced texture in log RGB, as a **gradient-domain blend**: every seen texel has a
+  reliability r (:meth:`DefaultBackend.reliability`: its kept visibility × a foreshortening ramp
+  × a ramp over :data:`EDGE_MM` mm from the nearest unseen texel: silhouettes, occluders,
+  highlights); the fill's fine detail D (finer than ~S/128 texels, ~2.5 mm at 1K) is the seen
+  texel's own detail away from the seen region's edge, else the mirror texel's where that was
+  reliably seen, else multiplicative 3-D value noise of the model-space position (continuous
+  across seams) with the seen skin's fine-detail contrast; the low frequencies B solve a
+  screened Poisson problem on the mesh's vertices, min Σ r (B − (log seen − D))² + λ Σ_edges
+  |∇B|² (+ a weak pull to the seen skin's mean far from anything seen), so the filled skin takes
+  its tone from the reliable seen skin next to it and B + D has the seen skin's values wherever
+  r is high; the result is r · log seen + (1 − r) · (B + D): no edge where the seen skin ends,
+  continuous across UV seams and the mirror line because B lives on the vertices. Only fine
+  detail crosses the mirror: mid-frequency blotches and shading residuals of the other side do
+  not. Without :class:`SurfaceOperators` B is a UV-space push-pull (masked blurs at growing
+  scales).
+* **homogenise**: the filled texture divided by the shading and the light's colour.
 * **materials**: albedo = homogenised texture; displacement (mm) and tangent-space normal from its
   high-frequency log-luminance detail at :data:`DETAIL_DEPTH_MM` mm per unit (±
   :data:`DETAIL_LIMIT_MM`); occluders never reach it (they are filled before); roughness and
   specular from facial-region priors blurred to smooth anatomical shapes (σ = S/64 texels, ~8 mm)
   and raised/lowered by the highlight evidence.
 * **upscale**: Lanczos (OpenCV ``INTER_LANCZOS4``).
+* **Padding** (:func:`pad_outside`, every map): outside the UV islands the edge value over
+  S/256 texels, then the map's median, flat (no streaks in texture viewers).
 
 The context's fitted SH lighting (``ctx.gamma``) is not used: it is fitted per RGB channel to the
 model's albedo, and dividing by it put its colour errors into the albedo (casts). The model's
@@ -60,7 +75,8 @@ from facegeo.texturing.backend import SKIN_CONSTANTS, TextureContext
 from facegeo.texturing.illuminant import chroma, estimate_illuminant, invent_chroma, is_greyscale, remove_cast
 
 __all__ = ["DefaultBackend", "REGION_PRIORS", "pad_outside", "masked_blur", "gaussian_blur", "value_noise", "MAX_GAIN",
-           "GRAZING_GAIN", "SHADOW_TOLERANCE", "HIGHLIGHT_RATIO", "DETAIL_DEPTH_MM", "DETAIL_LIMIT_MM"]
+           "GRAZING_GAIN", "SHADOW_TOLERANCE", "HIGHLIGHT_RATIO", "DETAIL_DEPTH_MM", "DETAIL_LIMIT_MM", "SH_TERMS",
+           "DIRECTIONAL_RANGE", "FORESHORTENING", "EDGE_MM", "DETAIL_EDGE_MM", "PAD_FRACTION"]
 
 #: (roughness, specular) priors per facial region; oily T-zone glossier, brows matte, lips smooth
 #: and less specular (values in the range of measured facial BRDF fits, e.g. Weyrich et al. 2006).

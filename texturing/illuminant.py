@@ -77,7 +77,7 @@ def chroma(linear: np.ndarray) -> np.ndarray:
     return np.stack([np.log(x[..., 0] / x[..., 1]), np.log(x[..., 2] / x[..., 1])], axis=-1)
 
 
-def is_greyscale(srgb: np.ndarray, tolerance: float = 1.5 / 255.0) -> bool:
+def is_greyscale(srgb: np.ndarray, tolerance: float = 2.5 / 255.0) -> bool:
     """True when at least 99 % of the (N, 3) sRGB colours have R, G and B within ``tolerance``
     of each other (a greyscale photo stored as RGB, JPEG noise allowed)."""
     srgb = np.asarray(srgb, np.float32).reshape(-1, 3)
