@@ -228,7 +228,8 @@ def white_reference(linear: np.ndarray, regions: FaceRegions) -> tuple[np.ndarra
     """Mean linear RGB (3,) float64 of the photo's white references and their pixel count: in
     each eye's interior (the lid polygon shrunk by 15 % towards its centre: no lashes), the
     brighter half of the pixels below the 97th percentile (the sclera; the iris and pupil are the
-    darker half, the glints the top); in the mouth opening, when it is open (its height over 15 %
+    darker half, the glints the top), and of those the less saturated half (on a turned face the
+    polygon takes in lid skin); in the mouth opening, when it is open (its height over 15 %
     of the inter-ocular distance), the pixels brighter than twice the opening's median (teeth).
     None where fewer than 12 pixels qualify. ``linear`` (H, W, 3) linear RGB."""
     H, W = linear.shape[:2]
@@ -241,7 +242,10 @@ def white_reference(linear: np.ndarray, regions: FaceRegions) -> tuple[np.ndarra
         if values.size < 8:
             continue
         lo, hi = np.percentile(values, [50, 97])
-        picked.append(linear[inner & (lum >= lo) & (lum <= hi)])
+        bright = linear[inner & (lum >= lo) & (lum <= hi)]
+        c = _chroma(bright)
+        saturation = np.hypot(c[:, 0], c[:, 1])
+        picked.append(bright[saturation <= np.median(saturation)])  # the whiter half: lids and skin stay out
     mouth = regions.mouth
     if float(mouth[:, 1].max() - mouth[:, 1].min()) > 0.15 * regions.interocular:
         inside = _fill((H, W), [mouth])
