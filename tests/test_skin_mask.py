@@ -8,7 +8,7 @@ import pytest
 from facegeo.assets import asset_path
 from facegeo.errors import NoFaceError
 from facegeo.photo import load_photo
-from facegeo.skin_mask import FaceRegions, _robust_gaussian, skin_mask, skin_mask_image
+from facegeo.skin_mask import FaceRegions, _robust_gaussian, skin_mask, skin_mask_image, white_reference
 
 
 def ellipse(cx, cy, ax, ay, n=24):
@@ -101,3 +101,58 @@ def test_bundled_photo_hair_and_suit_out_cheeks_in():
     m68 = skin_mask(photo.image, regions=FaceRegions.from_ibug68(np.asarray(get_detector("mediapipe").detect(photo.image).points)))
     x, y = r(50)
     assert m68.occlusion[y, x] < 0.1
+
+
+def test_white_reference_is_the_sclera_not_the_iris():
+    """A synthetic eye: a dark iris disc in a bright, slightly warm sclera; the reference is the
+    sclera's colour, and None where the eyes are too small to hold 12 pixels."""
+    H = W = 128
+    linear = np.full((H, W, 3), 0.2, np.float32)
+    eye = ellipse(64, 64, 30, 12)
+    cv2.fillPoly(linear, [np.round(eye).astype(np.int32)], (0.8, 0.7, 0.6))
+    cv2.circle(linear, (64, 64), 9, (0.05, 0.03, 0.02), -1)
+    regions = FaceRegions(oval=ellipse(64, 64, 60, 60), eyes=(eye, eye + [0.0, 0.0]), brows=(eye, eye),
+                          lips=ellipse(64, 110, 10, 4), mouth=ellipse(64, 110, 6, 1))
+    ref, n = white_reference(linear, regions)
+    assert n >= 12
+    np.testing.assert_allclose(ref, [0.8, 0.7, 0.6], atol=0.02)
+    tiny = FaceRegions(oval=regions.oval, eyes=(ellipse(64, 64, 1.5, 0.8, 8),) * 2, brows=regions.brows, lips=regions.lips,
+                       mouth=regions.mouth)
+    assert white_reference(linear, tiny)[0] is None
+
+
+def test_tortoiseshell_frames_and_background_are_masked(synthetic):
+    """Frames of the skin's own chroma (darker) pass the colour model but are thin and dark: the
+    frame detector takes them; a skin-coloured background beside the head is taken by the person
+    segmentation (given here), while a small stray-chroma blob on the cheek is a hole closed."""
+    rgb, regions, parts = synthetic
+    img = rgb.astype(np.float32)
+    yy, xx = np.mgrid[0:256, 0:256].astype(np.float32)
+    rim = np.abs(np.hypot((xx - 158) / 26, (yy - 112) / 16) - 1) < 0.1
+    img[rim] = [95, 62, 45]  # brown, skin's chroma, ~55 % darker
+    background = (xx < 30) & (yy > 150) & (yy < 210)
+    img[background] = [205, 150, 125]  # skin-coloured wall
+    blob = np.hypot(xx - 85, yy - 152) < 4
+    img[blob] = [150, 150, 60]  # a stray-chroma spot on clear skin
+    person = np.ones((256, 256), np.float32)
+    person[:, :40] = 0.0
+    m = skin_mask(np.clip(img, 0, 255).astype(np.uint8), regions=regions, person=person, hands=[])
+    assert m.occlusion[rim].mean() > 0.9 and m.frames > 0
+    assert m.occlusion[background].mean() > 0.95
+    assert m.occlusion[blob].max() < 0.1 and m.holes_closed > 0
+    without = skin_mask(np.clip(img, 0, 255).astype(np.uint8), regions=regions, person=np.ones((256, 256), np.float32), hands=[])
+    assert without.occlusion[background].mean() < 0.5  # the colour model alone lets most of the wall through
+
+
+def test_person_segmentation_finds_the_bundled_photos_subject():
+    from facegeo.person_segmentation import default_person_segmenter
+
+    photo = load_photo(asset_path("photos/astronaut.png"))
+    person = default_person_segmenter()(photo.image)
+    from facegeo.landmarks.detectors import get_detector
+
+    H, W = person.shape
+    assert person.shape == photo.image.shape[:2] and person.dtype == np.float32
+    x, y = np.round(get_detector("mediapipe").mesh(photo.image)[0].mesh[4, :2]).astype(int)  # the nose tip
+    assert person[y, x] > 0.9
+    assert person[H // 8, int(0.97 * W)] < 0.1  # the wall at the top right

@@ -85,6 +85,8 @@ class TextureContext:
         ``lips``, ``brows``, ``chin``, ``eyes``); the priors of the material estimate.
     skin: (S, S) float32 in [0, 1], where the texture is skin (no eyes, brows, lips, hair).
     surface: :class:`SurfaceOperators` of the mesh, or None (then backends work in UV alone).
+    white_reference: (3,) float64 mean linear RGB of the photo's white references (sclera,
+        teeth; :func:`facegeo.skin_mask.white_reference`), or None: evidence of the light's colour.
     """
 
     coverage: np.ndarray
@@ -97,6 +99,7 @@ class TextureContext:
     regions: dict[str, np.ndarray] = field(default_factory=dict)
     skin: np.ndarray | None = None
     surface: SurfaceOperators | None = None
+    white_reference: np.ndarray | None = None
 
     @property
     def size(self) -> int:

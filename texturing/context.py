@@ -51,11 +51,13 @@ def surface_operators(model: MorphableModel, raster: UVRaster) -> SurfaceOperato
     return SurfaceOperators(np.asarray(raster.texels), interpolation, laplacian.tocsr())
 
 
-def build_context(model: MorphableModel, fit: Fit, raster: UVRaster, camera_maps: GeometryMaps | None = None) -> TextureContext:
+def build_context(model: MorphableModel, fit: Fit, raster: UVRaster, camera_maps: GeometryMaps | None = None,
+                  white_reference: np.ndarray | None = None) -> TextureContext:
     """The texture stage's view of ``fit`` at the raster's size S (see :class:`TextureContext`).
 
     ``camera_maps``: the geometry maps of ``fit.vertices`` on ``raster`` if already computed
-    (e.g. for the unwrap); their normals are the context's camera-space normals."""
+    (e.g. for the unwrap); their normals are the context's camera-space normals.
+    ``white_reference``: the photo's white references (:attr:`facegeo.skin_mask.SkinMask.white_reference`)."""
     size = raster.size
     tri = model.triangles
     cover = np.asarray(raster.inside)
@@ -103,4 +105,5 @@ def build_context(model: MorphableModel, fit: Fit, raster: UVRaster, camera_maps
         regions=regions,
         skin=skin.astype(np.float32),
         surface=surface_operators(model, raster),
+        white_reference=None if white_reference is None else np.asarray(white_reference, np.float64),
     )

@@ -1,38 +1,53 @@
 """The weight-free, deterministic default texture backend.
 
 Colour textures are sRGB in [0, 1], float32, S × S, image-style rows (see
-:mod:`facegeo.texturing.backend`). Every step below works on linear RGB and changes luminance
-only where it removes lighting, so the albedo keeps the photo's chroma.
+:mod:`facegeo.texturing.backend`). Every step below works on linear RGB.
 
-* **Shading** (:meth:`DefaultBackend.analyse`): one scalar per texel. Order-2 spherical harmonics of
-  the camera-space normal are fitted to the luminance of the seen skin (iteratively trimmed least
-  squares: texels whose log-ratio to the fit is beyond 2.5 robust σ, highlights, creases, stray
-  occluders, are left out); then the cast shadows and occlusion SH cannot explain: dips of the
-  de-lit log-luminance at ~S/128 texels below the brighter of its ~S/12 and ~S/5 neighbourhoods (~25 and ~60 mm; broad shadows such as the jaw's on the neck), deeper than
+* **Shading** (:meth:`DefaultBackend.analyse`): one scalar per texel. Order-1 spherical harmonics
+  (:data:`SH_TERMS`) of the camera-space normal are fitted to the luminance of the reliably seen
+  skin (:meth:`DefaultBackend.reliability` > 0.5; iteratively trimmed least squares: texels whose
+  log-ratio to the fit is beyond 2.5 robust σ, highlights, creases, stray occluders, are left
+  out) and applied as shading^strength, the strength rising with how directional the fitted light
+  is (:data:`DIRECTIONAL_RANGE`): under an even light the fit finds only albedo that correlates
+  with the normals and leaves it alone; then the cast shadows and occlusion SH cannot explain: dips
+  of the de-lit log-luminance at ~S/128 texels below the brighter of its ~S/12 and ~S/5
+  neighbourhoods (~25 and ~60 mm; broad shadows such as the jaw's on the neck), deeper than
   :data:`SHADOW_TOLERANCE`. The de-lighting gain 1/shading is bounded to [1/g, g] with g =
   :data:`MAX_GAIN` where the surface faces the camera, falling to :data:`GRAZING_GAIN` at grazing
   angles (SH fits underestimate grazing irradiance; unbounded gains made metallic streaks).
 * **Highlights**: de-lit luminance above :data:`HIGHLIGHT_RATIO` × its neighbourhood's (Gaussian,
   σ = S/48 texels, ~6 mm at 1K, re-estimated without the first pass's candidates); they are
   treated as unseen (filled) and are the specular map's evidence.
-* **inpaint** (fill of what the photo does not show, and of the highlights), on the de-lit texture:
-  a smooth base colour from the subject's own seen skin, extrapolated over the mesh surface by a
-  screened Poisson problem (vertex values tied to the seen texels' weighted means, the edge
-  Laplacian spreading them; far from anything seen it settles on the seen skin's mean colour) —
-  continuous across UV seams, the mirror line and the visibility boundary because it lives on
-  the vertices; then detail: where the mirror texel is seen, its ratio to a coarse (~15 mm) base
-  around it times the coarse base here (so the hidden half of a turned face gets the seen half's
-  texture and blotches in the local tone, without its lighting); elsewhere multiplicative 3-D value noise of the model-space position (continuous
-  across seams) with the seen skin's fine-detail contrast. Seen texels are kept, blended by
-  their visibility. Without :class:`SurfaceOperators` the base is a UV-space push-pull
-  (masked blurs at growing scales).
-* **homogenise**: the filled texture divided by the shading (luminance only).
+* **The light's colour** (:mod:`facegeo.texturing.illuminant`): estimated from the reliably seen
+  skin's mean chroma (the skin locus) and the photo's white references (sclera, teeth:
+  ``ctx.white_reference``) and divided out of the whole map, luminance kept. A greyscale photo
+  gets a generic skin chroma, and ``report["notes"]`` says so (the pipeline copies the notes
+  into ``fit.json``).
+* **inpaint** (fill of what the photo does not show, and of the highlights), on the de-lit,
+  white-balanced texture in log RGB, as a **gradient-domain blend**: every seen texel has a
+  reliability r (:meth:`DefaultBackend.reliability`: its kept visibility × a foreshortening ramp
+  × a ramp over :data:`EDGE_MM` mm from the nearest unseen texel: silhouettes, occluders,
+  highlights); the fill's fine detail D (finer than ~S/128 texels, ~2.5 mm at 1K) is the seen
+  texel's own detail away from the seen region's edge, else the mirror texel's where that was
+  reliably seen, else multiplicative 3-D value noise of the model-space position (continuous
+  across seams) with the seen skin's fine-detail contrast; the low frequencies B solve a
+  screened Poisson problem on the mesh's vertices, min Σ r (B − (log seen − D))² + λ Σ_edges
+  |∇B|² (+ a weak pull to the seen skin's mean far from anything seen), so the filled skin takes
+  its tone from the reliable seen skin next to it and B + D has the seen skin's values wherever
+  r is high; the result is r · log seen + (1 − r) · (B + D): no edge where the seen skin ends,
+  continuous across UV seams and the mirror line because B lives on the vertices. Only fine
+  detail crosses the mirror: mid-frequency blotches and shading residuals of the other side do
+  not. Without :class:`SurfaceOperators` B is a UV-space push-pull (masked blurs at growing
+  scales).
+* **homogenise**: the filled texture divided by the shading and the light's colour.
 * **materials**: albedo = homogenised texture; displacement (mm) and tangent-space normal from its
   high-frequency log-luminance detail at :data:`DETAIL_DEPTH_MM` mm per unit (±
   :data:`DETAIL_LIMIT_MM`); occluders never reach it (they are filled before); roughness and
   specular from facial-region priors blurred to smooth anatomical shapes (σ = S/64 texels, ~8 mm)
   and raised/lowered by the highlight evidence.
 * **upscale**: Lanczos (OpenCV ``INTER_LANCZOS4``).
+* **Padding** (:func:`pad_outside`, every map): outside the UV islands the edge value over
+  S/256 texels, then the map's median, flat (no streaks in texture viewers).
 
 The context's fitted SH lighting (``ctx.gamma``) is not used: it is fitted per RGB channel to the
 model's albedo, and dividing by it put its colour errors into the albedo (casts). The model's
@@ -57,9 +72,11 @@ from facegeo.asset import MAP_NAMES
 from facegeo.colour import linear_to_srgb, luminance, srgb_to_linear
 from facegeo.lighting import sh_basis
 from facegeo.texturing.backend import SKIN_CONSTANTS, TextureContext
+from facegeo.texturing.illuminant import chroma, estimate_illuminant, invent_chroma, is_greyscale, remove_cast
 
 __all__ = ["DefaultBackend", "REGION_PRIORS", "pad_outside", "masked_blur", "gaussian_blur", "value_noise", "MAX_GAIN",
-           "GRAZING_GAIN", "SHADOW_TOLERANCE", "HIGHLIGHT_RATIO", "DETAIL_DEPTH_MM", "DETAIL_LIMIT_MM"]
+           "GRAZING_GAIN", "SHADOW_TOLERANCE", "HIGHLIGHT_RATIO", "DETAIL_DEPTH_MM", "DETAIL_LIMIT_MM", "SH_TERMS",
+           "DIRECTIONAL_RANGE", "FORESHORTENING", "EDGE_MM", "DETAIL_EDGE_MM", "PAD_FRACTION"]
 
 #: (roughness, specular) priors per facial region; oily T-zone glossier, brows matte, lips smooth
 #: and less specular (values in the range of measured facial BRDF fits, e.g. Weyrich et al. 2006).
@@ -78,10 +95,20 @@ DEFAULT_PRIOR = (SKIN_CONSTANTS["roughness"], SKIN_CONSTANTS["specular"])
 MAX_GAIN = 2.0
 #: Largest gain at grazing angles (camera-space normal z → 0).
 GRAZING_GAIN = 1.25
+#: SH terms of the shading fit: order 1 (constant + the three linear terms). Order 2 over the
+#: half-sphere of normals a photo shows is ill-conditioned: on renders of a real head scan under
+#: an even light it fitted a dark centre and bright sides (the albedo's beard zone and cheeks),
+#: anti-correlated with the true shading (benchmarks/bench_albedo_scans.py, RESULTS.md).
+SH_TERMS = 4
+#: (none, full): the shading is applied as shading^strength, the strength rising from 0 to 1 as the
+#: fit's directional part (the standard deviation of its linear terms over the fitted skin over
+#: its mean) goes from the first value to the second: an even light's fit finds 0.15–0.21 there
+#: (albedo that correlates with the normals), a hard side light 0.29–0.33.
+DIRECTIONAL_RANGE = (0.2, 0.3)
 #: Log-luminance dips (local vs neighbourhood) shallower than this are albedo, deeper ones shadow.
-SHADOW_TOLERANCE = 0.05
+SHADOW_TOLERANCE = 0.15
 #: (start, full): a texel is a highlight where its de-lit luminance exceeds its neighbourhood's by these ratios.
-HIGHLIGHT_RATIO = (1.15, 1.4)
+HIGHLIGHT_RATIO = (1.3, 1.6)
 #: Displacement in mm per unit of high-frequency log-luminance detail (dark = deeper), clipped to
 #: ±DETAIL_LIMIT_MM: skin detail of 3 % contrast (the typical σ of a photo's fine skin detail) is
 #: 0.03 mm of relief, a crease that darkens the skin by a quarter 0.29 mm (pores are 0.05–0.1 mm
@@ -92,8 +119,17 @@ DETAIL_DEPTH_MM = 1.0
 DETAIL_LIMIT_MM = 0.3
 #: Weight of the edge Laplacian in the screened Poisson fill (vertex data terms have weight ≤ 1).
 FILL_SMOOTHNESS = 2.0
-#: The same for the coarse base the mirrored detail is measured against (~15 mm on the ICT head).
-MIRROR_SMOOTHNESS = 50.0
+#: (start, full): the reliability of a seen texel rises from 0 to 1 as its camera-space normal's z
+#: goes from the first value to the second (foreshortened, resampled texels are trusted less).
+FORESHORTENING = (0.1, 0.4)
+#: The reliability rises over this many mm of surface from the nearest unseen texel.
+EDGE_MM = 4.0
+#: The seen texels' own fine detail is used from this many mm inside the seen region (nearer its
+#: edge, the mirror's or noise: the edge's texels carry lashes, frame shadows, highlight halos).
+DETAIL_EDGE_MM = 2.0
+#: Padding outside the UV islands: the edge colour over this fraction of S texels (4 at 1K), then
+#: the median of the map (flat).
+PAD_FRACTION = 1.0 / 256.0
 
 
 def gaussian_blur(image: np.ndarray, sigma: float) -> np.ndarray:
@@ -123,23 +159,34 @@ def masked_blur(image: np.ndarray, weight: np.ndarray, sigma: float) -> np.ndarr
     return num / (den[..., None] if image.ndim == 3 else den)
 
 
-_NEAREST_CACHE: dict[bytes, tuple[np.ndarray, np.ndarray]] = {}
+_NEAREST_CACHE: dict[bytes, tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]] = {}
 
 
-def pad_outside(image: np.ndarray, inside: np.ndarray) -> np.ndarray:
-    """Give every texel outside ``inside`` (S, S) bool the value of the nearest inside texel
-    (seam padding: bilinear sampling and mip-maps never see the background). The nearest-texel
-    table is cached per mask (a layout pads all its maps with the same one)."""
+def pad_outside(image: np.ndarray, inside: np.ndarray, width: int | None = None) -> np.ndarray:
+    """Pad an (S, S[, C]) map outside ``inside`` (S, S) bool: texels within ``width`` texels of
+    the layout (default :data:`PAD_FRACTION` × S, at least 2) take the value of the nearest
+    inside texel (bilinear sampling and the first mip levels never see the background), those
+    further out the median of the inside values, flat (no streaks: a neutral padding). The
+    nearest-texel table is cached per mask (a layout pads all its maps with the same one)."""
     if inside.all() or not inside.any():
         return image
-    key = hashlib.blake2b(np.packbits(inside).tobytes() + str(inside.shape).encode(), digest_size=16).digest()
+    width = max(2, int(round(inside.shape[0] * PAD_FRACTION))) if width is None else int(width)
+    key = hashlib.blake2b(np.packbits(inside).tobytes() + str(inside.shape).encode() + str(width).encode(),
+                          digest_size=16).digest()
     if key not in _NEAREST_CACHE:
         if len(_NEAREST_CACHE) >= 4:
             _NEAREST_CACHE.clear()
-        _, (rows, cols) = ndimage.distance_transform_edt(~inside, return_indices=True)
-        _NEAREST_CACHE[key] = (rows.astype(np.int32), cols.astype(np.int32))
-    rows, cols = _NEAREST_CACHE[key]
-    return image[rows, cols]
+        distance, (rows, cols) = ndimage.distance_transform_edt(~inside, return_indices=True)
+        near = np.flatnonzero(~inside.ravel() & (distance.ravel() <= width))
+        source = (rows.ravel()[near] * inside.shape[1] + cols.ravel()[near]).astype(np.int64)
+        far = np.flatnonzero(distance.ravel() > width)
+        _NEAREST_CACHE[key] = (near, source, far, np.flatnonzero(inside.ravel())[::7])
+    near, source, far, sample = _NEAREST_CACHE[key]
+    flat_view = image.reshape(inside.size, -1)
+    out = flat_view.copy()
+    out[near] = flat_view[source]
+    out[far] = np.median(flat_view[sample], axis=0)  # a seventh of the inside texels: the median within rounding
+    return out.reshape(image.shape)
 
 
 def value_noise(position_mm: np.ndarray, cell_mm: float, seed: int = 0) -> np.ndarray:
@@ -168,6 +215,12 @@ def _subsample(rows: np.ndarray, limit: int = 65536) -> np.ndarray:
     """At most ``limit`` evenly spaced entries of ``rows`` (least-squares fits of 9 SH
     coefficients need no more)."""
     return rows if len(rows) <= limit else rows[:: int(np.ceil(len(rows) / limit))]
+
+
+def _smoothstep(t: np.ndarray) -> np.ndarray:
+    """3t² − 2t³ of t clipped to [0, 1] (float32)."""
+    t = np.clip(t, 0.0, 1.0).astype(np.float32)
+    return t * t * (3 - 2 * t)
 
 
 def _skin(ctx: TextureContext) -> np.ndarray:
@@ -221,13 +274,16 @@ class DefaultBackend:
         lin = srgb_to_linear(T_inc)
         w = np.clip(M_vis, 0.0, 1.0).astype(np.float32) * cover
         lum = luminance(lin)
-        fit_mask = _skin(ctx) & (w > 0.5) & (lum > 1e-4)
+        # the fit trusts only reliable skin: facing the camera, away from silhouettes and occluders
+        # (at a silhouette the photo mixes in the background: a white wall made grazing skin "lit")
+        fit_mask = _skin(ctx) & (self.reliability(w, ctx) > 0.5) & (lum > 1e-4)
         normals = ctx.normal_camera
         shading = np.ones(cover.shape, np.float32)
         n_fit = int(fit_mask.sum())
+        directional = strength = 0.0
         if n_fit >= 100:
             rows = _subsample(np.flatnonzero(fit_mask.ravel()))
-            basis = sh_basis(torch.from_numpy(normals.reshape(-1, 3)[rows].astype(np.float32))).numpy().astype(np.float64)
+            basis = sh_basis(torch.from_numpy(normals.reshape(-1, 3)[rows].astype(np.float32))).numpy().astype(np.float64)[:, :SH_TERMS]
             y = lum.ravel()[rows].astype(np.float64)
             keep = np.ones(len(rows), bool)
             for _ in range(4):  # trimmed least squares on the log-ratio
@@ -235,12 +291,16 @@ class DefaultBackend:
                 r = np.log(y / np.maximum(basis @ coeffs, 1e-6))
                 med = np.median(r[keep])
                 keep = np.abs(r - med) < 2.5 * 1.4826 * np.median(np.abs(r[keep] - med)) + 1e-6
+            # how directional the fitted light is: under an even light the fit only finds albedo that
+            # happens to correlate with the normals, and dividing by it would put that into the albedo
+            directional = float(np.std(basis[keep][:, 1:4] @ coeffs[1:4]) / max(float(np.mean(basis[keep] @ coeffs)), 1e-12))
+            strength = float(_smoothstep(np.float32((directional - DIRECTIONAL_RANGE[0]) / (DIRECTIONAL_RANGE[1] - DIRECTIONAL_RANGE[0]))))
             flat = np.flatnonzero(cover.ravel())
             e = np.zeros(cover.size)
-            e[flat] = sh_basis(torch.from_numpy(normals.reshape(-1, 3)[flat].astype(np.float32))).numpy() @ coeffs
+            e[flat] = sh_basis(torch.from_numpy(normals.reshape(-1, 3)[flat].astype(np.float32))).numpy()[:, :SH_TERMS] @ coeffs
             e = e.reshape(cover.shape)
             ref = float(np.median(e[fit_mask]))
-            shading = np.where(cover, np.maximum(e / max(ref, 1e-6), 1e-3), 1.0).astype(np.float32)
+            shading = np.where(cover, np.maximum(e / max(ref, 1e-6), 1e-3) ** strength, 1.0).astype(np.float32)
             # cast shadows / occlusion: local dips of the de-lit log-luminance below the neighbourhood
             log_a = np.log(np.maximum(lum / shading, 1e-4))
             local = masked_blur(log_a, fit_mask, size / 128.0)
@@ -264,6 +324,8 @@ class DefaultBackend:
         self._analysis = (ctx, analysis)
         self.report["analyse"] = {
             "fit_texels": n_fit,
+            "directional": directional,
+            "delighting_strength": strength,
             "gain_p05_p95": [float(x) for x in np.percentile(1.0 / shading[fit_mask], [5, 95])] if n_fit else [1.0, 1.0],
             "highlight_fraction_of_seen_skin": float(highlight[fit_mask].mean()) if n_fit else 0.0,
         }
@@ -272,7 +334,7 @@ class DefaultBackend:
     # ---------------------------------------------------------------------------------- inpaint
     def inpaint(self, T_inc: np.ndarray, M_vis: np.ndarray, ctx: TextureContext) -> np.ndarray:
         """(S, S, 3) sRGB + (S, S) visibility -> (S, S, 3) sRGB, every texel filled, under the
-        photo's lighting (the estimated shading applied to the filled albedo)."""
+        photo's lighting (the estimated shading and light colour applied to the filled albedo)."""
         cover = ctx.coverage
         size = ctx.size
         an = self.analyse(T_inc, M_vis, ctx)
@@ -280,67 +342,128 @@ class DefaultBackend:
         delit = lin / an.shading[..., None]
         w = an.weight
         skin = _skin(ctx)
-        seen_skin = skin & (w > 0.5)
-        if seen_skin.sum() >= 10:
-            mean = (delit[seen_skin] * w[seen_skin, None]).sum(0) / w[seen_skin].sum()
+        reliable = self.reliability(w, ctx)
+        seen = w > 0.5
+        notes: list[str] = []
+        greyscale = is_greyscale(T_inc[seen & cover]) if (seen & cover).any() else False
+        # the light's colour: from the reliably seen skin and the photo's white references
+        light = np.zeros(2)
+        skin_weight = reliable * skin
+        illuminant_report: dict[str, Any] = {"greyscale": greyscale}
+        if not greyscale and skin_weight.sum() >= 10:
+            mean_skin = (delit * skin_weight[..., None]).reshape(-1, 3).sum(0) / skin_weight.sum()
+            white = None if ctx.white_reference is None else chroma(np.asarray(ctx.white_reference))
+            light, illuminant_report = estimate_illuminant(chroma(mean_skin), white)
+            illuminant_report["greyscale"] = False
+            delit = remove_cast(delit, light)
+        elif greyscale:
+            delit = np.repeat(luminance(delit)[..., None], 3, axis=-1)
+            notes.append("the photo is greyscale: the albedo's chroma is invented (a generic skin tone, redder lips)")
+        if reliable[skin].sum() >= 10 if skin.any() else False:
+            mean = (delit * reliable[..., None]).reshape(-1, 3).sum(0) / reliable.sum()
         elif (w > 0).any():
             mean = (delit * w[..., None]).reshape(-1, 3).sum(0) / w.sum()
         else:  # nothing seen at all: the model's texture
             mean = srgb_to_linear(ctx.mean_texture)[cover].mean(0)
-        base = self._base(delit, w, mean, ctx, FILL_SMOOTHNESS)
-        # detail through the mirror: the mirror texel's ratio to a coarse (~15 mm) base around it,
-        # times the coarse base here: the mirror brings everything finer, the local side the tone
-        coarse = self._base(delit, w, mean, ctx, MIRROR_SMOOTHNESS)
+        log_seen = np.log(np.maximum(delit, 1e-4))
+        detail_fill, via_mirror, amp = self._fill_detail(log_seen, seen & cover, reliable, ctx)
+        # the gradient-domain blend: the low frequencies of the seen skin minus the fill's detail,
+        # solved on the surface with the reliability as data weight (a screened Poisson problem),
+        # plus the fill's detail; the seen texels kept by their reliability
+        base = self._base(log_seen - detail_fill, reliable, np.log(np.maximum(mean, 1e-4)), ctx, FILL_SMOOTHNESS)
+        out_log = reliable[..., None] * log_seen + (1 - reliable[..., None]) * (base + detail_fill)
+        out = np.where(cover[..., None], np.exp(out_log), 0.0)
+        if greyscale:
+            out = invent_chroma(luminance(out), ctx.regions.get("lips"))
+        peak = out.max(axis=-1, keepdims=True)
+        out = np.where(peak > 1.0, out / np.maximum(peak, 1e-6), out).astype(np.float32)  # keeps chroma
+        self.report["inpaint"] = {
+            "seen": float(M_vis[cover].mean()) if cover.any() else 0.0,
+            "kept_as_seen": float(reliable[cover].mean()) if cover.any() else 0.0,
+            "via_mirror": float(((1 - reliable) * via_mirror)[cover].mean()) if cover.any() else 0.0,
+            "detail_contrast": amp,
+        }
+        self.report["illuminant"] = illuminant_report
+        self.report["notes"] = notes
+        cast = np.exp(np.array([light[0], 0.0, light[1]], np.float32))
+        relit = linear_to_srgb(np.clip(out * cast * an.shading[..., None], 0.0, None))
+        result = pad_outside(relit.astype(np.float32), cover)
+        self._filled = (result, out)
+        return result
+
+    def reliability(self, weight: np.ndarray, ctx: TextureContext) -> np.ndarray:
+        """(S, S) float32 in [0, 1]: how far each seen texel is trusted, the kept weight
+        (visibility × coverage × facing × (1 − occlusion) × (1 − highlight)) times a
+        foreshortening ramp (camera-space normal z from :data:`FORESHORTENING` [0] to [1]) times a
+        ramp over :data:`EDGE_MM` mm of surface from the nearest texel not seen (the silhouette,
+        an occluder, a highlight), so that the seen skin fades into the fill instead of ending."""
+        cover = ctx.coverage
+        lo, hi = FORESHORTENING
+        fore = _smoothstep((ctx.normal_camera[..., 2] - lo) / (hi - lo))
+        edge = self._inner_distance(weight > 0.5, ctx) / EDGE_MM
+        return np.where(cover & (weight > 0.5), np.clip(weight, 0.0, 1.0) * fore * _smoothstep(edge), 0.0).astype(np.float32)
+
+    @staticmethod
+    def _inner_distance(seen: np.ndarray, ctx: TextureContext) -> np.ndarray:
+        """(S, S) float32 distance in mm (texel distance × the median texel size) from each seen
+        texel to the nearest covered texel that is not seen; texels outside the layout count as
+        seen, so island borders are no boundary."""
+        cover = ctx.coverage
+        if not (seen & cover).any():
+            return np.zeros(cover.shape, np.float32)
+        texel_mm = float(np.median(ctx.texel_size_mm[cover]))
+        return (ndimage.distance_transform_edt(seen | ~cover) * texel_mm).astype(np.float32)
+
+    def _fill_detail(self, log_seen: np.ndarray, seen: np.ndarray, reliable: np.ndarray, ctx: TextureContext
+                     ) -> tuple[np.ndarray, np.ndarray, np.ndarray | float]:
+        """The fill's fine detail (S, S, 3) in log RGB (zero mean, finer than ~S/128 texels, ~2.5 mm
+        at 1K): where the texel is seen (``seen``), its own; elsewhere the mirror texel's where
+        that was reliably seen, and 3-D value noise of the model-space position with the seen
+        skin's contrast where not. Also the mirror's weight (S, S) and that contrast."""
+        cover = ctx.coverage
+        size = ctx.size
+        sigma = max(1.0, size / 128.0)
+        detail = np.where(seen[..., None], log_seen - masked_blur(log_seen, seen, sigma), 0.0)
+        amp = self._detail_contrast(log_seen, seen & _skin(ctx), size)
         has = (ctx.mirror[..., 0] >= 0) & cover
         mr, mc = np.where(has, ctx.mirror[..., 0], 0), np.where(has, ctx.mirror[..., 1], 0)
-        w_m = np.where(has, w[mr, mc], 0.0)
-        ratio = np.clip(delit[mr, mc] / np.maximum(coarse[mr, mc], 1e-4), 0.25, 4.0)
-        mirrored = coarse * ratio
-        # detail elsewhere: value noise with the seen skin's fine-detail contrast
-        amp = self._detail_contrast(delit, w, skin, size)
-        need = cover & ((1 - w) * (1 - w_m) > 1e-3)
+        w_m = np.where(has, reliable[mr, mc], 0.0).astype(np.float32)
+        mirrored = detail[mr, mc]
+        need = cover & ~seen & (w_m < 1.0 - 1e-3)
         noise = np.zeros(cover.shape, np.float32)
         if need.any() and amp > 0:
             pos = ctx.position[need]
             n = value_noise(pos, 0.35) + 0.7 * value_noise(pos, 0.7, seed=1) + 0.4 * value_noise(pos, 1.5, seed=2)
             noise[need] = amp * n / max(float(n.std()), 1e-6)
-        synthetic = base * np.exp(noise)[..., None]
-        unseen = w_m[..., None] * mirrored + (1 - w_m[..., None]) * synthetic
-        out = w[..., None] * delit + (1 - w[..., None]) * unseen
-        out = np.where(cover[..., None], out, 0.0)
-        peak = out.max(axis=-1, keepdims=True)
-        out = np.where(peak > 1.0, out / np.maximum(peak, 1e-6), out).astype(np.float32)  # keeps chroma
-        self.report["inpaint"] = {
-            "seen": float(M_vis[cover].mean()) if cover.any() else 0.0,
-            "kept_as_seen": float(w[cover].mean()) if cover.any() else 0.0,
-            "via_mirror": float(((1 - w) * w_m)[cover].mean()) if cover.any() else 0.0,
-            "detail_contrast": amp,
-        }
-        relit = linear_to_srgb(out * an.shading[..., None])
-        result = pad_outside(relit.astype(np.float32), cover)
-        self._filled = (result, out)
-        return result
+        fill = w_m[..., None] * mirrored + (1 - w_m[..., None]) * noise[..., None]
+        own = _smoothstep(self._inner_distance(seen, ctx) / DETAIL_EDGE_MM)[..., None] * seen[..., None]
+        fill = own * detail + (1 - own) * fill  # where seen (away from its edge: lashes, halos), the photo's own detail
+        return np.where(cover[..., None], fill, 0.0).astype(np.float32), w_m, amp
 
-    def _base(self, delit: np.ndarray, w: np.ndarray, mean: np.ndarray, ctx: TextureContext, smoothness: float) -> np.ndarray:
-        """(S, S, 3) smooth linear base colour: the seen colours extrapolated over the surface,
-        ``smoothness`` the Laplacian's weight (its scale grows as its square root, in edges)."""
+    def _base(self, values: np.ndarray, w: np.ndarray, mean: np.ndarray, ctx: TextureContext, smoothness: float) -> np.ndarray:
+        """(S, S, C) smooth field: ``values`` (S, S, C) known with weight ``w`` (S, S) extended
+        over the surface by a screened Poisson problem on the mesh's vertices (continuous across
+        UV seams): minimise Σ_v w_v (x_v − values_v)² + ``smoothness`` Σ_edges (x_a − x_b)² +
+        ε Σ_v (x_v − mean)², so that far from anything seen it settles on ``mean`` (C,), and
+        near the seen skin it takes that skin's own values. Without surface operators: a UV
+        push-pull."""
         size = ctx.size
         if ctx.surface is None:
-            return _push_pull(delit, w, size, size / 64.0 * np.sqrt(smoothness / FILL_SMOOTHNESS), mean)
+            return _push_pull(values, w, size, size / 64.0 * np.sqrt(smoothness / FILL_SMOOTHNESS), mean)
         surf = ctx.surface
-        values, vw = surf.to_vertices(delit, w)
+        vertex_values, vw = surf.to_vertices(values, w)
         eps = 1e-3
         system = (sp.diags(vw + eps) + smoothness * surf.laplacian).tocsc()
-        rhs = vw[:, None] * np.nan_to_num(values) + eps * np.asarray(mean, np.float64)[None, :]
+        rhs = vw[:, None] * np.nan_to_num(vertex_values) + eps * np.asarray(mean, np.float64)[None, :]
         x = spla.splu(system).solve(rhs)
         return surf.to_texels(x, size)
 
-    def _detail_contrast(self, delit: np.ndarray, w: np.ndarray, skin: np.ndarray, size: int) -> float:
-        """Standard deviation of the seen skin's fine log-luminance detail (above ~S/256 texels⁻¹)."""
-        seen = skin & (w > 0.9)
+    def _detail_contrast(self, log_rgb: np.ndarray, seen: np.ndarray, size: int) -> float:
+        """Robust σ of the seen skin's fine log-luminance detail (above ~S/256 texels⁻¹):
+        ``log_rgb`` (S, S, 3) log linear RGB, ``seen`` (S, S) bool."""
         if seen.sum() < 100:
             return 0.0
-        log_l = np.log(np.maximum(luminance(delit), 1e-4))
+        log_l = np.log(np.maximum(luminance(np.exp(log_rgb)), 1e-4))
         detail = log_l - masked_blur(log_l, seen, max(1.0, size / 256.0))
         d = detail[seen]
         return float(1.4826 * np.median(np.abs(d - np.median(d))))
@@ -355,25 +478,32 @@ class DefaultBackend:
         else:  # called on its own: analyse the texture as if everything were seen
             shading = self.analyse(T_full, cover.astype(np.float32), ctx).shading
             albedo = srgb_to_linear(T_full) / shading[..., None]
+            weight = self.reliability(cover.astype(np.float32), ctx) * skin
+            if weight.sum() >= 10 and not is_greyscale(T_full[cover]):
+                mean_skin = (albedo * weight[..., None]).reshape(-1, 3).sum(0) / weight.sum()
+                white = None if ctx.white_reference is None else chroma(np.asarray(ctx.white_reference))
+                light, self.report["illuminant"] = estimate_illuminant(chroma(mean_skin), white)
+                albedo = remove_cast(albedo, light)
             peak = albedo.max(axis=-1, keepdims=True)
             albedo = np.where(peak > 1.0, albedo / np.maximum(peak, 1e-6), albedo)
-        linear = srgb_to_linear(T_full)
-        before = self._shading_variance(linear, ctx.normal_camera, skin)
+        before = self._shading_variance(T_full, ctx.normal_camera, skin, srgb=True)
         after = self._shading_variance(albedo, ctx.normal_camera, skin)
         self.report["homogenise"] = {
             "shading_variance_before": before,
             "shading_variance_after": after,
             "remaining_fraction": after / max(before, 1e-12),
         }
-        return pad_outside(linear_to_srgb(np.where(cover[..., None], albedo, linear)), cover)
+        return pad_outside(linear_to_srgb(np.where(cover[..., None], albedo, 0.0)), cover)
 
     @staticmethod
-    def _shading_variance(linear: np.ndarray, normals: np.ndarray, skin: np.ndarray) -> float:
-        """Variance of the skin's log-luminance explained by the SH basis of the normals."""
+    def _shading_variance(colour: np.ndarray, normals: np.ndarray, skin: np.ndarray, srgb: bool = False) -> float:
+        """Variance of the skin's log-luminance explained by the SH basis of the normals
+        (``colour`` linear RGB, or sRGB with ``srgb``)."""
         rows = _subsample(np.flatnonzero(skin.ravel()))
         if len(rows) < 10:
             return 0.0
-        log_l = np.log(np.maximum(luminance(linear.reshape(-1, 3)[rows]), 1e-4))
+        values = colour.reshape(-1, 3)[rows]
+        log_l = np.log(np.maximum(luminance(srgb_to_linear(values) if srgb else values), 1e-4))
         basis = sh_basis(torch.from_numpy(normals.reshape(-1, 3)[rows].astype(np.float32))).numpy()
         coeffs, *_ = np.linalg.lstsq(basis, log_l - log_l.mean(), rcond=None)
         return float(np.var(basis @ coeffs))

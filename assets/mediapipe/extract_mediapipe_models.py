@@ -8,6 +8,7 @@ Downloads the ``mediapipe==0.10.14`` wheel (CPython 3.11, manylinux x86_64) with
 * ``mediapipe/modules/iris_landmark/iris_landmark.tflite`` (iris + eye contour of one eye, 64x64)
 * ``mediapipe/modules/palm_detection/palm_detection_lite.tflite`` (BlazePalm, 192x192)
 * ``mediapipe/modules/hand_landmark/hand_landmark_lite.tflite`` (21 hand landmarks, 224x224)
+* ``mediapipe/modules/selfie_segmentation/selfie_segmentation.tflite`` (person vs background, 256x256)
 * ``mediapipe-0.10.14.dist-info/LICENSE`` (Apache-2.0) as ``LICENSE``
 
 into the folder this script lives in. Each extracted file is checked against the sha256 recorded
@@ -56,6 +57,10 @@ MEMBERS = {
     "mediapipe/modules/hand_landmark/hand_landmark_lite.tflite": (
         "hand_landmark_lite.tflite",
         "048edd3645c9bf7397d19a9f6e3a42957d6e414c9bea6598030a2e9b624156e6",
+    ),
+    "mediapipe/modules/selfie_segmentation/selfie_segmentation.tflite": (
+        "selfie_segmentation.tflite",
+        "9ee168ec7c8f2a16c56fe8e1cfbc514974cbbb7e434051b455635f1bd1462f5c",
     ),
     f"mediapipe-{VERSION}.dist-info/LICENSE": (
         "LICENSE",

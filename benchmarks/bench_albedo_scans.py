@@ -1,0 +1,443 @@
+"""Albedo against a real skin colour map (issue 26): Blender renders of a real head scan whose
+texture is known, reconstructed by facegeo, the asset's albedo compared with the scan's colour at
+corresponding surface points.
+
+Scans and renders: branch ``scans``'s ``benchmarks/scan_renders.py`` (the 3dMD scan of the
+menpo3d sdist; per view the render, the scan texture's colour at every pixel (Cycles' Diffuse
+Color pass) and the scan point at every pixel). Views here: yaw 0° and ±40° under
+
+* **even** light (the renders' uniform white environment),
+* **warm** light: the even render's linear RGB times the von Kries gains :data:`WARM` of a
+  ~3200 K tungsten light (exact for a scene lit by one light colour: the render is linear
+  before its sRGB encoding, the "Standard" view transform), re-encoded to 8-bit sRGB,
+* **hard side** light (a small sun from the subject's left and a dim environment): the
+  ``hard-side`` view at yaw 0° and two more rendered here at ±40° (:data:`EXTRA_VIEWS`, into
+  ``~/.cache/facegeo/scans_albedo``, ~1 min each with Debian's ``blender``).
+
+Per view: ``facegeo``'s fit (default detector), skin mask, unwrap and texture backend at
+S = 1024; the new default backend, the one it replaced (``DefaultBackend`` and ``skin_mask`` of
+git commit :data:`BASELINE_COMMIT`) on the same fit, and two baselines: a **flat** albedo of the
+seen skin's median photo colour, and the **raw** photo colour (seen texels only).
+
+Correspondence. Seen texels (M_vis > 0.5 with the new mask): the truth is the scan colour image
+at the texel's projection into the photo (bilinear, where all four pixels are on the scan). All
+texels: the fitted mesh (camera space) is similarity-aligned to the scan (Umeyama, trimmed: the
+seen texels' positions against the scan points at their pixels), and the truth is the inverse-
+distance mean of the scan colour at the 4 nearest scan points of the five even views (yaw 0,
+±20, ±40), where the nearest is within 3 mm. Skin texels: the model's skin region
+(:func:`facegeo.skin_mask.skin_vertex_mask`: face without eyes, brows, lips).
+
+Metrics over skin texels, after one exposure scale per view (the albedo's linear luminance
+least-squares scaled onto the truth's over the seen skin; chroma is not fitted):
+
+* ΔE2000 median on **seen** skin (photo-pixel truth) and on **filled** skin (M_vis < 0.5,
+  3-D truth); the **chroma** error alone: median |Δ(a*, b*)|;
+* **gradient ratio**: mean |∇Lab| of the albedo over skin texels divided by the truth's, both
+  maps (3-D truth) blurred by one photo pixel's footprint (σ in texels, the finest scale the
+  photo resolves); below 1 detail is lost, above it blotches or noise were added;
+* **seam ratio**: mean |∇Lab| within 3 texels of the seen/filled boundary divided by the mean
+  elsewhere, for the albedo and for the truth;
+* **off-skin**: share of skin texels whose albedo colour the real skin map never takes: Lab
+  Mahalanobis distance > :data:`OFF_SKIN_SIGMAS` from a robust Gaussian (median, MAD-scaled
+  covariance) of the truth's colours over the skin texels (glasses, background, hair, dark cast
+  shadows or blotches left in).
+
+    python benchmarks/bench_albedo_scans.py --write /tmp/albedo_scans.md    # ~20 min on 2 cores
+    python benchmarks/bench_albedo_scans.py --time-stages 5                  # texture-stage times
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import statistics
+import subprocess
+import sys
+import time
+import types
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import torch
+from scipy.spatial import cKDTree
+from skimage.color import deltaE_ciede2000, rgb2lab
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+import scan_renders  # noqa: E402  (branch scans: the renders and their truth)
+from scan_evaluation import similarity_transform  # noqa: E402
+from scan_renders import ViewSpec, load_view, render_views  # noqa: E402
+
+import facegeo  # noqa: E402
+from facegeo.colour import linear_to_srgb, luminance, srgb_to_linear  # noqa: E402
+from facegeo.pipeline import reconstruct_with_fit  # noqa: E402
+from facegeo.skin_mask import SkinMask, skin_mask, skin_vertex_mask  # noqa: E402
+from facegeo.texturing.context import surface_operators  # noqa: E402
+from facegeo.texturing.default_backend import DefaultBackend, masked_blur  # noqa: E402
+from facegeo.uv import geometry_maps, rasterize_uv, unwrap_details  # noqa: E402
+from facegeo.uv.texels import sample_bilinear  # noqa: E402
+
+ROOT = Path(__file__).resolve().parents[1]
+BASELINE_COMMIT = "b62b557"
+SCAN = "james"
+#: von Kries gains (linear sRGB, G = 1) of a ~3200 K light against the renders' white one.
+WARM = np.array([1.0, 0.76, 0.52], np.float32)
+#: The hard side light at ±40°, rendered here with the scans helper's recipe.
+EXTRA_VIEWS = (ViewSpec("hard-side+40", yaw=40.0, light="hard-side"), ViewSpec("hard-side-40", yaw=-40.0, light="hard-side"))
+EXTRA_CACHE = Path.home() / ".cache" / "facegeo" / "scans_albedo"
+#: (label, render, light) of the compared views.
+VIEWS = [("even 0°", "yaw+00", "even"), ("even −40°", "yaw-40", "even"), ("even +40°", "yaw+40", "even"),
+         ("warm 0°", "yaw+00", "warm"), ("warm −40°", "yaw-40", "warm"), ("warm +40°", "yaw+40", "warm"),
+         ("hard side 0°", "hard-side", "hard"), ("hard side −40°", "hard-side-40", "hard"), ("hard side +40°", "hard-side+40", "hard")]
+#: The even views whose scan points and colours make the 3-D truth.
+TRUTH_VIEWS = ("yaw+00", "yaw-20", "yaw+20", "yaw-40", "yaw+40")
+#: Truth only where the nearest scan point is this close (mm).
+TRUTH_RADIUS_MM = 3.0
+#: Off-skin: Lab Mahalanobis distance above this from the truth skin's colours.
+OFF_SKIN_SIGMAS = 5.0
+METHODS = ("new", "previous", "flat", "raw")
+DUMP: Path | None = None  # --dump: the UV maps compared, per view
+
+
+def load() -> str:
+    return " ".join(f"{x:.2f}" for x in os.getloadavg())
+
+
+def from_git(path: str, name: str) -> types.ModuleType:
+    """A module of the project as it was at :data:`BASELINE_COMMIT`."""
+    code = subprocess.run(["git", "show", f"{BASELINE_COMMIT}:{path}"], cwd=ROOT, capture_output=True, text=True, check=True).stdout
+    module = types.ModuleType(name)
+    sys.modules[name] = module  # dataclasses look their module up
+    exec(compile(code, f"{BASELINE_COMMIT}:{path}", "exec"), module.__dict__)
+    return module
+
+
+def view_for(render: str):
+    """The scans helper's view ``render``, rendered first where missing (extra views here)."""
+    if render in {v.name for v in EXTRA_VIEWS}:
+        try:
+            return load_view(SCAN, render, cache=EXTRA_CACHE)
+        except facegeo.errors.InputError:
+            standard = scan_renders.VIEWS
+            scan_renders.VIEWS = EXTRA_VIEWS  # render_views renders the views of this module global
+            try:
+                render_views(SCAN, cache=EXTRA_CACHE)
+            finally:
+                scan_renders.VIEWS = standard
+            return load_view(SCAN, render, cache=EXTRA_CACHE)
+    try:
+        return load_view(SCAN, render)
+    except facegeo.errors.InputError:
+        render_views(SCAN)
+        return load_view(SCAN, render)
+
+
+def photo_of(view, light: str) -> np.ndarray:
+    image = view.image
+    if light != "warm":
+        return image
+    warm = srgb_to_linear(image.astype(np.float32) / 255.0) * WARM
+    return np.clip(np.round(linear_to_srgb(np.clip(warm, 0.0, 1.0)) * 255.0), 0, 255).astype(np.uint8)
+
+
+@dataclass
+class Truth3D:
+    """Scan points (N, 3) mm of the even views and their scan colour (N, 3) linear RGB."""
+
+    tree: cKDTree
+    colour: np.ndarray
+
+    @classmethod
+    def build(cls) -> "Truth3D":
+        points, colours = [], []
+        for name in TRUTH_VIEWS:
+            view = view_for(name)
+            mask = view.mask
+            points.append(view.points[mask])
+            colours.append(srgb_to_linear(view.albedo[mask].astype(np.float32) / 255.0))
+        return cls(cKDTree(np.concatenate(points)), np.concatenate(colours))
+
+    def lookup(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Inverse-distance mean colour (N, 3) linear of the 4 nearest scan points, and (N,) bool
+        where the nearest is within TRUTH_RADIUS_MM."""
+        d, i = self.tree.query(points, k=4)
+        w = 1.0 / np.maximum(d, 0.05)
+        colour = (self.colour[i] * w[..., None]).sum(1) / w.sum(1, keepdims=True)
+        return colour.astype(np.float32), d[:, 0] <= TRUTH_RADIUS_MM
+
+
+class CachedFit:
+    """A fitter that returns the fit already made (the methods share one fit per view)."""
+
+    def __init__(self, fit):
+        self.fit = fit
+
+    def __call__(self, photo, **_):
+        return self.fit
+
+
+def lab(linear: np.ndarray) -> np.ndarray:
+    return rgb2lab(np.clip(linear_to_srgb(np.clip(linear, 0.0, 1.0)), 0, 1).astype(np.float64))
+
+
+def exposure(albedo_lin: np.ndarray, truth_lin: np.ndarray) -> float:
+    ya, yt = luminance(albedo_lin), luminance(truth_lin)
+    return float((ya * yt).sum() / max((ya * ya).sum(), 1e-12))
+
+
+def gradient(lab_map: np.ndarray, region: np.ndarray) -> np.ndarray:
+    """(S, S) |∇Lab| by forward differences where the texel and its right/lower neighbours are
+    in ``region``; NaN elsewhere."""
+    gx = np.zeros(region.shape, np.float64)
+    gy = np.zeros(region.shape, np.float64)
+    gx[:, :-1] = ((lab_map[:, 1:] - lab_map[:, :-1]) ** 2).sum(-1)
+    gy[:-1] = ((lab_map[1:] - lab_map[:-1]) ** 2).sum(-1)
+    ok = region.copy()
+    ok[:, :-1] &= region[:, 1:]
+    ok[:-1] &= region[1:]
+    ok[:, -1] = ok[-1] = False
+    return np.where(ok, np.sqrt(gx + gy), np.nan)
+
+
+def evaluate(name: str, render: str, light: str, model, raster, skin_texels, truth3d: Truth3D, previous) -> dict:
+    view = view_for(render)
+    photo = photo_of(view, light)
+    S = raster.size
+    fit = facegeo.fit(photo, model)
+    mask = skin_mask(photo, fit.landmarks)
+    un = unwrap_details(photo, fit, model, raster=raster, occlusion=mask.occlusion)
+    m_vis = un.visibility
+    cover = np.asarray(raster.inside)
+    # truth at the seen texels: the scan colour image where the texel projects
+    on_scan = view.mask.astype(np.float32)
+    pixel = un.pixel
+    seen = cover & (m_vis > 0.5)
+    xy = pixel[seen]
+    ok = sample_bilinear(on_scan, xy) > 0.999
+    truth_seen = np.zeros((S, S, 3), np.float32)
+    truth_seen_ok = np.zeros((S, S), bool)
+    idx = np.flatnonzero(seen.ravel())
+    truth_seen.reshape(-1, 3)[idx[ok]] = srgb_to_linear(sample_bilinear(view.albedo.astype(np.float32) / 255.0, xy[ok]))
+    truth_seen_ok.ravel()[idx[ok]] = True
+    # 3-D truth everywhere: the fitted mesh aligned to the scan on the seen texels
+    position = geometry_maps(fit.vertices, model, raster, tangents=False).position
+    px = np.clip(np.floor(xy[ok]).astype(int), 0, [view.camera.width - 1, view.camera.height - 1])
+    target = view.points[px[:, 1], px[:, 0]]
+    source = position.reshape(-1, 3)[idx[ok]]
+    good = np.all(np.isfinite(target), axis=1)
+    source, target = source[good], target[good]
+    keep = np.ones(len(source), bool)
+    for _ in range(4):  # trimmed: the worst 20 % (geometry errors, the mask's edges) left out
+        s, R, t = similarity_transform(source[keep], target[keep])
+        residual = np.linalg.norm(source @ R.T * s + t - target, axis=1)
+        keep = residual <= np.quantile(residual, 0.8)
+    aligned = position[cover] @ R.T * s + t
+    colour, near = truth3d.lookup(aligned)
+    truth = np.zeros((S, S, 3), np.float32)
+    truth[cover] = colour
+    truth_ok = np.zeros((S, S), bool)
+    truth_ok[cover] = near
+    skin = skin_texels & truth_ok
+    seen_skin = skin & seen & truth_seen_ok
+    filled_skin = skin & (m_vis < 0.5)
+    # the methods' albedos (linear)
+    albedos = {}
+    for method, backend, skin_arg in (("new", DefaultBackend(), mask),
+                                      ("previous", previous.backend(), previous.mask(photo, fit.landmarks))):
+        asset, _ = reconstruct_with_fit(photo, model, fitter=CachedFit(fit), backend=backend, size=S, maps={"albedo"},
+                                        skin=skin_arg, parts=False)
+        albedos[method] = srgb_to_linear(asset.maps["albedo"])
+    t_inc = srgb_to_linear(un.texture)
+    albedos["flat"] = np.broadcast_to(np.median(t_inc[seen & skin_texels], axis=0), (S, S, 3)).astype(np.float32)
+    albedos["raw"] = t_inc
+    texel_mm = float(np.median(np.linalg.norm(np.gradient(position, axis=1), axis=-1)[cover]))
+    blur = max(0.5, float(np.median(-position[seen][:, 2])) / fit.camera.focal / texel_mm)
+    lab_truth = lab(masked_blur(truth, skin, blur))
+    g_truth = gradient(lab_truth, skin)
+    boundary = np.zeros((S, S), bool)
+    from scipy import ndimage
+
+    seen_mask = seen | ~cover
+    boundary = (ndimage.binary_dilation(seen_mask, iterations=3) & ndimage.binary_dilation(~seen_mask, iterations=3)) & skin
+    rest = skin & ~ndimage.binary_dilation(boundary, iterations=6)
+
+    def seam(g):
+        a, b = np.nanmean(g[boundary]), np.nanmean(g[rest])
+        return float(a / b) if np.isfinite(a) and np.isfinite(b) and b > 0 else float("nan")
+
+    if DUMP is not None:
+        DUMP.mkdir(parents=True, exist_ok=True)
+        import cv2
+
+        tiles = [truth_seen, truth] + [albedos[m] * exposure(albedos[m][seen_skin], truth_seen[seen_skin]) for m in METHODS]
+        tiles = [np.where(skin[..., None], linear_to_srgb(np.clip(t, 0, 1)), 0.3) for t in tiles]
+        cv2.imwrite(str(DUMP / f"{render}_{light}.png"), cv2.cvtColor((np.concatenate(tiles, 1)[::2, ::2] * 255).astype(np.uint8), cv2.COLOR_RGB2BGR))
+    out = {"view": name, "seen_texels": int(seen_skin.sum()), "filled_texels": int(filled_skin.sum()),
+           "truth_seam": seam(g_truth), "blur_texels": blur, "fit_rms_px": fit.landmark_rms_px, "methods": {}}
+    lab_truth_seen = lab(truth_seen)
+    lab_truth_3d = lab(truth)
+    skin_lab = lab_truth_3d[skin]
+    centre = np.median(skin_lab, axis=0)
+    deviation = skin_lab - centre
+    robust = np.abs(deviation) < 3 * 1.4826 * np.median(np.abs(deviation), axis=0)
+    inliers = deviation[robust.all(axis=1)]
+    precision = np.linalg.inv(np.cov(inliers.T) + 1e-6 * np.eye(3))
+    for method, albedo in albedos.items():
+        k = exposure(albedo[seen_skin], truth_seen[seen_skin])
+        scaled = albedo * k
+        la = lab(scaled)
+        de_seen = deltaE_ciede2000(la[seen_skin], lab_truth_seen[seen_skin])
+        chroma_seen = np.linalg.norm(la[seen_skin][:, 1:] - lab_truth_seen[seen_skin][:, 1:], axis=1)
+        r = {"de_seen": float(np.median(de_seen)), "chroma_seen": float(np.median(chroma_seen))}
+        if method != "raw":
+            de_filled = deltaE_ciede2000(la[filled_skin], lab_truth_3d[filled_skin])
+            r["de_filled"] = float(np.median(de_filled)) if filled_skin.any() else float("nan")
+            r["chroma_filled"] = float(np.median(np.linalg.norm(la[filled_skin][:, 1:] - lab_truth_3d[filled_skin][:, 1:], axis=1))) if filled_skin.any() else float("nan")
+            d = la[skin] - centre
+            r["off_skin"] = float(np.mean(np.einsum("ni,ij,nj->n", d, precision, d) > OFF_SKIN_SIGMAS ** 2))
+            g = gradient(lab(masked_blur(scaled, skin, blur)), skin)
+            r["gradient"] = float(np.nanmean(g[skin]) / np.nanmean(g_truth[skin]))
+            r["gradient_seen"] = float(np.nanmean(g[seen_skin]) / np.nanmean(g_truth[seen_skin]))
+            r["gradient_filled"] = float(np.nanmean(g[filled_skin]) / np.nanmean(g_truth[filled_skin])) if filled_skin.any() else float("nan")
+            r["seam"] = seam(g)
+        out["methods"][method] = r
+    return out
+
+
+class Previous:
+    """The backend and skin mask of :data:`BASELINE_COMMIT`."""
+
+    def __init__(self):
+        self._backend = from_git("texturing/default_backend.py", "baseline_default_backend").DefaultBackend
+        self._mask = from_git("facegeo/skin_mask.py", "baseline_skin_mask").skin_mask
+
+    def backend(self):
+        return self._backend()
+
+    def mask(self, photo, landmarks) -> SkinMask:
+        """The old mask as today's :class:`SkinMask` (it measured no white reference)."""
+        old = self._mask(photo, landmarks)
+        return SkinMask(old.occlusion, old.skin_probability, old.sample, old.mean, old.covariance, old.source, old.hands)
+
+
+def fmt(x: float, digits: int = 2) -> str:
+    return "—" if x is None or not np.isfinite(x) else f"{x:.{digits}f}"
+
+
+def report(rows: list[dict]) -> list[str]:
+    lines = ["| view | method | ΔE2000 seen | ΔE2000 filled | chroma seen / filled | gradient ratio (seen / filled) | seam ratio (truth) | off-skin % |",
+             "|---|---|---|---|---|---|---|---|"]
+    for row in rows:
+        for method in METHODS:
+            r = row["methods"][method]
+            if method == "raw":
+                lines.append(f"| {row['view']} | raw photo | {fmt(r['de_seen'])} | — | {fmt(r['chroma_seen'])} / — | — | — | — |")
+                continue
+            lines.append(f"| {row['view']} | {method} | {fmt(r['de_seen'])} | {fmt(r['de_filled'])} | {fmt(r['chroma_seen'])} / {fmt(r['chroma_filled'])} | "
+                         f"{fmt(r['gradient'])} ({fmt(r['gradient_seen'])} / {fmt(r['gradient_filled'])}) | {fmt(r['seam'])} ({fmt(row['truth_seam'])}) | "
+                         f"{100 * r['off_skin']:.2f} |")
+    # the bars, on the even and hard side views (the issue's) and on all views
+    lines += ["", "| bar | new | previous |", "|---|---|---|"]
+    bar_rows = [r for r in rows if not r["view"].startswith("warm")]
+    for label, subset in (("even + hard side", bar_rows), ("all views (warm too)", rows)):
+        for method_label, key in (("seen ΔE2000 median over views ≤ 4", "de_seen"),):
+            vals = {m: statistics.median(r["methods"][m][key] for r in subset) for m in ("new", "previous")}
+            lines.append(f"| {label}: {method_label} | {vals['new']:.2f} | {vals['previous']:.2f} |")
+        ratios = {m: [r["methods"][m]["de_seen"] / r["methods"]["flat"]["de_seen"] for r in subset] for m in ("new", "previous")}
+        lines.append(f"| {label}: seen ΔE / flat's, median over views ≤ 0.7 | {statistics.median(ratios['new']):.2f} | {statistics.median(ratios['previous']):.2f} |")
+        lines.append(f"| {label}: seen ΔE / flat's, worst view ≤ 0.85 | {max(ratios['new']):.2f} | {max(ratios['previous']):.2f} |")
+        for text, key, agg in (("filled ΔE2000 median over views ≤ 6", "de_filled", statistics.median),
+                               ("gradient ratio, range over views in 0.8–1.5", "gradient", None),
+                               ("seam ratio, worst view ≤ 1.2", "seam", max),
+                               ("off-skin %, worst view ≤ 1", "off_skin", max)):
+            cells = []
+            for m in ("new", "previous"):
+                vals = [r["methods"][m][key] for r in subset if np.isfinite(r["methods"][m][key])]
+                if agg is None:
+                    cells.append(f"{min(vals):.2f}–{max(vals):.2f}")
+                elif key == "off_skin":
+                    cells.append(f"{100 * agg(vals):.2f}")
+                else:
+                    cells.append(f"{agg(vals):.2f}")
+            lines.append(f"| {label}: {text} | {cells[0]} | {cells[1]} |")
+    return lines
+
+
+def time_stages(rounds: int) -> list[str]:
+    """Wall time of the texture stages (inpaint + homogenise + materials, all maps) at S = 1024 on
+    the bundled photo, the previous backend and the new one alternating on one fit, unwrap and
+    context (the new skin mask for both): markdown lines with min and median."""
+    from facegeo.assets import asset_path
+    from facegeo.photo import load_photo
+    from facegeo.texturing.context import build_context
+    from facegeo.uv import unwrap
+
+    model = facegeo.load_model()
+    photo = load_photo(asset_path("photos/astronaut.png"))
+    fit = facegeo.fit(photo, model)
+    raster = rasterize_uv(model, size=1024)
+    maps = geometry_maps(fit.vertices, model, raster, tangents=False)
+    mask = skin_mask(photo.image, fit.landmarks)
+    t_inc, m_vis = unwrap(photo.image, fit, model, maps=maps, occlusion=mask.occlusion)
+    ctx = build_context(model, fit, raster, maps, white_reference=mask.white_reference)
+    previous = Previous()
+    times: dict[str, list[float]] = {"previous": [], "new": []}
+    start = load()
+    for _ in range(rounds):
+        for label, backend in (("previous", previous.backend()), ("new", DefaultBackend())):
+            t = time.perf_counter()
+            backend.materials(backend.homogenise(backend.inpaint(t_inc, m_vis, ctx), ctx), ctx)
+            times[label].append(time.perf_counter() - t)
+    lines = [f"Texture stages (inpaint + homogenise + materials, all maps) on `photos/astronaut.png`, S = 1024, "
+             f"torch threads {torch.get_num_threads()}, {rounds} alternating rounds; load average {start} at the start, "
+             f"{load()} at the end:", "", "| backend | min s | median s |", "|---|---|---|"]
+    for label, values in times.items():
+        lines.append(f"| {label} | {min(values):.2f} | {statistics.median(values):.2f} |")
+    return lines
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--size", type=int, default=1024, help="map size S")
+    ap.add_argument("--views", default="", help="comma-separated indices into VIEWS (default all)")
+    ap.add_argument("--write", type=Path, default=None, help="also write the markdown report here")
+    ap.add_argument("--json", type=Path, default=None, help="also write the raw numbers here")
+    ap.add_argument("--time-stages", type=int, default=0, metavar="ROUNDS", help="only time the texture stages, this many rounds")
+    ap.add_argument("--dump", type=Path, default=None, help="write the compared UV maps (truth seen, truth 3-D, methods) here")
+    args = ap.parse_args(argv)
+    global DUMP
+    DUMP = args.dump
+    torch.set_num_threads(max(1, os.cpu_count() or 1))
+    if args.time_stages:
+        print("\n".join(time_stages(args.time_stages)))
+        return 0
+    load_start, t_start = load(), time.perf_counter()
+    model = facegeo.load_model()
+    raster = rasterize_uv(model, size=args.size)
+    surf = surface_operators(model, raster)
+    skin_texels = (surf.to_texels(skin_vertex_mask(model).astype(np.float32), args.size) > 0.5) & np.asarray(raster.inside)
+    truth3d = Truth3D.build()
+    previous = Previous()
+    chosen = [VIEWS[int(i)] for i in args.views.split(",") if i] or VIEWS
+    rows = []
+    for name, render, light in chosen:
+        row = evaluate(name, render, light, model, raster, skin_texels, truth3d, previous)
+        rows.append(row)
+        print(json.dumps(row), file=sys.stderr)
+    header = [f"command: `python benchmarks/bench_albedo_scans.py {' '.join(sys.argv[1:] if argv is None else argv)}`",
+              f"machine: {platform.machine()}, {os.cpu_count()} cores, torch {torch.__version__}; load average at start {load_start}, "
+              f"at end {load()}; total {time.perf_counter() - t_start:.0f} s; S = {args.size}; scan `{SCAN}` (menpo3d), renders 512×768; "
+              f"previous = `DefaultBackend` + `skin_mask` of {BASELINE_COMMIT}", ""]
+    text = "\n".join(header + report(rows)) + "\n"
+    print(text)
+    if args.write is not None:
+        args.write.write_text(text)
+    if args.json is not None:
+        args.json.write_text(json.dumps(rows, indent=1))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

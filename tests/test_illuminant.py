@@ -1,0 +1,63 @@
+"""The light's colour: estimated from the skin locus and the white references, removed with the
+luminance kept; a greyscale photo's invented chroma."""
+
+import numpy as np
+
+from facegeo.colour import luminance
+from facegeo.texturing.illuminant import (NEUTRAL_TOLERANCE, PLANCKIAN, SCLERA_CHROMA, SKIN_CHROMA, SKIN_LOCUS, WHITE_GATE,
+                                          chroma, estimate_illuminant, invent_chroma, is_greyscale, remove_cast)
+
+
+def test_neutral_light_on_any_skin_tone_is_left_alone():
+    for t in (-0.2, 0.0, 0.2):  # lighter to darker skin along the locus
+        light, report = estimate_illuminant(SKIN_CHROMA + t * SKIN_LOCUS, SCLERA_CHROMA)
+        np.testing.assert_allclose(light, 0.0, atol=1e-9)
+        assert report["white_used"]
+
+
+def test_warm_light_is_recovered_with_the_sclera_up_to_the_neutral_tolerance():
+    warm = 0.6 * PLANCKIAN  # a strong tungsten cast
+    light, report = estimate_illuminant(SKIN_CHROMA + 0.1 * SKIN_LOCUS + warm, SCLERA_CHROMA + warm)
+    assert report["white_used"]
+    assert np.linalg.norm(light - warm) < NEUTRAL_TOLERANCE + 0.03
+    np.testing.assert_allclose(light / np.linalg.norm(light), PLANCKIAN, atol=0.05)  # the right direction
+    without, _ = estimate_illuminant(SKIN_CHROMA + 0.1 * SKIN_LOCUS + warm)
+    assert np.linalg.norm(light - warm) < np.linalg.norm(without - warm)  # the sclera helps
+
+
+def test_a_white_reference_redder_than_the_skin_is_not_used():
+    skin = SKIN_CHROMA + 0.3 * PLANCKIAN
+    lid = skin + np.array([WHITE_GATE + 0.5, 0.1])  # reddish lids picked for a tiny eye
+    light, report = estimate_illuminant(skin, lid)
+    assert not report["white_used"] and report["white_miss"] > WHITE_GATE
+    np.testing.assert_allclose(light, estimate_illuminant(skin)[0])
+
+
+def test_remove_cast_divides_the_light_and_keeps_luminance():
+    rng = np.random.default_rng(0)
+    albedo = rng.uniform(0.05, 0.9, (100, 3)).astype(np.float32)
+    light = np.array([0.3, -0.4])
+    lit = albedo * np.exp([light[0], 0.0, light[1]]).astype(np.float32)
+    out = remove_cast(lit, light)
+    np.testing.assert_allclose(luminance(out), luminance(lit), rtol=1e-5)
+    np.testing.assert_allclose(chroma(out), chroma(albedo), atol=1e-5)
+
+
+def test_invented_chroma_has_the_luminance_and_skin_or_lip_chroma():
+    lum = np.linspace(0.05, 0.8, 50).astype(np.float32)
+    lips = np.zeros(50, np.float32)
+    lips[25:] = 1.0
+    rgb = invent_chroma(lum, lips)
+    np.testing.assert_allclose(luminance(rgb), lum, rtol=1e-5)
+    c = chroma(rgb)
+    np.testing.assert_allclose(c[:25], np.broadcast_to(SKIN_CHROMA, (25, 2)), atol=1e-5)
+    assert np.all(c[25:, 0] > c[:25, 0].max())  # lips redder
+
+
+def test_greyscale_detection_allows_jpeg_noise_but_not_colour():
+    rng = np.random.default_rng(1)
+    grey = np.repeat(rng.uniform(0, 1, (1000, 1)), 3, axis=1)
+    noisy = np.clip(grey + rng.integers(-1, 2, grey.shape) / 255.0, 0, 1)
+    assert is_greyscale(grey) and is_greyscale(noisy)
+    skin = grey * np.array([1.0, 0.8, 0.7])
+    assert not is_greyscale(skin) and not is_greyscale(np.zeros((0, 3)))
