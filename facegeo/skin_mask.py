@@ -28,10 +28,12 @@ The mask is built from what runs offline here, in four parts:
    MediaPipe's palm detector and hand landmark model find it by shape instead, and its polygon
    (:func:`facegeo.hands.hand_mask`) is occluded like the rest.
 5. **Background**: MediaPipe's selfie segmentation (:mod:`facegeo.person_segmentation`) says
-   where the person is; outside the face oval, pixels it gives less than 0.5 are background
-   (walls, flags, skies, car interiors: of the skin's colour or not). Inside the oval the face
-   mesh is trusted over it; so are pixels there brighter than :data:`BRIGHT_FRACTION` × the
-   skin's median luminance (white collars, grey hair).
+   where the person is; further than 0.3 inter-ocular distances outside the face oval, pixels it
+   gives less than 0.5 are background (walls, flags, skies, car interiors: of the skin's colour
+   or not). Nearer the face the mesh and the colour model decide (on a partly covered face the
+   segmentation can cut into the cheek). In a greyscale photo (no chroma for the colour model) pixels there
+   brighter than :data:`BRIGHT_FRACTION` × the skin's median luminance are not skin either
+   (white collars, grey hair; in a colour photo the lit side of a face under a hard light can be).
 6. **Glasses**: frames are thin structures darker than the skin on both sides, whatever their
    colour (tortoiseshell passes the colour model): in the band of the eyes (from the brows to
    the cheekbones, across the whole face) a morphological black-hat of the log-luminance (the
@@ -110,8 +112,8 @@ FRAME_DEPTH = 0.35
 MAX_HOLE = 0.15
 #: Person probability below which a pixel outside the face oval is background.
 PERSON_THRESHOLD = 0.5
-#: Outside the face oval, pixels brighter than this × the sampled skin's median luminance are not
-#: skin (white collars, grey hair: a greyscale photo's colour model lets them through).
+#: In a greyscale photo, pixels outside the face oval brighter than this × the sampled skin's
+#: median luminance are not skin (white collars, grey hair: its colour model lets them through).
 BRIGHT_FRACTION = 2.5
 
 
@@ -375,10 +377,12 @@ def skin_mask(image: np.ndarray, landmarks: np.ndarray | None = None, *, regions
     if person is None:
         person = default_person_segmenter()(rgb)
     inner_oval = cv2.erode(oval.astype(np.uint8), _disc(0.1 * iod)).astype(bool)
-    occluded |= (np.asarray(person, np.float32) < PERSON_THRESHOLD) & ~inner_oval
-    # white collars, shirts and grey hair beside the face: no skin is that much brighter than the
-    # cheeks (a greyscale photo's colour model cannot tell them from skin)
-    occluded |= (lum > BRIGHT_FRACTION * skin_lum) & ~inner_oval
+    # the segmentation is trusted away from the face only (on a partly covered face it can cut
+    # into the cheek); near the face the colour model and the mesh decide
+    near_face = cv2.dilate(oval.astype(np.uint8), _disc(0.3 * iod)).astype(bool)
+    occluded |= (np.asarray(person, np.float32) < PERSON_THRESHOLD) & ~near_face
+    if np.sqrt(np.diag(cov)).max() < 0.01:  # a greyscale photo: its colour model cannot tell a white collar from skin
+        occluded |= (lum > BRIGHT_FRACTION * skin_lum) & ~inner_oval
     occluded = cv2.dilate(occluded.astype(np.uint8), _disc(HALO_FRACTION * iod)).astype(bool)
     occluded |= cv2.dilate((eyes | mouth).astype(np.uint8), _disc(0.02 * iod)).astype(bool)  # lashes, lip edge
     occluded = occluded.astype(np.float32)

@@ -166,7 +166,8 @@ def pad_outside(image: np.ndarray, inside: np.ndarray, width: int | None = None)
     """Pad an (S, S[, C]) map outside ``inside`` (S, S) bool: texels within ``width`` texels of
     the layout (default :data:`PAD_FRACTION` × S, at least 2) take the value of the nearest
     inside texel (bilinear sampling and the first mip levels never see the background), those
-    further out the median of the inside values, flat (no streaks: a neutral padding). The
+    further out one value, flat (no streaks: a neutral padding): the inside texel nearest the
+    per-channel median (a real texel value, so a normal map's padding is a unit normal). The
     nearest-texel table is cached per mask (a layout pads all its maps with the same one)."""
     if inside.all() or not inside.any():
         return image
@@ -185,7 +186,9 @@ def pad_outside(image: np.ndarray, inside: np.ndarray, width: int | None = None)
     flat_view = image.reshape(inside.size, -1)
     out = flat_view.copy()
     out[near] = flat_view[source]
-    out[far] = np.median(flat_view[sample], axis=0)  # a seventh of the inside texels: the median within rounding
+    values = flat_view[sample]  # a seventh of the inside texels: the median within rounding
+    middle = values[np.argmin(np.abs(values - np.median(values, axis=0)).sum(axis=1))]
+    out[far] = middle  # the texel nearest the median: a real value (a unit normal stays unit)
     return out.reshape(image.shape)
 
 
@@ -359,7 +362,7 @@ class DefaultBackend:
         elif greyscale:
             delit = np.repeat(luminance(delit)[..., None], 3, axis=-1)
             notes.append("the photo is greyscale: the albedo's chroma is invented (a generic skin tone, redder lips)")
-        if reliable[skin].sum() >= 10 if skin.any() else False:
+        if reliable[skin].sum() >= 10:
             mean = (delit * reliable[..., None]).reshape(-1, 3).sum(0) / reliable.sum()
         elif (w > 0).any():
             mean = (delit * w[..., None]).reshape(-1, 3).sum(0) / w.sum()
