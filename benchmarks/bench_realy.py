@@ -24,7 +24,11 @@ that the machine's load is shared alike:
 * with ``--compare-seeds A-B``, instead, facegeo against the official code value by value on
   the sets of seeds A..B (each set once, no timing): the relative difference of every value of
   REALY_error.txt, whether it lies within facegeo's reported uncertainty, and how many values
-  are flagged (``--keep DIR`` keeps the sets and the official outputs, and reuses them).
+  are flagged (``--keep DIR`` keeps the sets and the official outputs, and reuses them);
+* with ``--perturb A-B``, instead, a test of the reported uncertainty against other
+  implementations' round-off, without the official code: each set evaluated ``--runs`` times
+  with the non-rigid ICP's vertices nudged by ``--noise`` (relative, per coordinate) after every
+  step, each value against the plain one and its uncertainty.
 
 facegeo runs with its default solver (CHOLMOD when CVXOPT is installed; the table names it).
 
@@ -33,7 +37,8 @@ times count the machine's other load; CPU times (facegeo's own process with one 
 official process's user + system time, the split from facegeo's ``details``) much less.
 
     python benchmarks/bench_realy.py [--subdivisions 0 1] [--subjects 3] [--seed 0] [--repeat 3] [--workers 2]
-                                     [--baseline-eval DIR] [--knobs | --compare-seeds A-B [--keep DIR]] [--topology NAME]
+                                     [--baseline-eval DIR] [--knobs | --compare-seeds A-B [--keep DIR]
+                                     | --perturb A-B [--runs 4] [--noise 2**-23]] [--topology NAME]
 """
 
 from __future__ import annotations
@@ -165,6 +170,66 @@ def _compare_seeds(args: argparse.Namespace, seeds: list[int], have_official: bo
               f"facegeo {r['facegeo']:.7f}, difference {r['diff']:.1e}, uncertainty {r['uncertainty']:.1e}")
 
 
+def _perturbed(args: argparse.Namespace, seeds: list[int]) -> None:
+    """``--perturb A-B``: a test of the reported uncertainty against other implementations'
+    round-off. Each set is evaluated once as it is, then ``--runs`` times with the deformed
+    vertices of every non-rigid ICP step nudged by uniform relative noise of ``--noise`` per
+    coordinate (another correct implementation's rounding: float32 roundings of the vertices are
+    2**-24); each perturbed value is compared with the plain one and its uncertainty."""
+    import numpy as np
+
+    from facegeo.eval import realy_error
+    from facegeo.eval.realy import UNCERTAINTY_FLAG, evaluate
+    from facegeo.eval.realy_align import Settings
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tools"))
+    from realy_synthetic import make_dataset
+
+    plain_step = realy_error.NonRigidICP._step
+    rng = np.random.default_rng(0)
+
+    def nudged(self, *a, **k):
+        x, x_perm, new, near = plain_step(self, *a, **k)
+        return x, x_perm, new * (1.0 + args.noise * rng.uniform(-1.0, 1.0, size=new.shape)), near
+
+    keep = args.keep or Path(tempfile.mkdtemp(prefix="bench_realy_"))
+    rows = []
+    print(f"| set | seed | values | runs | largest change (where, its uncertainty) | changes > 1e-6 | of them within the uncertainty |")
+    print("|---|---:|---:|---:|---|---:|---:|")
+    for sub in args.subdivisions:
+        for seed in seeds:
+            base = keep / f"s{seed}_d{sub}_{args.topology}"
+            if not (base / "pred").is_dir():
+                make_dataset(base, args.subjects, seed=seed, subdivisions=sub, topology=args.topology)
+            plain = evaluate(base / "pred", base / "realy", topology=args.topology, workers=1)
+            here = []
+            realy_error.NonRigidICP._step = nudged
+            try:
+                for _ in range(args.runs):
+                    other = evaluate(base / "pred", base / "realy", topology=args.topology, workers=1,
+                                     settings=Settings(follow_decisions=False))
+                    for name, values in other.per_subject.items():
+                        for region, value in values.items():
+                            a = plain.per_subject[name][region]
+                            here.append({"set": sub, "seed": seed, "subject": name, "region": region,
+                                         "change": abs(value - a) / a, "uncertainty": plain.uncertainty[name][region]})
+            finally:
+                realy_error.NonRigidICP._step = plain_step
+            rows += here
+            worst = max(here, key=lambda r: r["change"])
+            big = [r for r in here if r["change"] > UNCERTAINTY_FLAG]
+            print(f"| subdivisions {sub} | {seed} | {len(plain.per_subject) * 4} | {args.runs} | {worst['change']:.1e} (subject "
+                  f"{worst['subject']} {worst['region']}, {worst['uncertainty']:.1e}) | {len(big)} | "
+                  f"{sum(r['change'] <= max(r['uncertainty'], UNCERTAINTY_FLAG) for r in big)} |", flush=True)
+    big = [r for r in rows if r["change"] > UNCERTAINTY_FLAG]
+    outside = [r for r in big if r["change"] > max(r["uncertainty"], UNCERTAINTY_FLAG)]
+    print(f"\n{len(rows)} perturbed values (noise {args.noise:.2g}); largest change {max(r['change'] for r in rows):.1e}; "
+          f"{len(big)} changes above 1e-6 ({sum(r['change'] > 1e-5 for r in rows)} above 1e-5), {len(outside)} of them "
+          "outside the reported uncertainty")
+    for r in sorted(outside, key=lambda r: -r["change"])[:20]:
+        print(f"  outside: set {r['set']} seed {r['seed']} subject {r['subject']} {r['region']}: change {r['change']:.1e}, "
+              f"uncertainty {r['uncertainty']:.1e}")
+
+
 def _split(result, subjects: int) -> dict[str, float]:
     """Seconds per subject: factorisations, solves, closest points, the uncertainty's re-runs of
     turned decisions, rest, total (processing)."""
@@ -294,6 +359,11 @@ def main(argv: list[str] | None = None) -> None:
                         help="instead: the error against time of the speed knobs, on the first set")
     parser.add_argument("--compare-seeds", default=None, metavar="A-B",
                         help="instead: facegeo against the official code value by value on the sets of seeds A..B")
+    parser.add_argument("--perturb", default=None, metavar="A-B",
+                        help="instead: --runs evaluations of the sets of seeds A..B with the non-rigid ICP's vertices "
+                        "nudged by --noise after every step, each value against the plain one and its uncertainty")
+    parser.add_argument("--runs", type=int, default=4, help="with --perturb: perturbed evaluations per set")
+    parser.add_argument("--noise", type=float, default=2.0 ** -23, help="with --perturb: relative noise per coordinate")
     parser.add_argument("--topology", default="ICT-FaceKit", help="topology name the data sets are written under")
     parser.add_argument("--keep", type=Path, default=None, metavar="DIR",
                         help="with --compare-seeds: keep (and reuse) the data sets and official outputs in DIR")
@@ -317,6 +387,10 @@ def main(argv: list[str] | None = None) -> None:
     if not have_official:
         print(f"note: official REALY code not found ({args.official_src}/main.py with {args.official_python}); "
               "timing facegeo only", file=sys.stderr)
+    if args.perturb:
+        first, _, last = args.perturb.partition("-")
+        _perturbed(args, list(range(int(first), int(last or first) + 1)))
+        return
     if args.compare_seeds:
         first, _, last = args.compare_seeds.partition("-")
         _compare_seeds(args, list(range(int(first), int(last or first) + 1)), have_official)
