@@ -3,7 +3,7 @@
 :func:`evaluate` gives, for every prediction in a folder, the error (mm) on the four scan regions
 nose, mouth, forehead and cheek, with the official REALY code's numbers (github czh-98/REALY,
 ``main.py``): the rigid alignments bit for bit, and every value within the numerical uncertainty
-facegeo reports for it, or 1e-6 relative where that is smaller (synthetic subjects of 20 seeds
+facegeo reports for it, or 1e-6 relative where that is smaller (synthetic subjects of 36 seeds
 and two region sizes, benchmarks/RESULTS.md). Closest points come from one AABB tree (libigl) per prediction
 instead of an R-tree per ICP step and per-point queries in Python, with trimesh's tie rule
 reproduced; the non-rigid ICP's normal equations are assembled block by block, in METIS'

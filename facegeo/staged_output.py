@@ -16,7 +16,8 @@ Guarantees (POSIX; the staging folder and the output folder on the same file sys
   commit (a signal, a disk error) rolls every move back at once; a run *killed* during it
   (SIGKILL, power loss) leaves the folder mixed until the next facegeo run into the same place,
   which rolls it back from the journal before anything else (:func:`remove_stale_temporaries`).
-  Either way the folder ends up as it was before the run or as the run left it, never between;
+  So the folder ends up as it was before the run or as the run wrote it, never between; the
+  mix is visible only between a SIGKILL within the commit and the next run;
 * **on an exception** before the commit (including KeyboardInterrupt) the staged files are
   deleted and the output folder is left exactly as it was: if it did not exist before, it does
   not exist afterwards (nor do parent folders created for it);

@@ -214,6 +214,31 @@ def test_a_decision_round_off_could_turn_is_found_and_followed_the_other_way():
     assert np.abs(other_way - plain).max() > 1e-3
 
 
+def test_a_stopping_test_at_its_threshold_is_followed_the_other_way():
+    """A stage whose change of the solution equals its threshold (the threshold set to it): the
+    run stops there and records the decision; following it the other way is, bit for bit, the
+    run whose threshold is a hair lower (so it goes on), and it changes the result."""
+    import math
+
+    from facegeo.eval.realy_error import NonRigidICP
+
+    vertices, triangles = _bumpy_grid()
+    targets = vertices + np.array([0.0, 0.0, 0.5]) + 0.05 * np.random.default_rng(1).normal(size=vertices.shape)
+    probe = NonRigidICP(vertices, triangles, targets)
+    probe.run(deviation=1e-12)
+    state = probe._trace[0, 3]  # the fourth stopping test of the first stage (it stops there)
+    diff = state.x - state.x_prev
+    change = math.sqrt(float(np.einsum("ij,ij->", diff, diff)))  # as the loop computes it
+    icp = NonRigidICP(vertices, triangles, targets, settings=Settings(nicp_epsilon_scale=change))
+    stopped = icp.run(deviation=1e-12)
+    decision = next(d for d in icp.near_decisions if d.kind == "stop")
+    assert (decision.state.stage, decision.state.step) == (0, 3)
+    went_on = NonRigidICP(vertices, triangles, targets, settings=Settings(nicp_epsilon_scale=change * (1 - 1e-9))).run()
+    other_way = icp.rerun(decision)
+    np.testing.assert_array_equal(other_way, went_on)
+    assert np.abs(other_way - stopped).max() > 1e-6
+
+
 def test_uncertain_values_are_flagged_in_the_summary_and_written_to_the_json(tmp_path):
     values = {"1": {"nose": 1.0, "mouth": 2.0, "forehead": 3.0, "cheek": 4.0}}
     result = RealyResult(values, {"1": {r: format_value(v) for r, v in values["1"].items()}}, summarize(values),
