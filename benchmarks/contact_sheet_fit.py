@@ -57,6 +57,16 @@ def photo_thumbnail(image: np.ndarray) -> np.ndarray:
     return np.pad(thumb, ((0, TILE - thumb.shape[0]), (0, TILE - thumb.shape[1])))
 
 
+def write_sheet(rows: list[np.ndarray], labels: tuple[str, str], output: Path, quality: int) -> None:
+    """Stack the rows, label the two groups of clay columns, write the JPEG (``quality``)."""
+    sheet = np.concatenate(rows, axis=0)
+    for column, label in zip((1, 4), labels):
+        cv2.putText(sheet, label, (column * TILE + 10, 20), cv2.FONT_HERSHEY_SIMPLEX, 0.5, 255, 1)
+    output.parent.mkdir(parents=True, exist_ok=True)
+    cv2.imwrite(str(output), sheet, [cv2.IMWRITE_JPEG_QUALITY, quality])
+    print(f"wrote {output}")
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("-o", "--output", type=Path, default=Path("docs/fit_clay_before_after.jpg"))
@@ -74,12 +84,7 @@ def main() -> None:
         old_shape = model.shape(torch.from_numpy(old.alpha), torch.from_numpy(old.delta)).numpy()
         new = fit_landmarks(model, points, camera)
         rows.append(np.concatenate([photo_thumbnail(photo.image), clay_views(model, old_shape), clay_views(model, new.shape_vertices)], axis=1))
-    sheet = np.concatenate(rows, axis=0)
-    cv2.putText(sheet, "before: unbounded expressions", (TILE + 10, 20), cv2.FONT_HERSHEY_SIMPLEX, 0.5, 255, 1)
-    cv2.putText(sheet, "MAP fit: bounded expressions, noise-weighted priors", (4 * TILE + 10, 20), cv2.FONT_HERSHEY_SIMPLEX, 0.5, 255, 1)
-    args.output.parent.mkdir(parents=True, exist_ok=True)
-    cv2.imwrite(str(args.output), sheet, [cv2.IMWRITE_JPEG_QUALITY, 85])
-    print(f"wrote {args.output}")
+    write_sheet(rows, ("before: unbounded expressions", "MAP fit: bounded expressions, noise-weighted priors"), args.output, 85)
 
 
 if __name__ == "__main__":

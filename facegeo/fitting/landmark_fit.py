@@ -30,7 +30,7 @@ from facegeo.fitting.checks import check_landmarks
 from facegeo.fitting.landmark_problem import LandmarkProblem, SurfacePoints
 from facegeo.fitting.priors import CORRECTIVES, DEFAULT_PRIORS, LANDMARK_SCHEDULE, FitPriors, LandmarkStage
 from facegeo.fitting.result import Fit
-from facegeo.landmarks.scheme import INNER_FACE, LANDMARK_WEIGHTS, N_LANDMARKS, OUTER_EYE_CORNERS, inter_ocular_distance
+from facegeo.landmarks.scheme import INNER_FACE, LANDMARK_WEIGHTS, N_LANDMARKS, inter_ocular_distance
 from facegeo.lighting import AMBIENT_WHITE
 from facegeo.morphable_model import MorphableModel
 
@@ -49,8 +49,7 @@ def _initial_pose(model: MorphableModel, targets: np.ndarray, camera: Camera) ->
     obj = model.mean_shape[model.landmark_indices[ids[ok]]].astype(np.float64)
     img = targets[ids[ok]].astype(np.float64)
     K = camera.matrix()
-    right, left = model.mean_shape[model.landmark_indices[OUTER_EYE_CORNERS]]
-    iod_model = float(np.linalg.norm(right - left))
+    iod_model = inter_ocular_distance(model.mean_shape[model.landmark_indices])
     iod_image = max(inter_ocular_distance(targets), 1.0)
     fallback_t = np.array([0.0, 0.0, -camera.focal * iod_model / iod_image])
     if len(obj) >= 6:

@@ -106,7 +106,8 @@ LANDMARK_WEIGHTS = _weights()
 
 
 def inter_ocular_distance(points: np.ndarray | torch.Tensor) -> float:
-    """Distance between the outer eye corners (iBUG 36 and 45) of (≥68, 2) points, in pixels."""
+    """Distance between the outer eye corners (iBUG 36 and 45) of (≥68, 2) or (≥68, 3) points, in
+    their units (pixels for detected landmarks, mm for the model's landmark vertices)."""
     import torch
 
     right, left = torch.as_tensor(points, dtype=torch.float64)[OUTER_EYE_CORNERS]
