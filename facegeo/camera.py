@@ -17,9 +17,14 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
-import torch
+
+from facegeo.array_namespace import array_namespace, is_tensor
+
+if TYPE_CHECKING:  # torch is imported by whoever passes a tensor; NumPy callers (the fit) never load it
+    import torch
 
 __all__ = [
     "Camera",
@@ -120,9 +125,9 @@ def project(
         plane (z_c ≥ −1e-6 mm) are projected with their depth clamped to 1e-6 mm, so results
         stay finite.
     """
-    if isinstance(points, torch.Tensor):
-        xp, dtype = torch, points.dtype
-        p, r, t = points, torch.as_tensor(rotation, dtype=dtype), torch.as_tensor(translation, dtype=dtype)
+    if is_tensor(points):
+        xp = array_namespace(points)
+        p, r, t = points, xp.as_tensor(rotation, dtype=points.dtype), xp.as_tensor(translation, dtype=points.dtype)
     else:  # NumPy in, NumPy out, computed in float64 without a round trip through torch
         xp = np
         p, r, t = (np.asarray(a, dtype=np.float64) for a in (points, rotation, translation))
@@ -138,7 +143,7 @@ def to_pixels(points_cam: torch.Tensor | np.ndarray, camera: Camera) -> torch.Te
     clamped to ≥ 1e-6 mm, so points at or behind the camera plane stay finite; callers that must
     skip them test the depth themselves.
     """
-    xp = torch if isinstance(points_cam, torch.Tensor) else np
+    xp = array_namespace(points_cam)
     scale = camera.focal / xp.clip(-points_cam[..., 2], 1e-6, None)  # pixels per mm at that depth
     return xp.stack([camera.cx + points_cam[..., 0] * scale, camera.cy - points_cam[..., 1] * scale], axis=-1)
 
@@ -150,6 +155,8 @@ def rotation_from_axis_angle(axis_angle: torch.Tensor) -> torch.Tensor:
     ``torch.func`` transforms, which kornia's data-dependent branches do not support. Smooth and
     exact at the zero rotation: θ² gets a 1e-12 guard that changes no result above 1e-6 rad.
     """
+    import torch
+
     theta2 = (axis_angle * axis_angle).sum(-1, keepdim=True)[..., None] + 1e-12
     theta = theta2.sqrt()
     x, y, z = axis_angle.unbind(-1)

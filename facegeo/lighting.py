@@ -11,13 +11,22 @@ a_k folded in):
 Normals are unit vectors in camera space (OpenGL axes, +Z towards the camera). Deep3D adds 0.8 to
 γ_{c,0} of its network output; facegeo stores the total coefficient (no hidden offset), so
 γ = AMBIENT_WHITE (Deep3D's zero output) gives the uniform irradiance E ≡ 0.8·√π/2 ≈ 0.709.
+
+The functions take NumPy arrays or torch tensors and answer in the same type and dtype
+(differentiable for tensors); torch is not imported here (:mod:`facegeo.array_namespace`).
 """
 
 from __future__ import annotations
 
 import math
+from typing import TYPE_CHECKING
 
-import torch
+import numpy as np
+
+from facegeo.array_namespace import array_namespace
+
+if TYPE_CHECKING:
+    import torch
 
 __all__ = ["sh_basis", "sh_irradiance", "shade_vertices", "AMBIENT_WHITE", "N_SH"]
 
@@ -25,16 +34,19 @@ N_SH = 9
 _A0, _A1, _A2 = math.pi, 2 * math.pi / math.sqrt(3.0), 2 * math.pi / math.sqrt(8.0)
 _C0, _C1, _C2 = 1 / math.sqrt(4 * math.pi), math.sqrt(3.0) / math.sqrt(4 * math.pi), 3 * math.sqrt(5.0) / math.sqrt(12 * math.pi)
 
-#: (3, 9) Deep3D's initial lighting (γ_0 = 0.8): uniform irradiance 0.8·√π/2 ≈ 0.709 per channel.
-AMBIENT_WHITE = torch.zeros(3, N_SH)
+#: (3, 9) float32, read-only: Deep3D's initial lighting (γ_0 = 0.8), uniform irradiance
+#: 0.8·√π/2 ≈ 0.709 per channel (``torch.from_numpy`` for a tensor).
+AMBIENT_WHITE = np.zeros((3, N_SH), np.float32)
 AMBIENT_WHITE[:, 0] = 0.8
+AMBIENT_WHITE.setflags(write=False)
 
 
-def sh_basis(normals: torch.Tensor) -> torch.Tensor:
-    """The 9 Deep3D SH basis values of unit normals: (..., 3) -> (..., 9), same dtype."""
-    nx, ny, nz = normals.unbind(-1)
-    one = torch.ones_like(nx)
-    return torch.stack(
+def sh_basis(normals: np.ndarray | torch.Tensor) -> np.ndarray | torch.Tensor:
+    """The 9 Deep3D SH basis values of unit normals: (..., 3) -> (..., 9), same type and dtype."""
+    xp = array_namespace(normals)
+    nx, ny, nz = normals[..., 0], normals[..., 1], normals[..., 2]
+    one = xp.ones_like(nx)
+    return xp.stack(
         [
             _A0 * _C0 * one,
             -_A1 * _C1 * ny,
@@ -46,15 +58,17 @@ def sh_basis(normals: torch.Tensor) -> torch.Tensor:
             -_A2 * _C2 * nx * nz,
             _A2 * _C2 / 2 * (nx * nx - ny * ny),
         ],
-        dim=-1,
+        -1,
     )
 
 
-def sh_irradiance(normals: torch.Tensor, gamma: torch.Tensor) -> torch.Tensor:
-    """Irradiance E of unit normals (..., V, 3) under γ (..., 3, 9) -> (..., V, 3) per channel."""
-    return torch.einsum("...vk,...ck->...vc", sh_basis(normals), gamma)
+def sh_irradiance(normals: np.ndarray | torch.Tensor, gamma: np.ndarray | torch.Tensor) -> np.ndarray | torch.Tensor:
+    """Irradiance E of unit normals (..., V, 3) under γ (..., 3, 9) -> (..., V, 3) per channel
+    (both arguments of one type)."""
+    return array_namespace(normals).einsum("...vk,...ck->...vc", sh_basis(normals), gamma)
 
 
-def shade_vertices(albedo: torch.Tensor, normals: torch.Tensor, gamma: torch.Tensor) -> torch.Tensor:
+def shade_vertices(albedo: np.ndarray | torch.Tensor, normals: np.ndarray | torch.Tensor,
+                   gamma: np.ndarray | torch.Tensor) -> np.ndarray | torch.Tensor:
     """Per-vertex colour = albedo (..., V, 3) linear × E(normals (..., V, 3), γ (..., 3, 9))."""
     return albedo * sh_irradiance(normals, gamma)

@@ -11,13 +11,15 @@ Files are read by :mod:`facegeo.model_files`; this module only holds and evaluat
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 import numpy as np
-import torch
 
 from facegeo.errors import ModelFileError
 from facegeo.landmarks.scheme import N_LANDMARKS
-from facegeo.normals import vertex_normals_torch
+
+if TYPE_CHECKING:  # torch is imported by the methods that answer in tensors: NumPy users (the fit) never load it
+    import torch
 
 __all__ = ["MorphableModel", "EXPRESSION_KINDS"]
 
@@ -78,7 +80,7 @@ class MorphableModel:
         self.landmark_indices = np.asarray(self.landmark_indices, dtype=np.int64)
         self.face_mask = np.asarray(self.face_mask, dtype=bool)
         self._validate()
-        self._torch: dict[tuple[str, torch.dtype], torch.Tensor] = {}
+        self._torch: dict[tuple[str, object], torch.Tensor] = {}
 
     # ------------------------------------------------------------------ checks
     def _fail(self, field_name: str, expected: str, found: str) -> None:
@@ -151,8 +153,11 @@ class MorphableModel:
         return int(self.tex_basis.shape[0])
 
     # ------------------------------------------------------------------ evaluation
-    def tensor(self, name: str, dtype: torch.dtype = torch.float32) -> torch.Tensor:
-        """The array attribute ``name`` as a cached CPU torch tensor of ``dtype``."""
+    def tensor(self, name: str, dtype: torch.dtype | None = None) -> torch.Tensor:
+        """The array attribute ``name`` as a cached CPU torch tensor of ``dtype`` (default float32)."""
+        import torch
+
+        dtype = torch.float32 if dtype is None else dtype
         key = (name, dtype)
         if key not in self._torch:
             self._torch[key] = torch.from_numpy(np.ascontiguousarray(getattr(self, name))).to(dtype)
@@ -174,6 +179,8 @@ class MorphableModel:
         Returns:
             (..., V, 3) or (..., K, 3) tensor in mm, dtype of the coefficients (float32 default).
         """
+        import torch
+
         dtype = _dtype_of(alpha, delta)
         mean = self.tensor("mean_shape", dtype)
         id_basis = self.tensor("id_basis", dtype)
@@ -190,8 +197,24 @@ class MorphableModel:
             out = out + torch.einsum("...k,kvc->...vc", delta, exp_basis)
         return out
 
+    def shape_numpy(self, alpha: np.ndarray | None = None, delta: np.ndarray | None = None) -> np.ndarray:
+        """The NumPy twin of :meth:`shape` for callers that need no gradient (the landmark fit,
+        which then never imports torch): (n_id,) α and (n_exp,) δ (None: zeros) -> (V, 3)
+        float32 mm, summed in float32 like :meth:`shape`."""
+        out = self.mean_shape.copy()
+        for name, value, basis, n in (("alpha", alpha, self.id_basis, self.n_id), ("delta", delta, self.exp_basis, self.n_exp)):
+            if value is None:
+                continue
+            value = np.asarray(value, dtype=np.float32)
+            if value.shape != (n,):
+                raise ValueError(f"{name}: expected shape ({n},), got {value.shape}")
+            out += np.tensordot(value, basis, axes=1)
+        return out
+
     def albedo(self, beta: torch.Tensor | np.ndarray | None = None) -> torch.Tensor:
         """T(β) = T̄ + B_tex·β: (..., V, 3) linear RGB, not clamped; β is (..., n_tex)."""
+        import torch
+
         dtype = _dtype_of(beta)
         out = self.tensor("mean_albedo", dtype)
         if beta is not None and self.n_tex > 0:
@@ -205,10 +228,16 @@ class MorphableModel:
     def vertex_normals(self, vertices: torch.Tensor) -> torch.Tensor:
         """Unit vertex normals of (..., V, 3) vertices on the model's triangles -> (..., V, 3),
         differentiable (:func:`facegeo.normals.vertex_normals_torch`)."""
+        import torch
+
+        from facegeo.normals import vertex_normals_torch
+
         return vertex_normals_torch(vertices, self.tensor("triangles", torch.long))
 
 
 def _dtype_of(*tensors: object) -> torch.dtype:
+    import torch
+
     for t in tensors:
         if isinstance(t, torch.Tensor) and t.is_floating_point():
             return t.dtype
@@ -218,6 +247,8 @@ def _dtype_of(*tensors: object) -> torch.dtype:
 
 
 def _coefficients(value: torch.Tensor | np.ndarray, n: int, name: str, dtype: torch.dtype) -> torch.Tensor:
+    import torch
+
     value = torch.as_tensor(value, dtype=dtype)
     if value.shape[-1:] != (n,):
         raise ValueError(f"{name}: expected shape (..., {n}), got {tuple(value.shape)}")

@@ -17,8 +17,12 @@ in the input's dtype and is differentiable (the fit and the regressor's photomet
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import numpy as np
-import torch
+
+if TYPE_CHECKING:  # the twin imports torch when called: the NumPy rule (the fit, the exporters) never loads it
+    import torch
 
 __all__ = ["vertex_normals", "vertex_normals_torch", "FALLBACK_NORMAL", "FALLBACK_RINGS"]
 
@@ -122,6 +126,8 @@ def vertex_normals_torch(vertices: torch.Tensor, triangles: torch.Tensor | np.nd
     The fallback for vertices without a normal of their own (a data-dependent branch, taken only
     when such a vertex exists) is the same as :func:`vertex_normals`'s, per batch element.
     """
+    import torch
+
     tri = torch.as_tensor(triangles, dtype=torch.long)
     a, b, c = vertices[..., tri[:, 0], :], vertices[..., tri[:, 1], :], vertices[..., tri[:, 2], :]
     face_n = torch.cross(b - a, c - a, dim=-1)

@@ -5,11 +5,11 @@ from __future__ import annotations
 
 import cv2
 import numpy as np
-import torch
 
 from facegeo.camera import project
 from facegeo.fitting import Fit
 from facegeo.morphable_model import MorphableModel
+from facegeo.normals import vertex_normals
 from facegeo.visibility import vertex_visibility
 
 __all__ = ["draw_overlay"]
@@ -18,7 +18,7 @@ __all__ = ["draw_overlay"]
 def draw_overlay(image: np.ndarray, fit: Fit, model: MorphableModel, wire_alpha: float = 0.35) -> np.ndarray:
     """(H, W, 3) uint8 RGB image with the fit drawn over ``image`` (same size, sRGB)."""
     canvas = np.ascontiguousarray(image.copy())
-    normals = model.vertex_normals(torch.from_numpy(fit.vertices)).numpy()
+    normals = vertex_normals(fit.vertices, model.triangles)
     visible = vertex_visibility(fit.vertices, model.triangles, normals, fit.camera)
     uv = project(fit.vertices.astype(np.float64), np.eye(3), np.zeros(3), fit.camera)
     tri = model.triangles[visible[model.triangles].all(axis=1)]

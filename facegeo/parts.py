@@ -130,7 +130,7 @@ class PartModel:
         if skin is None:
             return out
         skin = skin.to(dtype)
-        batch = torch.broadcast_shapes(out.shape[:-2], skin.shape[:-2])
+        batch = np.broadcast_shapes(tuple(out.shape[:-2]), tuple(skin.shape[:-2]))  # torch's imports sympy (0.9 s)
         out, skin = out.expand(*batch, *out.shape[-2:]), skin.expand(*batch, *skin.shape[-2:])
         return torch.cat([out, skin], dim=-2)
 

@@ -13,7 +13,7 @@ from facegeo.lighting import AMBIENT_WHITE, sh_basis, sh_irradiance, shade_verti
 
 def test_ambient_white_is_uniform():
     n = torch.nn.functional.normalize(torch.randn(100, 3, dtype=torch.float64), dim=-1)
-    e = sh_irradiance(n, AMBIENT_WHITE.double())
+    e = sh_irradiance(n, torch.tensor(AMBIENT_WHITE).double())
     np.testing.assert_allclose(e.numpy(), 0.8 * math.sqrt(math.pi) / 2, atol=1e-7)
 
 
@@ -50,6 +50,25 @@ def test_irradiance_is_linear_in_gamma(values):
 def test_shade_vertices_batched():
     albedo = torch.full((2, 5, 3), 0.5)
     n = torch.tensor([0.0, 0.0, 1.0]).expand(2, 5, 3)
-    out = shade_vertices(albedo, n, AMBIENT_WHITE.expand(2, 3, 9))
+    out = shade_vertices(albedo, n, torch.tensor(AMBIENT_WHITE).expand(2, 3, 9))
     assert out.shape == (2, 5, 3)
     assert out.numpy() == pytest.approx(0.5 * 0.8 * math.sqrt(math.pi) / 2)
+
+
+def test_numpy_and_torch_give_the_same_basis_and_irradiance():
+    rng = np.random.default_rng(3)
+    n = rng.normal(size=(50, 3))
+    n /= np.linalg.norm(n, axis=1, keepdims=True)
+    gamma = rng.normal(size=(3, 9))
+    basis = sh_basis(n)
+    assert isinstance(basis, np.ndarray) and basis.dtype == np.float64 and basis.shape == (50, 9)
+    np.testing.assert_allclose(basis, sh_basis(torch.from_numpy(n)).numpy(), rtol=0, atol=1e-15)
+    e = sh_irradiance(n, gamma)
+    assert isinstance(e, np.ndarray)
+    np.testing.assert_allclose(e, sh_irradiance(torch.from_numpy(n), torch.from_numpy(gamma)).numpy(), atol=1e-13)
+    assert sh_basis(n.astype(np.float32)).dtype == np.float32
+
+
+def test_ambient_white_cannot_be_changed_by_a_caller():
+    with pytest.raises(ValueError):
+        AMBIENT_WHITE[0, 0] = 1.0

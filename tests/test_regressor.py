@@ -98,7 +98,7 @@ def test_prior_is_the_map_fits_prior_at_the_networks_landmark_noise(model, faces
     crops = FaceCrops([table[n] for n in truth["names"]], 64, 1.5, augment=False)
     batch = {k: torch.stack([crops[i][k] for i in range(len(crops))]) for k in ("image", "intrinsics", "landmarks")}
     params = {k: torch.from_numpy(truth[k]) for k in ("alpha", "delta", "beta", "gamma", "rotation", "translation")}
-    params["gamma"] = torch.zeros_like(params["gamma"]) + torch.as_tensor(AMBIENT_WHITE)  # no SH term
+    params["gamma"] = torch.zeros_like(params["gamma"]) + torch.tensor(AMBIENT_WHITE)  # no SH term
     config = tiny_config().loss
     objective = Objective(model, config, 64)
     exact = objective(params, batch["image"], batch["intrinsics"], batch["landmarks"])

@@ -17,13 +17,13 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import cv2
 import numpy as np
-import torch
 from threadpoolctl import threadpool_limits
 
+from facegeo.array_namespace import is_tensor
 from facegeo.camera import OPENCV_FROM_OPENGL, Camera
 from facegeo.errors import InputError
 from facegeo.fitting.checks import check_landmarks
@@ -33,6 +33,9 @@ from facegeo.fitting.result import Fit
 from facegeo.landmarks.scheme import INNER_FACE, LANDMARK_WEIGHTS, N_LANDMARKS, inter_ocular_distance
 from facegeo.lighting import AMBIENT_WHITE
 from facegeo.morphable_model import MorphableModel
+
+if TYPE_CHECKING:
+    import torch
 
 __all__ = ["fit_landmarks", "solve_landmarks", "LandmarkSolution", "CONVERGED_RELATIVE_DECREASE", "NOISE_TOLERANCE", "LANDMARK_FIT_THREADS", "rotation_step"]
 
@@ -235,7 +238,7 @@ def solve_landmarks(
         ``info["landmark_noise"]`` holds the estimated noise (px and inter-ocular fraction),
         the effective number of parameters and the expression weights held at a bound.
     """
-    targets = np.asarray(landmarks.detach().cpu().numpy() if isinstance(landmarks, torch.Tensor) else landmarks, dtype=np.float64)
+    targets = np.asarray(landmarks.detach().cpu().numpy() if is_tensor(landmarks) else landmarks, dtype=np.float64)
     if targets.shape != (N_LANDMARKS, 2):
         raise InputError("<landmarks>", "landmarks", f"shape ({N_LANDMARKS}, 2) in pixels", str(targets.shape))
     valid = np.isfinite(targets).all(axis=1)
@@ -326,8 +329,7 @@ def _assemble(
                                   "rms_px": float(np.sqrt(np.mean(dense_errors[used] ** 2))) if used.any() else None,
                                   "sigma_px": [round(float(x), 3) if u else None for x, u in zip(sigma, used)],
                                   "residual_px": [round(float(x), 3) for x in dense_errors]}
-    with torch.no_grad():
-        shape_vertices = model.shape(torch.from_numpy(state["alpha"]).float(), torch.from_numpy(state["delta"]).float()).numpy()
+    shape_vertices = model.shape_numpy(state["alpha"], state["delta"])
     rotation, translation = state["rotation"].astype(np.float32), state["translation"].astype(np.float32)
     vertices = shape_vertices @ rotation.T + translation
     errors = np.linalg.norm(fitted - targets, axis=1)
@@ -336,7 +338,7 @@ def _assemble(
         alpha=state["alpha"].astype(np.float32),
         delta=state["delta"].astype(np.float32),
         beta=np.zeros(model.n_tex, dtype=np.float32),
-        gamma=AMBIENT_WHITE.numpy().copy(),
+        gamma=AMBIENT_WHITE.copy(),
         rotation=rotation,
         translation=translation,
         camera=camera,

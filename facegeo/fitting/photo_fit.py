@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import time
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -17,7 +18,6 @@ from facegeo.fitting.dense_term import DEFAULT_DENSE, DenseSettings, dense_surfa
 from facegeo.fitting.landmark_fit import solve_landmarks
 from facegeo.fitting.photometric import fit_photometric
 from facegeo.fitting.priors import DEFAULT_PRIORS, FitPriors
-from facegeo.fitting.shading_refine import ShadingSettings, refine_with_shading
 from facegeo.fitting.result import Fit
 from facegeo.landmarks.dense import load_dense_correspondence
 from facegeo.landmarks.detectors import FaceLandmarks, LandmarkDetector, get_detector
@@ -25,6 +25,9 @@ from facegeo.landmarks.scheme import LANDMARK_WEIGHTS, inter_ocular_distance
 from facegeo.model_files import load_model
 from facegeo.morphable_model import MorphableModel
 from facegeo.photo import Photo, as_rgb_uint8, load_photo
+
+if TYPE_CHECKING:
+    from facegeo.fitting.shading_refine import ShadingSettings
 
 __all__ = ["fit"]
 
@@ -108,6 +111,8 @@ def fit(
         fit_photometric(model, result, linear)
         result.timings["photometric"] = time.perf_counter() - t0
         if shading is not None and "skipped" not in result.info.get("photometric", {}):
+            from facegeo.fitting.shading_refine import refine_with_shading  # torch: only for this opt-in stage
+
             t0 = time.perf_counter()
             result.info["shading"] = refine_with_shading(model, result, solution.problem, solution.noise, linear,
                                                          solution.expression_scale, solution.expression_rate, shading)

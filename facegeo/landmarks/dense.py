@@ -185,12 +185,11 @@ def face_mesh_mirror() -> np.ndarray:
     symmetric about x = 0: each vertex's mirror image is matched to its nearest vertex."""
     global _MIRROR
     if _MIRROR is None:
-        from scipy.spatial import cKDTree
-
         from facegeo.assets import asset_path
 
         canonical = _read_npz(asset_path(DENSE_ASSET))["canonical_vertices"].astype(np.float64)
-        _, mirror = cKDTree(canonical).query(canonical * np.array([-1.0, 1.0, 1.0]))
+        mirrored = canonical * np.array([-1.0, 1.0, 1.0])  # 468² distances: no tree needed (nor scipy's import)
+        mirror = np.argmin(((mirrored[:, None, :] - canonical[None, :, :]) ** 2).sum(axis=2), axis=1)
         if not np.array_equal(mirror[mirror], np.arange(len(mirror))):
             raise ModelFileError(DENSE_ASSET, "canonical_vertices", "a face mesh symmetric about x = 0", "no left-right pairing")
         _MIRROR = mirror.astype(np.int64)

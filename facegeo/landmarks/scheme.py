@@ -14,6 +14,8 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from facegeo.array_namespace import is_tensor
+
 if TYPE_CHECKING:  # torch is imported where it is used, so that the detectors' registry (and the
     import torch   # command line's --landmarks choices and help) can be read without loading it
 
@@ -108,10 +110,10 @@ LANDMARK_WEIGHTS = _weights()
 def inter_ocular_distance(points: np.ndarray | torch.Tensor) -> float:
     """Distance between the outer eye corners (iBUG 36 and 45) of (≥68, 2) or (≥68, 3) points, in
     their units (pixels for detected landmarks, mm for the model's landmark vertices)."""
-    import torch
-
-    right, left = torch.as_tensor(points, dtype=torch.float64)[OUTER_EYE_CORNERS]
-    return float(torch.linalg.norm(right - left))
+    if is_tensor(points):
+        points = points.detach().cpu().numpy()
+    right, left = np.asarray(points, dtype=np.float64)[OUTER_EYE_CORNERS]
+    return float(np.linalg.norm(right - left))
 
 
 def landmark_loss(

@@ -197,7 +197,7 @@ class Objective:
         noise2 = (lan.detach().mean() / 2).clamp_min(p.noise_floor**2)
         w = torch.where(torch.isfinite(landmarks).all(-1), self.weights, torch.zeros_like(self.weights)).sum(-1)
         reg = noise2 / w.clamp_min(1.0) * (params["alpha"].pow(2).sum(-1) + exp)
-        reg = reg + c.reg_sh * (params["gamma"] - AMBIENT_WHITE).pow(2).mean((-1, -2))
+        reg = reg + c.reg_sh * (params["gamma"] - torch.tensor(AMBIENT_WHITE)).pow(2).mean((-1, -2))
         if params["beta"].shape[-1]:
             reg = reg + c.reg_tex * params["beta"].pow(2).mean(-1)
         return reg

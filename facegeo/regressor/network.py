@@ -255,7 +255,7 @@ class MSSFRegressor(nn.Module):
         alpha, delta, beta, gamma, pose = torch.split(raw, [s.n_id, s.n_exp, s.n_tex, 3 * N_SH, 6], dim=1)
         free = self.exp_start + delta
         delta = free + (free.clamp(self.exp_lower, self.exp_upper) - free).detach()
-        gamma = AMBIENT_WHITE.to(raw) + gamma.reshape(-1, 3, N_SH)
+        gamma = torch.tensor(AMBIENT_WHITE).to(raw) + gamma.reshape(-1, 3, N_SH)
         rotation = rotation_from_axis_angle(pose[:, :3])
         size = float(self.config.image_size)
         focal, cx, cy = intrinsics.float().unbind(-1)

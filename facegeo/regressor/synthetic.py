@@ -69,7 +69,7 @@ def random_face(model: MorphableModel, rng: np.random.Generator, size: int, max_
             delta[names.index(corrective)] = min(delta[names.index(corrective)], delta[names.index(driver)])
     alpha = rng.normal(0, sigma_id, model.n_id)
     beta = rng.normal(0, 1.0, model.n_tex)
-    gamma = AMBIENT_WHITE.numpy().astype(np.float64).copy()
+    gamma = AMBIENT_WHITE.astype(np.float64)
     gamma[:, 0] *= rng.uniform(0.8, 1.25)
     gamma[:, 1:4] = rng.normal(0, 0.25, 3)[None] * rng.uniform(0.9, 1.1, (3, 1))
     gamma[:, 4:] = rng.normal(0, 0.08, 5)[None] * rng.uniform(0.9, 1.1, (3, 1))
