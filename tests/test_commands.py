@@ -97,3 +97,28 @@ def test_building_the_parser_imports_nothing_heavy():
             "print(sorted(m for m in ('torch', 'diffusers', 'transformers', 'pxr') if m in sys.modules))")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
     assert out.split() == ["[]", "[]"]
+
+
+#: Modules whose import costs a user's wait (torch alone about two seconds on 2 cores) and which
+#: ``facegeo fit`` does not use: the fit is NumPy, OpenCV, MediaPipe's LiteRT and dlib.
+HEAVY_FOR_A_FIT = ("torch", "open3d", "pxr", "diffusers", "transformers", "dask", "sympy", "matplotlib", "scipy.spatial",
+                   "trimesh", "pymeshlab", "pygltflib")
+
+
+def test_the_package_and_fit_help_import_nothing_heavy():
+    code = ("import sys, runpy, facegeo; first = [m for m in HEAVY + ('cv2',) if m in sys.modules]; "
+            "sys.argv = ['facegeo', 'fit', '--help']\n"
+            "try:\n    runpy.run_module('facegeo.cli', run_name='__main__')\nexcept SystemExit:\n    pass\n"
+            "print(first, [m for m in HEAVY if m in sys.modules], file=sys.stderr)")
+    done = subprocess.run([sys.executable, "-c", f"HEAVY = {HEAVY_FOR_A_FIT!r}\n{code}"], capture_output=True, text=True, check=True)
+    assert "usage: facegeo fit" in done.stdout
+    assert done.stderr.strip() == "[] []"
+
+
+def test_a_fit_imports_nothing_heavy(tmp_path):
+    """The whole ``facegeo fit`` job on the bundled photo, in a fresh process."""
+    code = (f"import sys; from facegeo.jobs import fit_into_folder; fit_into_folder({PHOTO!r}, {str(tmp_path / 'out')!r}); "
+            f"print([m for m in {HEAVY_FOR_A_FIT!r} if m in sys.modules])")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
+    assert out.strip() == "[]"
+    assert (tmp_path / "out" / "fit.json").is_file()
