@@ -37,6 +37,10 @@ class InputError(FacegeoError):
             message += f", found {found}"
         super().__init__(message)
 
+    def __reduce__(self) -> tuple[Any, ...]:
+        """Pickled with its four fields (a forked fit or a batch worker sends it to the parent)."""
+        return type(self), (self.source, self.field, self.expected, self.found)
+
 
 class ModelFileError(InputError):
     """A morphable-model file is missing, unreadable or has wrong keys, shapes or values."""
@@ -55,6 +59,10 @@ class OutputError(FacegeoError):
         self.path = str(path)
         self.problem = problem
         super().__init__(f"{self.path}: output file: expected room to write it, found {problem}")
+
+    def __reduce__(self) -> tuple[Any, ...]:
+        """Pickled with its two fields."""
+        return type(self), (self.path, self.problem)
 
 
 def check_finite(values: Mapping[str, Any], source: str = "<array>") -> None:

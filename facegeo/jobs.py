@@ -216,7 +216,7 @@ def fit_into_folder(photo_path: str | Path, output: str | Path, options: FitOpti
 
 
 def reconstruct_into_folder(photo_path: str | Path, output: str | Path, options: ReconstructOptions | None = None,
-                            progress: Callable[[str], None] | None = None) -> JobRecord:
+                            progress: Callable[[str], None] | None = None, fork_fit: bool = False) -> JobRecord:
     """The whole pipeline on one photo, into ``output``: ``fit.json`` (the fit, stage timings, the
     texture report, the parts), the asset files (``asset.json`` + map PNGs, re-exportable with
     ``facegeo export``), ``skin_mask.png`` when MediaPipe's mesh found the face, one scene per
@@ -228,21 +228,18 @@ def reconstruct_into_folder(photo_path: str | Path, output: str | Path, options:
         options: default ``ReconstructOptions()``.
         progress: called with each stage's name as it starts (the pipeline's ``STAGES``, then
             ``export`` and ``preview``).
+        fork_fit: compute the skin mask and the fit in a forked child while this process imports
+            the texture stages (:mod:`facegeo.forked_fit`; the single-photo command's choice),
+            where that helps (:func:`facegeo.forked_fit.can_fork_fit`, the default backend, no
+            regressor); the results are the same either way.
     Raises:
         facegeo.errors.FacegeoError: bad photo or options, no face, failed fit checks, missing
             weights, an unwritable output, or another run writing into ``output``.
     """
-    from facegeo.errors import NoFaceError
-    from facegeo.export.asset_io import write_asset_files
-    from facegeo.export.writers import export_scenes
-    from facegeo.fitting import fit
-    from facegeo.image_files import png_bytes
+    from facegeo import forked_fit
     from facegeo.photo import load_photo
-    from facegeo.pipeline import reconstruct_with_fit
-    from facegeo.skin_mask import skin_mask, skin_mask_image
     from facegeo.staged_output import StagedOutput, locked_output
     from facegeo.texturing.registry import BACKENDS
-    from facegeo.texturing.preview import relit_preview
 
     options = ReconstructOptions() if options is None else options
     with locked_output(output):  # a second run into the same folder is refused now, not after the fit
@@ -250,15 +247,25 @@ def reconstruct_into_folder(photo_path: str | Path, output: str | Path, options:
         backend = BACKENDS[options.backend](options.weights) if options.backend == "diffusion" else options.backend  # weights checked first
         model, predictor = loaded_resources(options.model, options.regressor, options.refine, options.landmarks)
         photo = load_photo(photo_path, max_side=options.max_side)
-        try:  # the skin mask needs MediaPipe's mesh; without it the pipeline builds one from the fit's landmarks
-            skin = skin_mask(photo.image, source=str(photo_path))
-        except NoFaceError:
-            skin = None
+        pending = (forked_fit.start_fit(photo, str(photo_path), options)
+                   if fork_fit and backend == "default" and predictor is None and forked_fit.can_fork_fit() else None)
+        try:  # the texture stages' imports (torch) while the child fits
+            from facegeo.export.asset_io import write_asset_files
+            from facegeo.export.writers import export_scenes
+            from facegeo.image_files import png_bytes
+            from facegeo.pipeline import reconstruct_with_fit
+            from facegeo.skin_mask import skin_mask_image
+            from facegeo.texturing.preview import relit_preview
+
+            fitted, skin, fit_seconds = pending.result() if pending is not None else forked_fit.fit_and_skin(photo, str(photo_path), options)
+        except BaseException:
+            if pending is not None:
+                pending.abandon()
+            raise
         asset, result = reconstruct_with_fit(photo, model, backend=backend, size=options.size, upscale=options.upscale,
                                              maps=options.maps, detector=options.landmarks, skin=skin, progress=progress,
-                                             camera=photo_camera(photo, options.focal, options.principal_point),
-                                             fitter=predictor or fit)
-        timings = dict(asset.metadata["timings_s"])
+                                             fitter=lambda *args, **kwargs: fitted)  # the fit is done: handed in through the seam
+        timings = {**asset.metadata["timings_s"], "fit": fit_seconds}
         files: list[str] = []
         with StagedOutput(output, replace=True) as stage:
             if progress is not None:

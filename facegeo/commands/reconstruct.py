@@ -63,7 +63,6 @@ def _run(args: argparse.Namespace) -> int | None:
     from facegeo.asset import MAP_NAMES
     from facegeo.export.writers import FORMATS
     from facegeo.jobs import ReconstructOptions, reconstruct_into_folder
-    from facegeo.pipeline import STAGES
 
     maps = parse_list(args.maps, MAP_NAMES, "--maps")
     formats = parse_list(args.format, FORMATS, "--format")
@@ -75,14 +74,19 @@ def _run(args: argparse.Namespace) -> int | None:
                                  blendshapes=args.blendshapes != "none", blendshape_names=args.blendshape_names)
     if wants_batch(args):
         return run_batch(args, "reconstruct", options)
-    bar = tqdm(total=len(STAGES) + 2, desc="reconstruct", unit="stage", disable=not sys.stderr.isatty(), leave=False)
+    bars: list[tqdm] = []  # made at the first stage: the pipeline (and torch) is imported by then, while the fit runs
 
     def progress(stage: str) -> None:
-        bar.set_postfix_str(stage)
-        bar.update(1)
+        if not bars:
+            from facegeo.pipeline import STAGES
 
-    record = reconstruct_into_folder(args.photo, args.output, options, progress=progress)
-    bar.close()
+            bars.append(tqdm(total=len(STAGES) + 2, desc="reconstruct", unit="stage", disable=not sys.stderr.isatty(), leave=False))
+        bars[0].set_postfix_str(stage)
+        bars[0].update(1)
+
+    record = reconstruct_into_folder(args.photo, args.output, options, progress=progress, fork_fit=True)
+    for bar in bars:
+        bar.close()
     for note in record.notes:
         print(f"note: {note}")
     print(f"reconstructed {args.photo}: landmark RMS {record.landmark_rms_px:.2f} px, maps {', '.join(record.maps)} "

@@ -1,0 +1,116 @@
+"""The fit in a forked child (facegeo.forked_fit): the same answer as in this process, its errors
+raised in the parent, and used only where it helps. The fork runs in fresh interpreters (this
+test process has torch imported, where :func:`can_fork_fit` is False by design)."""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+from facegeo.assets import asset_path
+from facegeo.forked_fit import can_fork_fit
+
+PHOTO = str(asset_path("photos/astronaut.png"))
+
+SAME_ANSWER = f"""
+import sys
+import numpy as np
+from facegeo.forked_fit import can_fork_fit, fit_and_skin, start_fit
+from facegeo.jobs import FitOptions
+from facegeo.photo import load_photo
+
+assert can_fork_fit()
+photo = load_photo({PHOTO!r})
+forked, skin_forked, seconds = start_fit(photo, "astronaut", FitOptions()).result()
+assert "torch" not in sys.modules and seconds > 0
+inline, skin_inline, _ = fit_and_skin(photo, "astronaut", FitOptions())
+for name in ("alpha", "delta", "beta", "gamma", "rotation", "translation", "vertices", "landmarks", "landmarks_fitted"):
+    assert np.array_equal(getattr(forked, name), getattr(inline, name)), name
+assert forked.info == inline.info and forked.camera == inline.camera
+for name in ("occlusion", "skin_probability", "white_reference"):
+    a, b = getattr(skin_forked, name), getattr(skin_inline, name)
+    assert (a is None and b is None) or np.array_equal(a, b), name
+print("same")
+"""
+
+NO_FACE = """
+import numpy as np
+from facegeo.errors import NoFaceError
+from facegeo.forked_fit import start_fit
+from facegeo.jobs import FitOptions
+from facegeo.photo import load_photo
+import cv2, tempfile, pathlib
+path = pathlib.Path(tempfile.mkdtemp()) / "grey.png"
+cv2.imwrite(str(path), np.full((240, 320, 3), 128, np.uint8))
+try:
+    start_fit(load_photo(path), str(path), FitOptions()).result()
+except NoFaceError as error:
+    print(type(error).__name__, str(path) in str(error))
+"""
+
+
+def _python(code: str) -> str:
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0, done.stderr[-3000:]
+    return done.stdout.strip()
+
+
+def test_the_forked_fit_equals_the_fit_in_this_process():
+    assert _python(SAME_ANSWER) == "same"
+
+
+def test_the_childs_error_is_raised_in_the_parent():
+    assert _python(NO_FACE) == "NoFaceError True"
+
+
+def test_no_fork_once_torch_is_imported():
+    import torch  # noqa: F401
+
+    assert not can_fork_fit()
+
+
+def test_facegeo_errors_survive_pickling_with_their_fields():
+    import pickle
+
+    from facegeo.errors import InputError, ModelFileError, NoFaceError, OutputError
+
+    for error in (InputError("a.png", "image", "RGB", "CMYK"), ModelFileError("m.npz", "id_basis", "(n, V, 3)"),
+                  NoFaceError("b.png", "face", "one face", "no face"), OutputError("/out/x.glb", "a full disk")):
+        copy = pickle.loads(pickle.dumps(error))
+        assert type(copy) is type(error) and str(copy) == str(error) and copy.__dict__ == error.__dict__
+
+
+def _children(pid: int) -> list[int]:
+    """The live child processes of ``pid`` (from /proc)."""
+    found = []
+    for stat in Path("/proc").glob("[0-9]*/stat"):
+        try:
+            fields = stat.read_text().rsplit(")", 1)[1].split()
+        except OSError:
+            continue
+        if int(fields[1]) == pid and fields[0] != "Z":
+            found.append(int(stat.parent.name))
+    return found
+
+
+@pytest.mark.skipif(not Path("/proc/self/stat").exists(), reason="needs /proc")
+def test_ctrl_c_while_the_child_fits_ends_both_with_one_line_and_no_files(tmp_path):
+    out = tmp_path / "out"
+    proc = subprocess.Popen([sys.executable, "-m", "facegeo.cli", "reconstruct", PHOTO, "-o", str(out)],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True)
+    deadline = time.monotonic() + 120
+    while not (children := _children(proc.pid)) and proc.poll() is None and time.monotonic() < deadline:
+        time.sleep(0.02)
+    assert children, "no forked fit seen"
+    os.killpg(proc.pid, signal.SIGINT)  # a terminal's Ctrl-C reaches the whole process group
+    _, err = proc.communicate(timeout=120)
+    assert proc.returncode == 130
+    assert err.strip().splitlines() == ["facegeo: interrupted (SIGINT); no output written"]
+    assert not any(Path(f"/proc/{pid}").exists() for pid in children)
+    assert not out.exists() and list(tmp_path.iterdir()) == []
