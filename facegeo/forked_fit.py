@@ -118,8 +118,13 @@ def start_fit(photo: Photo, source: str, options: FitOptions) -> PendingFit:
         os.close(read_end)
         for signum in (signal.SIGINT, signal.SIGTERM):
             signal.signal(signum, signal.SIG_DFL)
+        import cv2
+        from threadpoolctl import threadpool_limits
+
+        cv2.setNumThreads(1)  # the parent keeps the other core busy with its imports: one thread each
         try:
-            payload = pickle.dumps(("ok", fit_and_skin(photo, source, options)))
+            with threadpool_limits(limits=1):
+                payload = pickle.dumps(("ok", fit_and_skin(photo, source, options)))
         except Exception as error:  # raised in the parent: the user's clear error, or the failure with its traceback
             if not isinstance(error, FacegeoError):
                 error = RuntimeError(f"the fit failed in its forked process:\n{traceback.format_exc()}")

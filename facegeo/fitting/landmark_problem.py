@@ -129,12 +129,18 @@ class LandmarkProblem:
         self.n_sliding = float(len(self.sliding) + np.minimum(w_all[self.silhouette_rows], 1.0).sum())
         self.contour_rows = {side: position[np.asarray(c)] for side, c in contours.items()}
         self.contour_vertex_rows = np.unique(np.concatenate(list(self.contour_rows.values())))
+        # the bases of the two vertex sets the slides pose at every step, gathered once: a gather
+        # along axis 1 is not C-contiguous, so flattening it copied (n_id + n_exp) × K × 3 per step
+        self._flat_bases = {key: (self.mean[rows], np.ascontiguousarray(self.id_basis[:, rows]).reshape(model.n_id, -1),
+                                  np.ascontiguousarray(self.exp_basis[:, rows]).reshape(model.n_exp, -1))
+                            for key, rows in (("contour", self.contour_vertex_rows), ("silhouette", self.silhouette_subset_rows))}
         self._update_bases(np.zeros(model.n_exp))
 
-    def points(self, alpha: np.ndarray, rows: np.ndarray | slice = slice(None)) -> np.ndarray:
-        """(K, 3) model-space positions of the subset's vertices (``rows`` of them) without expression."""
-        basis = self.id_basis[:, rows]
-        return self.mean[rows] + (alpha @ basis.reshape(len(alpha), -1)).reshape(-1, 3)
+    def _shape_at(self, key: str, alpha: np.ndarray, delta: np.ndarray) -> np.ndarray:
+        """(K, 3) model-space positions (mm) of the ``"contour"`` or ``"silhouette"`` vertex set
+        under α and δ."""
+        mean, id_flat, exp_flat = self._flat_bases[key]
+        return mean + (alpha @ id_flat).reshape(-1, 3) + (delta @ exp_flat).reshape(-1, 3)
 
     def _blend(self, values: np.ndarray, rows: np.ndarray | slice) -> np.ndarray:
         """(..., K, 3) per subset vertex -> (..., len(rows), 3) at the observed points."""
@@ -164,7 +170,7 @@ class LandmarkProblem:
         """Move each jaw point (but the chin) to the nearest point of its projected contour, and
         freeze the contour's expression part at ``delta``."""
         rows_all = self.contour_vertex_rows  # the contour vertices only
-        shape = self.points(alpha, rows_all) + (delta @ self.exp_basis[:, rows_all].reshape(len(delta), -1)).reshape(-1, 3)
+        shape = self._shape_at("contour", alpha, delta)
         uv = np.zeros((len(self.mean), 2))
         uv[rows_all] = project(shape, rotation, translation, self.camera)
         for side, jaw_points in (("right", np.arange(0, CHIN)), ("left", np.arange(CHIN + 1, 17))):
@@ -186,7 +192,7 @@ class LandmarkProblem:
         if self.silhouette is None:
             return
         rows_all = self.silhouette_subset_rows
-        shape = self.points(alpha, rows_all) + (delta @ self.exp_basis[:, rows_all].reshape(len(delta), -1)).reshape(-1, 3)
+        shape = self._shape_at("silhouette", alpha, delta)
         cam = shape @ rotation.T + translation
         picks = self.silhouette.contour(cam, rotation)
         if len(picks) < 2:
