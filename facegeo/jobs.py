@@ -229,14 +229,14 @@ def reconstruct_into_folder(photo_path: str | Path, output: str | Path, options:
         progress: called with each stage's name as it starts (the pipeline's ``STAGES``, then
             ``export`` and ``preview``).
         fork_fit: compute the skin mask and the fit in a forked child while this process imports
-            the texture stages (:mod:`facegeo.forked_fit`; the single-photo command's choice),
-            where that helps (:func:`facegeo.forked_fit.can_fork_fit`, the default backend, no
+            the texture stages (:mod:`facegeo.forked_call`; the single-photo command's choice),
+            where that helps (:func:`facegeo.forked_call.can_fork`, the default backend, no
             regressor); the results are the same either way.
     Raises:
         facegeo.errors.FacegeoError: bad photo or options, no face, failed fit checks, missing
             weights, an unwritable output, or another run writing into ``output``.
     """
-    from facegeo import forked_fit
+    from facegeo.forked_call import can_fork, fork_call
     from facegeo.photo import load_photo
     from facegeo.staged_output import StagedOutput, locked_output
     from facegeo.texturing.registry import BACKENDS
@@ -247,8 +247,8 @@ def reconstruct_into_folder(photo_path: str | Path, output: str | Path, options:
         backend = BACKENDS[options.backend](options.weights) if options.backend == "diffusion" else options.backend  # weights checked first
         model, predictor = loaded_resources(options.model, options.regressor, options.refine, options.landmarks)
         photo = load_photo(photo_path, max_side=options.max_side)
-        pending = (forked_fit.start_fit(photo, str(photo_path), options)
-                   if fork_fit and backend == "default" and predictor is None and forked_fit.can_fork_fit() else None)
+        pending = (fork_call(_fit_and_skin, photo, str(photo_path), options)
+                   if fork_fit and backend == "default" and predictor is None and can_fork() else None)
         try:  # the texture stages' imports (torch) while the child fits
             from facegeo.export.asset_io import write_asset_files
             from facegeo.export.writers import export_scenes
@@ -257,7 +257,7 @@ def reconstruct_into_folder(photo_path: str | Path, output: str | Path, options:
             from facegeo.skin_mask import skin_mask_image
             from facegeo.texturing.preview import relit_preview
 
-            fitted, skin, fit_seconds = pending.result() if pending is not None else forked_fit.fit_and_skin(photo, str(photo_path), options)
+            fitted, skin, fit_seconds = pending.result() if pending is not None else _fit_and_skin(photo, str(photo_path), options)
         except BaseException:
             if pending is not None:
                 pending.abandon()
@@ -296,3 +296,22 @@ def reconstruct_into_folder(photo_path: str | Path, output: str | Path, options:
                          landmark_rms_percent_iod=float(result.landmark_rms_percent_iod),
                          timings=timings, files=files, notes=list(result.info.get("notes", [])),
                          maps=list(asset.maps), map_size=int(next(iter(asset.maps.values())).shape[0]))
+
+
+def _fit_and_skin(photo: Any, source: str, options: FitOptions) -> tuple[Any, Any, float]:
+    """The torch-free half of a reconstruction: ``(fit, the photo's SkinMask or None when
+    MediaPipe finds no face, seconds of the fit alone)`` (in a forked child where
+    :func:`reconstruct_into_folder` can overlap it with the texture stages' imports)."""
+    from facegeo.errors import NoFaceError
+    from facegeo.fitting import fit
+    from facegeo.skin_mask import skin_mask
+
+    model, predictor = loaded_resources(options.model, options.regressor, options.refine, options.landmarks)
+    try:  # the skin mask needs MediaPipe's mesh; without it the pipeline builds one from the fit's landmarks
+        skin = skin_mask(photo.image, source=source)
+    except NoFaceError:
+        skin = None
+    start = time.perf_counter()
+    result = (predictor or fit)(photo, model=model, detector=options.landmarks,
+                                camera=photo_camera(photo, options.focal, options.principal_point))
+    return result, skin, time.perf_counter() - start

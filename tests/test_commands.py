@@ -60,7 +60,7 @@ def test_an_unknown_detector_is_one_usage_line(capsys):
 def test_reconstruct_passes_focal_to_the_job(tmp_path, monkeypatch, capsys):
     seen = {}
 
-    def job(photo, output, options, progress=None):
+    def job(photo, output, options, progress=None, fork_fit=False):
         seen["options"] = options
         return JobRecord(str(photo), str(output), 1.0, 2.0, {"total": 0.0}, [], maps=["albedo"], map_size=64)
 

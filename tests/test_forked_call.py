@@ -1,6 +1,7 @@
-"""The fit in a forked child (facegeo.forked_fit): the same answer as in this process, its errors
-raised in the parent, and used only where it helps. The fork runs in fresh interpreters (this
-test process has torch imported, where :func:`can_fork_fit` is False by design)."""
+"""A call in a forked child (facegeo.forked_call), as reconstruct uses it for the skin mask and the
+fit: the same answer as in this process, its errors raised in the caller, Ctrl-C ending both, and
+used only where it helps. The forks run in fresh interpreters (this test process has torch
+imported, where :func:`can_fork` is False by design)."""
 
 from __future__ import annotations
 
@@ -14,22 +15,22 @@ from pathlib import Path
 import pytest
 
 from facegeo.assets import asset_path
-from facegeo.forked_fit import can_fork_fit
+from facegeo.forked_call import can_fork
 
 PHOTO = str(asset_path("photos/astronaut.png"))
 
 SAME_ANSWER = f"""
 import sys
 import numpy as np
-from facegeo.forked_fit import can_fork_fit, fit_and_skin, start_fit
-from facegeo.jobs import FitOptions
+from facegeo.forked_call import can_fork, fork_call
+from facegeo.jobs import FitOptions, _fit_and_skin
 from facegeo.photo import load_photo
 
-assert can_fork_fit()
+assert can_fork()
 photo = load_photo({PHOTO!r})
-forked, skin_forked, seconds = start_fit(photo, "astronaut", FitOptions()).result()
+forked, skin_forked, seconds = fork_call(_fit_and_skin, photo, "astronaut", FitOptions()).result()
 assert "torch" not in sys.modules and seconds > 0
-inline, skin_inline, _ = fit_and_skin(photo, "astronaut", FitOptions())
+inline, skin_inline, _ = _fit_and_skin(photo, "astronaut", FitOptions())
 for name in ("alpha", "delta", "beta", "gamma", "rotation", "translation", "vertices", "landmarks", "landmarks_fitted"):
     assert np.array_equal(getattr(forked, name), getattr(inline, name)), name
 assert forked.info == inline.info and forked.camera == inline.camera
@@ -42,14 +43,14 @@ print("same")
 NO_FACE = """
 import numpy as np
 from facegeo.errors import NoFaceError
-from facegeo.forked_fit import start_fit
-from facegeo.jobs import FitOptions
+from facegeo.forked_call import fork_call
+from facegeo.jobs import FitOptions, _fit_and_skin
 from facegeo.photo import load_photo
 import cv2, tempfile, pathlib
 path = pathlib.Path(tempfile.mkdtemp()) / "grey.png"
 cv2.imwrite(str(path), np.full((240, 320, 3), 128, np.uint8))
 try:
-    start_fit(load_photo(path), str(path), FitOptions()).result()
+    fork_call(_fit_and_skin, load_photo(path), str(path), FitOptions()).result()
 except NoFaceError as error:
     print(type(error).__name__, str(path) in str(error))
 """
@@ -72,7 +73,7 @@ def test_the_childs_error_is_raised_in_the_parent():
 def test_no_fork_once_torch_is_imported():
     import torch  # noqa: F401
 
-    assert not can_fork_fit()
+    assert not can_fork()
 
 
 def test_facegeo_errors_survive_pickling_with_their_fields():
@@ -114,3 +115,18 @@ def test_ctrl_c_while_the_child_fits_ends_both_with_one_line_and_no_files(tmp_pa
     assert err.strip().splitlines() == ["facegeo: interrupted (SIGINT); no output written"]
     assert not any(Path(f"/proc/{pid}").exists() for pid in children)
     assert not out.exists() and list(tmp_path.iterdir()) == []
+
+
+OTHER_ERROR = """
+from facegeo.forked_call import fork_call
+def broken(x):
+    return {}[x]
+try:
+    fork_call(broken, "missing").result()
+except RuntimeError as error:
+    print("broken failed in a forked process" in str(error), "KeyError: 'missing'" in str(error))
+"""
+
+
+def test_an_unexpected_error_carries_the_childs_traceback():
+    assert _python(OTHER_ERROR) == "True True"

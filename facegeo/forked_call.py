@@ -1,0 +1,115 @@
+"""One function call in a forked child process, beside the caller's own work.
+
+The reconstruction's first half (skin mask and fit) needs NumPy, OpenCV, MediaPipe's LiteRT
+models and dlib; its second half needs torch, whose import alone takes about two seconds on two
+cores. One process cannot overlap them: an import and the fit's Python both hold the GIL. So
+:func:`facegeo.jobs.reconstruct_into_folder` forks the first half with :func:`fork_call` and
+imports the second meanwhile, then collects the answer with :meth:`PendingCall.result`: the wall
+time of the slower half instead of the sum.
+
+It only pays where torch is not imported yet (the first photo of a process) and only works where
+``fork`` does (POSIX) and the process may have children (not a daemonic worker):
+:func:`can_fork` says so; elsewhere the caller runs the function itself. The child inherits the
+caller's modules and data (the loaded model, the photo); it pickles back through a pipe the
+function's answer or the exception it raised (a :class:`facegeo.errors.FacegeoError` reaches the
+user as the same clear error; any other as a RuntimeError carrying the child's traceback). The
+child runs its OpenCV and BLAS pools on one thread (the caller keeps the other core), takes the
+default action on SIGINT and SIGTERM (it ends without a word; the caller reports the
+interruption), and must write no file; a caller that fails first kills it.
+os.fork by hand rather than a ProcessPoolExecutor: the executor's idle worker prints a traceback
+on Ctrl-C, and Python 3.11's executor cannot end a worker that is still working.
+"""
+
+from __future__ import annotations
+
+import multiprocessing
+import os
+import pickle
+import signal
+import sys
+import time
+import traceback
+from collections.abc import Callable
+from typing import Any
+
+from facegeo.errors import FacegeoError
+
+__all__ = ["can_fork", "fork_call", "PendingCall"]
+
+
+def can_fork() -> bool:
+    """Whether :func:`fork_call` helps here: ``fork`` exists, this process may have children, and
+    torch is not imported yet (once it is, the caller has nothing left to overlap)."""
+    return ("fork" in multiprocessing.get_all_start_methods() and not multiprocessing.current_process().daemon
+            and "torch" not in sys.modules)
+
+
+class PendingCall:
+    """A call under way in a forked child (:func:`fork_call`): collect it once with
+    :meth:`result`, or :meth:`abandon` it."""
+
+    def __init__(self, pid: int, pipe: int):
+        self._pid, self._pipe = pid, pipe
+
+    def result(self) -> Any:
+        """Wait for the child: the function's answer, or its exception raised here."""
+        chunks = []
+        with os.fdopen(self._pipe, "rb") as pipe:
+            while chunk := pipe.read(1 << 20):
+                chunks.append(chunk)
+        _, status = os.waitpid(self._pid, 0)
+        if not chunks:
+            raise RuntimeError(f"the forked process ended without an answer ({_ended(status)})")
+        kind, value = pickle.loads(b"".join(chunks))
+        if kind == "error":
+            raise value
+        return value
+
+    def abandon(self) -> None:
+        """Stop the child (the parent failed first or was interrupted): nothing is collected."""
+        try:
+            os.kill(self._pid, signal.SIGKILL)
+        except ProcessLookupError:
+            pass
+        os.waitpid(self._pid, 0)
+        try:
+            os.close(self._pipe)
+        except OSError:  # result() had closed it
+            pass
+
+
+def _ended(status: int) -> str:
+    if os.WIFSIGNALED(status):
+        return f"signal {signal.Signals(os.WTERMSIG(status)).name}"
+    return f"exit status {os.WEXITSTATUS(status)}"
+
+
+def fork_call(function: Callable[..., Any], *args: Any) -> PendingCall:
+    """Fork a child that runs ``function(*args)`` (check :func:`can_fork` first); the answer and
+    any exception must pickle."""
+    read_end, write_end = os.pipe()
+    pid = os.fork()
+    if pid:
+        os.close(write_end)
+        return PendingCall(pid, read_end)
+    code = 1
+    try:  # the child: never returns into the caller's code
+        os.close(read_end)
+        for signum in (signal.SIGINT, signal.SIGTERM):
+            signal.signal(signum, signal.SIG_DFL)
+        import cv2
+        from threadpoolctl import threadpool_limits
+
+        cv2.setNumThreads(1)  # the caller keeps the other core busy: one thread each
+        try:
+            with threadpool_limits(limits=1):
+                payload = pickle.dumps(("ok", function(*args)))
+        except Exception as error:  # raised in the caller: the user's clear error, or the failure with its traceback
+            if not isinstance(error, FacegeoError):
+                error = RuntimeError(f"{getattr(function, '__name__', 'the call')} failed in a forked process:\n{traceback.format_exc()}")
+            payload = pickle.dumps(("error", error))
+        with os.fdopen(write_end, "wb") as pipe:
+            pipe.write(payload)
+        code = 0
+    finally:
+        os._exit(code)
