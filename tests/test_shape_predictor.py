@@ -84,7 +84,7 @@ def test_numpy_predictor_equals_dlib(ours, theirs):
 
 
 def test_cache_is_memory_mapped_and_leaves_no_temporary_files(ours, cache, model_path):
-    assert isinstance(ours.leaves, np.memmap) and not ours.leaves.flags.writeable
+    assert isinstance(ours.leaves.base, np.memmap) and not ours.leaves.flags.writeable
     assert ours.leaves.shape == (15, 500, 16, 136) and ours.mean.shape == (68, 2)
     entries = list(cache.iterdir())
     assert len(entries) == 1 and entries[0].is_dir() and not entries[0].name.startswith(".")

@@ -49,7 +49,7 @@ _CHUNK = 4096  # bytes per lane of the speculative integer scan
 
 @dataclass(frozen=True)
 class ShapePredictor:
-    """A converted dlib shape predictor (arrays possibly memory-mapped, read-only).
+    """A converted dlib shape predictor (arrays possibly views of read-only memory maps).
 
     mean: (P, 2) float32 mean shape, box-normalised (x, y).
     split_idx: (C, T, S, 2) int16 feature-pixel indices compared by each split (S = 2^D − 1).
@@ -88,9 +88,10 @@ class ShapePredictor:
         mean = self.mean.astype(np.float64)
         mean_centred = mean - mean.mean(axis=0)
         spread = float((mean_centred**2).sum())
-        levels, trees = self.split_idx.shape[:2]
-        depth = int(np.log2(self.split_idx.shape[2] + 1))
-        tree_rows = np.arange(trees)
+        levels, trees, splits = self.split_idx.shape[:3]
+        depth = int(np.log2(splits + 1))
+        tree_splits = np.arange(trees) * splits  # the first split of each tree in the flattened arrays
+        tree_leaves = np.arange(trees) * (splits + 1) - splits  # a leaf's node number -> its flat row
         shape = self.mean.reshape(-1).copy()
         for level in range(levels):
             points = shape.reshape(-1, 2)
@@ -112,16 +113,18 @@ class ShapePredictor:
                 values[inside] = image[y, x].astype(np.uint16).sum(axis=1) // 3
             else:
                 values[inside] = image[y, x]
-            idx, thresh = self.split_idx[level], self.split_thresh[level]
+            pairs = self.split_idx[level].reshape(-1, 2)
+            thresh = self.split_thresh[level].reshape(-1)
             node = np.zeros(trees, dtype=np.int64)
             for _ in range(depth):
-                pair = idx[tree_rows, node]
-                left_branch = values[pair[:, 0]] - values[pair[:, 1]] > thresh[tree_rows, node]
-                node = np.where(left_branch, 2 * node + 1, 2 * node + 2)
-            increments = self.leaves[level][tree_rows, node - idx.shape[1]]
-            # dlib adds the trees' increments one after the other in float32: a cumulative sum
-            # keeps that order (a plain sum might pair them up and round differently).
-            shape = np.cumsum(np.concatenate([shape[None], increments]), axis=0, dtype=np.float32)[-1]
+                at = tree_splits + node
+                pair = pairs[at]
+                left_branch = values[pair[:, 0]] - values[pair[:, 1]] > thresh[at]
+                node = 2 * node + np.where(left_branch, 1, 2)
+            increments = self.leaves[level].reshape(trees * (splits + 1), -1)[tree_leaves + node]
+            # dlib adds the trees' increments one after the other in float32; a reduction over
+            # the first axis does the same (NumPy sums pairwise only along the contiguous axis).
+            shape = np.add.reduce(np.concatenate([shape[None], increments]), axis=0, dtype=np.float32)
         final = origin + size * shape.reshape(-1, 2).astype(np.float64)
         return np.floor(final + 0.5)
 
@@ -302,7 +305,8 @@ def _cache_key(path: Path) -> str:
 
 def _load_cached(folder: Path) -> ShapePredictor | None:
     try:
-        return ShapePredictor(**{name: np.load(folder / f"{name}.npy", mmap_mode="r") for name in _ARRAYS})
+        # Plain ndarray views of the memory maps (np.memmap's subclass costs time on every operation).
+        return ShapePredictor(**{name: np.asarray(np.load(folder / f"{name}.npy", mmap_mode="r")) for name in _ARRAYS})
     except (OSError, ValueError):
         return None
 
