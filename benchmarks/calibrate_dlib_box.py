@@ -18,7 +18,8 @@ Einstein, Lenna) and the cached renders of the real head scan (``~/.cache/facege
 
 Printed: the fitted constants, the box residuals (% of the HOG box side), and, leaving one photo
 out at a time, how far dlib's 68 points in the calibrated box lie from those in HOG's box (% of the
-inter-ocular distance), the landmark change the swap brings.
+inter-ocular distance), the landmark change the swap brings, beside the change of today's points
+when the photo is only scaled or shifted (the noise floor).
 """
 
 from __future__ import annotations
@@ -115,6 +116,30 @@ def fit(mp68: np.ndarray, hog: np.ndarray) -> np.ndarray:
     return np.array([*offset, *scale])
 
 
+def back_to_photo(points: np.ndarray, variant: str) -> np.ndarray | None:
+    """dlib's points (pixel-centre convention) found on a scaled or shifted variant, in the
+    photo's own pixels; None for the other variants."""
+    if variant.startswith("scaled"):
+        scale = float(variant.split()[1])
+        return (points + 0.5) / scale - 0.5
+    if variant.startswith("shifted"):
+        return points + np.array(variant.split()[1].split(","), dtype=np.float64)
+    return None
+
+
+def own_jitter(data: dict[str, np.ndarray]) -> np.ndarray:
+    """(M,) how far HOG-box dlib points move (mean distance, % IOD) when the photo is scaled or
+    shifted by a few pixels: the noise floor of today's detector."""
+    out = []
+    for i in range(len(data["photo"])):
+        same = np.flatnonzero((data["photo"] == data["photo"][i]) & (data["variant"] == "as is"))
+        moved = back_to_photo(data["dlib68"][i], str(data["variant"][i]))
+        if len(same) and moved is not None:
+            reference = data["dlib68"][same[0]]
+            out.append(100 * np.linalg.norm(moved - reference, axis=1).mean() / inter_ocular_distance(reference))
+    return np.asarray(out)
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--out", type=Path, help="save the samples (without images) to this .npz")
@@ -139,6 +164,9 @@ def main() -> None:
           f"90th percentile {np.percentile(residual, 90):.1f}, max {residual.max():.1f}")
     print(f"leave-one-photo-out dlib 68-point change (mean, % IOD): median {np.median(errors):.2f}, "
           f"90th percentile {np.percentile(errors, 90):.2f}, max {errors.max():.2f}")
+    jitter = own_jitter(data)
+    print(f"today's own change when the photo is scaled or shifted (mean, % IOD): median {np.median(jitter):.2f}, "
+          f"90th percentile {np.percentile(jitter, 90):.2f}, max {jitter.max():.2f}")
     order = np.argsort(-errors)[:5]
     print("largest changes:", "; ".join(f"{data['names'][data['photo'][i]]} {data['variant'][i]}: {errors[i]:.1f} % IOD, box residual "
                                         f"{residual[i]:.0f} %" for i in order))

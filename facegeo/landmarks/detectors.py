@@ -97,7 +97,7 @@ def _several(n: int) -> tuple[str, ...]:
 #: ``benchmarks/sample_photos.py`` and the head-scan renders, each scaled, turned, shifted and
 #: mirrored). Leaving one photo out, the box's corners miss HOG's by 8 % of its side (median; HOG's
 #: own scale steps are 20 %), and dlib's points move by 1.9 % of the inter-ocular distance
-#: (median; a 3-6 px shift of the photo moves today's HOG-box points by 1.7 %).
+#: (median; scaling the photo or shifting it by 3-6 px moves today's HOG-box points by 1.8 %).
 DLIB_BOX_FROM_MEDIAPIPE = (-0.0358, -0.2195, 2.9392, 2.9297)
 
 

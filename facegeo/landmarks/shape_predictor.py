@@ -66,11 +66,6 @@ class ShapePredictor:
     anchor: np.ndarray
     delta: np.ndarray
 
-    @property
-    def num_parts(self) -> int:
-        """P, the number of points predicted."""
-        return int(self.mean.shape[0])
-
     def __call__(self, image: np.ndarray, box: tuple[int, int, int, int]) -> np.ndarray:
         """The P points of the face in ``box`` as dlib's ``shape_predictor(image, rectangle)``
         gives them.
