@@ -159,6 +159,26 @@ def masked_blur(image: np.ndarray, weight: np.ndarray, sigma: float) -> np.ndarr
     return num / (den[..., None] if image.ndim == 3 else den)
 
 
+#: OpenCV's exact distance transform returns float32 distances; the integer squared distance is
+#: recovered from them exactly while it stays below 2^22 (float32 sqrt keeps d² within ±0.5).
+_EXACT_SQUARED = float(1 << 22)
+
+
+def _euclidean_distance(mask: np.ndarray) -> np.ndarray:
+    """(H, W) float64 Euclidean distance from each True texel of the (H, W) bool ``mask`` to the
+    nearest False one (0 on False texels), bit-identical to ``scipy.ndimage.distance_transform_edt``:
+    OpenCV's exact transform (Felzenszwalb's algorithm, ``DIST_MASK_PRECISE``, several times
+    faster) gives d in float32, d² is rounded back to its integer and its float64 root taken, as
+    SciPy does. SciPy itself where d² could lose that integer or no texel is False."""
+    if mask.all():
+        return ndimage.distance_transform_edt(mask)
+    distance = cv2.distanceTransform(mask.astype(np.uint8), cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
+    squared = np.rint(np.square(distance, dtype=np.float64))
+    if squared.max() >= _EXACT_SQUARED:
+        return ndimage.distance_transform_edt(mask)
+    return np.sqrt(squared)
+
+
 _NEAREST_CACHE: dict[bytes, tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]] = {}
 
 
@@ -272,9 +292,12 @@ class DefaultBackend:
     def analyse(self, T_inc: np.ndarray, M_vis: np.ndarray, ctx: TextureContext) -> _Analysis:
         """Shading, highlights and kept weight of a photo texture (module docstring); cached for
         ``ctx`` until the next call."""
+        return self._analyse(srgb_to_linear(T_inc), M_vis, ctx)
+
+    def _analyse(self, lin: np.ndarray, M_vis: np.ndarray, ctx: TextureContext) -> _Analysis:
+        """:meth:`analyse` of the texture already linearised: ``lin`` (S, S, 3) float32 linear RGB."""
         cover = ctx.coverage
         size = ctx.size
-        lin = srgb_to_linear(T_inc)
         w = np.clip(M_vis, 0.0, 1.0).astype(np.float32) * cover
         lum = luminance(lin)
         # the fit trusts only reliable skin: facing the camera, away from silhouettes and occluders
@@ -340,13 +363,14 @@ class DefaultBackend:
         photo's lighting (the estimated shading and light colour applied to the filled albedo)."""
         cover = ctx.coverage
         size = ctx.size
-        an = self.analyse(T_inc, M_vis, ctx)
         lin = srgb_to_linear(T_inc)
+        an = self._analyse(lin, M_vis, ctx)
         delit = lin / an.shading[..., None]
         w = an.weight
         skin = _skin(ctx)
-        reliable = self.reliability(w, ctx)
         seen = w > 0.5
+        inner = self._inner_distance(seen, ctx)  # the reliability's edge ramp and the fill's own-detail ramp
+        reliable = self._reliability(w, inner, ctx)
         notes: list[str] = []
         greyscale = is_greyscale(T_inc[seen & cover]) if (seen & cover).any() else False
         # the light's colour: from the reliably seen skin and the photo's white references
@@ -369,7 +393,7 @@ class DefaultBackend:
         else:  # nothing seen at all: the model's texture
             mean = srgb_to_linear(ctx.mean_texture)[cover].mean(0)
         log_seen = np.log(np.maximum(delit, 1e-4))
-        detail_fill, via_mirror, amp = self._fill_detail(log_seen, seen & cover, reliable, ctx)
+        detail_fill, via_mirror, amp = self._fill_detail(log_seen, seen & cover, inner, reliable, ctx)
         # the gradient-domain blend: the low frequencies of the seen skin minus the fill's detail,
         # solved on the surface with the reliability as data weight (a screened Poisson problem),
         # plus the fill's detail; the seen texels kept by their reliability
@@ -400,10 +424,15 @@ class DefaultBackend:
         foreshortening ramp (camera-space normal z from :data:`FORESHORTENING` [0] to [1]) times a
         ramp over :data:`EDGE_MM` mm of surface from the nearest texel not seen (the silhouette,
         an occluder, a highlight), so that the seen skin fades into the fill instead of ending."""
+        return self._reliability(weight, self._inner_distance(weight > 0.5, ctx), ctx)
+
+    @staticmethod
+    def _reliability(weight: np.ndarray, inner: np.ndarray, ctx: TextureContext) -> np.ndarray:
+        """:meth:`reliability` with ``inner`` = :meth:`_inner_distance` of ``weight > 0.5`` (S, S) mm."""
         cover = ctx.coverage
         lo, hi = FORESHORTENING
         fore = _smoothstep((ctx.normal_camera[..., 2] - lo) / (hi - lo))
-        edge = self._inner_distance(weight > 0.5, ctx) / EDGE_MM
+        edge = inner / EDGE_MM
         return np.where(cover & (weight > 0.5), np.clip(weight, 0.0, 1.0) * fore * _smoothstep(edge), 0.0).astype(np.float32)
 
     @staticmethod
@@ -415,14 +444,15 @@ class DefaultBackend:
         if not (seen & cover).any():
             return np.zeros(cover.shape, np.float32)
         texel_mm = float(np.median(ctx.texel_size_mm[cover]))
-        return (ndimage.distance_transform_edt(seen | ~cover) * texel_mm).astype(np.float32)
+        return (_euclidean_distance(seen | ~cover) * texel_mm).astype(np.float32)
 
-    def _fill_detail(self, log_seen: np.ndarray, seen: np.ndarray, reliable: np.ndarray, ctx: TextureContext
-                     ) -> tuple[np.ndarray, np.ndarray, np.ndarray | float]:
+    def _fill_detail(self, log_seen: np.ndarray, seen: np.ndarray, inner: np.ndarray, reliable: np.ndarray,
+                     ctx: TextureContext) -> tuple[np.ndarray, np.ndarray, np.ndarray | float]:
         """The fill's fine detail (S, S, 3) in log RGB (zero mean, finer than ~S/128 texels, ~2.5 mm
         at 1K): where the texel is seen (``seen``), its own; elsewhere the mirror texel's where
         that was reliably seen, and 3-D value noise of the model-space position with the seen
-        skin's contrast where not. Also the mirror's weight (S, S) and that contrast."""
+        skin's contrast where not. Also the mirror's weight (S, S) and that contrast. ``inner``:
+        :meth:`_inner_distance` of ``seen`` (S, S) mm."""
         cover = ctx.coverage
         size = ctx.size
         sigma = max(1.0, size / 128.0)
@@ -439,7 +469,7 @@ class DefaultBackend:
             n = value_noise(pos, 0.35) + 0.7 * value_noise(pos, 0.7, seed=1) + 0.4 * value_noise(pos, 1.5, seed=2)
             noise[need] = amp * n / max(float(n.std()), 1e-6)
         fill = w_m[..., None] * mirrored + (1 - w_m[..., None]) * noise[..., None]
-        own = _smoothstep(self._inner_distance(seen, ctx) / DETAIL_EDGE_MM)[..., None] * seen[..., None]
+        own = _smoothstep(inner / DETAIL_EDGE_MM)[..., None] * seen[..., None]
         fill = own * detail + (1 - own) * fill  # where seen (away from its edge: lashes, halos), the photo's own detail
         return np.where(cover[..., None], fill, 0.0).astype(np.float32), w_m, amp
 
