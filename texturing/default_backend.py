@@ -212,25 +212,39 @@ def pad_outside(image: np.ndarray, inside: np.ndarray, width: int | None = None)
     return out.reshape(image.shape)
 
 
+#: Points per block of :func:`value_noise` (its temporaries stay in the CPU cache).
+_NOISE_BLOCK = 16384
+
+
 def value_noise(position_mm: np.ndarray, cell_mm: float, seed: int = 0) -> np.ndarray:
     """3-D value noise (trilinear interpolation of hashed lattice values in [−1, 1], smoothstep
     weights) at (N, 3) points in mm on a lattice of ``cell_mm``: (N,) float32. A function of
     the surface position, so it is continuous across UV seams."""
     g = position_mm.astype(np.float32) / np.float32(cell_mm)
+    out = np.empty(len(g), np.float32)
+    for start in range(0, len(g), _NOISE_BLOCK):
+        out[start:start + _NOISE_BLOCK] = _value_noise_block(g[start:start + _NOISE_BLOCK], seed)
+    return out
+
+
+def _value_noise_block(g: np.ndarray, seed: int) -> np.ndarray:
+    """:func:`value_noise` of (n, 3) float32 lattice coordinates."""
     base = np.floor(g)
     f = g - base
     f = f * f * (3 - 2 * f)
     base = base.astype(np.int32)
+    # per axis, the lattice point's hash term (int32, wrapping) and trilinear weight at offsets 0 and 1
+    terms = [(b * k, (b + 1) * k) for b, k in zip(base.T, (73856093, 19349663, 83492791))]
+    weights = [(1 - f[:, axis], f[:, axis]) for axis in range(3)]
     out = np.zeros(len(g), np.float32)
     for corner in range(8):
         o = ((corner >> 2) & 1, (corner >> 1) & 1, corner & 1)
         # integer hash of the lattice point (a xorshift-multiply mix), then to [−1, 1]
-        h = ((base[:, 0] + o[0]) * 73856093) ^ ((base[:, 1] + o[1]) * 19349663) ^ ((base[:, 2] + o[2]) * 83492791) ^ (seed * 2654435)
+        h = terms[0][o[0]] ^ terms[1][o[1]] ^ terms[2][o[2]] ^ (seed * 2654435)
         h = (h ^ (h >> 13)) * 1274126177
         h = h ^ (h >> 16)
         value = (h & 0xFFFF).astype(np.float32) * np.float32(2.0 / 65535.0) - 1.0
-        weight = (f[:, 0] if o[0] else 1 - f[:, 0]) * (f[:, 1] if o[1] else 1 - f[:, 1]) * (f[:, 2] if o[2] else 1 - f[:, 2])
-        out += weight * value
+        out += weights[0][o[0]] * weights[1][o[1]] * weights[2][o[2]] * value
     return out
 
 
@@ -238,6 +252,12 @@ def _subsample(rows: np.ndarray, limit: int = 65536) -> np.ndarray:
     """At most ``limit`` evenly spaced entries of ``rows`` (least-squares fits of 9 SH
     coefficients need no more)."""
     return rows if len(rows) <= limit else rows[:: int(np.ceil(len(rows) / limit))]
+
+
+def _channel_max(rgb: np.ndarray) -> np.ndarray:
+    """(..., 3) -> (..., 1): the largest channel (``rgb.max(axis=-1, keepdims=True)``, without
+    NumPy's slow reduction over a length-3 axis)."""
+    return np.maximum(np.maximum(rgb[..., 0], rgb[..., 1]), rgb[..., 2])[..., None]
 
 
 def _smoothstep(t: np.ndarray) -> np.ndarray:
@@ -402,7 +422,7 @@ class DefaultBackend:
         out = np.where(cover[..., None], np.exp(out_log), 0.0)
         if greyscale:
             out = invent_chroma(luminance(out), ctx.regions.get("lips"))
-        peak = out.max(axis=-1, keepdims=True)
+        peak = _channel_max(out)
         out = np.where(peak > 1.0, out / np.maximum(peak, 1e-6), out).astype(np.float32)  # keeps chroma
         self.report["inpaint"] = {
             "seen": float(M_vis[cover].mean()) if cover.any() else 0.0,
@@ -517,7 +537,7 @@ class DefaultBackend:
                 white = None if ctx.white_reference is None else chroma(np.asarray(ctx.white_reference))
                 light, self.report["illuminant"] = estimate_illuminant(chroma(mean_skin), white)
                 albedo = remove_cast(albedo, light)
-            peak = albedo.max(axis=-1, keepdims=True)
+            peak = _channel_max(albedo)
             albedo = np.where(peak > 1.0, albedo / np.maximum(peak, 1e-6), albedo)
         before = self._shading_variance(T_full, ctx.normal_camera, skin, srgb=True)
         after = self._shading_variance(albedo, ctx.normal_camera, skin)
