@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import math
 
+import numpy as np
 import torch
 
 __all__ = ["sh_basis", "sh_irradiance", "shade_vertices", "AMBIENT_WHITE", "N_SH"]
@@ -30,11 +31,17 @@ AMBIENT_WHITE = torch.zeros(3, N_SH)
 AMBIENT_WHITE[:, 0] = 0.8
 
 
-def sh_basis(normals: torch.Tensor) -> torch.Tensor:
-    """The 9 Deep3D SH basis values of unit normals: (..., 3) -> (..., 9), same dtype."""
-    nx, ny, nz = normals.unbind(-1)
-    one = torch.ones_like(nx)
-    return torch.stack(
+def sh_basis(normals: torch.Tensor | np.ndarray) -> torch.Tensor | np.ndarray:
+    """The 9 Deep3D SH basis values of unit normals: (..., 3) -> (..., 9), same type and dtype. A
+    NumPy array gives the tensor's values bit for bit (the same float operations in the same
+    order), without torch's thread pool (whose start-up outweighs a few million products)."""
+    if isinstance(normals, torch.Tensor):
+        nx, ny, nz = normals.unbind(-1)
+        one, stack = torch.ones_like(nx), torch.stack
+    else:
+        nx, ny, nz = np.moveaxis(np.asarray(normals), -1, 0)
+        one, stack = np.ones_like(nx), np.stack
+    return stack(
         [
             _A0 * _C0 * one,
             -_A1 * _C1 * ny,
@@ -46,7 +53,7 @@ def sh_basis(normals: torch.Tensor) -> torch.Tensor:
             -_A2 * _C2 * nx * nz,
             _A2 * _C2 / 2 * (nx * nx - ny * ny),
         ],
-        dim=-1,
+        -1,
     )
 
 

@@ -65,7 +65,6 @@ import cv2
 import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
-import torch
 from scipy import ndimage
 
 from facegeo.asset import MAP_NAMES
@@ -329,7 +328,7 @@ class DefaultBackend:
         directional = strength = 0.0
         if n_fit >= 100:
             rows = _subsample(np.flatnonzero(fit_mask.ravel()))
-            basis = sh_basis(torch.from_numpy(normals.reshape(-1, 3)[rows].astype(np.float32))).numpy().astype(np.float64)[:, :SH_TERMS]
+            basis = sh_basis(normals.reshape(-1, 3)[rows].astype(np.float32)).astype(np.float64)[:, :SH_TERMS]
             y = lum.ravel()[rows].astype(np.float64)
             keep = np.ones(len(rows), bool)
             for _ in range(4):  # trimmed least squares on the log-ratio
@@ -343,7 +342,7 @@ class DefaultBackend:
             strength = float(_smoothstep(np.float32((directional - DIRECTIONAL_RANGE[0]) / (DIRECTIONAL_RANGE[1] - DIRECTIONAL_RANGE[0]))))
             flat = np.flatnonzero(cover.ravel())
             e = np.zeros(cover.size)
-            e[flat] = sh_basis(torch.from_numpy(normals.reshape(-1, 3)[flat].astype(np.float32))).numpy()[:, :SH_TERMS] @ coeffs
+            e[flat] = sh_basis(normals.reshape(-1, 3)[flat].astype(np.float32))[:, :SH_TERMS] @ coeffs
             e = e.reshape(cover.shape)
             ref = float(np.median(e[fit_mask]))
             shading = np.where(cover, np.maximum(e / max(ref, 1e-6), 1e-3) ** strength, 1.0).astype(np.float32)
@@ -557,7 +556,7 @@ class DefaultBackend:
             return 0.0
         values = colour.reshape(-1, 3)[rows]
         log_l = np.log(np.maximum(luminance(srgb_to_linear(values) if srgb else values), 1e-4))
-        basis = sh_basis(torch.from_numpy(normals.reshape(-1, 3)[rows].astype(np.float32))).numpy()
+        basis = sh_basis(normals.reshape(-1, 3)[rows].astype(np.float32))
         coeffs, *_ = np.linalg.lstsq(basis, log_l - log_l.mean(), rcond=None)
         return float(np.var(basis @ coeffs))
 
