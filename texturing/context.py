@@ -140,12 +140,15 @@ def _compute_layout_priors(model: MorphableModel, raster: UVRaster) -> LayoutPri
     rows, cols = (a.astype(np.int32) for a in nearest_texel(mirror_uv, size, size))
     ok &= cover[rows, cols]
     mirror = raster.scatter(np.where(ok[:, None], np.stack([rows, cols], 1), -1).astype(np.int32), fill=-1)
-    regions = {name: _read_only(_to_uv(model, raster, m)[..., 0]) for name, m in vertex_regions(model).items()}
-    skin = _to_uv(model, raster, skin_vertex_mask(model).astype(np.float32))[..., 0]
+    # the region masks and the skin mask in one interpolation (each channel's values as on its own)
+    per_vertex = vertex_regions(model)
+    maps = _to_uv(model, raster, np.stack([*per_vertex.values(), skin_vertex_mask(model).astype(np.float32)], axis=1))
+    regions = {name: _read_only(np.ascontiguousarray(maps[..., k])) for k, name in enumerate(per_vertex)}
+    skin = maps[..., -1]
     mean_texture = None
     if not model.n_tex:
         mean_texture = _read_only(linear_to_srgb(_to_uv(model, raster, np.clip(model.mean_albedo, 0.0, 1.0))).astype(np.float32))
-    return LayoutPriors(coverage=cover, mirror=_read_only(mirror), regions=regions, skin=_read_only(skin.astype(np.float32)),
+    return LayoutPriors(coverage=cover, mirror=_read_only(mirror), regions=regions, skin=_read_only(np.ascontiguousarray(skin, np.float32)),
                         surface=surface_operators(model, raster), mean_texture=mean_texture)
 
 
