@@ -43,7 +43,6 @@ import statistics
 import subprocess
 import sys
 import tempfile
-import time
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -62,7 +61,7 @@ def import_checkout(root: Path) -> None:
     package_dir = tomllib.loads((root / "pyproject.toml").read_text())["tool"]["setuptools"]["package-dir"]
 
     class CheckoutFinder(importlib.abc.MetaPathFinder):
-        def find_spec(self, name, path=None, target=None):  # noqa: ARG002 (the finder protocol)
+        def find_spec(self, name, path=None, target=None):
             if name not in package_dir:
                 return None
             folder = root / package_dir[name]
@@ -134,7 +133,6 @@ class Worker:
 
 def prepare(photos: list[Path], out: Path) -> list[str]:
     """Fit ``photos`` with this checkout and pickle what the texture path needs; the names kept."""
-    import_checkout(ROOT)
     from facegeo import load_model
     from facegeo.errors import FacegeoError
     from facegeo.fitting import fit
@@ -161,7 +159,6 @@ def compare_maps(a: Path, b: Path) -> dict[str, tuple[bool, int, int]]:
     """map -> (float32 bits identical, largest PNG-level difference, texels whose PNG differs)."""
     import numpy as np
 
-    import_checkout(ROOT)
     from facegeo.export.textures import encode_map
 
     x, y = np.load(a), np.load(b)
@@ -180,9 +177,7 @@ def summary(base: list[dict], cand: list[dict]) -> list[tuple[str, float, float,
     """Per stage and the sum: (name, base min, base median, cand min, cand median, ratio min, ratio median)."""
     rows = []
     for stage in (*STAGES, "total"):
-        def pick(r: dict) -> float:
-            return sum(r["timings"].values()) if stage == "total" else r["timings"][stage]
-        b, c = [pick(r) for r in base], [pick(r) for r in cand]
+        b, c = ([sum(r["timings"].values()) if stage == "total" else r["timings"][stage] for r in side] for side in (base, cand))
         ratios = [ci / bi for bi, ci in zip(b, c)]
         rows.append((stage, min(b), statistics.median(b), min(c), statistics.median(c), min(ratios), statistics.median(ratios)))
     return rows
@@ -206,6 +201,7 @@ def main() -> None:
                         help="default: assets/photos/astronaut.png and ~/.cache/facegeo/samples/*.png")
     args = parser.parse_args()
     photos = args.photos or [ROOT / "assets" / "photos" / "astronaut.png", *sorted(SAMPLES.glob("*.png"))]
+    import_checkout(ROOT)  # this process fits the photos and encodes the maps with this checkout
     baseline = args.baseline.resolve()
     with tempfile.TemporaryDirectory(prefix="bench_texture_stages_") as tmp:
         tmp = Path(tmp)

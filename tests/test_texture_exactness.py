@@ -13,10 +13,10 @@ import scipy.sparse as sp
 import torch
 from scipy import ndimage
 
-import facegeo.texturing.default_backend as default_backend
 from facegeo import Camera, fit_landmarks, load_model, project
 from facegeo.lighting import sh_basis
 from facegeo.skin_mask import skin_vertex_mask, vertex_regions
+from facegeo.texturing import default_backend
 from facegeo.texturing.context import build_context, layout_priors, surface_operators
 from facegeo.texturing.default_backend import DefaultBackend, value_noise
 from facegeo.uv import rasterize_uv, render, unwrap

@@ -33,7 +33,7 @@ MIRROR_TOLERANCE_MM = 1.0
 #: :class:`LayoutPriors` kept per process (least recently used dropped first); one is ~70 MB at 1K.
 LAYOUT_CACHE_ENTRIES = 2
 
-_LAYOUT_CACHE: OrderedDict[tuple[str, str, int, int], "LayoutPriors"] = OrderedDict()
+_LAYOUT_CACHE: OrderedDict[tuple[str, str, int, int], LayoutPriors] = OrderedDict()
 _LAYOUT_LOCK = threading.Lock()
 
 
