@@ -37,6 +37,17 @@ def test_basis_is_orthogonal_over_the_sphere():
     assert np.abs(off).max() < 0.02 * np.abs(np.diag(gram)).max()
 
 
+@pytest.mark.parametrize("dtype", [np.float32, np.float64])
+def test_numpy_basis_is_the_tensor_basis_bit_for_bit(dtype):
+    """The texture stage computes the basis of a million texel normals on NumPy arrays: the same
+    values as the tensor path, to the last bit (its maps must not change)."""
+    n = np.random.default_rng(1).normal(size=(2, 50_001, 3)).astype(dtype)
+    n /= np.linalg.norm(n, axis=-1, keepdims=True)
+    y = sh_basis(n)
+    assert isinstance(y, np.ndarray) and y.dtype == dtype and y.shape == (2, 50_001, 9)
+    np.testing.assert_array_equal(y.view(np.uint8), sh_basis(torch.from_numpy(n)).numpy().view(np.uint8))
+
+
 @settings(max_examples=20, deadline=None)
 @given(st.lists(st.floats(-1, 1), min_size=27, max_size=27))
 def test_irradiance_is_linear_in_gamma(values):

@@ -17,6 +17,7 @@ from __future__ import annotations
 
 from collections.abc import Mapping
 from dataclasses import dataclass, field
+from functools import cached_property
 from types import MappingProxyType
 from typing import Any, Protocol, runtime_checkable
 
@@ -105,6 +106,12 @@ class TextureContext:
     def size(self) -> int:
         """S, the texture size in texels."""
         return int(self.coverage.shape[0])
+
+    @cached_property
+    def median_texel_mm(self) -> float:
+        """The median of ``texel_size_mm`` over the covered texels, both directions, in mm
+        (computed on first use; the context's arrays are not to be changed after it is built)."""
+        return float(np.median(self.texel_size_mm[self.coverage]))
 
 
 @runtime_checkable

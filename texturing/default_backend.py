@@ -65,7 +65,6 @@ import cv2
 import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
-import torch
 from scipy import ndimage
 
 from facegeo.asset import MAP_NAMES
@@ -159,6 +158,26 @@ def masked_blur(image: np.ndarray, weight: np.ndarray, sigma: float) -> np.ndarr
     return num / (den[..., None] if image.ndim == 3 else den)
 
 
+#: OpenCV's exact distance transform returns float32 distances; the integer squared distance is
+#: recovered from them exactly while it stays below 2^22 (float32 sqrt keeps d² within ±0.5).
+_EXACT_SQUARED = float(1 << 22)
+
+
+def _euclidean_distance(mask: np.ndarray) -> np.ndarray:
+    """(H, W) float64 Euclidean distance from each True texel of the (H, W) bool ``mask`` to the
+    nearest False one (0 on False texels), bit-identical to ``scipy.ndimage.distance_transform_edt``:
+    OpenCV's exact transform (Felzenszwalb's algorithm, ``DIST_MASK_PRECISE``, several times
+    faster) gives d in float32, d² is rounded back to its integer and its float64 root taken, as
+    SciPy does. SciPy itself where d² could lose that integer or no texel is False."""
+    if mask.all():
+        return ndimage.distance_transform_edt(mask)
+    distance = cv2.distanceTransform(mask.astype(np.uint8), cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
+    squared = np.rint(np.square(distance, dtype=np.float64))
+    if squared.max() >= _EXACT_SQUARED:
+        return ndimage.distance_transform_edt(mask)
+    return np.sqrt(squared)
+
+
 _NEAREST_CACHE: dict[bytes, tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]] = {}
 
 
@@ -192,25 +211,39 @@ def pad_outside(image: np.ndarray, inside: np.ndarray, width: int | None = None)
     return out.reshape(image.shape)
 
 
+#: Points per block of :func:`value_noise` (its temporaries stay in the CPU cache).
+_NOISE_BLOCK = 16384
+
+
 def value_noise(position_mm: np.ndarray, cell_mm: float, seed: int = 0) -> np.ndarray:
     """3-D value noise (trilinear interpolation of hashed lattice values in [−1, 1], smoothstep
     weights) at (N, 3) points in mm on a lattice of ``cell_mm``: (N,) float32. A function of
     the surface position, so it is continuous across UV seams."""
     g = position_mm.astype(np.float32) / np.float32(cell_mm)
+    out = np.empty(len(g), np.float32)
+    for start in range(0, len(g), _NOISE_BLOCK):
+        out[start:start + _NOISE_BLOCK] = _value_noise_block(g[start:start + _NOISE_BLOCK], seed)
+    return out
+
+
+def _value_noise_block(g: np.ndarray, seed: int) -> np.ndarray:
+    """:func:`value_noise` of (n, 3) float32 lattice coordinates."""
     base = np.floor(g)
     f = g - base
     f = f * f * (3 - 2 * f)
     base = base.astype(np.int32)
+    # per axis, the lattice point's hash term (int32, wrapping) and trilinear weight at offsets 0 and 1
+    terms = [(b * k, (b + 1) * k) for b, k in zip(base.T, (73856093, 19349663, 83492791))]
+    weights = [(1 - f[:, axis], f[:, axis]) for axis in range(3)]
     out = np.zeros(len(g), np.float32)
     for corner in range(8):
         o = ((corner >> 2) & 1, (corner >> 1) & 1, corner & 1)
         # integer hash of the lattice point (a xorshift-multiply mix), then to [−1, 1]
-        h = ((base[:, 0] + o[0]) * 73856093) ^ ((base[:, 1] + o[1]) * 19349663) ^ ((base[:, 2] + o[2]) * 83492791) ^ (seed * 2654435)
+        h = terms[0][o[0]] ^ terms[1][o[1]] ^ terms[2][o[2]] ^ (seed * 2654435)
         h = (h ^ (h >> 13)) * 1274126177
         h = h ^ (h >> 16)
         value = (h & 0xFFFF).astype(np.float32) * np.float32(2.0 / 65535.0) - 1.0
-        weight = (f[:, 0] if o[0] else 1 - f[:, 0]) * (f[:, 1] if o[1] else 1 - f[:, 1]) * (f[:, 2] if o[2] else 1 - f[:, 2])
-        out += weight * value
+        out += weights[0][o[0]] * weights[1][o[1]] * weights[2][o[2]] * value
     return out
 
 
@@ -218,6 +251,12 @@ def _subsample(rows: np.ndarray, limit: int = 65536) -> np.ndarray:
     """At most ``limit`` evenly spaced entries of ``rows`` (least-squares fits of 9 SH
     coefficients need no more)."""
     return rows if len(rows) <= limit else rows[:: int(np.ceil(len(rows) / limit))]
+
+
+def _channel_max(rgb: np.ndarray) -> np.ndarray:
+    """(..., 3) -> (..., 1): the largest channel (``rgb.max(axis=-1, keepdims=True)``, without
+    NumPy's slow reduction over a length-3 axis)."""
+    return np.maximum(np.maximum(rgb[..., 0], rgb[..., 1]), rgb[..., 2])[..., None]
 
 
 def _smoothstep(t: np.ndarray) -> np.ndarray:
@@ -272,9 +311,12 @@ class DefaultBackend:
     def analyse(self, T_inc: np.ndarray, M_vis: np.ndarray, ctx: TextureContext) -> _Analysis:
         """Shading, highlights and kept weight of a photo texture (module docstring); cached for
         ``ctx`` until the next call."""
+        return self._analyse(srgb_to_linear(T_inc), M_vis, ctx)
+
+    def _analyse(self, lin: np.ndarray, M_vis: np.ndarray, ctx: TextureContext) -> _Analysis:
+        """:meth:`analyse` of the texture already linearised: ``lin`` (S, S, 3) float32 linear RGB."""
         cover = ctx.coverage
         size = ctx.size
-        lin = srgb_to_linear(T_inc)
         w = np.clip(M_vis, 0.0, 1.0).astype(np.float32) * cover
         lum = luminance(lin)
         # the fit trusts only reliable skin: facing the camera, away from silhouettes and occluders
@@ -286,7 +328,7 @@ class DefaultBackend:
         directional = strength = 0.0
         if n_fit >= 100:
             rows = _subsample(np.flatnonzero(fit_mask.ravel()))
-            basis = sh_basis(torch.from_numpy(normals.reshape(-1, 3)[rows].astype(np.float32))).numpy().astype(np.float64)[:, :SH_TERMS]
+            basis = sh_basis(normals.reshape(-1, 3)[rows].astype(np.float32)).astype(np.float64)[:, :SH_TERMS]
             y = lum.ravel()[rows].astype(np.float64)
             keep = np.ones(len(rows), bool)
             for _ in range(4):  # trimmed least squares on the log-ratio
@@ -300,7 +342,7 @@ class DefaultBackend:
             strength = float(_smoothstep(np.float32((directional - DIRECTIONAL_RANGE[0]) / (DIRECTIONAL_RANGE[1] - DIRECTIONAL_RANGE[0]))))
             flat = np.flatnonzero(cover.ravel())
             e = np.zeros(cover.size)
-            e[flat] = sh_basis(torch.from_numpy(normals.reshape(-1, 3)[flat].astype(np.float32))).numpy()[:, :SH_TERMS] @ coeffs
+            e[flat] = sh_basis(normals.reshape(-1, 3)[flat].astype(np.float32))[:, :SH_TERMS] @ coeffs
             e = e.reshape(cover.shape)
             ref = float(np.median(e[fit_mask]))
             shading = np.where(cover, np.maximum(e / max(ref, 1e-6), 1e-3) ** strength, 1.0).astype(np.float32)
@@ -340,13 +382,14 @@ class DefaultBackend:
         photo's lighting (the estimated shading and light colour applied to the filled albedo)."""
         cover = ctx.coverage
         size = ctx.size
-        an = self.analyse(T_inc, M_vis, ctx)
         lin = srgb_to_linear(T_inc)
+        an = self._analyse(lin, M_vis, ctx)
         delit = lin / an.shading[..., None]
         w = an.weight
         skin = _skin(ctx)
-        reliable = self.reliability(w, ctx)
         seen = w > 0.5
+        inner = self._inner_distance(seen, ctx)  # the reliability's edge ramp and the fill's own-detail ramp
+        reliable = self._reliability(w, inner, ctx)
         notes: list[str] = []
         greyscale = is_greyscale(T_inc[seen & cover]) if (seen & cover).any() else False
         # the light's colour: from the reliably seen skin and the photo's white references
@@ -369,7 +412,7 @@ class DefaultBackend:
         else:  # nothing seen at all: the model's texture
             mean = srgb_to_linear(ctx.mean_texture)[cover].mean(0)
         log_seen = np.log(np.maximum(delit, 1e-4))
-        detail_fill, via_mirror, amp = self._fill_detail(log_seen, seen & cover, reliable, ctx)
+        detail_fill, via_mirror, amp = self._fill_detail(log_seen, seen & cover, inner, reliable, ctx)
         # the gradient-domain blend: the low frequencies of the seen skin minus the fill's detail,
         # solved on the surface with the reliability as data weight (a screened Poisson problem),
         # plus the fill's detail; the seen texels kept by their reliability
@@ -378,7 +421,7 @@ class DefaultBackend:
         out = np.where(cover[..., None], np.exp(out_log), 0.0)
         if greyscale:
             out = invent_chroma(luminance(out), ctx.regions.get("lips"))
-        peak = out.max(axis=-1, keepdims=True)
+        peak = _channel_max(out)
         out = np.where(peak > 1.0, out / np.maximum(peak, 1e-6), out).astype(np.float32)  # keeps chroma
         self.report["inpaint"] = {
             "seen": float(M_vis[cover].mean()) if cover.any() else 0.0,
@@ -400,10 +443,15 @@ class DefaultBackend:
         foreshortening ramp (camera-space normal z from :data:`FORESHORTENING` [0] to [1]) times a
         ramp over :data:`EDGE_MM` mm of surface from the nearest texel not seen (the silhouette,
         an occluder, a highlight), so that the seen skin fades into the fill instead of ending."""
+        return self._reliability(weight, self._inner_distance(weight > 0.5, ctx), ctx)
+
+    @staticmethod
+    def _reliability(weight: np.ndarray, inner: np.ndarray, ctx: TextureContext) -> np.ndarray:
+        """:meth:`reliability` with ``inner`` = :meth:`_inner_distance` of ``weight > 0.5`` (S, S) mm."""
         cover = ctx.coverage
         lo, hi = FORESHORTENING
         fore = _smoothstep((ctx.normal_camera[..., 2] - lo) / (hi - lo))
-        edge = self._inner_distance(weight > 0.5, ctx) / EDGE_MM
+        edge = inner / EDGE_MM
         return np.where(cover & (weight > 0.5), np.clip(weight, 0.0, 1.0) * fore * _smoothstep(edge), 0.0).astype(np.float32)
 
     @staticmethod
@@ -414,24 +462,24 @@ class DefaultBackend:
         cover = ctx.coverage
         if not (seen & cover).any():
             return np.zeros(cover.shape, np.float32)
-        texel_mm = float(np.median(ctx.texel_size_mm[cover]))
-        return (ndimage.distance_transform_edt(seen | ~cover) * texel_mm).astype(np.float32)
+        return (_euclidean_distance(seen | ~cover) * ctx.median_texel_mm).astype(np.float32)
 
-    def _fill_detail(self, log_seen: np.ndarray, seen: np.ndarray, reliable: np.ndarray, ctx: TextureContext
-                     ) -> tuple[np.ndarray, np.ndarray, np.ndarray | float]:
+    def _fill_detail(self, log_seen: np.ndarray, seen: np.ndarray, inner: np.ndarray, reliable: np.ndarray,
+                     ctx: TextureContext) -> tuple[np.ndarray, np.ndarray, np.ndarray | float]:
         """The fill's fine detail (S, S, 3) in log RGB (zero mean, finer than ~S/128 texels, ~2.5 mm
         at 1K): where the texel is seen (``seen``), its own; elsewhere the mirror texel's where
         that was reliably seen, and 3-D value noise of the model-space position with the seen
-        skin's contrast where not. Also the mirror's weight (S, S) and that contrast."""
+        skin's contrast where not. Also the mirror's weight (S, S) and that contrast. ``inner``:
+        :meth:`_inner_distance` of ``seen`` (S, S) mm."""
         cover = ctx.coverage
         size = ctx.size
         sigma = max(1.0, size / 128.0)
         detail = np.where(seen[..., None], log_seen - masked_blur(log_seen, seen, sigma), 0.0)
         amp = self._detail_contrast(log_seen, seen & _skin(ctx), size)
         has = (ctx.mirror[..., 0] >= 0) & cover
-        mr, mc = np.where(has, ctx.mirror[..., 0], 0), np.where(has, ctx.mirror[..., 1], 0)
-        w_m = np.where(has, reliable[mr, mc], 0.0).astype(np.float32)
-        mirrored = detail[mr, mc]
+        mirror = np.where(has, ctx.mirror[..., 0].astype(np.intp) * size + ctx.mirror[..., 1], 0)  # flat index (one gather)
+        w_m = np.where(has, reliable.reshape(-1)[mirror], 0.0).astype(np.float32)
+        mirrored = detail.reshape(-1, 3)[mirror]
         need = cover & ~seen & (w_m < 1.0 - 1e-3)
         noise = np.zeros(cover.shape, np.float32)
         if need.any() and amp > 0:
@@ -439,7 +487,7 @@ class DefaultBackend:
             n = value_noise(pos, 0.35) + 0.7 * value_noise(pos, 0.7, seed=1) + 0.4 * value_noise(pos, 1.5, seed=2)
             noise[need] = amp * n / max(float(n.std()), 1e-6)
         fill = w_m[..., None] * mirrored + (1 - w_m[..., None]) * noise[..., None]
-        own = _smoothstep(self._inner_distance(seen, ctx) / DETAIL_EDGE_MM)[..., None] * seen[..., None]
+        own = _smoothstep(inner / DETAIL_EDGE_MM)[..., None] * seen[..., None]
         fill = own * detail + (1 - own) * fill  # where seen (away from its edge: lashes, halos), the photo's own detail
         return np.where(cover[..., None], fill, 0.0).astype(np.float32), w_m, amp
 
@@ -487,7 +535,7 @@ class DefaultBackend:
                 white = None if ctx.white_reference is None else chroma(np.asarray(ctx.white_reference))
                 light, self.report["illuminant"] = estimate_illuminant(chroma(mean_skin), white)
                 albedo = remove_cast(albedo, light)
-            peak = albedo.max(axis=-1, keepdims=True)
+            peak = _channel_max(albedo)
             albedo = np.where(peak > 1.0, albedo / np.maximum(peak, 1e-6), albedo)
         before = self._shading_variance(T_full, ctx.normal_camera, skin, srgb=True)
         after = self._shading_variance(albedo, ctx.normal_camera, skin)
@@ -507,7 +555,7 @@ class DefaultBackend:
             return 0.0
         values = colour.reshape(-1, 3)[rows]
         log_l = np.log(np.maximum(luminance(srgb_to_linear(values) if srgb else values), 1e-4))
-        basis = sh_basis(torch.from_numpy(normals.reshape(-1, 3)[rows].astype(np.float32))).numpy()
+        basis = sh_basis(normals.reshape(-1, 3)[rows].astype(np.float32))
         coeffs, *_ = np.linalg.lstsq(basis, log_l - log_l.mean(), rcond=None)
         return float(np.var(basis @ coeffs))
 
@@ -552,7 +600,8 @@ class DefaultBackend:
         du = np.maximum(ctx.texel_size_mm[..., 0], 1e-3)
         dv = np.maximum(ctx.texel_size_mm[..., 1], 1e-3)
         n = np.stack([-dh_dcol / du, dh_drow / dv, np.ones_like(height_mm)], axis=-1)
-        return (n / np.linalg.norm(n, axis=-1, keepdims=True)).astype(np.float32)
+        length = np.sqrt(n[..., 0] * n[..., 0] + n[..., 1] * n[..., 1] + n[..., 2] * n[..., 2])  # np.linalg.norm's sum, bit for bit,
+        return (n / length[..., None]).astype(np.float32)  # without its slow reduction over a length-3 axis
 
     @staticmethod
     def _priors(ctx: TextureContext) -> tuple[np.ndarray, np.ndarray]:

@@ -133,7 +133,7 @@ class UVRaster:
 
     def interpolate(self, corner_values: np.ndarray) -> np.ndarray:
         """Barycentric interpolation of per-corner data: (F, 3, C) -> (N, C) float32."""
-        v = np.asarray(corner_values, dtype=np.float32)[self.texel_triangle]  # (N, 3, C)
+        v = np.take(np.asarray(corner_values, dtype=np.float32), self.texel_triangle, axis=0)  # (N, 3, C)
         b = self.texel_barycentric
         return v[:, 0] * b[:, 0:1] + v[:, 1] * b[:, 1:2] + v[:, 2] * b[:, 2:3]
 
