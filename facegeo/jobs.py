@@ -257,6 +257,11 @@ def reconstruct_into_folder(photo_path: str | Path, output: str | Path, options:
             from facegeo.skin_mask import skin_mask_image
             from facegeo.texturing.preview import relit_preview
 
+            if pending is not None:  # while the child fits: the texture stages' model-only parts, cached per process
+                from facegeo.texturing.context import layout_priors
+                from facegeo.uv import rasterize_uv
+
+                layout_priors(model, rasterize_uv(model, size=options.size))
             fitted, skin, fit_seconds = pending.result() if pending is not None else _fit_and_skin(photo, str(photo_path), options)
         except BaseException:
             if pending is not None:
