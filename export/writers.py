@@ -13,6 +13,7 @@ from facegeo.errors import InputError
 if TYPE_CHECKING:
     from facegeo.export.live_link import ArkitTake
     from facegeo.export.scene import SceneContents
+    from facegeo.export.textures import TextureFiles
 
 __all__ = ["export_asset", "export_scenes", "FORMATS", "DEFAULT_FORMATS"]
 
@@ -34,6 +35,7 @@ def export_asset(
     blendshapes: str | None = "arkit",
     animation: ArkitTake | None = None,
     surfaces: list[tuple[str, SceneContents]] | None = None,
+    texture_files: TextureFiles | None = None,
 ) -> Path:
     """Write ``asset`` to ``path`` as USD (usdz, usdc, usda) or glTF binary (glb).
 
@@ -46,7 +48,9 @@ def export_asset(
     ``animation``: a Live Link Face take (:func:`facegeo.export.live_link.read_live_link_csv`)
     to animate the face with; ``surfaces``: the asset's
     :func:`facegeo.export.scene.scene_surfaces` with these options, if already computed
-    (:func:`export_scenes` shares them between formats). Returns the path written.
+    (:func:`export_scenes` shares them between formats); ``texture_files``: the maps' PNG files
+    shared with other outputs (:class:`facegeo.export.textures.TextureFiles`; default: made by
+    the writer). Returns the path written.
 
     Raises:
         InputError: unknown format, a suffix that contradicts ``format``, glb with
@@ -57,11 +61,11 @@ def export_asset(
         from facegeo.export.gltf import write_glb
 
         return write_glb(asset, target, level=level, maps=maps, uv_interpolation=uv_interpolation, blendshapes=blendshapes,
-                         animation=animation, surfaces=surfaces)
+                         animation=animation, surfaces=surfaces, texture_files=texture_files)
     from facegeo.export.usd import write_usd
 
     return write_usd(asset, target, level=level, displacement=displacement, maps=maps, uv_interpolation=uv_interpolation,
-                     blendshapes=blendshapes, animation=animation, surfaces=surfaces)
+                     blendshapes=blendshapes, animation=animation, surfaces=surfaces, texture_files=texture_files)
 
 
 def export_scenes(
@@ -74,16 +78,21 @@ def export_scenes(
     uv_interpolation: str = "surface",
     blendshapes: str | None = "arkit",
     animation: ArkitTake | None = None,
+    texture_files: TextureFiles | None = None,
 ) -> list[Path]:
     """:func:`export_asset` for several ``(path, format)`` outputs of one asset (format None: the
     suffix's), with the same options: the scene's geometry, materials and blendshape targets
     (:func:`facegeo.export.scene.scene_surfaces`) are computed once for every output that bakes
-    the displacement (glb always, USD with ``displacement="bake"``). Every output is checked
-    before anything is written. Returns the paths written, in order."""
+    the displacement (glb always, USD with ``displacement="bake"``), and each texture's PNG file
+    once for all of them (``texture_files``, default: made here; give one to share the files
+    with an asset folder). Every output is checked before anything is written. Returns the paths
+    written, in order."""
     from facegeo.export.scene import scene_surfaces
+    from facegeo.export.textures import TextureFiles
 
     resolved = [_resolve(Path(path), format, displacement) for path, format in outputs]
     maps = None if maps is None else list(maps)
+    files = TextureFiles() if texture_files is None else texture_files
     shared = None
     written = []
     for target, fmt in resolved:
@@ -92,7 +101,7 @@ def export_scenes(
             shared = scene_surfaces(asset, level=level, maps=maps, uv_interpolation=uv_interpolation, blendshapes=blendshapes)
         written.append(export_asset(asset, target, format=fmt, level=level, displacement=displacement, maps=maps,
                                     uv_interpolation=uv_interpolation, blendshapes=blendshapes, animation=animation,
-                                    surfaces=shared if bakes else None))
+                                    surfaces=shared if bakes else None, texture_files=files))
     return written
 
 

@@ -8,6 +8,8 @@ Photos are read by :mod:`facegeo.photo` (EXIF orientation, alpha, size checks), 
 from __future__ import annotations
 
 import os
+import struct
+from pathlib import Path
 
 # OpenCV reads this when it first encodes or decodes an EXR (checked lazily in OpenCV 4.x, so it
 # also works when cv2 was imported earlier); set before cv2 is imported to be safe.
@@ -18,7 +20,13 @@ import numpy as np  # noqa: E402
 from facegeo.errors import InputError  # noqa: E402
 from facegeo.native_stderr import silenced_native_stderr  # noqa: E402
 
-__all__ = ["png_bytes", "read_png", "exr_bytes", "to_uint"]
+__all__ = ["png_bytes", "read_png", "read_png_file", "plain_png", "exr_bytes", "to_uint"]
+
+#: The chunks of a PNG file that :func:`plain_png` accepts: the image itself and notes that do not
+#: change how it is shown (text, time, physical size); a colour space, gamma, significant bits,
+#: transparency or animation chunk makes a file not plain.
+_PLAIN_CHUNKS = frozenset({b"IHDR", b"PLTE", b"IDAT", b"IEND", b"tEXt", b"zTXt", b"iTXt", b"tIME", b"pHYs"})
+_PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 
 
 def _bgr(image: np.ndarray) -> np.ndarray:
@@ -55,13 +63,44 @@ def read_png(path: str | os.PathLike[str]) -> np.ndarray:
     Raises:
         InputError: the file is missing or not a readable image.
     """
+    return read_png_file(path)[0]
+
+
+def read_png_file(path: str | os.PathLike[str]) -> tuple[np.ndarray, bytes]:
+    """:func:`read_png` and the file's bytes: ``(image as stored, RGB(A) order; the PNG file)``,
+    for a writer that may embed the file as it is (:func:`plain_png`).
+
+    Raises:
+        InputError: the file is missing or not a readable image.
+    """
     import cv2
 
+    try:
+        data = Path(path).read_bytes()
+    except OSError as exc:
+        raise InputError(path, "image", "a readable PNG file", exc.strerror or str(exc)) from None
     with silenced_native_stderr():  # libpng prints "libpng error: ..." itself; the InputError says it
-        img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+        img = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_UNCHANGED)
     if img is None:
         raise InputError(path, "image", "a readable PNG file")
-    return _bgr(img)
+    return _bgr(img), data
+
+
+def plain_png(data: bytes) -> bool:
+    """Whether ``data`` is a PNG file that holds its pixels and nothing that changes how they are
+    shown (only the chunks of :data:`_PLAIN_CHUNKS`), so that any other PNG file of the same
+    pixels may stand in for it (and it for them)."""
+    if not data.startswith(_PNG_SIGNATURE):
+        return False
+    pos = len(_PNG_SIGNATURE)
+    while pos + 8 <= len(data):
+        length, kind = struct.unpack_from(">I4s", data, pos)
+        if kind not in _PLAIN_CHUNKS:
+            return False
+        if kind == b"IEND":
+            return True
+        pos += 12 + length  # length, type, data, CRC
+    return False
 
 
 def exr_bytes(image: np.ndarray) -> bytes:

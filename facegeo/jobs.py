@@ -234,6 +234,7 @@ def reconstruct_into_folder(photo_path: str | Path, output: str | Path, options:
     """
     from facegeo.errors import NoFaceError
     from facegeo.export.asset_io import write_asset_files
+    from facegeo.export.textures import TextureFiles
     from facegeo.export.writers import export_scenes
     from facegeo.fitting import fit
     from facegeo.image_files import png_bytes
@@ -264,13 +265,14 @@ def reconstruct_into_folder(photo_path: str | Path, output: str | Path, options:
             if progress is not None:
                 progress("export")
             t = time.perf_counter()
-            write_asset_files(asset, stage.staging_dir)
+            texture_files = TextureFiles()  # each map's PNG made once for the asset folder and the scenes
+            write_asset_files(asset, stage.staging_dir, texture_files=texture_files)
             if skin is not None:
                 stage.path("skin_mask.png").write_bytes(png_bytes(skin_mask_image(skin)))
             carried = [m for m in asset.maps if m != "displacement" or options.subdiv > 0]  # DISPLACEMENT_BAKE_RULE
             scene = asset.select(options.parts)
             export_scenes(scene, [(stage.path(f"face.{fmt}"), fmt) for fmt in options.formats], level=options.subdiv, maps=carried,
-                          blendshapes=options.blendshape_names if options.blendshapes else None)
+                          blendshapes=options.blendshape_names if options.blendshapes else None, texture_files=texture_files)
             timings["export"] = time.perf_counter() - t
             if options.preview:
                 if progress is not None:
