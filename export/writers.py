@@ -1,9 +1,12 @@
 """One entry point for all formats: :func:`export_asset` picks the writer from the format or suffix;
-:func:`export_scenes` writes several formats of one asset, computing the shared scene once."""
+:func:`export_scenes` writes several formats of one asset, computing the shared scene once
+(:func:`scene_writers`: the same as one task per format, for several threads)."""
 
 from __future__ import annotations
 
 import os
+import threading
+from collections.abc import Callable
 from pathlib import Path
 from typing import TYPE_CHECKING, Iterable, Sequence
 
@@ -15,7 +18,7 @@ if TYPE_CHECKING:
     from facegeo.export.scene import SceneContents
     from facegeo.export.textures import TextureFiles
 
-__all__ = ["export_asset", "export_scenes", "FORMATS", "DEFAULT_FORMATS"]
+__all__ = ["export_asset", "export_scenes", "scene_writers", "FORMATS", "DEFAULT_FORMATS"]
 
 #: Formats :func:`export_asset` writes (the file suffixes).
 FORMATS = ("usdz", "usdc", "usda", "glb")
@@ -86,23 +89,51 @@ def export_scenes(
     the displacement (glb always, USD with ``displacement="bake"``), and each texture's PNG file
     once for all of them (``texture_files``, default: made here; give one to share the files
     with an asset folder). Every output is checked before anything is written. Returns the paths
-    written, in order."""
+    written, in order. (:func:`scene_writers` gives the same work as one task per output.)"""
+    return [write() for write in scene_writers(asset, outputs, level=level, displacement=displacement, maps=maps,
+                                               uv_interpolation=uv_interpolation, blendshapes=blendshapes,
+                                               animation=animation, texture_files=texture_files)]
+
+
+def scene_writers(
+    asset: Asset,
+    outputs: Sequence[tuple[str | os.PathLike[str], str | None]],
+    *,
+    level: int = 0,
+    displacement: str = "bake",
+    maps: Iterable[str] | None = None,
+    uv_interpolation: str = "surface",
+    blendshapes: str | None = "arkit",
+    animation: ArkitTake | None = None,
+    texture_files: TextureFiles | None = None,
+) -> list[Callable[[], Path]]:
+    """The work of :func:`export_scenes` (same arguments) as one task per output, each writing
+    its file and returning its path, to run on several threads
+    (:func:`facegeo.concurrency.run_concurrently`): every output is checked here, before any task
+    runs; the first task that needs the shared surfaces computes them while any other that needs
+    them waits, and the texture files are shared through ``texture_files`` (thread-safe)."""
     from facegeo.export.scene import scene_surfaces
     from facegeo.export.textures import TextureFiles
 
     resolved = [_resolve(Path(path), format, displacement) for path, format in outputs]
     maps = None if maps is None else list(maps)
     files = TextureFiles() if texture_files is None else texture_files
-    shared = None
-    written = []
-    for target, fmt in resolved:
+    lock = threading.Lock()
+    computed: list[list[tuple[str, SceneContents]]] = []
+
+    def surfaces() -> list[tuple[str, SceneContents]]:
+        with lock:
+            if not computed:
+                computed.append(scene_surfaces(asset, level=level, maps=maps, uv_interpolation=uv_interpolation, blendshapes=blendshapes))
+            return computed[0]
+
+    def writer(target: Path, fmt: str) -> Callable[[], Path]:
         bakes = fmt == "glb" or displacement == "bake"
-        if bakes and shared is None:
-            shared = scene_surfaces(asset, level=level, maps=maps, uv_interpolation=uv_interpolation, blendshapes=blendshapes)
-        written.append(export_asset(asset, target, format=fmt, level=level, displacement=displacement, maps=maps,
+        return lambda: export_asset(asset, target, format=fmt, level=level, displacement=displacement, maps=maps,
                                     uv_interpolation=uv_interpolation, blendshapes=blendshapes, animation=animation,
-                                    surfaces=shared if bakes else None, texture_files=files))
-    return written
+                                    surfaces=surfaces() if bakes else None, texture_files=files)
+
+    return [writer(target, fmt) for target, fmt in resolved]
 
 
 def _resolve(target: Path, format: str | None, displacement: str) -> tuple[Path, str]:
