@@ -9,8 +9,8 @@ timed against each other on the same asset.
 the skin mask, the asset and the fit. ``time`` runs ``facegeo.jobs.reconstruct_into_folder``
 with ``reconstruct_with_fit`` and ``skin_mask`` replaced by the pickled results: what remains is
 reading the photo, the export and preview stages and the staged commit. One warm-up run, then
-``--repeats`` runs, each printed as a JSON line (``wall`` seconds; the job's ``export`` and
-``preview`` timings). ``--workers``: the export stage's threads (checkouts that have
+``--repeats`` runs, each printed as a JSON line (``wall`` and process ``cpu`` seconds; the job's
+``export`` and ``preview`` timings). ``--workers``: the export stage's threads (checkouts that have
 ``facegeo.concurrency``). The script imports facegeo from wherever Python finds it, so the same
 file times any checkout: alternate the checkouts in one shell loop and compare the ratios
 (RESULTS.md, "Issue 29: export").
@@ -62,10 +62,10 @@ def time_stage(path: Path, repeats: int, workers: int | None) -> None:
     with tempfile.TemporaryDirectory() as tmp:
         reconstruct_into_folder(asset_path("photos/astronaut.png"), Path(tmp) / "warm-up")
         for k in range(repeats):
-            start = time.perf_counter()
+            start, cpu = time.perf_counter(), time.process_time()
             record = reconstruct_into_folder(asset_path("photos/astronaut.png"), Path(tmp) / f"run{k}")
-            print(json.dumps({"wall": time.perf_counter() - start, "export": record.timings.get("export"),
-                              "preview": record.timings.get("preview")}), flush=True)
+            print(json.dumps({"wall": time.perf_counter() - start, "cpu": time.process_time() - cpu,
+                              "export": record.timings.get("export"), "preview": record.timings.get("preview")}), flush=True)
 
 
 def main() -> int:

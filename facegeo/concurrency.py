@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import contextlib
 import sys
+import threading
 from collections.abc import Callable, Iterator, Sequence
 from concurrent.futures import FIRST_EXCEPTION, Future, ThreadPoolExecutor, wait
 from typing import Any
@@ -65,28 +66,52 @@ def run_concurrently(tasks: Sequence[Callable[[], Any]], workers: int = EXPORT_W
     if workers <= 1 or len(tasks) <= 1:
         return [task() for task in tasks]
     with native_threads(1):
+        # The tasks wait at a gate until all are submitted: a worker thread joins the executor's
+        # list only once its start() returns, and an interrupt may come while the main thread
+        # waits in it; with the gate, every thread that may run a task is listed before any does.
+        # After a failure (or an interrupt while submitting) no further task starts.
+        gate, dropped = threading.Event(), threading.Event()
+
+        def gated(task: Callable[[], Any]) -> Callable[[], Any]:
+            def run() -> Any:
+                gate.wait()
+                if dropped.is_set():
+                    return None
+                try:
+                    return task()
+                except BaseException:
+                    dropped.set()
+                    raise
+            return run
+
         executor = ThreadPoolExecutor(max_workers=min(workers, len(tasks)), thread_name_prefix="facegeo-worker")
         futures: list[Future[Any]] = []
-        try:  # an interrupt may come while the first tasks run and the last are being submitted
+        try:
             for task in tasks:
-                futures.append(executor.submit(task))
+                futures.append(executor.submit(gated(task)))
+            gate.set()
             wait(futures, return_when=FIRST_EXCEPTION)
         finally:
-            _finish(executor)
-    failed = next((f for f in futures if not f.cancelled() and f.exception() is not None), None)
+            _finish(executor, futures, dropped, gate)
+    failed = next((f for f in futures if f.done() and not f.cancelled() and f.exception() is not None), None)
     if failed is not None:
         raise failed.exception()  # type: ignore[misc]
     return [f.result() for f in futures]
 
 
-def _finish(executor: ThreadPoolExecutor) -> None:
-    """Drop the tasks not started and wait for the started ones, holding back any exception (a
-    second Ctrl-C) raised in this thread meanwhile until they are done."""
-    executor.shutdown(wait=False, cancel_futures=True)
+def _finish(executor: ThreadPoolExecutor, futures: list[Future[Any]], dropped: threading.Event, gate: threading.Event) -> None:
+    """Let no further task start (``dropped``, then open the ``gate``; normally none is left),
+    drop those queued and wait for the started ones, holding back any exception raised in this
+    thread meanwhile (a second Ctrl-C) until they are done. (It waits for the futures, not the
+    threads: Python 3.11's ``Thread.join`` interrupted by an exception takes the thread for
+    finished, and a second join returns at once.)"""
     held: BaseException | None = None
     while True:
         try:
-            executor.shutdown(wait=True)
+            dropped.set()
+            gate.set()
+            executor.shutdown(wait=False, cancel_futures=True)
+            wait(futures)
             break
         except BaseException as exc:  # noqa: BLE001 - re-raised below, once the workers are done
             held = held or exc
