@@ -41,8 +41,8 @@ import numpy as np
 from facegeo.asset import MAP_CHANNELS, MAP_NAMES, Asset
 from facegeo.blendshapes import Blendshapes
 from facegeo.errors import InputError
-from facegeo.export.textures import decode_map, encode_map
-from facegeo.image_files import png_bytes, read_png
+from facegeo.export.textures import TextureFiles, decode_map
+from facegeo.image_files import read_png_file
 from facegeo.mesh_io import obj_text, read_obj
 from facegeo.staged_output import StagedOutput
 
@@ -64,13 +64,17 @@ def save_asset(asset: Asset, folder: str | os.PathLike[str], *, linear_bits: int
     return Path(folder)
 
 
-def write_asset_files(asset: Asset, folder: str | os.PathLike[str], *, linear_bits: int = 16) -> dict[str, Any]:
+def write_asset_files(asset: Asset, folder: str | os.PathLike[str], *, linear_bits: int = 16,
+                      texture_files: TextureFiles | None = None) -> dict[str, Any]:
     """Write the asset's files into an existing ``folder`` (not atomic: for use inside a
-    :class:`~facegeo.staged_output.StagedOutput`). Returns the ``asset.json`` content."""
+    :class:`~facegeo.staged_output.StagedOutput`). ``texture_files``: the maps' PNG files shared
+    with the scenes written beside the folder (default: made here). Returns the ``asset.json``
+    content."""
     if not isinstance(asset, Asset):
         raise InputError("<asset>", "asset", "a facegeo.asset.Asset", type(asset).__name__)
     asset.validate()  # again: the maps may have been changed since construction
     out = Path(folder)
+    files = TextureFiles() if texture_files is None else texture_files
     doc: dict[str, Any] = {
         "format": ASSET_FORMAT,
         "version": ASSET_VERSION,
@@ -78,13 +82,13 @@ def write_asset_files(asset: Asset, folder: str | os.PathLike[str], *, linear_bi
         "units": "mm",
         "up_axis": "Y",
         "uv_origin": "bottom-left",
-        **_write_surface(asset, out, "", linear_bits),
+        **_write_surface(asset, out, "", linear_bits, files),
     }
     if asset.face_triangles is not None:
         doc["face_triangles"] = _ranges(asset.face_triangles)
     if asset.parts:
         (out / _PARTS_DIR).mkdir(exist_ok=True)
-        doc["parts"] = [{"name": part.name, **_write_surface(part, out, f"{_PARTS_DIR}/{part.name}_", linear_bits)}
+        doc["parts"] = [{"name": part.name, **_write_surface(part, out, f"{_PARTS_DIR}/{part.name}_", linear_bits, files)}
                         for part in asset.parts]
     shaped = [("", asset.blendshapes)] + [(part.name, part.blendshapes) for part in asset.parts]
     shaped = [(surface, shapes) for surface, shapes in shaped if shapes is not None]
@@ -102,7 +106,7 @@ def write_asset_files(asset: Asset, folder: str | os.PathLike[str], *, linear_bi
     return doc
 
 
-def _write_surface(asset: Asset, out: Path, prefix: str, linear_bits: int) -> dict[str, Any]:
+def _write_surface(asset: Asset, out: Path, prefix: str, linear_bits: int, files: TextureFiles) -> dict[str, Any]:
     """Write one surface's mesh and maps as ``<prefix>mesh.obj``, ``<prefix><map>.png``; returns
     its ``mesh``, ``maps`` and ``constants`` records."""
     maps: dict[str, Any] = {}
@@ -110,9 +114,9 @@ def _write_surface(asset: Asset, out: Path, prefix: str, linear_bits: int) -> di
         if name not in asset.maps:
             continue
         bits = 8 if name == "albedo" else linear_bits
-        image, encoding = encode_map(name, asset.maps[name], bits)
+        data, encoding = files.map_png(name, asset.maps[name], bits)
         file = f"{prefix}{name}.png"
-        (out / file).write_bytes(png_bytes(image))
+        (out / file).write_bytes(data)
         maps[name] = {"file": file, **encoding, "shape": list(asset.maps[name].shape)}
     mesh = f"{prefix}{_MESH_FILE}"
     (out / mesh).write_text(obj_text(asset.vertices, asset.triangles, asset.uv, asset.uv_triangles))
@@ -187,8 +191,10 @@ def _ranges(mask: np.ndarray) -> list[list[int]]:
     return edges.reshape(-1, 2).tolist()
 
 
-def load_asset(folder: str | os.PathLike[str]) -> Asset:
-    """Read an asset folder written by :func:`save_asset`.
+def load_asset(folder: str | os.PathLike[str], *, texture_files: TextureFiles | None = None) -> Asset:
+    """Read an asset folder written by :func:`save_asset`. ``texture_files``: offered the map
+    files as they are (:meth:`TextureFiles.add_file`), so that a writer given it embeds a file
+    whose pixels it would encode instead of encoding them again.
 
     Raises:
         InputError: naming the file and field for a missing folder or file, a malformed
@@ -215,8 +221,8 @@ def load_asset(folder: str | os.PathLike[str]) -> Asset:
     for k, rec in enumerate(records):
         if not isinstance(rec, dict) or not isinstance(rec.get("name"), str):
             raise InputError(meta_path, f"parts[{k}]", "a record with a name, mesh, maps and constants")
-        part_surfaces.append((rec["name"], _read_surface(root, meta_path, rec, f"parts[{k}].")))
-    surface = _read_surface(root, meta_path, doc, "")
+        part_surfaces.append((rec["name"], _read_surface(root, meta_path, rec, f"parts[{k}].", texture_files)))
+    surface = _read_surface(root, meta_path, doc, "", texture_files)
     shapes = _read_blendshapes(root, meta_path, doc, {"": len(surface["vertices"]),
                                                       **{name: len(s["vertices"]) for name, s in part_surfaces}})
     parts = [Asset(**s, name=name, blendshapes=shapes.get(name)) for name, s in part_surfaces]
@@ -236,8 +242,10 @@ def load_asset(folder: str | os.PathLike[str]) -> Asset:
     return asset
 
 
-def _read_surface(root: Path, meta_path: Path, doc: dict[str, Any], where: str) -> dict[str, Any]:
-    """Mesh, maps and constants of one record (the asset or one of its parts) as Asset fields."""
+def _read_surface(root: Path, meta_path: Path, doc: dict[str, Any], where: str,
+                  texture_files: TextureFiles | None) -> dict[str, Any]:
+    """Mesh, maps and constants of one record (the asset or one of its parts) as Asset fields;
+    the map files are offered to ``texture_files``."""
     mesh_file = root / str(doc.get("mesh", _MESH_FILE))
     vertices, triangles, uv, uv_triangles = read_obj(mesh_file)
     if uv is None:
@@ -262,7 +270,7 @@ def _read_surface(root: Path, meta_path: Path, doc: dict[str, Any], where: str) 
                 raise InputError(meta_path, f"{field}.{key}", "a finite number", repr(encoding[key]))
         if not file.is_file():
             raise InputError(file, field, "an image file", "no such file")
-        image = read_png(str(file))
+        image, data = read_png_file(file)
         expected_dtype = np.uint8 if encoding["bits"] == 8 else np.uint16
         if image.dtype != expected_dtype:
             raise InputError(file, field, f"a {encoding['bits']}-bit image", f"{image.dtype}")
@@ -272,6 +280,8 @@ def _read_surface(root: Path, meta_path: Path, doc: dict[str, Any], where: str) 
         if "shape" in rec and list(image.shape) != list(rec["shape"]):
             raise InputError(file, field, f"shape {rec['shape']} (as recorded)", str(list(image.shape)))
         maps[name] = decode_map(name, image, encoding)
+        if texture_files is not None:
+            texture_files.add_file(maps[name], image, data)
     constants = doc.get("constants", {}) or {}
     return {"vertices": vertices, "triangles": triangles, "uv": uv, "uv_triangles": uv_triangles,
             "maps": maps, "constants": constants}

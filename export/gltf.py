@@ -67,7 +67,7 @@ from facegeo.export.facevarying import wedges
 from facegeo.export.live_link import ArkitTake
 from facegeo.export.morph_targets import NORMAL_TARGET_MIN, SurfaceTargets
 from facegeo.export.scene import SceneContents, scene_contents, scene_surfaces
-from facegeo.export.textures import DEFAULT_ROUGHNESS, encode_map
+from facegeo.export.textures import DEFAULT_ROUGHNESS, TextureFiles
 from facegeo.image_files import png_bytes, to_uint
 from facegeo.staged_output import atomic_write_bytes
 
@@ -88,13 +88,14 @@ _UNSIGNED_INT = 5125
 
 def write_glb(asset: Asset, path: str | os.PathLike[str], *, level: int = 0, maps: Iterable[str] | None = None,
               uv_interpolation: str = "surface", blendshapes: str | None = "arkit", animation: ArkitTake | None = None,
-              surfaces: list[tuple[str, SceneContents]] | None = None) -> Path:
+              surfaces: list[tuple[str, SceneContents]] | None = None, texture_files: TextureFiles | None = None) -> Path:
     """Write ``asset`` as a ``.glb`` (atomically). ``level``: Loop subdivision levels before
     baking the displacement; ``maps``: the map names to carry (default: all the asset has);
     ``blendshapes``: the morph targets' names, "arkit" or "ict", or None to leave them out;
     ``animation``: a take to animate the face with; ``surfaces``: the asset's
     :func:`facegeo.export.scene.scene_surfaces` with these options, if already computed (shared
-    with another format). Returns the path.
+    with another format); ``texture_files``: the maps' PNG files shared with other outputs
+    (default: made here). Returns the path.
 
     Raises:
         InputError: the suffix is not .glb, bad options, or a map asked for that the asset lacks.
@@ -103,7 +104,7 @@ def write_glb(asset: Asset, path: str | os.PathLike[str], *, level: int = 0, map
     if target.suffix.lower() != ".glb":
         raise InputError(target, "file name", "a .glb suffix (glTF 2.0 binary)", target.suffix or "none")
     data = glb_bytes(asset, level=level, maps=maps, uv_interpolation=uv_interpolation, blendshapes=blendshapes, animation=animation,
-                     surfaces=surfaces)
+                     surfaces=surfaces, texture_files=texture_files)
     target.parent.mkdir(parents=True, exist_ok=True)
     atomic_write_bytes(target, data)
     return target
@@ -111,17 +112,19 @@ def write_glb(asset: Asset, path: str | os.PathLike[str], *, level: int = 0, map
 
 def glb_bytes(asset: Asset, *, level: int = 0, maps: Iterable[str] | None = None, uv_interpolation: str = "surface",
               blendshapes: str | None = "arkit", animation: ArkitTake | None = None,
-              surfaces: list[tuple[str, SceneContents]] | None = None) -> bytes:
+              surfaces: list[tuple[str, SceneContents]] | None = None, texture_files: TextureFiles | None = None) -> bytes:
     """The ``.glb`` file of ``asset`` as bytes (see :func:`write_glb`): the skin is mesh, node
     and material 0; each part follows as its own mesh, node and material (named after it).
     ``blendshapes``: the targets' naming ("arkit", "ict") or None for none (module docstring);
-    ``animation``: a Live Link Face take to animate the face with (needs ``blendshapes``)."""
+    ``animation``: a Live Link Face take to animate the face with (needs ``blendshapes``);
+    ``texture_files``: the maps' PNG files shared with other outputs (default: made here)."""
     import pygltflib as gl
 
     if animation is not None and blendshapes is None:
         raise InputError("<export>", "blendshapes", "a naming (arkit or ict) to animate the face with", "none")
     if surfaces is None:
         surfaces = scene_surfaces(asset, level=level, maps=maps, uv_interpolation=uv_interpolation, blendshapes=blendshapes)
+    files = TextureFiles() if texture_files is None else texture_files
     rig = face_rig(asset) if animation is not None else None
     if rig is not None:  # the eyeballs become the two eyes
         eyes = [(eye.name, scene_contents(eye, blendshapes=blendshapes)) for eye in rig.eyes]
@@ -181,10 +184,10 @@ def glb_bytes(asset: Asset, *, level: int = 0, maps: Iterable[str] | None = None
             out.append(len(doc.accessors) - 1)
         return out
 
-    def texture(name: str, image: np.ndarray) -> int:
+    def texture(name: str, png: bytes) -> int:
         if not doc.samplers:
             doc.samplers.append(gl.Sampler(magFilter=9729, minFilter=9987, wrapS=33071, wrapT=33071))
-        doc.images.append(gl.Image(bufferView=view(png_bytes(image)), mimeType="image/png", name=name))
+        doc.images.append(gl.Image(bufferView=view(png), mimeType="image/png", name=name))
         doc.textures.append(gl.Texture(sampler=0, source=len(doc.images) - 1, name=name))
         return len(doc.textures) - 1
 
@@ -194,7 +197,7 @@ def glb_bytes(asset: Asset, *, level: int = 0, maps: Iterable[str] | None = None
         attributes, indices, vert = _geometry(contents, accessor)
         if material_name not in materials:
             prefix = "" if index == 0 else f"{material_name}_"
-            material = _material(material_name, contents, lambda map_name, image, p=prefix: texture(p + map_name, image))
+            material = _material(material_name, contents, lambda map_name, png, p=prefix: texture(p + map_name, png), files)
             doc.materials.append(material)
             materials[material_name] = len(doc.materials) - 1
             if material.extensions and "KHR_materials_specular" not in extensions:
@@ -336,9 +339,9 @@ def _geometry(contents: SceneContents, accessor: Any) -> tuple[Any, int, np.ndar
     return attributes, indices, vert
 
 
-def _material(name: str, contents: SceneContents, texture: Any) -> Any:
-    """The metallic-roughness material of one surface; ``texture(map name, image)`` adds an image
-    and returns its texture index."""
+def _material(name: str, contents: SceneContents, texture: Any, files: TextureFiles) -> Any:
+    """The metallic-roughness material of one surface; ``texture(map name, PNG bytes)`` adds an
+    image and returns its texture index; the albedo and normal maps' files come from ``files``."""
     import pygltflib as gl
 
     inputs = contents.inputs
@@ -347,8 +350,7 @@ def _material(name: str, contents: SceneContents, texture: Any) -> Any:
     if "albedo" in inputs:
         item = inputs["albedo"]
         if item.is_texture:
-            img, _ = encode_map("albedo", item.texture, 8)
-            pbr.baseColorTexture = gl.TextureInfo(index=texture("albedo", img))
+            pbr.baseColorTexture = gl.TextureInfo(index=texture("albedo", files.map_png("albedo", item.texture, 8)[0]))
             pbr.baseColorFactor = [1.0, 1.0, 1.0, 1.0]
         else:
             pbr.baseColorFactor = [float(x) for x in srgb_to_linear(np.asarray(item.value, np.float32))] + [1.0]
@@ -357,20 +359,20 @@ def _material(name: str, contents: SceneContents, texture: Any) -> Any:
     if "roughness" in inputs and inputs["roughness"].is_texture:
         r = to_uint(inputs["roughness"].texture, 8)
         mr = np.stack([np.full_like(r, 255), r, np.zeros_like(r)], axis=-1)
-        pbr.metallicRoughnessTexture = gl.TextureInfo(index=texture("metallicRoughness", mr))
+        pbr.metallicRoughnessTexture = gl.TextureInfo(index=texture("metallicRoughness", png_bytes(mr)))
         pbr.roughnessFactor = 1.0
     else:
         pbr.roughnessFactor = float(inputs["roughness"].value) if "roughness" in inputs else DEFAULT_ROUGHNESS
     if "normal" in inputs:
-        img, _ = encode_map("normal", inputs["normal"].texture, 8)
-        material.normalTexture = gl.NormalMaterialTexture(index=texture("normal", img), scale=1.0)
+        png, _ = files.map_png("normal", inputs["normal"].texture, 8)
+        material.normalTexture = gl.NormalMaterialTexture(index=texture("normal", png), scale=1.0)
     if "specular" in inputs:
         item = inputs["specular"]
         factor = SPECULAR_F0_SCALE / 0.04  # 2: glTF's F0 is 0.04 × specularColor
         if item.is_texture:
             srgb = to_uint(linear_to_srgb(np.clip(item.texture, 0.0, 1.0)), 8)
             ext = {"specularColorFactor": [factor] * 3,
-                   "specularColorTexture": {"index": texture("specular", np.repeat(srgb[:, :, None], 3, axis=2))}}
+                   "specularColorTexture": {"index": texture("specular", png_bytes(np.repeat(srgb[:, :, None], 3, axis=2)))}}
         else:
             ext = {"specularColorFactor": [factor * float(item.value)] * 3}
         material.extensions = {"KHR_materials_specular": ext}

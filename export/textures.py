@@ -15,10 +15,15 @@ roughness      8/16   linear   the value
 specular       8/16   linear   the value (F0 = 0.08 × value)
 displacement   16     linear   (d − min)/(max − min): scale = max − min mm, offset = min mm
 ============== ====== ======== =====================================================
+
+:class:`TextureFiles` makes the PNG file of each map encoding once per export and shares it
+between the asset folder and every scene format that embeds it.
 """
 
 from __future__ import annotations
 
+import threading
+from concurrent.futures import Future
 from dataclasses import dataclass
 from typing import Any, Iterable
 
@@ -26,7 +31,7 @@ import numpy as np
 
 from facegeo.asset import MAP_CHANNELS, MAP_NAMES, Asset
 from facegeo.errors import InputError
-from facegeo.image_files import to_uint
+from facegeo.image_files import plain_png, png_bytes, to_uint
 
 __all__ = [
     "MaterialInput",
@@ -34,6 +39,7 @@ __all__ = [
     "DEFAULT_ROUGHNESS",
     "encode_map",
     "decode_map",
+    "TextureFiles",
 ]
 
 #: Roughness written when the asset has none (UsdPreviewSurface's default; glTF's is 1.0, so the
@@ -127,3 +133,71 @@ def decode_map(name: str, image: np.ndarray, encoding: dict[str, Any]) -> np.nda
     if name == "normal":
         values = values / np.maximum(np.linalg.norm(values, axis=-1, keepdims=True), 1e-12)
     return values.astype(np.float32)
+
+
+class TextureFiles:
+    """The PNG files of one export's map textures, each made once and shared by every writer given
+    this object (``facegeo reconstruct``: the asset folder, the usdz and the glb all carry the
+    8-bit albedo; both scenes the 8-bit normal map).
+
+    :meth:`map_png` is :func:`encode_map` followed by :func:`facegeo.image_files.png_bytes`,
+    remembered per (map name, bits, map array): the key is the array object itself (kept alive
+    here, so that its ``id`` is not reused), so the maps must not be changed in place while the
+    object is in use: one export.
+    Thread-safe: a writer asking for a file another thread is making waits for it.
+
+    :meth:`add_file` offers a PNG file already on disk (``facegeo export`` reads an asset folder):
+    a map encoded to exactly that file's pixels is given the file's bytes instead of a new
+    encoding, when the file is plain (:func:`facegeo.image_files.plain_png`).
+    """
+
+    def __init__(self) -> None:
+        self._lock = threading.Lock()
+        self._made: dict[tuple[str, int, int], tuple[np.ndarray, Future[tuple[bytes, dict[str, Any]]]]] = {}
+        self._on_disk: dict[int, tuple[np.ndarray, np.ndarray, bytes]] = {}
+        #: PNG encodings made (files taken from disk not counted).
+        self.encoded = 0
+
+    def add_file(self, array: np.ndarray, image: np.ndarray, data: bytes) -> None:
+        """Offer ``data``, a PNG file whose pixels are ``image`` ((H, W[, C]) uint8/uint16 RGB(A),
+        as :func:`facegeo.image_files.read_png_file` gives them), for the map ``array`` decoded
+        from it; ignored unless the file is plain."""
+        if plain_png(data):
+            with self._lock:
+                self._on_disk[id(array)] = (array, image, data)
+
+    def map_png(self, name: str, array: np.ndarray, bits: int) -> tuple[bytes, dict[str, Any]]:
+        """``(PNG bytes, encoding)`` of ``encode_map(name, array, bits)``, made on the first call
+        for this map and encoding and given again to every later one."""
+        key = (name, bits, id(array))
+        with self._lock:
+            entry = self._made.get(key)
+            owner = entry is None
+            if owner:
+                entry = self._made[key] = (array, Future())
+        assert entry is not None
+        if not owner:
+            return entry[1].result()
+        try:
+            image, encoding = encode_map(name, array, bits)
+            data = self._file_on_disk(array, image)
+            if data is None:
+                data = png_bytes(image)
+                with self._lock:
+                    self.encoded += 1
+        except BaseException as exc:
+            entry[1].set_exception(exc)
+            with self._lock:
+                del self._made[key]
+            raise
+        entry[1].set_result((data, encoding))
+        return data, encoding
+
+    def _file_on_disk(self, array: np.ndarray, image: np.ndarray) -> bytes | None:
+        """The bytes of the file offered for ``array`` when its pixels are ``image``, else None."""
+        with self._lock:
+            offered = self._on_disk.get(id(array))
+        if offered is None:
+            return None
+        _, pixels, data = offered
+        return data if pixels.dtype == image.dtype and np.array_equal(pixels, image) else None

@@ -72,7 +72,7 @@ from facegeo.export.animation import EYE_NAMES, HEAD_NAME, rotations, target_wei
 from facegeo.export.live_link import ArkitTake
 from facegeo.export.scene import SceneContents, scene_surfaces
 from facegeo.parts import EYEBALLS_PART, eyeball_centres
-from facegeo.export.textures import DEFAULT_ROUGHNESS, encode_map
+from facegeo.export.textures import DEFAULT_ROUGHNESS, TextureFiles, encode_map
 from facegeo.image_files import png_bytes
 from facegeo.staged_output import WRITE_FAULTS, StagedOutput, atomic_write_bytes
 
@@ -93,6 +93,7 @@ def write_usd(
     blendshapes: str | None = "arkit",
     animation: ArkitTake | None = None,
     surfaces: list[tuple[str, SceneContents]] | None = None,
+    texture_files: TextureFiles | None = None,
 ) -> Path:
     """Write ``asset`` as a USD file; the suffix of ``path`` picks the format (.usda, .usdc,
     .usd = usdc, .usdz). ``level``: Loop subdivision levels; ``displacement``: "bake" or
@@ -101,7 +102,8 @@ def write_usd(
     16-bit); ``blendshapes``: the blend shapes' names, "arkit" or "ict", or None to leave them
     out (a static asset); ``animation``: a take to animate the face with; ``surfaces``: the
     asset's :func:`facegeo.export.scene.scene_surfaces` with these options, if already computed
-    (shared with another format). Returns the path written.
+    (shared with another format); ``texture_files``: the maps' PNG files shared with other
+    outputs (default: made here). Returns the path written.
 
     Raises:
         InputError: unknown suffix, bad options, or a map asked for that the asset lacks.
@@ -122,11 +124,12 @@ def write_usd(
     if animation is not None and contents.targets is None and not any(p.targets for _, p in parts):
         raise InputError(target, "blendshapes", "an asset with blendshapes to animate", "none")
     name = _prim_name(asset.name)
+    files = TextureFiles() if texture_files is None else texture_files
     if suffix == ".usdz":
         try:
             with tempfile.TemporaryDirectory(prefix="facegeo-usdz-") as tmp:
                 root = Path(tmp) / f"{name}.usdc"
-                _write_layer(contents, parts, root, name, "textures", linear_bits, animation)
+                _write_layer(contents, parts, root, name, "textures", linear_bits, files, animation)
                 package = Path(tmp) / f"{name}.usdz"
                 from pxr import Sdf, UsdUtils
 
@@ -144,7 +147,7 @@ def write_usd(
         return target
     with StagedOutput(target.parent) as stage:
         layer = stage.path(target.name)
-        _write_layer(contents, parts, layer, name, f"{target.stem}_textures", linear_bits, animation)
+        _write_layer(contents, parts, layer, name, f"{target.stem}_textures", linear_bits, files, animation)
     return target
 
 
@@ -159,10 +162,11 @@ def _prim_name(name: str) -> str:
 
 
 def _write_layer(contents: SceneContents, parts: list[tuple[str, SceneContents]], layer_path: Path, name: str,
-                 texture_dir: str, linear_bits: int, animation: ArkitTake | None = None) -> None:
+                 texture_dir: str, linear_bits: int, files: TextureFiles, animation: ArkitTake | None = None) -> None:
     """The stage: the skin at ``/<name>/mesh`` with ``/<name>/mtl/material``, and each part at
-    ``/<name>/parts/<part>`` with ``/<name>/mtl/<part>`` (its textures ``<part>_<map>.png``);
-    with blend shapes the root is a ``SkelRoot`` holding the skeleton (:func:`_write_skeleton`)."""
+    ``/<name>/parts/<part>`` with ``/<name>/mtl/<part>`` (its textures ``<part>_<map>.png``, the
+    maps' files from ``files``); with blend shapes the root is a ``SkelRoot`` holding the
+    skeleton (:func:`_write_skeleton`)."""
     from pxr import Kind, Tf, Usd, UsdGeom, UsdSkel
 
     stage = Usd.Stage.CreateNew(str(layer_path))
@@ -174,12 +178,12 @@ def _write_layer(contents: SceneContents, parts: list[tuple[str, SceneContents]]
     Usd.ModelAPI(root.GetPrim()).SetKind(Kind.Tokens.component)
     UsdGeom.Scope.Define(stage, f"/{name}/mtl")
     textures: dict[str, bytes] = {}
-    _write_surface(stage, contents, f"/{name}/mesh", f"/{name}/mtl/material", f"{texture_dir}/", linear_bits, textures)
+    _write_surface(stage, contents, f"/{name}/mesh", f"/{name}/mtl/material", f"{texture_dir}/", linear_bits, files, textures)
     if parts:
         UsdGeom.Xform.Define(stage, f"/{name}/parts")
     for part_name, part in parts:
         _write_surface(stage, part, f"/{name}/parts/{part_name}", f"/{name}/mtl/{part_name}",
-                       f"{texture_dir}/{part_name}_", linear_bits, textures)
+                       f"{texture_dir}/{part_name}_", linear_bits, files, textures)
     if skinned:
         surfaces = [(f"/{name}/mesh", contents)] + [(f"/{name}/parts/{p}", c) for p, c in parts]
         _write_skeleton(stage, f"/{name}", surfaces, animation)
@@ -194,9 +198,9 @@ def _write_layer(contents: SceneContents, parts: list[tuple[str, SceneContents]]
 
 
 def _write_surface(stage: Any, contents: SceneContents, mesh_path: str, material_path: str, texture_prefix: str,
-                   linear_bits: int, textures: dict[str, bytes]) -> None:
+                   linear_bits: int, files: TextureFiles, textures: dict[str, bytes]) -> None:
     """One Mesh prim and its bound UsdPreviewSurface material; texture files go into ``textures``
-    (relative path -> PNG bytes) as ``<texture_prefix><map>.png``."""
+    (relative path -> PNG bytes) as ``<texture_prefix><map>.png``, the maps' from ``files``."""
     from pxr import Gf, Sdf, UsdGeom, UsdShade, Vt
 
     mesh_data = contents.mesh
@@ -224,7 +228,7 @@ def _write_surface(stage: Any, contents: SceneContents, mesh_path: str, material
 
     reader = None
 
-    def texture(map_name: str, image: np.ndarray, colorspace: str, scale: tuple, bias: tuple) -> Any:
+    def texture(map_name: str, png: bytes, colorspace: str, scale: tuple, bias: tuple) -> Any:
         nonlocal reader
         if reader is None:
             reader = UsdShade.Shader.Define(stage, mpath.AppendChild("stReader"))
@@ -232,7 +236,7 @@ def _write_surface(stage: Any, contents: SceneContents, mesh_path: str, material
             reader.CreateInput("varname", Sdf.ValueTypeNames.String).Set("st")
             reader.CreateOutput("result", Sdf.ValueTypeNames.Float2)
         rel = f"{texture_prefix}{map_name}.png"
-        textures[rel] = png_bytes(image)
+        textures[rel] = png
         tex = UsdShade.Shader.Define(stage, mpath.AppendChild(f"{map_name}Texture"))
         tex.CreateIdAttr("UsdUVTexture")
         tex.CreateInput("file", Sdf.ValueTypeNames.Asset).Set(Sdf.AssetPath(f"./{rel}"))
@@ -251,19 +255,16 @@ def _write_surface(stage: Any, contents: SceneContents, mesh_path: str, material
         item = inputs["albedo"]
         diffuse = surface.CreateInput("diffuseColor", Sdf.ValueTypeNames.Color3f)
         if item.is_texture:
-            img, _ = encode_map("albedo", item.texture, 8)
-            tex = texture("albedo", img, "sRGB", (1.0, 1.0, 1.0, 1.0), (0.0, 0.0, 0.0, 0.0))
+            tex = texture("albedo", files.map_png("albedo", item.texture, 8)[0], "sRGB", (1.0, 1.0, 1.0, 1.0), (0.0, 0.0, 0.0, 0.0))
             diffuse.ConnectToSource(tex.CreateOutput("rgb", Sdf.ValueTypeNames.Float3))
         else:
             diffuse.Set(Gf.Vec3f(*map(float, srgb_to_linear(np.asarray(item.value, dtype=np.float32)))))
     if "normal" in inputs:  # material_inputs only keeps a normal map that changes something
-        img, _ = encode_map("normal", inputs["normal"].texture, linear_bits)
-        tex = texture("normal", img, "raw", (2.0, 2.0, 2.0, 1.0), (-1.0, -1.0, -1.0, 0.0))
+        tex = texture("normal", files.map_png("normal", inputs["normal"].texture, linear_bits)[0], "raw", (2.0, 2.0, 2.0, 1.0), (-1.0, -1.0, -1.0, 0.0))
         surface.CreateInput("normal", Sdf.ValueTypeNames.Normal3f).ConnectToSource(tex.CreateOutput("rgb", Sdf.ValueTypeNames.Float3))
     rough = surface.CreateInput("roughness", Sdf.ValueTypeNames.Float)
     if "roughness" in inputs and inputs["roughness"].is_texture:
-        img, _ = encode_map("roughness", inputs["roughness"].texture, linear_bits)
-        tex = texture("roughness", img, "raw", (1.0, 1.0, 1.0, 1.0), (0.0, 0.0, 0.0, 0.0))
+        tex = texture("roughness", files.map_png("roughness", inputs["roughness"].texture, linear_bits)[0], "raw", (1.0, 1.0, 1.0, 1.0), (0.0, 0.0, 0.0, 0.0))
         rough.ConnectToSource(tex.CreateOutput("r", Sdf.ValueTypeNames.Float))
     else:
         rough.Set(float(inputs["roughness"].value) if "roughness" in inputs else DEFAULT_ROUGHNESS)
@@ -274,7 +275,7 @@ def _write_surface(stage: Any, contents: SceneContents, mesh_path: str, material
         if item.is_texture:
             img, _ = encode_map("specular", np.repeat(item.texture[:, :, None], 3, axis=2), linear_bits)
             k = SPECULAR_F0_SCALE
-            tex = texture("specular", img, "raw", (k, k, k, 1.0), (0.0, 0.0, 0.0, 0.0))
+            tex = texture("specular", png_bytes(img), "raw", (k, k, k, 1.0), (0.0, 0.0, 0.0, 0.0))
             spec.ConnectToSource(tex.CreateOutput("rgb", Sdf.ValueTypeNames.Float3))
         else:
             f0 = SPECULAR_F0_SCALE * float(item.value)
@@ -283,9 +284,9 @@ def _write_surface(stage: Any, contents: SceneContents, mesh_path: str, material
         item = inputs["displacement"]
         disp = surface.CreateInput("displacement", Sdf.ValueTypeNames.Float)
         if item.is_texture:
-            img, enc = encode_map("displacement", item.texture, 16)
+            png, enc = files.map_png("displacement", item.texture, 16)
             s, o = float(enc["scale"]), float(enc["offset"])
-            tex = texture("displacement", img, "raw", (s, s, s, 1.0), (o, o, o, 0.0))
+            tex = texture("displacement", png, "raw", (s, s, s, 1.0), (o, o, o, 0.0))
             disp.ConnectToSource(tex.CreateOutput("r", Sdf.ValueTypeNames.Float))
         else:
             disp.Set(float(item.value))

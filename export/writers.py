@@ -1,9 +1,12 @@
 """One entry point for all formats: :func:`export_asset` picks the writer from the format or suffix;
-:func:`export_scenes` writes several formats of one asset, computing the shared scene once."""
+:func:`export_scenes` writes several formats of one asset, computing the shared scene once
+(:func:`scene_writers`: the same as one task per format, for several threads)."""
 
 from __future__ import annotations
 
 import os
+import threading
+from collections.abc import Callable
 from pathlib import Path
 from typing import TYPE_CHECKING, Iterable, Sequence
 
@@ -13,8 +16,9 @@ from facegeo.errors import InputError
 if TYPE_CHECKING:
     from facegeo.export.live_link import ArkitTake
     from facegeo.export.scene import SceneContents
+    from facegeo.export.textures import TextureFiles
 
-__all__ = ["export_asset", "export_scenes", "FORMATS", "DEFAULT_FORMATS"]
+__all__ = ["export_asset", "export_scenes", "scene_writers", "FORMATS", "DEFAULT_FORMATS"]
 
 #: Formats :func:`export_asset` writes (the file suffixes).
 FORMATS = ("usdz", "usdc", "usda", "glb")
@@ -34,6 +38,7 @@ def export_asset(
     blendshapes: str | None = "arkit",
     animation: ArkitTake | None = None,
     surfaces: list[tuple[str, SceneContents]] | None = None,
+    texture_files: TextureFiles | None = None,
 ) -> Path:
     """Write ``asset`` to ``path`` as USD (usdz, usdc, usda) or glTF binary (glb).
 
@@ -46,7 +51,9 @@ def export_asset(
     ``animation``: a Live Link Face take (:func:`facegeo.export.live_link.read_live_link_csv`)
     to animate the face with; ``surfaces``: the asset's
     :func:`facegeo.export.scene.scene_surfaces` with these options, if already computed
-    (:func:`export_scenes` shares them between formats). Returns the path written.
+    (:func:`export_scenes` shares them between formats); ``texture_files``: the maps' PNG files
+    shared with other outputs (:class:`facegeo.export.textures.TextureFiles`; default: made by
+    the writer). Returns the path written.
 
     Raises:
         InputError: unknown format, a suffix that contradicts ``format``, glb with
@@ -57,11 +64,11 @@ def export_asset(
         from facegeo.export.gltf import write_glb
 
         return write_glb(asset, target, level=level, maps=maps, uv_interpolation=uv_interpolation, blendshapes=blendshapes,
-                         animation=animation, surfaces=surfaces)
+                         animation=animation, surfaces=surfaces, texture_files=texture_files)
     from facegeo.export.usd import write_usd
 
     return write_usd(asset, target, level=level, displacement=displacement, maps=maps, uv_interpolation=uv_interpolation,
-                     blendshapes=blendshapes, animation=animation, surfaces=surfaces)
+                     blendshapes=blendshapes, animation=animation, surfaces=surfaces, texture_files=texture_files)
 
 
 def export_scenes(
@@ -74,26 +81,59 @@ def export_scenes(
     uv_interpolation: str = "surface",
     blendshapes: str | None = "arkit",
     animation: ArkitTake | None = None,
+    texture_files: TextureFiles | None = None,
 ) -> list[Path]:
     """:func:`export_asset` for several ``(path, format)`` outputs of one asset (format None: the
     suffix's), with the same options: the scene's geometry, materials and blendshape targets
     (:func:`facegeo.export.scene.scene_surfaces`) are computed once for every output that bakes
-    the displacement (glb always, USD with ``displacement="bake"``). Every output is checked
-    before anything is written. Returns the paths written, in order."""
+    the displacement (glb always, USD with ``displacement="bake"``), and each texture's PNG file
+    once for all of them (``texture_files``, default: made here; give one to share the files
+    with an asset folder). Every output is checked before anything is written. Returns the paths
+    written, in order. (:func:`scene_writers` gives the same work as one task per output.)"""
+    return [write() for write in scene_writers(asset, outputs, level=level, displacement=displacement, maps=maps,
+                                               uv_interpolation=uv_interpolation, blendshapes=blendshapes,
+                                               animation=animation, texture_files=texture_files)]
+
+
+def scene_writers(
+    asset: Asset,
+    outputs: Sequence[tuple[str | os.PathLike[str], str | None]],
+    *,
+    level: int = 0,
+    displacement: str = "bake",
+    maps: Iterable[str] | None = None,
+    uv_interpolation: str = "surface",
+    blendshapes: str | None = "arkit",
+    animation: ArkitTake | None = None,
+    texture_files: TextureFiles | None = None,
+) -> list[Callable[[], Path]]:
+    """The work of :func:`export_scenes` (same arguments) as one task per output, each writing
+    its file and returning its path, to run on several threads
+    (:func:`facegeo.concurrency.run_concurrently`): every output is checked here, before any task
+    runs; the first task that needs the shared surfaces computes them while any other that needs
+    them waits, and the texture files are shared through ``texture_files`` (thread-safe)."""
     from facegeo.export.scene import scene_surfaces
+    from facegeo.export.textures import TextureFiles
 
     resolved = [_resolve(Path(path), format, displacement) for path, format in outputs]
     maps = None if maps is None else list(maps)
-    shared = None
-    written = []
-    for target, fmt in resolved:
+    files = TextureFiles() if texture_files is None else texture_files
+    lock = threading.Lock()
+    computed: list[list[tuple[str, SceneContents]]] = []
+
+    def surfaces() -> list[tuple[str, SceneContents]]:
+        with lock:
+            if not computed:
+                computed.append(scene_surfaces(asset, level=level, maps=maps, uv_interpolation=uv_interpolation, blendshapes=blendshapes))
+            return computed[0]
+
+    def writer(target: Path, fmt: str) -> Callable[[], Path]:
         bakes = fmt == "glb" or displacement == "bake"
-        if bakes and shared is None:
-            shared = scene_surfaces(asset, level=level, maps=maps, uv_interpolation=uv_interpolation, blendshapes=blendshapes)
-        written.append(export_asset(asset, target, format=fmt, level=level, displacement=displacement, maps=maps,
+        return lambda: export_asset(asset, target, format=fmt, level=level, displacement=displacement, maps=maps,
                                     uv_interpolation=uv_interpolation, blendshapes=blendshapes, animation=animation,
-                                    surfaces=shared if bakes else None))
-    return written
+                                    surfaces=surfaces() if bakes else None, texture_files=files)
+
+    return [writer(target, fmt) for target, fmt in resolved]
 
 
 def _resolve(target: Path, format: str | None, displacement: str) -> tuple[Path, str]:

@@ -130,8 +130,9 @@ class ReconstructOptions(FitOptions):
 
 @dataclass
 class JobRecord:
-    """What one job did. ``timings`` in seconds by stage; ``landmark_rms_percent_iod`` in % of the
-    inter-ocular distance; ``files``: the names written into ``output``."""
+    """What one job did. ``timings`` in seconds by stage (``export`` and ``preview`` overlap:
+    :func:`reconstruct_into_folder`); ``landmark_rms_percent_iod`` in % of the inter-ocular
+    distance; ``files``: the names written into ``output``."""
 
     photo: str
     output: str
@@ -224,10 +225,16 @@ def reconstruct_into_folder(photo_path: str | Path, output: str | Path, options:
     photo beside the asset from the front, three-quarter and profile, textured and as clay).
     Displacement: :data:`DISPLACEMENT_BAKE_RULE`.
 
+    The export and preview stages write their files side by side on
+    :data:`facegeo.concurrency.EXPORT_WORKERS` threads (:func:`facegeo.concurrency.run_concurrently`:
+    the scenes, the asset folder, the preview, the skin mask; each map's PNG made once for all of
+    them, :class:`facegeo.export.textures.TextureFiles`); the record's ``export`` time ends when
+    the last export file is written, ``preview`` is the preview's own time, and the two overlap.
+
     Args:
         options: default ``ReconstructOptions()``.
         progress: called with each stage's name as it starts (the pipeline's ``STAGES``, then
-            ``export`` and ``preview``).
+            ``export`` and ``preview``, which start together).
         fork_fit: compute the skin mask and the fit in a forked child while this process imports
             the texture stages (:mod:`facegeo.forked_call`; the single-photo command's choice),
             where that helps (:func:`facegeo.forked_call.can_fork`, the default backend, no
@@ -250,8 +257,10 @@ def reconstruct_into_folder(photo_path: str | Path, output: str | Path, options:
         pending = (fork_call(_fit_and_skin, photo, str(photo_path), options)
                    if fork_fit and backend == "default" and predictor is None and can_fork() else None)
         try:  # the texture stages' imports (torch) while the child fits
+            from facegeo.concurrency import EXPORT_WORKERS, run_concurrently
             from facegeo.export.asset_io import write_asset_files
-            from facegeo.export.writers import export_scenes
+            from facegeo.export.textures import TextureFiles
+            from facegeo.export.writers import scene_writers
             from facegeo.image_files import png_bytes
             from facegeo.pipeline import reconstruct_with_fit
             from facegeo.skin_mask import skin_mask_image
@@ -275,21 +284,37 @@ def reconstruct_into_folder(photo_path: str | Path, output: str | Path, options:
         with StagedOutput(output, replace=True) as stage:
             if progress is not None:
                 progress("export")
-            t = time.perf_counter()
-            write_asset_files(asset, stage.staging_dir)
-            if skin is not None:
-                stage.path("skin_mask.png").write_bytes(png_bytes(skin_mask_image(skin)))
-            carried = [m for m in asset.maps if m != "displacement" or options.subdiv > 0]  # DISPLACEMENT_BAKE_RULE
-            scene = asset.select(options.parts)
-            export_scenes(scene, [(stage.path(f"face.{fmt}"), fmt) for fmt in options.formats], level=options.subdiv, maps=carried,
-                          blendshapes=options.blendshape_names if options.blendshapes else None)
-            timings["export"] = time.perf_counter() - t
-            if options.preview:
-                if progress is not None:
+                if options.preview:
                     progress("preview")
-                t = time.perf_counter()
-                stage.path("preview.png").write_bytes(png_bytes(relit_preview(photo.image, asset, result)))
-                timings["preview"] = time.perf_counter() - t
+            t = time.perf_counter()
+            spans: dict[str, tuple[float, float]] = {}
+
+            def timed(name: str, work: Callable[[], Any]) -> Callable[[], None]:
+                def task() -> None:
+                    begin = time.perf_counter()
+                    work()
+                    spans[name] = (begin, time.perf_counter())
+                return task
+
+            texture_files = TextureFiles()  # each map's PNG made once for the asset folder and the scenes
+            carried = [m for m in asset.maps if m != "displacement" or options.subdiv > 0]  # DISPLACEMENT_BAKE_RULE
+            scenes = scene_writers(asset.select(options.parts), [(stage.path(f"face.{fmt}"), fmt) for fmt in options.formats],
+                                   level=options.subdiv, maps=carried, blendshapes=options.blendshape_names if options.blendshapes else None,
+                                   texture_files=texture_files)
+            # the order measured best (RESULTS.md, "Issue 29: export"): the first scene (it computes the
+            # surfaces the others share) beside the asset folder, then the other scenes, the preview
+            tasks = [timed(f"scene {k}", write) for k, write in enumerate(scenes)]
+            tasks.insert(1, timed("asset", lambda: write_asset_files(asset, stage.staging_dir, texture_files=texture_files)))
+            if options.preview:
+                preview = stage.path("preview.png")
+                tasks.append(timed("preview", lambda: preview.write_bytes(png_bytes(relit_preview(photo.image, asset, result)))))
+            if skin is not None:
+                mask = stage.path("skin_mask.png")
+                tasks.append(timed("skin mask", lambda: mask.write_bytes(png_bytes(skin_mask_image(skin)))))
+            run_concurrently(tasks, EXPORT_WORKERS)
+            timings["export"] = max(end for name, (_, end) in spans.items() if name != "preview") - t
+            if options.preview:
+                timings["preview"] = spans["preview"][1] - spans["preview"][0]
             timings["total"] = time.perf_counter() - start
             record = result.to_dict()
             record["timings_s"] = {**record["timings_s"], "stages": timings}

@@ -40,14 +40,14 @@ def obj_text(vertices: np.ndarray, triangles: np.ndarray | None = None, uv: np.n
     out = io.StringIO()
     if comment:
         out.write(OBJ_COMMENT)
-    np.savetxt(out, vertices, fmt=f"v %.{digits}f %.{digits}f %.{digits}f")
+    out.write(_lines(f"v %.{digits}f %.{digits}f %.{digits}f", vertices))
     if triangles is None:
         return out.getvalue()
     t = np.asarray(triangles, dtype=np.int64) + 1
     if uv is not None and uv_triangles is not None:
-        np.savetxt(out, np.asarray(uv, dtype=np.float64), fmt="vt %.6f %.6f")
+        out.write(_lines("vt %.6f %.6f", np.asarray(uv, dtype=np.float64)))
         faces = np.stack([t, np.asarray(uv_triangles, dtype=np.int64) + 1], axis=-1).reshape(-1, 6)
-        np.savetxt(out, faces, fmt="f %d/%d %d/%d %d/%d")
+        out.write(_lines("f %d/%d %d/%d %d/%d", faces))
     elif quads:
         i = 0
         while i < len(t):
@@ -59,8 +59,14 @@ def obj_text(vertices: np.ndarray, triangles: np.ndarray | None = None, uv: np.n
             out.write(f"f {a} {b} {c}\n")
             i += 1
     else:
-        np.savetxt(out, t, fmt="f %d %d %d")
+        out.write(_lines("f %d %d %d", t))
     return out.getvalue()
+
+
+def _lines(fmt: str, rows: np.ndarray) -> str:
+    """``fmt % row`` for each row of a 2-D array, one line each: the text ``np.savetxt`` writes,
+    formatted in one ``%`` operation (about 4x faster than its row-by-row loop)."""
+    return ((fmt + "\n") * len(rows)) % tuple(rows.ravel().tolist())
 
 
 def obj_records(path: str | os.PathLike[str], what: str = "mesh") -> dict[str, list]:

@@ -10,7 +10,7 @@ import pytest
 
 from facegeo.errors import InputError
 from facegeo.export.asset_io import load_asset, save_asset
-from facegeo.mesh_io import read_obj
+from facegeo.mesh_io import OBJ_COMMENT, obj_text, read_obj
 from facegeo.commands.arguments import add_commands
 from facegeo.commands.export import COMMANDS
 from facegeo.image_files import read_png
@@ -76,6 +76,28 @@ def test_save_is_atomic_and_metadata_must_be_json(tmp_path):
     with pytest.raises(InputError, match="metadata"):
         save_asset(a, tmp_path / "out")
     assert not (tmp_path / "out").exists() and list(tmp_path.iterdir()) == []
+
+
+def test_obj_text_is_what_savetxt_writes(model):
+    """obj_text formats all rows in one operation; its text is byte for byte np.savetxt's (the
+    model's mesh with its UVs, signed zeros, a point set, plain triangles)."""
+    import io
+
+    def savetxt(*blocks):
+        out = io.StringIO()
+        out.write(OBJ_COMMENT)
+        for array, fmt in blocks:
+            np.savetxt(out, array, fmt=fmt)
+        return out.getvalue()
+
+    v = model.mean_shape.astype(np.float64)
+    v[:3] = [[-0.0, -1e-9, 0.0], [-2.4e-6, 1e6, -123.456785], [0.5, -0.5, 2.5]]
+    t, uv, ut = model.triangles, model.uv, model.uv_triangles
+    faces = np.stack([t + 1, ut + 1], axis=-1).reshape(-1, 6)
+    assert obj_text(v, t, uv, ut) == savetxt((v, "v %.5f %.5f %.5f"), (uv, "vt %.6f %.6f"), (faces, "f %d/%d %d/%d %d/%d"))
+    assert obj_text(v, t, digits=3) == savetxt((v, "v %.3f %.3f %.3f"), (t + 1, "f %d %d %d"))
+    assert obj_text(v[:0]) == obj_text(np.zeros((0, 3))) == OBJ_COMMENT
+    assert obj_text(v) == savetxt((v, "v %.5f %.5f %.5f"))
 
 
 def test_read_obj_variants(tmp_path):

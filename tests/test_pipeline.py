@@ -170,3 +170,88 @@ def test_a_second_backend_needs_only_the_protocol(small_asset):
     assert set(asset.metadata["texture_report"]) == {"inpaint"} and asset.metadata["texture_report"]["inpaint"]["texels"] > 0
     assert asset.constants == {"roughness": 0.3, "specular": 0.7} and set(asset.maps) == {"albedo"}
     assert asset.maps["albedo"].shape == (128, 128, 3) and np.all(asset.maps["albedo"] == 0.5)
+
+
+# ------------------------------------------------------------------ the export stage's two workers
+@pytest.fixture
+def fitted_job(monkeypatch, small_asset):
+    """reconstruct_into_folder with the pipeline's result given (the module's small asset)."""
+    _, _, asset, fit = small_asset
+    monkeypatch.setattr("facegeo.pipeline.reconstruct_with_fit", lambda *args, **kwargs: (asset, fit))
+
+
+def _written(folder) -> dict[str, bytes]:
+    """Every file under ``folder`` (fit.json without its timings; a usdz's members, its zip
+    entries carrying their time)."""
+    import io
+    import zipfile
+
+    out = {}
+    for path in sorted(p for p in folder.rglob("*") if p.is_file()):
+        rel = path.relative_to(folder).as_posix()
+        if rel == "fit.json":
+            record = json.loads(path.read_text())
+            del record["timings_s"]
+            out[rel] = json.dumps(record).encode()
+        elif rel.endswith(".usdz"):
+            with zipfile.ZipFile(io.BytesIO(path.read_bytes())) as package:
+                out.update({f"{rel}/{name}": package.read(name) for name in package.namelist()})
+        else:
+            out[rel] = path.read_bytes()
+    return out
+
+
+def test_two_export_workers_write_what_one_writes(tmp_path, monkeypatch, fitted_job):
+    from facegeo.jobs import ReconstructOptions, reconstruct_into_folder
+
+    options = ReconstructOptions(formats=("usdz", "glb", "usda"))
+    reconstruct_into_folder(PHOTO, tmp_path / "two", options)
+    monkeypatch.setattr("facegeo.concurrency.EXPORT_WORKERS", 1)
+    record = reconstruct_into_folder(PHOTO, tmp_path / "one", options)
+    two, one = _written(tmp_path / "two"), _written(tmp_path / "one")
+    assert two.keys() == one.keys() and all(two[k] == one[k] for k in one), [k for k in one if two.get(k) != one[k]]
+    assert {"face.usdz/face.usdc", "face.glb", "face.usda", "face_textures/albedo.png", "albedo.png", "preview.png"} <= one.keys()
+    assert {"export", "preview", "total"} <= set(record.timings)
+
+
+def test_a_failing_export_task_rolls_back_after_the_others_finish(tmp_path, monkeypatch, fitted_job):
+    import facegeo.export.asset_io as asset_io
+    from facegeo.jobs import reconstruct_into_folder
+
+    def broken(*args, **kwargs):
+        raise InputError("<asset>", "metadata", "something writable", "a broken writer")
+
+    monkeypatch.setattr(asset_io, "write_asset_files", broken)
+    with pytest.raises(InputError, match="a broken writer"):
+        reconstruct_into_folder(PHOTO, tmp_path / "out")
+    assert sorted(p.name for p in tmp_path.iterdir()) == []  # no folder, no temporaries, no lock file
+
+
+@pytest.mark.parametrize("signum", ["SIGINT", "SIGTERM"])
+def test_a_signal_during_the_export_leaves_nothing(tmp_path, capsys, monkeypatch, fitted_job, signum):
+    """The facegeo command turns the signal into an exception in the main thread, which waits for
+    the two export workers: the folder is rolled back once the one still writing is done."""
+    import os
+    import signal
+    import time
+
+    import facegeo.export.asset_io as asset_io
+
+    real = asset_io.write_asset_files
+    finished = []
+
+    def write_then_signal(asset, folder, **kwargs):
+        doc = real(asset, folder, **kwargs)
+        os.kill(os.getpid(), getattr(signal, signum))  # handled in the main thread, not this worker
+        time.sleep(0.5)
+        (folder / "late.txt").write_text("still writing after the signal")
+        finished.append(True)
+        return doc
+
+    monkeypatch.setattr(asset_io, "write_asset_files", write_then_signal)
+    code = main(["reconstruct", str(PHOTO), "-o", str(tmp_path / "out")])
+    _, err = capsys.readouterr()
+    assert code == 128 + getattr(signal, signum) and "interrupted" in err and err.count("\n") == 1
+    assert finished == [True]
+    time.sleep(0.2)
+    assert sorted(p.name for p in tmp_path.iterdir()) == []

@@ -45,6 +45,7 @@ def _run(args: argparse.Namespace) -> None:
 
     from facegeo.asset import MAP_NAMES
     from facegeo.export.asset_io import load_asset
+    from facegeo.export.textures import TextureFiles
     from facegeo.export.writers import FORMATS, export_scenes
     from facegeo.staged_output import StagedOutput, check_output_location, locked_output
 
@@ -71,10 +72,12 @@ def _run(args: argparse.Namespace) -> None:
     with contextlib.ExitStack() as locks:
         for path, _ in sorted(targets):
             locks.enter_context(locked_output(path, "output file"))
-        asset = load_asset(args.asset_dir).select(args.parts)
+        texture_files = TextureFiles()  # the folder's PNGs, embedded as they are where the scenes want their pixels
+        asset = load_asset(args.asset_dir, texture_files=texture_files).select(args.parts)
         with StagedOutput(out.parent) as stage:
             export_scenes(asset, [(stage.path(path.name), fmt) for path, fmt in targets], level=args.subdiv,
-                          displacement=args.displacement, maps=maps, blendshapes=None if args.blendshapes == "none" else args.blendshape_names)
+                          displacement=args.displacement, maps=maps, blendshapes=None if args.blendshapes == "none" else args.blendshape_names,
+                          texture_files=texture_files)
     seconds = time.perf_counter() - start
     print(f"wrote {', '.join(str(path) for path, _ in targets)} from {args.asset_dir} "
           f"(parts {args.parts}, subdivision level {args.subdiv}, {seconds:.2f} s)")

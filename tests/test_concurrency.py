@@ -1,0 +1,125 @@
+"""facegeo.concurrency: tasks on two threads, native pools sized together, failures and
+interrupts that wait for the started tasks (so a StagedOutput rolls back with no writer left)."""
+
+from __future__ import annotations
+
+import os
+import signal
+import threading
+import time
+from pathlib import Path
+
+import cv2
+import pytest
+import torch
+from threadpoolctl import threadpool_info
+
+from facegeo.concurrency import native_threads, run_concurrently
+from facegeo.staged_output import TEMP_PREFIX, StagedOutput
+
+
+def _blas_threads() -> list[int]:
+    return [pool["num_threads"] for pool in threadpool_info() if pool["user_api"] == "blas"]
+
+
+def test_results_in_order_on_two_threads():
+    barrier = threading.Barrier(2, timeout=10)  # both tasks must be running at once to pass it
+
+    def task(k: int):
+        def run():
+            barrier.wait()
+            return k, threading.current_thread().name
+        return run
+
+    results = run_concurrently([task(0), task(1)], workers=2)
+    assert [k for k, _ in results] == [0, 1] and len({name for _, name in results}) == 2
+    assert run_concurrently([threading.current_thread], workers=2) == [threading.current_thread()]  # one task: here
+    assert run_concurrently([lambda: 1, lambda: 2], workers=1) == [1, 2]
+
+
+def test_native_pools_hold_one_thread_each_while_two_workers_run_and_are_restored():
+    before = (torch.get_num_threads(), cv2.getNumThreads(), _blas_threads())
+    torch.set_num_threads(2)
+    cv2.setNumThreads(2)
+    try:
+        seen = run_concurrently([lambda: (torch.get_num_threads(), cv2.getNumThreads(), _blas_threads())] * 2, workers=2)
+        assert seen == [(1, 1, [1] * len(before[2]))] * 2
+        assert (torch.get_num_threads(), cv2.getNumThreads()) == (2, 2) and _blas_threads() == before[2]
+        with native_threads(1):
+            assert (torch.get_num_threads(), cv2.getNumThreads()) == (1, 1)
+        assert (torch.get_num_threads(), cv2.getNumThreads()) == (2, 2)
+    finally:
+        torch.set_num_threads(before[0])
+        cv2.setNumThreads(before[1])
+
+
+def test_a_failure_waits_for_the_started_task_and_drops_the_rest():
+    finished, started = [], []
+    slow_started = threading.Event()
+
+    def slow():
+        started.append("slow")
+        slow_started.set()
+        time.sleep(0.3)
+        finished.append("slow")
+
+    def fail():
+        started.append("fail")
+        assert slow_started.wait(10)
+        raise ValueError("writer failed")
+
+    def never():
+        started.append("never")
+
+    with pytest.raises(ValueError, match="writer failed"):
+        run_concurrently([slow, fail, never], workers=2)
+    assert finished == ["slow"] and "never" not in started
+
+
+def _leftovers(folder: Path) -> list[str]:
+    return sorted(p.name for p in folder.rglob(f"{TEMP_PREFIX}*"))
+
+
+def test_a_failing_writer_rolls_back_the_staged_output(tmp_path):
+    out = tmp_path / "out"
+
+    def fail():
+        raise OSError("disk on fire")
+
+    with pytest.raises(OSError, match="disk on fire"), StagedOutput(out, replace=True) as stage:
+        target = stage.path("slow.txt")
+        run_concurrently([lambda: (time.sleep(0.2), target.write_text("done")), fail], workers=2)
+    assert not out.exists() and _leftovers(tmp_path) == []
+
+
+@pytest.mark.parametrize("interrupts", [1, 2], ids=["ctrl-c", "ctrl-c twice"])
+def test_ctrl_c_while_workers_write_leaves_nothing(tmp_path, interrupts):
+    """SIGINT (KeyboardInterrupt in the waiting main thread), as Ctrl-C gives it: the staged output is
+    rolled back only once the workers are done, so none writes into the removed staging folder;
+    a second Ctrl-C meanwhile is held back until then."""
+    out = tmp_path / "out"
+    started, done = [], []
+    handler = signal.signal(signal.SIGINT, signal.default_int_handler)  # Ctrl-C's KeyboardInterrupt, whatever ran before
+
+    def writer(name: str, stage: StagedOutput):
+        def run():
+            started.append(name)
+            stage.path(f"{name}-1.bin").write_bytes(b"x")
+            if name == "a":
+                for _ in range(interrupts):
+                    os.kill(os.getpid(), signal.SIGINT)  # Ctrl-C: handled in the main thread, which waits for us
+                    time.sleep(0.1)
+            time.sleep(0.4)
+            stage.path(f"{name}-2.bin").write_bytes(b"y")  # still writing after the interrupt
+            done.append(name)
+        return run
+
+    try:
+        with pytest.raises(KeyboardInterrupt), StagedOutput(out, replace=True) as stage:
+            run_concurrently([writer("a", stage), writer("b", stage)], workers=2)
+    finally:
+        signal.signal(signal.SIGINT, handler)
+    # every writer that had started (b may not have, then it never does) finished before the rollback
+    assert "a" in done and sorted(done) == sorted(started)
+    time.sleep(0.2)
+    assert not out.exists() and _leftovers(tmp_path) == [] and sorted(p.name for p in tmp_path.iterdir()) == []
