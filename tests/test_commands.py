@@ -122,3 +122,25 @@ def test_a_fit_imports_nothing_heavy(tmp_path):
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
     assert out.strip() == "[]"
     assert (tmp_path / "out" / "fit.json").is_file()
+
+
+RUN = """
+import sys, threading, time, pathlib
+import facegeo.cli as cli
+flag = pathlib.Path(sys.argv[2])
+def main():
+    if sys.argv[1] == "thread":  # a non-daemon thread still working: the process must wait for it
+        threading.Thread(target=lambda: (time.sleep(0.3), flag.write_text("done"))).start()
+    print("unflushed", end="")
+    return 3
+cli.main = main
+cli.run()
+"""
+
+
+@pytest.mark.parametrize("case", ["plain", "thread"])
+def test_the_console_entry_flushes_keeps_the_status_and_waits_for_working_threads(tmp_path, case):
+    flag = tmp_path / "flag"
+    done = subprocess.run([sys.executable, "-c", RUN, case, str(flag)], capture_output=True, text=True, timeout=60)
+    assert (done.returncode, done.stdout) == (3, "unflushed")
+    assert flag.exists() == (case == "thread")
