@@ -32,7 +32,7 @@ from facegeo.errors import InputError
 from facegeo.uv._triangles import triangle_fragments
 from facegeo.uv.texels import uv_to_texel
 
-__all__ = ["UVRaster", "rasterize_uv", "default_padding", "clear_raster_cache", "remember_raster"]
+__all__ = ["UVRaster", "rasterize_uv", "default_padding", "clear_raster_cache"]
 
 #: Largest supported map side (flat texel indices are int32).
 MAX_SIZE = 16384
@@ -79,10 +79,6 @@ class UVRaster:
         self.texel_barycentric = _frozen(texel_barycentric.astype(np.float32, copy=False))
         self.texel_inside = _frozen(texel_inside.astype(bool, copy=False))
         self.key = key
-
-    def __setstate__(self, state: dict) -> None:
-        """Unpickled (a forked fit sends its raster back) with its arrays read-only, as made."""
-        self.__dict__.update({k: _frozen(v) if isinstance(v, np.ndarray) else v for k, v in state.items()})
 
     def __repr__(self) -> str:
         n_in = int(self.texel_inside.sum())
@@ -191,19 +187,12 @@ def rasterize_uv(model_or_uv, uv_triangles: np.ndarray | None = None, size: int 
                 return hit
     raster = _rasterize(uv, tris, size, padding, digest)
     if cache:
-        remember_raster(raster)
+        with _CACHE_LOCK:
+            _CACHE[key] = raster
+            _CACHE.move_to_end(key)
+            while len(_CACHE) > 1 and (len(_CACHE) > CACHE_ENTRIES or sum(r.nbytes for r in _CACHE.values()) > CACHE_BYTES):
+                _CACHE.popitem(last=False)
     return raster
-
-
-def remember_raster(raster: UVRaster) -> None:
-    """Keep ``raster`` in this process's cache, as :func:`rasterize_uv` keeps the rasters it makes
-    (also for one made in another process: a forked fit sends it back)."""
-    key = (raster.key, raster.size, raster.padding)
-    with _CACHE_LOCK:
-        _CACHE[key] = raster
-        _CACHE.move_to_end(key)
-        while len(_CACHE) > 1 and (len(_CACHE) > CACHE_ENTRIES or sum(r.nbytes for r in _CACHE.values()) > CACHE_BYTES):
-            _CACHE.popitem(last=False)
 
 
 def clear_raster_cache() -> None:
