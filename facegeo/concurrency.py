@@ -111,7 +111,7 @@ def _finish(executor: ThreadPoolExecutor, futures: list[Future[Any]], dropped: t
             dropped.set()
             gate.set()
             executor.shutdown(wait=False, cancel_futures=True)
-            wait(futures)
+            wait([f for f in futures if not f.cancelled()])  # a future cancelled in the queue is never "done" to wait()
             break
         except BaseException as exc:  # noqa: BLE001 - re-raised below, once the workers are done
             held = held or exc

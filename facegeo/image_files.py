@@ -53,8 +53,8 @@ def png_bytes(image: np.ndarray) -> bytes:
     zlib's run-length strategy with the "up" row filter, chosen by measurement
     (``benchmarks/bench_png.py``; RESULTS.md, "Issue 29: export"): on the 1K maps of a
     reconstruct it takes a third of the time of zlib level 1 with the default strategy and
-    libpng's adaptive filters, for files 4 % smaller; levels 6 to 9 save 3 % more bytes for 2 to
-    5 times that time. (The strategy is set after the level, which resets it.)
+    libpng's adaptive filters, for files 4 % smaller; levels 6 to 9 would save 3-4 % more bytes
+    for 5 to 15 times that time. (The strategy is set after the level, which resets it.)
     """
     import cv2
 

@@ -116,10 +116,11 @@ def test_ctrl_c_while_workers_write_leaves_nothing(tmp_path, interrupts):
 
     try:
         with pytest.raises(KeyboardInterrupt), StagedOutput(out, replace=True) as stage:
-            run_concurrently([writer("a", stage), writer("b", stage)], workers=2)
+            run_concurrently([writer("a", stage), writer("b", stage), writer("c", stage)], workers=2)
     finally:
         signal.signal(signal.SIGINT, handler)
-    # every writer that had started (b may not have, then it never does) finished before the rollback
-    assert "a" in done and sorted(done) == sorted(started)
+    # every writer that had started (b may not have, then it never does) finished before the
+    # rollback; c, queued behind them, never starts
+    assert "a" in done and sorted(done) == sorted(started) and "c" not in started
     time.sleep(0.2)
     assert not out.exists() and _leftovers(tmp_path) == [] and sorted(p.name for p in tmp_path.iterdir()) == []
