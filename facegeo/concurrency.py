@@ -90,7 +90,10 @@ def run_concurrently(tasks: Sequence[Callable[[], Any]], workers: int = EXPORT_W
             for task in tasks:
                 futures.append(executor.submit(gated(task)))
             gate.set()
-            wait(futures, return_when=FIRST_EXCEPTION)
+            while True:  # short waits: a signal that the kernel gave a worker thread is handled here within 50 ms
+                finished, running = wait(futures, timeout=0.05, return_when=FIRST_EXCEPTION)
+                if not running or any(not f.cancelled() and f.exception() is not None for f in finished):
+                    break
         finally:
             _finish(executor, futures, dropped, gate)
     failed = next((f for f in futures if f.done() and not f.cancelled() and f.exception() is not None), None)
