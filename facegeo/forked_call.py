@@ -97,12 +97,10 @@ def fork_call(function: Callable[..., Any], *args: Any) -> PendingCall:
         os.close(read_end)
         for signum in (signal.SIGINT, signal.SIGTERM):
             signal.signal(signum, signal.SIG_DFL)
-        import cv2
-        from threadpoolctl import threadpool_limits
+        from facegeo.concurrency import native_threads
 
-        cv2.setNumThreads(1)  # the caller keeps the other core busy: one thread each
         try:
-            with threadpool_limits(limits=1):
+            with native_threads(1):  # the caller keeps the other core busy: one thread each
                 payload = pickle.dumps(("ok", function(*args)))
         except Exception as error:  # raised in the caller: the user's clear error, or the failure with its traceback
             if not isinstance(error, FacegeoError):
