@@ -11,9 +11,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable, Iterable
-from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
-from typing import TypeVar
 
 import numpy as np
 import torch
@@ -21,6 +19,7 @@ import torch
 from facegeo.asset import MAP_NAMES, Asset
 from facegeo.blendshapes import model_blendshapes
 from facegeo.camera import Camera
+from facegeo.concurrency import run_concurrently
 from facegeo.errors import InputError
 from facegeo.fitting import Fit, Fitter, fit
 from facegeo.landmarks.iris import iris_colour
@@ -38,24 +37,6 @@ __all__ = ["reconstruct", "reconstruct_with_fit", "BACKENDS", "STAGES"]
 
 #: The stages, in order, as reported to a progress callback and in ``metadata["timings_s"]``.
 STAGES = ("fit", "unwrap", "inpaint", "homogenise", "materials", "upscale", "parts")
-
-_A = TypeVar("_A")
-_B = TypeVar("_B")
-
-
-def _beside(task: Callable[[], _A], main: Callable[[], _B]) -> tuple[_A, _B]:
-    """``(task(), main())`` for two independent computations: ``task`` on a second thread while
-    ``main`` runs, when the process may use more than one thread (torch's count, which follows
-    ``OMP_NUM_THREADS`` and ``torch.set_num_threads``: one in a Dask worker); NumPy, SciPy and
-    OpenCV release the GIL in their loops. The results are those of running them one after the
-    other."""
-    if torch.get_num_threads() < 2:
-        return task(), main()
-    with ThreadPoolExecutor(max_workers=1) as pool:
-        pending = pool.submit(task)
-        out = main()
-        return pending.result(), out
-
 
 def reconstruct(image: np.ndarray | str | Path | Photo, model: MorphableModel | None = None, **options) -> Asset:
     """Reconstruct a textured face from one photo: :func:`reconstruct_with_fit` without the fit
@@ -139,10 +120,12 @@ def reconstruct_with_fit(
         skin = skin_mask(pixels, result.landmarks)
     raster = rasterize_uv(model, size=size)
     camera_maps = geometry_maps(result.vertices, model, raster, tangents=False)  # shared by both
-    ctx, (t_inc, m_vis) = _beside(  # independent of each other
+    # independent of each other: on two threads where the process may use two (torch's count follows
+    # OMP_NUM_THREADS and torch.set_num_threads: one in a Dask worker); their loops release the GIL
+    ctx, (t_inc, m_vis) = run_concurrently([
         lambda: build_context(model, result, raster, camera_maps, white_reference=skin.white_reference),
         lambda: unwrap(pixels, result, model, maps=camera_maps, occlusion=skin.occlusion),
-    )
+    ], workers=torch.get_num_threads())
     timings["unwrap"] = time.perf_counter() - t
 
     t = stage("inpaint")
