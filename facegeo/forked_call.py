@@ -87,8 +87,25 @@ def _ended(status: int) -> str:
 def fork_call(function: Callable[..., Any], *args: Any) -> PendingCall:
     """Fork a child that runs ``function(*args)`` (check :func:`can_fork` first); the answer and
     any exception must pickle."""
+    # OpenCV's pthreads pool does not survive a fork: a child whose parent's pool threads were
+    # waiting hangs for ever in its first parallel call or cv2.setNumThreads (a photo downscaled
+    # by cv2.resize was enough). With one thread the pool is stopped, so the child inherits none
+    # and runs OpenCV in its own thread; the caller gets its count back once the child exists.
+    cv2 = sys.modules.get("cv2")
+    cv2_threads = cv2.getNumThreads() if cv2 is not None else 0
+    if cv2 is not None:
+        cv2.setNumThreads(1)
     read_end, write_end = os.pipe()
-    pid = os.fork()
+    try:
+        pid = os.fork()
+    except BaseException:
+        for end in (read_end, write_end):
+            os.close(end)
+        pid = -1
+        raise
+    finally:
+        if pid != 0 and cv2 is not None:  # the caller (also after a failed fork): its count back
+            cv2.setNumThreads(cv2_threads)
     if pid:
         os.close(write_end)
         return PendingCall(pid, read_end)

@@ -65,8 +65,8 @@ except NoFaceError as error:
 """
 
 
-def _python(code: str) -> str:
-    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300)
+def _python(code: str, timeout: float = 300) -> str:
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=timeout)
     assert done.returncode == 0, done.stderr[-3000:]
     return done.stdout.strip()
 
@@ -139,3 +139,21 @@ except RuntimeError as error:
 
 def test_an_unexpected_error_carries_the_childs_traceback():
     assert _python(OTHER_ERROR) == "True True"
+
+
+AFTER_OPENCV_POOL = """
+import cv2, numpy as np
+from facegeo.forked_call import fork_call
+image = np.random.default_rng(0).random((2000, 2000, 3)).astype(np.float32)
+threads = cv2.getNumThreads()
+cv2.GaussianBlur(image, (31, 31), 5)  # OpenCV's pool threads now wait in this process
+def child():
+    return float(cv2.GaussianBlur(image, (31, 31), 5).sum())
+print(fork_call(child).result() == float(cv2.GaussianBlur(image, (31, 31), 5).sum()), cv2.getNumThreads() == threads)
+"""
+
+
+def test_a_fork_after_opencv_used_its_thread_pool_does_not_hang():
+    # a photo larger than max_side is downscaled with cv2.resize before the fork: before the fix
+    # the child hung for ever in cv2.setNumThreads (OpenCV's pool does not survive a fork)
+    assert _python(AFTER_OPENCV_POOL, timeout=60) == "True True"
