@@ -71,7 +71,12 @@ from facegeo.export.textures import DEFAULT_ROUGHNESS, TextureFiles
 from facegeo.image_files import png_bytes, to_uint
 from facegeo.staged_output import atomic_write_bytes
 
-__all__ = ["write_glb", "glb_bytes", "validate_glb", "find_gltf_validator", "GltfValidatorMissing", "VALIDATOR_ENV_VAR"]
+__all__ = ["write_glb", "glb_bytes", "validate_glb", "find_gltf_validator", "GltfValidatorMissing", "VALIDATOR_ENV_VAR",
+           "WRITER_LIBRARIES"]
+
+#: The libraries :func:`write_glb` imports when it runs (kept out of ``import facegeo``); a caller
+#: that writes on threads imports them first (:func:`facegeo.export.writers.scene_writers`).
+WRITER_LIBRARIES = ("pygltflib",)
 
 #: Environment variable naming the ``gltf-validator`` npm package folder (the one holding
 #: ``package.json``) or a ``node_modules`` folder that contains it.

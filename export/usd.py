@@ -76,7 +76,12 @@ from facegeo.export.textures import DEFAULT_ROUGHNESS, TextureFiles, encode_map
 from facegeo.image_files import png_bytes
 from facegeo.staged_output import WRITE_FAULTS, StagedOutput, atomic_write_bytes
 
-__all__ = ["write_usd", "validate_usd", "check_usd", "skel_points", "UsdCheck", "USD_SUFFIXES"]
+__all__ = ["write_usd", "validate_usd", "check_usd", "skel_points", "UsdCheck", "USD_SUFFIXES", "WRITER_LIBRARIES"]
+
+#: The pxr modules :func:`write_usd` imports when it runs (kept out of ``import facegeo``); a
+#: caller that writes on threads imports them first (:func:`facegeo.export.writers.scene_writers`).
+WRITER_LIBRARIES = ("pxr.Ar", "pxr.Gf", "pxr.Kind", "pxr.Sdf", "pxr.Tf", "pxr.Usd", "pxr.UsdGeom", "pxr.UsdShade",
+                    "pxr.UsdSkel", "pxr.UsdUtils", "pxr.Vt")
 
 USD_SUFFIXES = (".usda", ".usdc", ".usd", ".usdz")
 

@@ -4,6 +4,7 @@
 
 from __future__ import annotations
 
+import importlib
 import os
 import threading
 from collections.abc import Callable
@@ -116,6 +117,13 @@ def scene_writers(
     from facegeo.export.textures import TextureFiles
 
     resolved = [_resolve(Path(path), format, displacement) for path, format in outputs]
+    # The writers' modules and libraries are imported here, in the caller's thread: pxr's
+    # extension modules run initialisers that let go of the GIL and take it back inside dlopen,
+    # so importing them on one thread while another imports any extension module (pygltflib's
+    # uuid) deadlocks the process (GIL against the loader's lock); it happened in reconstruct.
+    for module in sorted({"facegeo.export.gltf" if fmt == "glb" else "facegeo.export.usd" for _, fmt in resolved}):
+        for library in importlib.import_module(module).WRITER_LIBRARIES:
+            importlib.import_module(library)
     maps = None if maps is None else list(maps)
     files = TextureFiles() if texture_files is None else texture_files
     lock = threading.Lock()

@@ -429,11 +429,20 @@ def _ramp(signed_mm: np.ndarray) -> np.ndarray:
     return np.clip(signed_mm / RAMP_MM, 0.0, 1.0)
 
 
+def _inside_polygon(points: np.ndarray, polygon: np.ndarray) -> np.ndarray:
+    """(N,) bool: which of the (N, 2) points lie inside the (K, 2) polygon or on its edges
+    (OpenCV's test, on the points within the polygon's bounding box)."""
+    lo, hi = polygon.min(axis=0), polygon.max(axis=0)
+    candidates = np.flatnonzero(np.all((points >= lo) & (points <= hi), axis=1))
+    contour = polygon.astype(np.float32)
+    inside = np.zeros(len(points), bool)
+    inside[candidates] = [cv2.pointPolygonTest(contour, (float(x), float(y)), False) >= 0 for x, y in points[candidates]]
+    return inside
+
+
 def vertex_regions(model: MorphableModel) -> dict[str, np.ndarray]:
     """name -> (V,) float32 soft mask in [0, 1] for :data:`REGION_NAMES`, on the face region; each
     mask ramps linearly from 1 to 0 over :data:`RAMP_MM` at its border. Every rule is one line."""
-    from matplotlib.path import Path as Polygon
-
     p = model.mean_shape.astype(np.float64)
     lm = p[model.landmark_indices[ibug.IBUG68]]
     x, y, z = p[:, 0], p[:, 1], p[:, 2]
@@ -445,8 +454,7 @@ def vertex_regions(model: MorphableModel) -> dict[str, np.ndarray]:
 
     eyes = _near(p, lm[ibug.EYES], 7.0)  # lids and canthi: within 7 mm of the eye contour
     brows = _near(p, lm[ibug.BROWS], 6.0) * (1 - eyes)  # hair of the brows: 6 mm around their landmarks
-    mouth_xy = Polygon(lm[ibug.OUTER_LIP, :2])
-    inside_lips = mouth_xy.contains_points(p[:, :2]) & (z > lm[ibug.OUTER_LIP, 2].min() - 10.0)
+    inside_lips = _inside_polygon(p[:, :2], lm[ibug.OUTER_LIP, :2]) & (z > lm[ibug.OUTER_LIP, 2].min() - 10.0)
     lips = np.maximum(inside_lips.astype(np.float64), _near(p, lm[ibug.OUTER_LIP], 1.0))  # the vermilion
     nose = _near(p, lm[ibug.NOSE], 9.0) * _ramp(nose_half - np.abs(x) + RAMP_MM)  # bridge, tip, wings
     forehead = _ramp(y - brow_top + 2.0) * _ramp(eye_x + 8.0 - np.abs(x)) * front  # above the brows (brows win)

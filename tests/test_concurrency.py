@@ -124,3 +124,37 @@ def test_ctrl_c_while_workers_write_leaves_nothing(tmp_path, interrupts):
     assert "a" in done and sorted(done) == sorted(started) and "c" not in started
     time.sleep(0.2)
     assert not out.exists() and _leftovers(tmp_path) == [] and sorted(p.name for p in tmp_path.iterdir()) == []
+
+
+NO_IMPORT_ON_WORKERS = """
+import importlib.abc, sys, tempfile, threading
+from pathlib import Path
+imported = []
+class Record(importlib.abc.MetaPathFinder):
+    def find_spec(self, name, path, target=None):
+        if threading.current_thread() is not threading.main_thread():
+            imported.append(name)
+        return None
+sys.meta_path.insert(0, Record())
+from facegeo.jobs import ReconstructOptions, reconstruct_into_folder
+out = Path(tempfile.mkdtemp()) / "out"
+reconstruct_into_folder({photo!r}, out, ReconstructOptions(size=256))
+assert (out / "face.usdz").exists() and (out / "face.glb").exists()
+print(sorted(imported))
+"""
+
+
+def test_the_export_threads_import_nothing():
+    # pxr's extension modules let go of the GIL inside dlopen: imported on one export thread
+    # while another imported pygltflib's uuid, the process deadlocked (GIL against the loader's
+    # lock). scene_writers imports the writers' libraries first, in the caller's thread. A fresh
+    # interpreter, so that neither library is imported yet.
+    import subprocess
+    import sys
+
+    from facegeo.assets import asset_path
+
+    code = NO_IMPORT_ON_WORKERS.format(photo=str(asset_path("photos/astronaut.png")))
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0, done.stderr[-3000:]
+    assert done.stdout.strip().splitlines()[-1] == "[]"
