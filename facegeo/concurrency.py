@@ -24,16 +24,30 @@ further interrupts during that wait (at most the longest task) are held back unt
 from __future__ import annotations
 
 import contextlib
+import os
 import sys
 import threading
 from collections.abc import Callable, Iterator, Sequence
 from concurrent.futures import FIRST_EXCEPTION, Future, ThreadPoolExecutor, wait
 from typing import Any
 
-__all__ = ["run_concurrently", "native_threads", "EXPORT_WORKERS"]
+__all__ = ["run_concurrently", "native_threads", "usable_threads", "EXPORT_WORKERS"]
 
 #: Worker threads of the export stage (issue 29: two cores).
 EXPORT_WORKERS = 2
+
+
+def usable_threads() -> int:
+    """The threads this process may keep busy: torch's intra-op count when torch is imported (it
+    follows ``OMP_NUM_THREADS`` and ``torch.set_num_threads``), else ``OMP_NUM_THREADS`` when set
+    (1 in a Dask worker), else the CPUs this process may run on (nothing here imports torch)."""
+    torch = sys.modules.get("torch")
+    if torch is not None:
+        return max(1, int(torch.get_num_threads()))
+    try:
+        return max(1, int(os.environ["OMP_NUM_THREADS"]))
+    except (KeyError, ValueError):
+        return max(1, len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1)
 
 
 @contextlib.contextmanager

@@ -1,20 +1,22 @@
 """One function call in a forked child process, beside the caller's own work.
 
 The reconstruction's first half (skin mask and fit) needs NumPy, OpenCV, MediaPipe's LiteRT
-models and dlib; its second half needs torch, whose import alone takes about two seconds on two
-cores. One process cannot overlap them: an import and the fit's Python both hold the GIL. So
-:func:`facegeo.jobs.reconstruct_into_folder` forks the first half with :func:`fork_call` and
-imports the second meanwhile, then collects the answer with :meth:`PendingCall.result`: the wall
-time of the slower half instead of the sum.
+models and dlib; meanwhile the second half can import its modules and make the model's UV raster
+and layout priors. One process cannot overlap them: imports and the fit's Python both hold the
+GIL. So :func:`facegeo.jobs.reconstruct_into_folder` forks the first half with
+:func:`fork_call`, does the rest meanwhile, then collects the answer with
+:meth:`PendingCall.result`: the wall time of the slower half instead of the sum.
 
-It only pays where torch is not imported yet (the first photo of a process) and only works where
-``fork`` does (POSIX) and the process may have children (not a daemonic worker):
-:func:`can_fork` says so; elsewhere the caller runs the function itself. The child inherits the
-caller's modules and data (the loaded model, the photo); it pickles back through a pipe the
-function's answer or the exception it raised (a :class:`facegeo.errors.FacegeoError` reaches the
-user as the same clear error; any other as a RuntimeError carrying the child's traceback). The
-child runs its OpenCV and BLAS pools on one thread (the caller keeps the other core), takes the
-default action on SIGINT and SIGTERM (it ends without a word; the caller reports the
+It only pays where torch is not imported yet (a fresh process: once a caller has loaded torch it
+has other work in flight, and torch's pools do not survive a fork) and only works where ``fork``
+does (POSIX) and the process may have children (not a daemonic worker): :func:`can_fork` says
+so; elsewhere the caller runs the function itself. The child inherits the caller's modules and
+data (the loaded model, the photo); it pickles back through a pipe the function's answer or the
+exception it raised (a :class:`facegeo.errors.FacegeoError` reaches the user as the same clear
+error; any other as a RuntimeError carrying the child's traceback). OpenCV's pthreads pool does
+not survive a fork either: it is stopped (one thread) while forking and the caller gets its count
+back. The child runs its OpenCV and BLAS pools on one thread (the caller keeps the other core),
+takes the default action on SIGINT and SIGTERM (it ends without a word; the caller reports the
 interruption), and must write no file; a caller that fails first kills it.
 os.fork by hand rather than a ProcessPoolExecutor: the executor's idle worker prints a traceback
 on Ctrl-C, and Python 3.11's executor cannot end a worker that is still working.

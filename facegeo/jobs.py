@@ -236,7 +236,8 @@ def reconstruct_into_folder(photo_path: str | Path, output: str | Path, options:
         progress: called with each stage's name as it starts (the pipeline's ``STAGES``, then
             ``export`` and ``preview``, which start together).
         fork_fit: compute the skin mask and the fit in a forked child while this process imports
-            the texture stages (:mod:`facegeo.forked_call`; the single-photo command's choice),
+            the texture stages and makes the model's UV raster and layout priors
+            (:mod:`facegeo.forked_call`; the single-photo command's choice),
             where that helps (:func:`facegeo.forked_call.can_fork`, the default backend, no
             regressor); the results are the same either way.
     Raises:
@@ -254,9 +255,9 @@ def reconstruct_into_folder(photo_path: str | Path, output: str | Path, options:
         backend = BACKENDS[options.backend](options.weights) if options.backend == "diffusion" else options.backend  # weights checked first
         model, predictor = loaded_resources(options.model, options.regressor, options.refine, options.landmarks)
         photo = load_photo(photo_path, max_side=options.max_side)
-        pending = (fork_call(_fit_and_skin, photo, str(photo_path), options, options.size)
+        pending = (fork_call(_fit_and_skin, photo, str(photo_path), options)
                    if fork_fit and backend == "default" and predictor is None and can_fork() else None)
-        try:  # the texture stages' imports (torch) while the child fits
+        try:  # while the child fits: the texture stages' imports, the UV raster and the layout priors
             from facegeo.concurrency import EXPORT_WORKERS, run_concurrently
             from facegeo.export.asset_io import write_asset_files
             from facegeo.export.textures import TextureFiles
@@ -264,18 +265,15 @@ def reconstruct_into_folder(photo_path: str | Path, output: str | Path, options:
             from facegeo.image_files import png_bytes
             from facegeo.pipeline import reconstruct_with_fit
             from facegeo.skin_mask import skin_mask_image
-            from facegeo.texturing.preview import relit_preview
+            if options.preview:
+                from facegeo.texturing.preview import relit_preview
 
-            if pending is not None:  # the UV raster while the child fits (0.3 s; cached per process, the same bits as the child's)
+            if pending is not None:  # both depend on the model alone and are cached per process: the pipeline finds them
+                from facegeo.texturing.context import layout_priors
                 from facegeo.uv import rasterize_uv
 
-                raster = rasterize_uv(model, size=options.size)
-            fitted, skin, fit_seconds, priors = (pending.result() if pending is not None
-                                                 else _fit_and_skin(photo, str(photo_path), options))
-            if priors is not None:  # the child's layout priors: the pipeline finds them in the cache
-                from facegeo.texturing.context import remember_layout_priors
-
-                remember_layout_priors(model, raster, priors)
+                layout_priors(model, rasterize_uv(model, size=options.size))
+            fitted, skin, fit_seconds = pending.result() if pending is not None else _fit_and_skin(photo, str(photo_path), options)
         except BaseException:
             if pending is not None:
                 pending.abandon()
@@ -332,12 +330,10 @@ def reconstruct_into_folder(photo_path: str | Path, output: str | Path, options:
                          maps=list(asset.maps), map_size=int(next(iter(asset.maps.values())).shape[0]))
 
 
-def _fit_and_skin(photo: Any, source: str, options: FitOptions, layout_size: int | None = None) -> tuple[Any, Any, float, Any]:
-    """The torch-free half of a reconstruction: ``(fit, the photo's SkinMask or None when
-    MediaPipe finds no face, seconds of the fit alone, layout)`` (in a forked child where
-    :func:`reconstruct_into_folder` can overlap it with the texture stages' imports). With
-    ``layout_size`` S, ``layout`` is the :class:`facegeo.texturing.context.LayoutPriors` of the
-    model's UV raster at S (they depend on the model alone, so the child makes them too), else None."""
+def _fit_and_skin(photo: Any, source: str, options: FitOptions) -> tuple[Any, Any, float]:
+    """The first half of a reconstruction: ``(fit, the photo's SkinMask or None when MediaPipe
+    finds no face, seconds of the fit alone)`` (in a forked child where
+    :func:`reconstruct_into_folder` can overlap it with the texture stages' model-only work)."""
     from facegeo.errors import NoFaceError
     from facegeo.fitting import fit
     from facegeo.skin_mask import skin_mask
@@ -350,11 +346,4 @@ def _fit_and_skin(photo: Any, source: str, options: FitOptions, layout_size: int
     start = time.perf_counter()
     result = (predictor or fit)(photo, model=model, detector=options.landmarks,
                                 camera=photo_camera(photo, options.focal, options.principal_point))
-    seconds = time.perf_counter() - start
-    layout = None
-    if layout_size is not None:
-        from facegeo.texturing.context import layout_priors
-        from facegeo.uv import rasterize_uv
-
-        layout = layout_priors(model, rasterize_uv(model, size=layout_size))
-    return result, skin, seconds, layout
+    return result, skin, time.perf_counter() - start

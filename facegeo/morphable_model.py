@@ -197,18 +197,21 @@ class MorphableModel:
             out = out + torch.einsum("...k,kvc->...vc", delta, exp_basis)
         return out
 
-    def shape_numpy(self, alpha: np.ndarray | None = None, delta: np.ndarray | None = None) -> np.ndarray:
+    def shape_numpy(self, alpha: np.ndarray | None = None, delta: np.ndarray | None = None,
+                    vertex_indices: np.ndarray | None = None) -> np.ndarray:
         """The NumPy twin of :meth:`shape` for callers that need no gradient (the landmark fit,
-        which then never imports torch): (n_id,) α and (n_exp,) δ (None: zeros) -> (V, 3)
+        the texture stages and the parts, which then never import torch): (n_id,) α and
+        (n_exp,) δ (None: zeros), optional (K,) int ``vertex_indices`` -> (V, 3) or (K, 3)
         float32 mm, summed in float32 like :meth:`shape`."""
-        out = self.mean_shape.copy()
+        rows = slice(None) if vertex_indices is None else np.asarray(vertex_indices, dtype=np.int64)
+        out = self.mean_shape[rows].copy()
         for name, value, basis, n in (("alpha", alpha, self.id_basis, self.n_id), ("delta", delta, self.exp_basis, self.n_exp)):
             if value is None:
                 continue
             value = np.asarray(value, dtype=np.float32)
             if value.shape != (n,):
                 raise ValueError(f"{name}: expected shape ({n},), got {value.shape}")
-            out += np.tensordot(value, basis, axes=1)
+            out += np.tensordot(value, basis[:, rows], axes=1)
         return out
 
     def albedo(self, beta: torch.Tensor | np.ndarray | None = None) -> torch.Tensor:
@@ -223,6 +226,17 @@ class MorphableModel:
         elif beta is not None:
             beta = torch.as_tensor(beta, dtype=dtype)
             out = out.expand(*beta.shape[:-1], *out.shape)
+        return out
+
+    def albedo_numpy(self, beta: np.ndarray | None = None) -> np.ndarray:
+        """The NumPy twin of :meth:`albedo` (the texture stages use it without importing torch):
+        (n_tex,) β (None: zeros) -> (V, 3) float32 linear RGB, not clamped."""
+        out = self.mean_albedo.astype(np.float32, copy=True)
+        if beta is not None and self.n_tex > 0:
+            beta = np.asarray(beta, dtype=np.float32)
+            if beta.shape != (self.n_tex,):
+                raise ValueError(f"beta: expected shape ({self.n_tex},), got {beta.shape}")
+            out += np.tensordot(beta, self.tex_basis, axes=1)
         return out
 
     def vertex_normals(self, vertices: torch.Tensor) -> torch.Tensor:

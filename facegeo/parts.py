@@ -25,14 +25,17 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
-import torch
 
 from facegeo.asset import Asset
 from facegeo.blendshapes import Blendshapes, model_blendshapes
 from facegeo.errors import ModelFileError
 from facegeo.morphable_model import MorphableModel, _dtype_of
+
+if TYPE_CHECKING:  # torch is imported by shape (differentiable); the pipeline uses shape_numpy
+    import torch
 
 __all__ = [
     "PartModel",
@@ -113,6 +116,8 @@ class PartModel:
         """(..., V + K, 3) mm: the own vertices S̄_p + identity + B_exp,p·δ, then the shared skin
         vertices from ``model.shape``. Batched over the leading axes of α (..., n_id) and
         δ (..., n_exp); differentiable; dtype of the coefficients (float32 default)."""
+        import torch
+
         dtype = _dtype_of(alpha, delta)
         out = torch.as_tensor(self.mean, dtype=dtype)
         if alpha is not None:
@@ -133,6 +138,26 @@ class PartModel:
         batch = np.broadcast_shapes(tuple(out.shape[:-2]), tuple(skin.shape[:-2]))  # torch's imports sympy (0.9 s)
         out, skin = out.expand(*batch, *out.shape[-2:]), skin.expand(*batch, *skin.shape[-2:])
         return torch.cat([out, skin], dim=-2)
+
+    def shape_numpy(self, model: MorphableModel, alpha: np.ndarray | None = None,
+                    delta: np.ndarray | None = None) -> np.ndarray:
+        """The NumPy twin of :meth:`shape` for one α (n_id,) and δ (n_exp,) (None: zeros), used
+        where no gradient is needed (:func:`part_vertices`, so the texture stages never import
+        torch) -> (V + K, 3) float32 mm, summed in float32."""
+        out = self.mean.astype(np.float32, copy=True)
+        if alpha is not None:
+            a = np.asarray(alpha, dtype=np.float32)
+            if self.id_basis is not None:
+                out += np.tensordot(a, self.id_basis.astype(np.float32, copy=False), axes=1)
+            else:
+                maps = np.tensordot(a, self.id_affine.astype(np.float32, copy=False), axes=1)  # (G, 3, 4)
+                homogeneous = np.concatenate([out, np.ones((len(out), 1), np.float32)], axis=1)
+                out += np.einsum("vij,vj->vi", maps[self.group], homogeneous)
+        if delta is not None:
+            out += np.tensordot(np.asarray(delta, dtype=np.float32), self.exp_basis.astype(np.float32, copy=False), axes=1)
+        if not self.skin_index.size:
+            return out
+        return np.concatenate([out, model.shape_numpy(alpha, delta, vertex_indices=self.skin_index)])
 
     def expression_deltas(self, model: MorphableModel) -> np.ndarray:
         """(n_exp, V + K, 3) float32 mm per unit weight: how each expression moves the vertices
@@ -227,8 +252,7 @@ def _mismatch(model: MorphableModel, data: dict[str, np.ndarray]) -> tuple[str, 
 def part_vertices(parts: tuple[PartModel, ...], model: MorphableModel, alpha: np.ndarray | None,
                   delta: np.ndarray | None) -> dict[str, np.ndarray]:
     """Each part's (V + K, 3) float32 model-space vertices (mm) for one α, δ (e.g. a Fit's)."""
-    with torch.no_grad():
-        return {p.name: p.shape(model, alpha, delta).numpy().astype(np.float32) for p in parts}
+    return {p.name: p.shape_numpy(model, alpha, delta) for p in parts}
 
 
 #: The part that holds both eyeballs (ICT-FaceKit's name): the one an animation turns per eye.

@@ -14,12 +14,11 @@ from collections.abc import Callable, Iterable
 from pathlib import Path
 
 import numpy as np
-import torch
 
 from facegeo.asset import MAP_NAMES, Asset
 from facegeo.blendshapes import model_blendshapes
 from facegeo.camera import Camera
-from facegeo.concurrency import run_concurrently
+from facegeo.concurrency import run_concurrently, usable_threads
 from facegeo.errors import InputError
 from facegeo.fitting import Fit, Fitter, fit
 from facegeo.landmarks.iris import iris_colour
@@ -120,12 +119,12 @@ def reconstruct_with_fit(
         skin = skin_mask(pixels, result.landmarks)
     raster = rasterize_uv(model, size=size)
     camera_maps = geometry_maps(result.vertices, model, raster, tangents=False)  # shared by both
-    # independent of each other: on two threads where the process may use two (torch's count follows
-    # OMP_NUM_THREADS and torch.set_num_threads: one in a Dask worker); their loops release the GIL
+    # independent of each other: on two threads where the process may use two (one in a Dask
+    # worker: concurrency.usable_threads); their loops release the GIL
     ctx, (t_inc, m_vis) = run_concurrently([
         lambda: build_context(model, result, raster, camera_maps, white_reference=skin.white_reference),
         lambda: unwrap(pixels, result, model, maps=camera_maps, occlusion=skin.occlusion),
-    ], workers=torch.get_num_threads())
+    ], workers=usable_threads())
     timings["unwrap"] = time.perf_counter() - t
 
     t = stage("inpaint")

@@ -124,6 +124,23 @@ def test_a_fit_imports_nothing_heavy(tmp_path):
     assert (tmp_path / "out" / "fit.json").is_file()
 
 
+#: What ``facegeo reconstruct`` does not use: the texture stages, the parts and the preview are
+#: NumPy and OpenCV (the preview's GGX shader too: facegeo.texturing.ggx); the export needs pxr
+#: and pygltflib, the layout priors scipy.spatial.
+HEAVY_FOR_A_RECONSTRUCTION = tuple(m for m in HEAVY_FOR_A_FIT if m not in ("pxr", "pygltflib", "scipy.spatial"))
+
+
+def test_a_reconstruction_imports_no_torch(tmp_path):
+    """The whole ``facegeo reconstruct`` job (forked fit, preview) on the bundled photo at 256
+    texels, in a fresh process."""
+    code = (f"import sys; from facegeo.jobs import ReconstructOptions, reconstruct_into_folder; "
+            f"reconstruct_into_folder({PHOTO!r}, {str(tmp_path / 'out')!r}, ReconstructOptions(size=256), fork_fit=True); "
+            f"print([m for m in {HEAVY_FOR_A_RECONSTRUCTION!r} if m in sys.modules])")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
+    assert out.strip() == "[]"
+    assert {"preview.png", "face.usdz", "face.glb"} <= {p.name for p in (tmp_path / "out").iterdir()}
+
+
 RUN = """
 import sys, threading, time, pathlib
 import facegeo.cli as cli

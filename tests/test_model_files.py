@@ -115,6 +115,17 @@ def test_shape_batched_and_differentiable(model):
     )
 
 
+def test_the_numpy_shape_equals_the_torch_shape(model):
+    rng = np.random.default_rng(4)
+    alpha, delta = rng.normal(size=model.n_id).astype(np.float32), rng.uniform(size=model.n_exp).astype(np.float32)
+    for a, d in ((None, None), (alpha, None), (None, delta), (alpha, delta)):
+        np.testing.assert_allclose(model.shape_numpy(a, d), model.shape(a, d).numpy(), atol=2e-4, rtol=0)
+        np.testing.assert_allclose(model.shape_numpy(a, d, vertex_indices=model.landmark_indices),
+                                   model.shape_numpy(a, d)[model.landmark_indices], atol=1e-5, rtol=0)
+    with pytest.raises(ValueError, match="alpha"):
+        model.shape_numpy(alpha[:3])
+
+
 # ------------------------------------------------------------------------------- synthetic meshes
 def _head_mesh(n: int, seed: int, radii=(8.0, 11.0, 9.5)) -> tuple[np.ndarray, np.ndarray]:
     """n points on an ellipsoid (cm, head sized) and outward CCW triangles."""
@@ -284,6 +295,7 @@ def test_ai_next_layout_with_albedo_beside(tmp_path):
         beta[k] = eps
         exact = _srgb_to_linear(s_mean + eps * f["vertex_basis"][k] / 255.0)
         np.testing.assert_allclose(m.albedo(beta).numpy(), exact, atol=1e-6)
+        np.testing.assert_allclose(m.albedo_numpy(beta), m.albedo(beta).numpy(), atol=1e-7)  # the texture stages' twin
 
 
 def test_ai_next_explicit_albedo_path_and_missing_albedo_keys(tmp_path):

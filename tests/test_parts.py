@@ -8,7 +8,7 @@ from facegeo import Camera
 from facegeo.errors import ModelFileError
 from facegeo.landmarks.iris import Iris, iris_colour, sample_iris_ring
 from facegeo.morphable_model import MorphableModel
-from facegeo.parts import DEFAULT_IRIS_SRGB, PART_MATERIALS, eyeball_texture, load_parts, part_assets
+from facegeo.parts import DEFAULT_IRIS_SRGB, PART_MATERIALS, eyeball_texture, load_parts, part_assets, part_vertices
 from facegeo.uv.renderer import rasterize_mesh
 from facegeo.landmarks.scheme import LEFT_EYE, RIGHT_EYE
 
@@ -237,3 +237,16 @@ def test_eyeball_centres_are_the_globes_centres(model, parts):
     sphere = 12.0 * d / np.linalg.norm(d, axis=1, keepdims=True)
     both = np.concatenate([sphere + [30, 35, 80], sphere + [-30, 35, 80]])
     np.testing.assert_allclose(eyeball_centres(both)[1], [[30, 35, 80], [-30, 35, 80]], atol=1e-9)
+
+
+def test_the_numpy_shape_equals_the_torch_shape_for_every_part(model):
+    # part_vertices (the pipeline's, without torch) against the differentiable shape
+    parts = load_parts(model)
+    rng = np.random.default_rng(3)
+    alpha = rng.normal(size=model.n_id).astype(np.float32)
+    delta = rng.uniform(0, 1, size=model.n_exp).astype(np.float32)
+    for part in parts:
+        for a, d in ((None, None), (alpha, None), (alpha, delta)):
+            np.testing.assert_allclose(part.shape_numpy(model, a, d), part.shape(model, a, d).numpy(), atol=2e-4, rtol=0)
+    vertices = part_vertices(parts, model, alpha, delta)
+    assert all(vertices[p.name].dtype == np.float32 and vertices[p.name].shape == (p.n_vertices, 3) for p in parts)

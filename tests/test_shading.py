@@ -625,3 +625,70 @@ def test_input_checks():
         call(half)
     with pytest.raises(TypeError, match="Tensor"):
         call({**inputs, "albedo": inputs["albedo"].numpy()})
+
+
+# ---------------------------------------------------------------- the NumPy twin (texturing.ggx)
+
+
+def _ggx_numpy(inputs, batch_item=0):
+    """facegeo.texturing.ggx.ggx_shaded on one batch item of shade_ggx's inputs -> (3, H, W)."""
+    from facegeo.texturing.ggx import ggx_shaded
+
+    def rows(name):  # (C, H, W) of the item -> (H·W, C)
+        t = inputs[name]
+        t = t[batch_item if t.shape[0] > 1 else 0]
+        return t.detach().numpy().reshape(t.shape[0], -1).T
+
+    shaded = ggx_shaded(*(rows(n) for n in ("albedo", "normal_ts", "roughness", "specular", "position", "geo_normal", "geo_tangent")),
+                        inputs["light_dirs"][batch_item].numpy(), inputs["light_radiance"][batch_item].numpy(),
+                        inputs["camera_pos"][batch_item].numpy(), float(inputs["ambient"]))
+    height, width = inputs["albedo"].shape[2:]
+    return shaded.T.reshape(3, height, width)
+
+
+def _flat(inputs):
+    """No displacement, mask 1: the case ggx_shaded covers."""
+    return {**inputs, "displacement": torch.zeros_like(inputs["displacement"]), "mask": torch.ones_like(inputs["mask"])}
+
+
+@pytest.mark.parametrize("seed", [21, 22, 23])
+def test_the_numpy_twin_matches_the_reference_and_shade_ggx(seed):
+    inputs = _flat(make_inputs(seed=seed, batch=2, height=3, width=4, below=bool(seed % 2)))
+    inputs["ambient"] = 0.2
+    ref = reference(inputs)["shaded"]
+    torch_shaded = call(inputs).shaded.numpy()
+    for b in range(2):
+        mine = _ggx_numpy(inputs, b)
+        assert mine.dtype == np.float64
+        np.testing.assert_allclose(mine, ref[b], rtol=1e-10, atol=1e-12)
+        np.testing.assert_allclose(mine, torch_shaded[b], rtol=1e-12, atol=1e-14)
+
+
+@pytest.mark.parametrize("dtype", [torch.float64, torch.float32])
+def test_the_numpy_twin_keeps_the_guards(dtype):
+    # every singular texel of _extreme_inputs but the displacement and mask ones: roughness 0,
+    # tangent parallel, antiparallel or zero, zero normals, the camera on the point, light
+    # opposite the view, a denormal normal; finite and equal to shade_ggx within float rounding
+    inputs = {**_flat(_extreme_inputs(dtype)), "ambient": 0.15}
+    mine = _ggx_numpy(inputs)
+    assert mine.dtype == (np.float64 if dtype == torch.float64 else np.float32) and np.isfinite(mine).all()
+    tol = dict(rtol=1e-10, atol=1e-12) if dtype == torch.float64 else dict(rtol=2e-4, atol=1e-5)
+    np.testing.assert_allclose(mine, call(inputs).shaded[0].numpy(), **tol)
+
+
+def test_the_numpy_twin_broadcasts_materials_over_one_geometry_and_refuses_nan():
+    from facegeo.errors import InputError
+    from facegeo.texturing.ggx import ggx_shaded
+
+    rng = np.random.default_rng(5)
+    n = 7
+    geometry = [rng.normal(size=(1, n, 3)) + [0, 0, -300], rng.normal(size=(1, n, 3)) * 0.2 + [0, 0, 1], rng.normal(size=(1, n, 3)) * 0.2 + [1, 0, 0]]
+    materials = [rng.uniform(size=(2, n, 3)), rng.uniform(-0.3, 0.3, size=(2, n, 3)) + [0, 0, 1], rng.uniform(0.2, 1, size=(2, n, 1)), rng.uniform(size=(2, n, 1))]
+    light = (np.array([[0.3, 0.4, 0.8]]), np.array([[2.0, 2.0, 2.0]]), np.zeros(3), 0.1)
+    both = ggx_shaded(*materials, *geometry, *light)
+    assert both.shape == (2, n, 3)
+    for b in range(2):
+        np.testing.assert_array_equal(both[b], ggx_shaded(*(m[b] for m in materials), *(g[0] for g in geometry), *light))
+    materials[0][1, 3, 0] = np.nan
+    with pytest.raises(InputError, match="albedo"):
+        ggx_shaded(*materials, *geometry, *light)

@@ -25,7 +25,7 @@ from facegeo.texturing.backend import SurfaceOperators, TextureContext
 from facegeo.uv import GeometryMaps, UVRaster, geometry_maps
 from facegeo.uv.texels import nearest_texel
 
-__all__ = ["build_context", "mirror_vertices", "surface_operators", "layout_priors", "remember_layout_priors", "LayoutPriors"]
+__all__ = ["build_context", "mirror_vertices", "surface_operators", "layout_priors", "LayoutPriors"]
 
 #: A vertex has a mirror partner when the reflection x → −x of it lies this close to a vertex.
 MIRROR_TOLERANCE_MM = 1.0
@@ -102,15 +102,6 @@ class LayoutPriors:
     surface: SurfaceOperators
     mean_texture: np.ndarray | None
 
-    def __setstate__(self, state: dict) -> None:
-        """Unpickled (a forked fit sends its priors back) with its arrays read-only, as made."""
-        for name, value in state.items():
-            if isinstance(value, np.ndarray):
-                value = _read_only(value)
-            elif isinstance(value, dict):
-                value = {k: _read_only(v) for k, v in value.items()}
-            object.__setattr__(self, name, value)
-
 
 def _to_uv(model: MorphableModel, raster: UVRaster, per_vertex: np.ndarray) -> np.ndarray:
     """(V[, C]) vertex values -> (S, S, C) float32 map interpolated on ``raster`` (0 elsewhere)."""
@@ -171,19 +162,12 @@ def layout_priors(model: MorphableModel, raster: UVRaster) -> LayoutPriors:
             _LAYOUT_CACHE.move_to_end(key)
             return hit
     priors = _compute_layout_priors(model, raster)
-    remember_layout_priors(model, raster, priors)
-    return priors
-
-
-def remember_layout_priors(model: MorphableModel, raster: UVRaster, priors: LayoutPriors) -> None:
-    """Keep ``priors`` (of ``model`` on ``raster``) in this process's cache, as :func:`layout_priors`
-    keeps the ones it makes (also for priors made in another process: a forked fit sends them back)."""
-    key = (_model_digest(model), raster.key, raster.size, raster.padding)
     with _LAYOUT_LOCK:
         _LAYOUT_CACHE[key] = priors
         _LAYOUT_CACHE.move_to_end(key)
         while len(_LAYOUT_CACHE) > LAYOUT_CACHE_ENTRIES:
             _LAYOUT_CACHE.popitem(last=False)
+    return priors
 
 
 def build_context(model: MorphableModel, fit: Fit, raster: UVRaster, camera_maps: GeometryMaps | None = None,
@@ -211,9 +195,7 @@ def build_context(model: MorphableModel, fit: Fit, raster: UVRaster, camera_maps
 
     mean_texture = layout.mean_texture
     if mean_texture is None:
-        import torch  # here only: the layout priors are made without it (in a forked fit, beside torch's import)
-
-        albedo = model.albedo(torch.from_numpy(fit.beta)).numpy()
+        albedo = model.albedo_numpy(fit.beta)
         mean_texture = linear_to_srgb(_to_uv(model, raster, np.clip(albedo, 0.0, 1.0)))
     return TextureContext(
         coverage=cover,

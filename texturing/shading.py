@@ -62,6 +62,7 @@ from torch import Tensor
 
 from facegeo.asset import SPECULAR_F0_SCALE
 from facegeo.errors import check_finite
+from facegeo.texturing.ggx import ALPHA_MIN, EPS_HALF, EPS_NORM, EPS_PARALLEL, EPS_SMITH  # the guards' constants, shared with the NumPy twin
 
 __all__ = [
     "ShadingResult",
@@ -75,17 +76,6 @@ __all__ = [
     "CHUNK_TEXELS",
 ]
 
-#: Lower bound of α = roughness² (roughness ≈ 0.0447); then D ≤ 1/(π ALPHA_MIN²) ≈ 8e4 and
-#: (n·l)⁺ V ≤ 0.5/ALPHA_MIN = 250. α, not roughness, is clamped.
-ALPHA_MIN = 2e-3
-#: normalize(x) = x / max(|x|, EPS_NORM): shorter vectors shrink to 0 instead (units of x).
-EPS_NORM = 1e-12
-#: sin of the angle between tangent and normal below which the fallback tangent blends in.
-EPS_PARALLEL = 1e-3
-#: Lower bound of |l + v| before normalising the half vector.
-EPS_HALF = 1e-6
-#: Lower bound of the Smith denominator (n·v)√(…) + (n·l)√(…).
-EPS_SMITH = 1e-8
 #: Texels evaluated together on the CPU: every temporary of a chunk stays in the cache, and the
 #: backward recomputes a chunk instead of keeping its temporaries (memory: inputs and outputs only).
 #: On other devices the whole map is one chunk. Results do not depend on it (up to rounding).
