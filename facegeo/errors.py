@@ -13,6 +13,8 @@ from typing import Any, Mapping
 
 import numpy as np
 
+from facegeo.array_namespace import is_tensor  # asks sys.modules: errors.py never imports torch
+
 __all__ = ["FacegeoError", "InputError", "ModelFileError", "NoFaceError", "OutputError", "check_finite"]
 
 
@@ -72,11 +74,11 @@ def check_finite(values: Mapping[str, Any], source: str = "<array>") -> None:
     is not finite are the values inspected one by one (a finite overflow passes)."""
     total = 0.0
     for value in values.values():
-        total += float(value.detach().sum()) if hasattr(value, "detach") else float(np.sum(_numeric(value), dtype=np.float64))
+        total += float(value.detach().sum()) if is_tensor(value) else float(np.sum(_numeric(value), dtype=np.float64))
     if math.isfinite(total):
         return
     for name, value in values.items():
-        if hasattr(value, "detach"):  # a torch tensor (errors.py does not import torch)
+        if is_tensor(value):
             finite = value.detach().isfinite()
             bad, count = int((~finite).sum()), finite.numel()
         else:
