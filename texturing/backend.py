@@ -88,6 +88,12 @@ class TextureContext:
     surface: :class:`SurfaceOperators` of the mesh, or None (then backends work in UV alone).
     white_reference: (3,) float64 mean linear RGB of the photo's white references (sclera,
         teeth; :func:`facegeo.skin_mask.white_reference`), or None: evidence of the light's colour.
+    position_camera: (S, S, 3) float32 texel positions on the posed mesh in camera space, mm (0
+        outside), or None; with ``vertices_camera`` and ``triangles`` the evidence of cast
+        shadows (a shadow map of the fitted mesh, :func:`facegeo.uv.light_visibility`).
+    vertices_camera: (V, 3) float32 the posed mesh's vertices in camera space, mm (``fit.vertices``),
+        or None.
+    triangles: (F, 3) int64 the mesh's triangles (vertex indices), or None.
     """
 
     coverage: np.ndarray
@@ -101,6 +107,9 @@ class TextureContext:
     skin: np.ndarray | None = None
     surface: SurfaceOperators | None = None
     white_reference: np.ndarray | None = None
+    position_camera: np.ndarray | None = None
+    vertices_camera: np.ndarray | None = None
+    triangles: np.ndarray | None = None
 
     @property
     def size(self) -> int:

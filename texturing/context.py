@@ -209,4 +209,7 @@ def build_context(model: MorphableModel, fit: Fit, raster: UVRaster, camera_maps
         skin=layout.skin,
         surface=layout.surface,
         white_reference=None if white_reference is None else np.asarray(white_reference, np.float64),
+        position_camera=np.where(mask[..., None], camera_maps.position, 0.0).astype(np.float32),
+        vertices_camera=np.asarray(fit.vertices, np.float32),
+        triangles=np.asarray(model.triangles, np.int64),
     )

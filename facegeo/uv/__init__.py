@@ -37,6 +37,7 @@ _EXPORTS = {
     "Rendering": "facegeo.uv.renderer",
     "render": "facegeo.uv.renderer",
     "rasterize_mesh": "facegeo.uv.renderer",
+    "light_visibility": "facegeo.uv.renderer",
 }
 
 __all__ = list(_EXPORTS)

@@ -24,10 +24,13 @@ from facegeo.errors import InputError
 from facegeo.uv._triangles import triangle_fragments
 from facegeo.uv.texels import sample_uv
 
-__all__ = ["Rendering", "render", "rasterize_mesh"]
+__all__ = ["Rendering", "render", "rasterize_mesh", "light_visibility"]
 
 #: Default near distance in mm: triangles with a corner closer to the camera plane are skipped.
 NEAR_MM = 1.0
+#: :func:`light_visibility`'s light camera stands this far (mm) beyond the mesh along the light:
+#: a pinhole so far away is a directional light (its rays diverge by < 0.2° over a head).
+LIGHT_DISTANCE_MM = 1e5
 
 
 @dataclass(frozen=True, eq=False)
@@ -158,3 +161,43 @@ def _as_float_image(a: np.ndarray, name: str) -> np.ndarray:
     if not np.all(np.isfinite(out)):
         raise InputError("<array>", name, "finite values", "NaN/inf values")
     return out
+
+
+def light_visibility(vertices: np.ndarray, triangles: np.ndarray, points: np.ndarray, direction: np.ndarray,
+                     resolution_mm: float = 1.0, bias_mm: float = 2.0) -> np.ndarray:
+    """A shadow map: which ``points`` a distant (directional) light sees past the mesh.
+
+    The mesh is rendered with :func:`rasterize_mesh` by a pinhole :data:`LIGHT_DISTANCE_MM` mm
+    beyond it along ``direction``, its pixels ``resolution_mm`` mm wide at the mesh; a point is lit
+    where its distance from that camera is at most the z-buffer's at its pixel (nearest) plus
+    ``bias_mm`` (points on the surface itself are not shadowed by it). Points whose pixel the mesh
+    does not cover are lit.
+
+    Args:
+        vertices: (V, 3) mesh vertices, mm, in any frame. triangles: (F, 3) int.
+        points: (N, 3) points in the same frame, mm (e.g. texel positions on the mesh).
+        direction: (3,) towards the light (normalised here).
+        resolution_mm: shadow-map pixel size at the mesh, mm.
+        bias_mm: depth tolerance, mm.
+    Returns:
+        (N,) bool, True where the light reaches the point.
+    """
+    light = np.asarray(direction, np.float64)
+    light = light / max(float(np.linalg.norm(light)), 1e-12)
+    helper = np.array([0.0, 1.0, 0.0]) if abs(light[1]) < 0.9 else np.array([1.0, 0.0, 0.0])
+    right = np.cross(helper, light)
+    right /= np.linalg.norm(right)
+    frame = np.stack([right, np.cross(light, right), light])  # rows: the light camera's x, y, z (z towards the light)
+    v = np.asarray(vertices, np.float64) @ frame.T
+    p = np.asarray(points, np.float64) @ frame.T
+    lo, hi = v.min(axis=0), v.max(axis=0)
+    shift = np.array([(lo[0] + hi[0]) / 2, (lo[1] + hi[1]) / 2, hi[2] + LIGHT_DISTANCE_MM])
+    width, height = (int(np.ceil((hi[k] - lo[k]) / resolution_mm)) + 4 for k in (0, 1))
+    camera = Camera(focal=LIGHT_DISTANCE_MM / resolution_mm, cx=width / 2.0, cy=height / 2.0, width=width, height=height)
+    _, _, depth = rasterize_mesh(v - shift, triangles, camera, barycentric=False)
+    p = p - shift
+    pixel = np.floor(to_pixels(p, camera)).astype(np.int64)
+    inside = (pixel[:, 0] >= 0) & (pixel[:, 0] < width) & (pixel[:, 1] >= 0) & (pixel[:, 1] < height)
+    nearest = np.full(len(p), np.inf)
+    nearest[inside] = depth[pixel[inside, 1], pixel[inside, 0]]
+    return -p[:, 2] <= nearest + bias_mm
