@@ -73,7 +73,6 @@ import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 from scipy import ndimage
-from scipy.optimize import least_squares
 
 from facegeo.asset import MAP_NAMES
 from facegeo.colour import linear_to_srgb, luminance, srgb_to_linear
@@ -417,6 +416,8 @@ class DefaultBackend:
         log-ratio). l: the best of :data:`LIGHT_CANDIDATES` directions (least squares for ambient
         and L, median |log-ratio|), refined with V_l of that direction, then V_l recomputed.
         Also a JSON-ready report (direction, ambient / L)."""
+        from scipy.optimize import least_squares  # here only: 0.3 s of import that an even light never needs
+
         cover = ctx.coverage
         rows = _subsample(np.flatnonzero(fit_mask.ravel()), LIGHT_FIT_TEXELS)
         n = ctx.normal_camera.reshape(-1, 3)[rows].astype(np.float64)
