@@ -468,7 +468,6 @@ class DefaultBackend:
         """(S, S, 3) sRGB + (S, S) visibility -> (S, S, 3) sRGB, every texel filled, under the
         photo's lighting (the estimated shading and light colour applied to the filled albedo)."""
         cover = ctx.coverage
-        size = ctx.size
         lin = srgb_to_linear(T_inc)
         an = self._analyse(lin, M_vis, ctx)
         delit = lin / an.shading[..., None]
