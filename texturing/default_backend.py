@@ -352,6 +352,7 @@ class DefaultBackend:
         n_fit = int(fit_mask.sum())
         directional = strength = 0.0
         self.report.pop("light", None)
+        light: dict[str, Any] | None = None  # the directional light model's report, where it is used
         if n_fit >= 100:
             rows = _subsample(np.flatnonzero(fit_mask.ravel()))
             basis = sh_basis(normals.reshape(-1, 3)[rows].astype(np.float32)).astype(np.float64)[:, :SH_TERMS]
@@ -366,15 +367,16 @@ class DefaultBackend:
             # happens to correlate with the normals, and dividing by it would put that into the albedo
             directional = float(np.std(basis[keep][:, 1:4] @ coeffs[1:4]) / max(float(np.mean(basis[keep] @ coeffs)), 1e-12))
             strength = float(_smoothstep(np.float32((directional - DIRECTIONAL_RANGE[0]) / (DIRECTIONAL_RANGE[1] - DIRECTIONAL_RANGE[0]))))
-            flat = np.flatnonzero(cover.ravel())
-            e = np.zeros(cover.size)
-            e[flat] = sh_basis(normals.reshape(-1, 3)[flat].astype(np.float32))[:, :SH_TERMS] @ coeffs
-            e = e.reshape(cover.shape)
             if strength > 0 and ctx.vertices_camera is not None and ctx.position_camera is not None and ctx.triangles is not None:
-                e, self.report["light"] = self._directional_shading(lum, fit_mask, ctx)
+                e, light = self._directional_shading(lum, fit_mask, ctx)
+            else:  # the SH fit's own shading over the layout
+                flat = np.flatnonzero(cover.ravel())
+                e = np.zeros(cover.size)
+                e[flat] = sh_basis(normals.reshape(-1, 3)[flat].astype(np.float32))[:, :SH_TERMS] @ coeffs
+                e = e.reshape(cover.shape)
             ref = float(np.median(e[fit_mask]))
             shading = np.where(cover, np.maximum(e / max(ref, 1e-6), 1e-3) ** strength, 1.0).astype(np.float32)
-            if "light" not in self.report:  # the light model has its cast shadows; left-over dips there are albedo (a beard)
+            if light is None:  # the light model has its cast shadows; left-over dips there are albedo (a beard)
                 # cast shadows / occlusion: local dips of the de-lit log-luminance below the neighbourhood
                 log_a = np.log(np.maximum(lum / shading, 1e-4))
                 local = masked_blur(log_a, fit_mask, size / 128.0)
@@ -383,7 +385,7 @@ class DefaultBackend:
                 dip = np.clip(local - region + SHADOW_TOLERANCE, -0.7, 0.0) * support  # no evidence, no shadow
                 shading = shading * np.exp(np.where(cover, dip, 0.0))
         facing = np.clip(normals[..., 2] / 0.5, 0.0, 1.0)
-        grazing, most = (GRAZING_GAIN, MAX_GAIN) if "light" not in self.report else LIGHT_GAIN
+        grazing, most = (GRAZING_GAIN, MAX_GAIN) if light is None else LIGHT_GAIN
         bound = grazing + (most - grazing) * facing
         shading = np.where(cover, np.clip(shading, 1.0 / bound, bound), 1.0).astype(np.float32)
         delit_lum = lum / shading
@@ -397,6 +399,8 @@ class DefaultBackend:
         highlight = np.clip(gaussian_blur(highlight, max(1.0, size / 512.0)) * 2.0, 0.0, 1.0) * cover
         analysis = _Analysis(shading, highlight.astype(np.float32), (w * (1.0 - highlight)).astype(np.float32))
         self._analysis = (ctx, analysis)
+        if light is not None:
+            self.report["light"] = light
         self.report["analyse"] = {
             "fit_texels": n_fit,
             "directional": directional,
