@@ -36,10 +36,10 @@ Colour textures are sRGB in [0, 1], float32, S × S, image-style rows (see
   × a ramp over :data:`EDGE_MM` mm from the nearest unseen texel: silhouettes, occluders,
   highlights); the fill's fine detail D (finer than ~S/128 texels, ~2.5 mm at 1K) is the seen
   texel's own detail away from the seen region's edge, else the mirror texel's where that was
-  reliably seen, else detail quilted from blocks of the reliably seen skin (:func:`quilted_detail`:
-  pores, stubble and wrinkles of this face at its own contrast; 3-D value noise of the
-  model-space position only where no whole block of skin was seen); the low frequencies B solve a
-  screened Poisson problem on the mesh's vertices, min Σ r (B − (log seen − D))² + λ Σ_edges
+  reliably seen, else the finest detail (~1 mm at 1K: pores, stubble) of the reliably seen skin
+  quilted in blocks (:func:`quilted_detail`: this face's own texture at its own contrast; 3-D
+  value noise of the model-space position only where no whole block of skin was seen); the low
+  frequencies B solve a screened Poisson problem on the mesh's vertices, min Σ r (B − (log seen − D))² + λ Σ_edges
   |∇B|² (+ a weak pull to the seen skin's mean far from anything seen), so the filled skin takes
   its tone from the reliable seen skin next to it and B + D has the seen skin's values wherever
   r is high; the result is r · log seen + (1 − r) · (B + D): no edge where the seen skin ends,
@@ -153,9 +153,11 @@ EDGE_MM = 4.0
 #: edge, the mirror's or noise: the edge's texels carry lashes, frame shadows, highlight halos).
 DETAIL_EDGE_MM = 2.0
 #: Side of the blocks of seen skin detail that the fill's detail is quilted from, as a fraction of
-#: S (32 texels, ~7 mm at 1K: a few pores and a wrinkle; bench_albedo_scans: the filled skin's
-#: gradient ratio 0.29–0.45 with value noise, 0.55–0.65 with these blocks).
-QUILT_BLOCK = 1.0 / 32.0
+#: S (16 texels, ~6 mm at 1K: a few pores). bench_albedo_scans, filled skin's gradient ratio:
+#: 0.29–0.45 with value noise, 0.48–0.58 with these blocks of the finest band; blocks of S/32
+#: with the fill's whole detail band (~3 mm) reached 0.54–0.66 but drew waves of copied wrinkles
+#: over Grace Hopper's scalp.
+QUILT_BLOCK = 1.0 / 64.0
 #: Padding outside the UV islands: the edge colour over this fraction of S texels (4 at 1K), then
 #: the median of the map (flat).
 PAD_FRACTION = 1.0 / 256.0
@@ -620,10 +622,10 @@ class DefaultBackend:
                      ctx: TextureContext) -> tuple[np.ndarray, np.ndarray, np.ndarray | float]:
         """The fill's fine detail (S, S, 3) in log RGB (zero mean, finer than ~S/128 texels, ~2.5 mm
         at 1K): where the texel is seen (``seen``), its own; elsewhere the mirror texel's where
-        that was reliably seen, and where not, blocks of the reliably seen skin's detail
-        (:func:`quilted_detail`), or 3-D value noise of the model-space position with the seen
-        skin's contrast where no whole block was seen. Also the mirror's weight (S, S) and that
-        contrast. ``inner``:
+        that was reliably seen, and where not, blocks of the reliably seen skin's finest detail
+        (above ~S · ``detail_sigma_fraction`` texels⁻¹: pores, stubble; :func:`quilted_detail`), or
+        3-D value noise of the model-space position with the seen skin's contrast where no whole
+        block was seen. Also the mirror's weight (S, S) and that contrast. ``inner``:
         :meth:`_inner_distance` of ``seen`` (S, S) mm."""
         cover = ctx.coverage
         size = ctx.size
@@ -635,8 +637,10 @@ class DefaultBackend:
         w_m = np.where(has, reliable.reshape(-1)[mirror], 0.0).astype(np.float32)
         mirrored = detail.reshape(-1, 3)[mirror]
         need = cover & ~seen & (w_m < 1.0 - 1e-3)
-        source = seen & _skin(ctx) & (reliable > 0.99) & (inner > DETAIL_EDGE_MM)
-        synthesised = quilted_detail(detail, source, need) if need.any() else None
+        synthesised = None
+        if need.any():  # pores and stubble only: quilted wrinkles and blotches made waves on a bald scalp
+            fine = np.where(seen[..., None], log_seen - masked_blur(log_seen, seen, max(1.0, size * self.detail_sigma_fraction)), 0.0)
+            synthesised = quilted_detail(fine, seen & _skin(ctx) & (reliable > 0.99) & (inner > DETAIL_EDGE_MM), need)
         if synthesised is None:  # no whole block of reliable skin was seen: value noise with its contrast
             noise = np.zeros(cover.shape, np.float32)
             if need.any() and amp > 0:
