@@ -338,16 +338,18 @@ def quilted_detail(detail: np.ndarray, source: np.ndarray, need: np.ndarray, see
     ramp = np.sin(np.pi * (np.arange(block) + 0.5) / block) ** 2  # Hann: two at half overlap sum to 1
     window = (ramp[:, None] * ramp[None, :]).astype(np.float32)
     channels = detail.shape[2]
-    # a canvas padded by a block on each side; block (i, j) covers image rows (i − 1)·half … (i + 1)·half
+    # a canvas (channels first) padded by a block on each side; block (i, j) covers image rows (i − 1)·half … (i + 1)·half
     cells = size // half + 3
-    canvas = np.zeros((cells * half + block, cells * half + block, channels), np.float32)
-    weight = np.zeros(canvas.shape[:2], np.float32)
+    canvas = np.zeros((channels, cells * half + block, cells * half + block), np.float32)
+    weight = np.zeros(canvas.shape[1:], np.float32)
     # which half × half cells hold a texel to fill (cell k: image rows k·half …; −1 and past the end: none)
     padded = np.zeros(((cells + 1) * half, (cells + 1) * half), bool)
     padded[:size, :size] = need
     cell_need = padded.reshape(cells + 1, half, cells + 1, half).any(axis=(1, 3))
     cell_need[-1, :] = cell_need[:, -1] = False  # index −1 (the cell before row 0) is empty
-    windows = np.lib.stride_tricks.sliding_window_view(detail, (block, block), axis=(0, 1))  # (…, C, block, block), a view
+    # every block of the detail (channels first, so that the gathered patches are contiguous), a view
+    windows = np.lib.stride_tricks.sliding_window_view(np.ascontiguousarray(detail.transpose(2, 0, 1)), (block, block), axis=(1, 2))
+    mean_weights = (window / window.sum()).reshape(-1)
     rng = np.random.default_rng(seed)
     offset = block - half  # image row 0 is canvas row `block`, so block i starts at canvas row offset + i·half
     for pr in (0, 1):  # four phases of the half-overlapping grid, each a tiling of disjoint blocks
@@ -358,18 +360,16 @@ def quilted_detail(detail: np.ndarray, source: np.ndarray, need: np.ndarray, see
             if not touch.any():
                 continue
             pick = starts[rng.integers(len(starts), size=int(touch.sum()))]
-            patches = windows[pick[:, 0], pick[:, 1]].transpose(0, 2, 3, 1)  # (n, block, block, C)
-            patches = patches - np.einsum("ij,nijc->nc", window, patches)[:, None, None, :] / window.sum()  # zero mean under the window
-            tiles = np.zeros((*ii.shape, block, block, channels), np.float32)
-            tiles[touch] = window[None, ..., None] * patches
-            w2 = np.zeros((*ii.shape, block, block), np.float32)
-            w2[touch] = window * window
+            patches = windows[:, pick[:, 0], pick[:, 1]]  # (C, n, block, block), a copy
+            patches -= (patches.reshape(channels, len(pick), -1) @ mean_weights)[:, :, None, None]  # zero mean under the window
+            patches *= window
             r0, c0 = offset + pr * half, offset + pc * half
             h, w = len(rows) * block, len(cols) * block
-            canvas[r0: r0 + h, c0: c0 + w] += tiles.transpose(0, 2, 1, 3, 4).reshape(h, w, channels)
-            weight[r0: r0 + h, c0: c0 + w] += w2.transpose(0, 2, 1, 3).reshape(h, w)
+            tiling = canvas[:, r0: r0 + h, c0: c0 + w].reshape(channels, len(rows), block, len(cols), block).transpose(0, 1, 3, 2, 4)
+            tiling[:, touch] += patches  # (a view of the canvas: C, rows, cols, block, block)
+            weight[r0: r0 + h, c0: c0 + w] += np.kron(touch.astype(np.float32), window * window)
     inner = (slice(block, block + size), slice(block, block + size))
-    out = canvas[inner] / np.sqrt(np.maximum(weight[inner], 1e-6))[..., None]
+    out = (canvas[:, inner[0], inner[1]] / np.sqrt(np.maximum(weight[inner], 1e-6))).transpose(1, 2, 0)
     return np.where(need[..., None], out, 0.0).astype(np.float32)
 
 
