@@ -7,7 +7,16 @@ import torch
 from facegeo.colour import linear_to_srgb, srgb_to_linear
 from facegeo.lighting import sh_irradiance
 from facegeo.texturing.backend import TextureBackend, TextureContext
-from facegeo.texturing.default_backend import GRAZING_GAIN, MAX_GAIN, DefaultBackend, masked_blur, pad_outside, value_noise
+from facegeo.texturing.default_backend import (
+    GRAZING_GAIN,
+    MAX_GAIN,
+    QUILT_BLOCK,
+    DefaultBackend,
+    masked_blur,
+    pad_outside,
+    quilted_detail,
+    value_noise,
+)
 
 
 def psnr(a, b, mask):
@@ -264,6 +273,72 @@ def test_value_noise_is_bounded_deterministic_and_continuous():
     np.testing.assert_array_equal(n, value_noise(p, 0.5))
     assert np.abs(value_noise(p + 1e-3, 0.5) - n).max() < 0.05  # 1 µm moves it little
     assert np.corrcoef(n, value_noise(p, 0.5, seed=1))[0, 1] < 0.2
+
+
+def test_quilted_detail_keeps_the_sources_contrast_and_scale_without_a_block_grid():
+    """Blocks of a source detail layer of known statistics (isotropic noise blurred over 1 texel,
+    less its blur over S/256 texels: the band the backend quilts; σ 0.05) quilted over the rest of
+    the map: the copy has the source's σ and mean gradient (within 10 %), zero mean, no variance
+    pattern with the block grid's period, is deterministic and 0 outside ``need``."""
+    size = 1024
+    rng = np.random.default_rng(0)
+    ones = np.ones((size, size))
+    texture = masked_blur(rng.normal(size=(size, size, 2)).astype(np.float32), ones, 1.0)
+    texture = texture - masked_blur(texture, ones, size / 256)
+    texture *= 0.05 / texture.std()
+    source = np.zeros((size, size), bool)
+    source[:, : size // 2] = True
+    need = ~source
+    out = quilted_detail(np.where(source[..., None], texture, 0.0), source, need)
+    assert out.shape == texture.shape and out.dtype == np.float32
+    assert np.all(out[~need] == 0)
+    filled = out[need]
+    assert abs(filled.std() / texture[source].std() - 1) < 0.1
+    assert abs(filled.mean()) < 0.1 * texture.std()
+    gradient = lambda a: np.abs(np.diff(a, axis=1)).mean()  # noqa: E731
+    ratio = gradient(out[:, size // 2 + 2 :]) / gradient(texture[:, : size // 2])
+    assert 0.9 < ratio < 1.1
+    # no grid: the variance by position modulo the block's half is flat
+    half = round(QUILT_BLOCK * size / 2)
+    region = out[:, size // 2 + 2 * half : size // 2 + 2 * half + 8 * half]
+    by_phase = [(region[:, k::half] ** 2).mean() for k in range(half)]
+    assert max(by_phase) / min(by_phase) < 1.3
+    np.testing.assert_array_equal(out, quilted_detail(np.where(source[..., None], texture, 0.0), source, need))
+    assert not np.array_equal(out, quilted_detail(np.where(source[..., None], texture, 0.0), source, need, seed=1))
+    # too little source for a whole block: no quilt
+    tiny = np.zeros((size, size), bool)
+    tiny[:4, :4] = True
+    assert quilted_detail(texture, tiny, ~tiny) is None
+
+
+def test_hidden_side_without_a_mirror_gets_the_seen_skins_own_fine_texture():
+    """Right part hidden and no mirror: the fill's finest detail (above S/256 texels⁻¹) is quilted
+    from the seen skin, so it has the seen skin's contrast (within 25 %) and its texture: here
+    streaks along the rows (stubble combed one way), whose gradient across the rows is over four
+    times the one along them on the seen side and over twice in the fill (the blocks' windows cut
+    the streaks; isotropic noise would give 1)."""
+    import cv2
+
+    size = 512
+    ctx = hemisphere_context(size)
+    ctx.mirror[...] = -1
+    rng = np.random.default_rng(3)
+    streaks = cv2.GaussianBlur(rng.normal(size=(size, size)).astype(np.float32), (0, 0), sigmaX=3.0, sigmaY=0.6)
+    streaks *= 0.06 / streaks.std()
+    truth = srgb_to_linear(np.float32([0.78, 0.58, 0.48])) * np.exp(streaks)[..., None]
+    x = np.linspace(-1, 1, size)[None, :].repeat(size, 0)
+    visible = (x < 0.1).astype(np.float32)
+    backend = DefaultBackend()
+    out = srgb_to_linear(backend.homogenise(backend.inpaint(linear_to_srgb(truth) * visible[..., None], visible, ctx), ctx))
+    log_l = np.log(np.maximum(out.mean(-1), 1e-4))
+    fine = log_l - masked_blur(log_l, ctx.coverage, size / 256)
+    facing = ctx.coverage & (ctx.normal_camera[..., 2] > 0.6)
+    seen, hidden = facing & (x < -0.2), facing & (x > 0.4)
+    assert 0.75 < fine[hidden].std() / fine[seen].std() < 1.25
+    across = np.abs(np.diff(fine, axis=0))[:, :-1]
+    along = np.abs(np.diff(fine, axis=1))[:-1, :]
+    anisotropy = lambda m: across[m[:-1, :-1]].mean() / along[m[:-1, :-1]].mean()  # noqa: E731
+    assert anisotropy(seen) > 4.0 and anisotropy(hidden) > 2.0  # (5.5 and 3.1; value noise's fill: 0.9)
 
 
 def test_upscale_lanczos():

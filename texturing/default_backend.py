@@ -36,9 +36,10 @@ Colour textures are sRGB in [0, 1], float32, S × S, image-style rows (see
   × a ramp over :data:`EDGE_MM` mm from the nearest unseen texel: silhouettes, occluders,
   highlights); the fill's fine detail D (finer than ~S/128 texels, ~2.5 mm at 1K) is the seen
   texel's own detail away from the seen region's edge, else the mirror texel's where that was
-  reliably seen, else multiplicative 3-D value noise of the model-space position (continuous
-  across seams) with the seen skin's fine-detail contrast; the low frequencies B solve a
-  screened Poisson problem on the mesh's vertices, min Σ r (B − (log seen − D))² + λ Σ_edges
+  reliably seen, else the finest detail (~1 mm at 1K: pores, stubble) of the reliably seen skin
+  quilted in blocks (:func:`quilted_detail`: this face's own texture at its own contrast; 3-D
+  value noise of the model-space position only where no whole block of skin was seen); the low
+  frequencies B solve a screened Poisson problem on the mesh's vertices, min Σ r (B − (log seen − D))² + λ Σ_edges
   |∇B|² (+ a weak pull to the seen skin's mean far from anything seen), so the filled skin takes
   its tone from the reliable seen skin next to it and B + D has the seen skin's values wherever
   r is high; the result is r · log seen + (1 − r) · (B + D): no edge where the seen skin ends,
@@ -82,7 +83,7 @@ from facegeo.texturing.illuminant import chroma, estimate_illuminant, invent_chr
 from facegeo.uv.renderer import light_visibility
 
 __all__ = ["DefaultBackend", "REGION_PRIORS", "pad_outside", "masked_blur", "gaussian_blur", "value_noise", "MAX_GAIN",
-           "GRAZING_GAIN", "SHADOW_TOLERANCE", "HIGHLIGHT_RATIO", "DETAIL_DEPTH_MM", "DETAIL_LIMIT_MM", "SH_TERMS",
+           "GRAZING_GAIN", "QUILT_BLOCK", "quilted_detail", "SHADOW_TOLERANCE", "HIGHLIGHT_RATIO", "DETAIL_DEPTH_MM", "DETAIL_LIMIT_MM", "SH_TERMS",
            "DIRECTIONAL_RANGE", "FORESHORTENING", "EDGE_MM", "DETAIL_EDGE_MM", "PAD_FRACTION"]
 
 #: (roughness, specular) priors per facial region; oily T-zone glossier, brows matte, lips smooth
@@ -151,6 +152,12 @@ EDGE_MM = 4.0
 #: The seen texels' own fine detail is used from this many mm inside the seen region (nearer its
 #: edge, the mirror's or noise: the edge's texels carry lashes, frame shadows, highlight halos).
 DETAIL_EDGE_MM = 2.0
+#: Side of the blocks of seen skin detail that the fill's detail is quilted from, as a fraction of
+#: S (16 texels, ~6 mm at 1K: a few pores). bench_albedo_scans, filled skin's gradient ratio:
+#: 0.29–0.45 with value noise, 0.48–0.58 with these blocks of the finest band; blocks of S/32
+#: with the fill's whole detail band (~3 mm) reached 0.54–0.66 but drew waves of copied wrinkles
+#: over Grace Hopper's scalp.
+QUILT_BLOCK = 1.0 / 64.0
 #: Padding outside the UV islands: the edge colour over this fraction of S texels (4 at 1K), then
 #: the median of the map (flat).
 PAD_FRACTION = 1.0 / 256.0
@@ -307,6 +314,63 @@ def _push_pull(values: np.ndarray, weight: np.ndarray, size: int, finest: float,
         support = np.clip(gaussian_blur(weight, sigma) * 4.0, 0.0, 1.0)[..., None]
         out = support * blurred + (1 - support) * out
     return out
+
+
+def quilted_detail(detail: np.ndarray, source: np.ndarray, need: np.ndarray, seed: int = 0) -> np.ndarray | None:
+    """Detail (S, S, C) float32 over ``need`` (S, S) bool, made of blocks of ``detail`` (S, S, C)
+    copied from random places wholly inside ``source`` (S, S) bool: blocks of
+    :data:`QUILT_BLOCK` × S texels on a half-overlapping grid, each made zero-mean under its
+    separable Hann window and blended with variance-preserving weights Σ w·x / √(Σ w²), so the
+    copy keeps the source's contrast at every scale finer than a block and no block edge shows.
+    Deterministic for a given ``seed``. 0 outside ``need``; None where ``source`` holds no whole
+    block. (By hand: OpenCV's and scikit-image's inpainting diffuse or copy whole regions; none
+    synthesises a stationary detail layer by example.)"""
+    size = detail.shape[0]
+    half = max(4, round(QUILT_BLOCK * size / 2))
+    block = 2 * half
+    if size < block:
+        return None
+    inside = cv2.erode(source.astype(np.uint8), np.ones((block, block), np.uint8), anchor=(0, 0),
+                       borderType=cv2.BORDER_CONSTANT, borderValue=0)[: size - block + 1, : size - block + 1]
+    starts = np.argwhere(inside > 0)
+    if len(starts) == 0:
+        return None
+    ramp = np.sin(np.pi * (np.arange(block) + 0.5) / block) ** 2  # Hann: two at half overlap sum to 1
+    window = (ramp[:, None] * ramp[None, :]).astype(np.float32)
+    channels = detail.shape[2]
+    # a canvas (channels first) padded by a block on each side; block (i, j) covers image rows (i − 1)·half … (i + 1)·half
+    cells = size // half + 3
+    canvas = np.zeros((channels, cells * half + block, cells * half + block), np.float32)
+    weight = np.zeros(canvas.shape[1:], np.float32)
+    # which half × half cells hold a texel to fill (cell k: image rows k·half …; −1 and past the end: none)
+    padded = np.zeros(((cells + 1) * half, (cells + 1) * half), bool)
+    padded[:size, :size] = need
+    cell_need = padded.reshape(cells + 1, half, cells + 1, half).any(axis=(1, 3))
+    cell_need[-1, :] = cell_need[:, -1] = False  # index −1 (the cell before row 0) is empty
+    # every block of the detail (channels first, so that the gathered patches are contiguous), a view
+    windows = np.lib.stride_tricks.sliding_window_view(np.ascontiguousarray(detail.transpose(2, 0, 1)), (block, block), axis=(1, 2))
+    mean_weights = (window / window.sum()).reshape(-1)
+    rng = np.random.default_rng(seed)
+    offset = block - half  # image row 0 is canvas row `block`, so block i starts at canvas row offset + i·half
+    for pr in (0, 1):  # four phases of the half-overlapping grid, each a tiling of disjoint blocks
+        for pc in (0, 1):
+            rows, cols = np.arange(pr, cells, 2), np.arange(pc, cells, 2)
+            ii, jj = np.meshgrid(rows, cols, indexing="ij")
+            touch = cell_need[ii - 1, jj - 1] | cell_need[ii - 1, jj] | cell_need[ii, jj - 1] | cell_need[ii, jj]
+            if not touch.any():
+                continue
+            pick = starts[rng.integers(len(starts), size=int(touch.sum()))]
+            patches = windows[:, pick[:, 0], pick[:, 1]]  # (C, n, block, block), a copy
+            patches -= (patches.reshape(channels, len(pick), -1) @ mean_weights)[:, :, None, None]  # zero mean under the window
+            patches *= window
+            r0, c0 = offset + pr * half, offset + pc * half
+            h, w = len(rows) * block, len(cols) * block
+            tiling = canvas[:, r0: r0 + h, c0: c0 + w].reshape(channels, len(rows), block, len(cols), block).transpose(0, 1, 3, 2, 4)
+            tiling[:, touch] += patches  # (a view of the canvas: C, rows, cols, block, block)
+            weight[r0: r0 + h, c0: c0 + w] += np.kron(touch.astype(np.float32), window * window)
+    inner = (slice(block, block + size), slice(block, block + size))
+    out = (canvas[:, inner[0], inner[1]] / np.sqrt(np.maximum(weight[inner], 1e-6))).transpose(1, 2, 0)
+    return np.where(need[..., None], out, 0.0).astype(np.float32)
 
 
 @dataclass
@@ -558,8 +622,10 @@ class DefaultBackend:
                      ctx: TextureContext) -> tuple[np.ndarray, np.ndarray, np.ndarray | float]:
         """The fill's fine detail (S, S, 3) in log RGB (zero mean, finer than ~S/128 texels, ~2.5 mm
         at 1K): where the texel is seen (``seen``), its own; elsewhere the mirror texel's where
-        that was reliably seen, and 3-D value noise of the model-space position with the seen
-        skin's contrast where not. Also the mirror's weight (S, S) and that contrast. ``inner``:
+        that was reliably seen, and where not, blocks of the reliably seen skin's finest detail
+        (above ~S · ``detail_sigma_fraction`` texels⁻¹: pores, stubble; :func:`quilted_detail`), or
+        3-D value noise of the model-space position with the seen skin's contrast where no whole
+        block was seen. Also the mirror's weight (S, S) and that contrast. ``inner``:
         :meth:`_inner_distance` of ``seen`` (S, S) mm."""
         cover = ctx.coverage
         size = ctx.size
@@ -571,12 +637,18 @@ class DefaultBackend:
         w_m = np.where(has, reliable.reshape(-1)[mirror], 0.0).astype(np.float32)
         mirrored = detail.reshape(-1, 3)[mirror]
         need = cover & ~seen & (w_m < 1.0 - 1e-3)
-        noise = np.zeros(cover.shape, np.float32)
-        if need.any() and amp > 0:
-            pos = ctx.position[need]
-            n = value_noise(pos, 0.35) + 0.7 * value_noise(pos, 0.7, seed=1) + 0.4 * value_noise(pos, 1.5, seed=2)
-            noise[need] = amp * n / max(float(n.std()), 1e-6)
-        fill = w_m[..., None] * mirrored + (1 - w_m[..., None]) * noise[..., None]
+        synthesised = None
+        if need.any():  # pores and stubble only: quilted wrinkles and blotches made waves on a bald scalp
+            fine = np.where(seen[..., None], log_seen - masked_blur(log_seen, seen, max(1.0, size * self.detail_sigma_fraction)), 0.0)
+            synthesised = quilted_detail(fine, seen & _skin(ctx) & (reliable > 0.99) & (inner > DETAIL_EDGE_MM), need)
+        if synthesised is None:  # no whole block of reliable skin was seen: value noise with its contrast
+            noise = np.zeros(cover.shape, np.float32)
+            if need.any() and amp > 0:
+                pos = ctx.position[need]
+                n = value_noise(pos, 0.35) + 0.7 * value_noise(pos, 0.7, seed=1) + 0.4 * value_noise(pos, 1.5, seed=2)
+                noise[need] = amp * n / max(float(n.std()), 1e-6)
+            synthesised = noise[..., None]
+        fill = w_m[..., None] * mirrored + (1 - w_m[..., None]) * synthesised
         own = _smoothstep(inner / DETAIL_EDGE_MM)[..., None] * seen[..., None]
         fill = own * detail + (1 - own) * fill  # where seen (away from its edge: lashes, halos), the photo's own detail
         return np.where(cover[..., None], fill, 0.0).astype(np.float32), w_m, amp
