@@ -311,6 +311,21 @@ def test_quilted_detail_keeps_the_sources_contrast_and_scale_without_a_block_gri
     assert quilted_detail(texture, tiny, ~tiny) is None
 
 
+def test_quilted_detail_leaves_out_blocks_with_a_speck():
+    """Pores (σ 0.02) with a few dark specks (−0.5: a mole, a lash) on 1 % of the source: blocks
+    holding a speck are busier than QUILT_ENERGY_CAP × the median block, so no speck is copied."""
+    size = 512
+    rng = np.random.default_rng(2)
+    detail = (0.02 * rng.normal(size=(size, size, 1))).astype(np.float32)
+    specks = rng.random((size, size)) < 0.0004  # ~100 specks, each in ~1 % of the blocks' places
+    detail[specks] = -0.5
+    source = np.zeros((size, size), bool)
+    source[:, : size // 2] = True
+    out = quilted_detail(detail, source, ~source)
+    assert out[~source].min() > -0.15  # a copied speck would be ≲ −0.3 (windowed, normalised)
+    assert 0.8 < out[~source].std() / 0.02 < 1.2
+
+
 def test_hidden_side_without_a_mirror_gets_the_seen_skins_own_fine_texture():
     """Right part hidden and no mirror: the fill's finest detail (above S/256 texels⁻¹) is quilted
     from the seen skin, so it has the seen skin's contrast (within 25 %) and its texture: here

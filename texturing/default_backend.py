@@ -83,7 +83,7 @@ from facegeo.texturing.illuminant import chroma, estimate_illuminant, invent_chr
 from facegeo.uv.renderer import light_visibility
 
 __all__ = ["DefaultBackend", "REGION_PRIORS", "pad_outside", "masked_blur", "gaussian_blur", "value_noise", "MAX_GAIN",
-           "GRAZING_GAIN", "QUILT_BLOCK", "quilted_detail", "SHADOW_TOLERANCE", "HIGHLIGHT_RATIO", "DETAIL_DEPTH_MM", "DETAIL_LIMIT_MM", "SH_TERMS",
+           "GRAZING_GAIN", "QUILT_BLOCK", "QUILT_ENERGY_CAP", "quilted_detail", "SHADOW_TOLERANCE", "HIGHLIGHT_RATIO", "DETAIL_DEPTH_MM", "DETAIL_LIMIT_MM", "SH_TERMS",
            "DIRECTIONAL_RANGE", "FORESHORTENING", "EDGE_MM", "DETAIL_EDGE_MM", "PAD_FRACTION"]
 
 #: (roughness, specular) priors per facial region; oily T-zone glossier, brows matte, lips smooth
@@ -158,6 +158,11 @@ DETAIL_EDGE_MM = 2.0
 #: with the fill's whole detail band (~3 mm) reached 0.54–0.66 but drew waves of copied wrinkles
 #: over Grace Hopper's scalp.
 QUILT_BLOCK = 1.0 / 64.0
+#: A block of seen skin is quilted from only where its detail's mean square is at most this × the
+#: median block's: a mole, a lash, a speck or a wrinkle copied over the scalp shows as a repeated
+#: mark (the contact sheet's astronaut and Grace Hopper); bench_albedo_scans' gradient ratio loses
+#: 0.03 to it.
+QUILT_ENERGY_CAP = 2.5
 #: Padding outside the UV islands: the edge colour over this fraction of S texels (4 at 1K), then
 #: the median of the map (flat).
 PAD_FRACTION = 1.0 / 256.0
@@ -318,10 +323,11 @@ def _push_pull(values: np.ndarray, weight: np.ndarray, size: int, finest: float,
 
 def quilted_detail(detail: np.ndarray, source: np.ndarray, need: np.ndarray, seed: int = 0) -> np.ndarray | None:
     """Detail (S, S, C) float32 over ``need`` (S, S) bool, made of blocks of ``detail`` (S, S, C)
-    copied from random places wholly inside ``source`` (S, S) bool: blocks of
-    :data:`QUILT_BLOCK` × S texels on a half-overlapping grid, each made zero-mean under its
-    separable Hann window and blended with variance-preserving weights Σ w·x / √(Σ w²), so the
-    copy keeps the source's contrast at every scale finer than a block and no block edge shows.
+    copied from random places wholly inside ``source`` (S, S) bool and no busier than
+    :data:`QUILT_ENERGY_CAP` × the median place: blocks of :data:`QUILT_BLOCK` × S texels on a
+    half-overlapping grid, each made zero-mean under its separable Hann window and blended with
+    variance-preserving weights Σ w·x / √(Σ w²), so the copy keeps the source's contrast at
+    every scale finer than a block and no block edge shows.
     Deterministic for a given ``seed``. 0 outside ``need``; None where ``source`` holds no whole
     block. (By hand: OpenCV's and scikit-image's inpainting diffuse or copy whole regions; none
     synthesises a stationary detail layer by example.)"""
@@ -335,6 +341,9 @@ def quilted_detail(detail: np.ndarray, source: np.ndarray, need: np.ndarray, see
     starts = np.argwhere(inside > 0)
     if len(starts) == 0:
         return None
+    energy = cv2.boxFilter((detail * detail).sum(-1).astype(np.float32), -1, (block, block), anchor=(0, 0),
+                           borderType=cv2.BORDER_CONSTANT)[starts[:, 0], starts[:, 1]]  # mean square over each block
+    starts = starts[energy <= QUILT_ENERGY_CAP * np.median(energy)]
     ramp = np.sin(np.pi * (np.arange(block) + 0.5) / block) ** 2  # Hann: two at half overlap sum to 1
     window = (ramp[:, None] * ramp[None, :]).astype(np.float32)
     channels = detail.shape[2]
