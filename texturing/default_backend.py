@@ -39,10 +39,10 @@ Colour textures are sRGB in [0, 1], float32, S × S, image-style rows (see
   reliably seen, else the finest detail (~1 mm at 1K: pores, stubble) of the reliably seen skin
   quilted in blocks (:func:`quilted_detail`: this face's own texture at its own contrast; 3-D
   value noise of the model-space position only where no whole block of skin was seen); the low
-  frequencies B solve a screened Poisson problem on the mesh's vertices, min Σ r (B − (log seen − D))² + λ Σ_edges
-  |∇B|² (+ a weak pull to the seen skin's mean far from anything seen), so the filled skin takes
-  its tone from the reliable seen skin next to it and B + D has the seen skin's values wherever
-  r is high; the result is r · log seen + (1 − r) · (B + D): no edge where the seen skin ends,
+  frequencies B solve a screened Poisson problem on the mesh's vertices,
+  min Σ r (B − (log seen − D))² + λ Σ_edges |∇B|² (+ a weak pull to the seen skin's mean far
+  from anything seen), so the filled skin takes its tone from the reliable seen skin next to it
+  and B + D has the seen skin's values wherever r is high; the result is r · log seen + (1 − r) · (B + D): no edge where the seen skin ends,
   continuous across UV seams and the mirror line because B lives on the vertices. Only fine
   detail crosses the mirror: mid-frequency blotches and shading residuals of the other side do
   not. Without :class:`SurfaceOperators` B is a UV-space push-pull (masked blurs at growing
@@ -153,10 +153,10 @@ EDGE_MM = 4.0
 #: edge, the mirror's or noise: the edge's texels carry lashes, frame shadows, highlight halos).
 DETAIL_EDGE_MM = 2.0
 #: Side of the blocks of seen skin detail that the fill's detail is quilted from, as a fraction of
-#: S (16 texels, ~6 mm at 1K: a few pores). bench_albedo_scans, filled skin's gradient ratio:
-#: 0.29–0.45 with value noise, 0.48–0.58 with these blocks of the finest band; blocks of S/32
-#: with the fill's whole detail band (~3 mm) reached 0.54–0.66 but drew waves of copied wrinkles
-#: over Grace Hopper's scalp.
+#: S (16 texels, ~6 mm at 1K: a few pores). bench_albedo_scans, the filled skin's gradient ratio
+#: over the even and hard views: 0.29–0.43 with value noise, 0.41–0.53 with these blocks of the
+#: finest band; blocks of S/32 with the fill's whole detail band (~3 mm) reached 0.56–0.66 but
+#: drew waves of copied wrinkles over Grace Hopper's scalp.
 QUILT_BLOCK = 1.0 / 64.0
 #: A block of seen skin is quilted from only where its detail's mean square is at most this × the
 #: median block's: a mole, a lash, a speck or a wrinkle copied over the scalp shows as a repeated
