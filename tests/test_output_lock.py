@@ -150,7 +150,9 @@ child = os.fork()
 if child == 0:
     time.sleep(60)  # a forked helper outliving its parent
     os._exit(0)
-flag.write_text(str(child))
+pending = flag.with_name(flag.name + ".part")
+pending.write_text(str(child))
+os.replace(pending, flag)  # whole: the test reads the pid as soon as the flag exists
 time.sleep(60)
 """
 
