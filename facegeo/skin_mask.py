@@ -44,7 +44,8 @@ The mask is built from what runs offline here, in four parts:
    distance squared (shadowed wrinkles, a highlight, a blemish whose chroma strays) are skin.
 
 It also measures the photo's **white references**: the sclera (the brightest half of each eye's
-interior, its glints aside) and, where the mouth is open, the teeth; their mean linear RGB
+interior, its glints aside; of an eye whose colour disagrees with the other's, which has lid
+skin in it, none) and, where the mouth is open, the teeth; their mean linear RGB
 (:attr:`SkinMask.white_reference`) is evidence of the light's colour for the texture stage.
 
 :func:`skin_mask` returns a :class:`SkinMask`; its ``occlusion`` (1 = something other than the
@@ -77,7 +78,7 @@ if TYPE_CHECKING:
     from facegeo.morphable_model import MorphableModel
 
 __all__ = ["SkinMask", "FaceRegions", "skin_mask", "skin_mask_image", "white_reference", "DARK_FRACTION", "HALO_FRACTION",
-           "LOCAL_DARK", "FRAME_WIDTH", "FRAME_DEPTH", "MAX_HOLE", "skin_vertex_mask", "vertex_regions", "REGION_NAMES",
+           "LOCAL_DARK", "FRAME_WIDTH", "FRAME_DEPTH", "MAX_HOLE", "EYES_AGREE", "skin_vertex_mask", "vertex_regions", "REGION_NAMES",
            "RAMP_MM"]
 
 # MediaPipe face-mesh contours (vertex indices of the 468-point canonical mesh, in order).
@@ -110,6 +111,11 @@ FRAME_DEPTH = 0.35
 #: Colour-occluded blobs inside the face oval smaller than this × the inter-ocular distance²
 #: are skin (holes closed).
 MAX_HOLE = 0.15
+#: The two eyes' sclera chroma (log R/G, log B/G) differ by at most this under one light; beyond
+#: it the more saturated one has lid skin in it (on a turned face one eye's lid polygon takes in
+#: skin) and only the other is a white reference. bench_albedo_scans' renders: 0.03–0.11 facing
+#: the camera, 0.16–0.38 at ±40°, where the warmer eye was the nearer one, its polygon on lid skin.
+EYES_AGREE = 0.15
 #: Person probability below which a pixel outside the face oval is background.
 PERSON_THRESHOLD = 0.5
 #: In a greyscale photo, pixels outside the face oval brighter than this × the sampled skin's
@@ -231,12 +237,14 @@ def white_reference(linear: np.ndarray, regions: FaceRegions) -> tuple[np.ndarra
     each eye's interior (the lid polygon shrunk by 15 % towards its centre: no lashes), the
     brighter half of the pixels below the 97th percentile (the sclera; the iris and pupil are the
     darker half, the glints the top), and of those the less saturated half (on a turned face the
-    polygon takes in lid skin); in the mouth opening, when it is open (its height over 15 %
-    of the inter-ocular distance), the pixels brighter than twice the opening's median (teeth).
+    polygon takes in lid skin); where the two eyes' chromas differ by more than
+    :data:`EYES_AGREE`, only the less saturated eye's; in the mouth opening, when it is open (its
+    height over 15 % of the inter-ocular distance), the pixels brighter than twice the opening's
+    median (teeth).
     None where fewer than 12 pixels qualify. ``linear`` (H, W, 3) linear RGB."""
     H, W = linear.shape[:2]
     lum = luminance(linear)
-    picked = []
+    eyes = []
     for eye in regions.eyes:
         centre = eye.mean(0)
         inner = _fill((H, W), [centre + 0.85 * (eye - centre)])
@@ -247,7 +255,12 @@ def white_reference(linear: np.ndarray, regions: FaceRegions) -> tuple[np.ndarra
         bright = linear[inner & (lum >= lo) & (lum <= hi)]
         c = _chroma(bright)
         saturation = np.hypot(c[:, 0], c[:, 1])
-        picked.append(bright[saturation <= np.median(saturation)])  # the whiter half: lids and skin stay out
+        eyes.append(bright[saturation <= np.median(saturation)])  # the whiter half: lids and skin stay out
+    picked = [e for e in eyes if len(e)]
+    if len(picked) == 2:  # one light, two scleras: where they disagree, lid skin came into one (it is warmer)
+        means = [_chroma(e.astype(np.float64).mean(axis=0)) for e in picked]
+        if float(np.linalg.norm(means[0] - means[1])) > EYES_AGREE:
+            picked = [picked[int(np.argmin([np.hypot(*m) for m in means]))]]
     mouth = regions.mouth
     if float(mouth[:, 1].max() - mouth[:, 1].min()) > 0.15 * regions.interocular:
         inside = _fill((H, W), [mouth])

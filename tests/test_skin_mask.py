@@ -121,6 +121,24 @@ def test_white_reference_is_the_sclera_not_the_iris():
     assert white_reference(linear, tiny)[0] is None
 
 
+def test_white_reference_leaves_out_an_eye_full_of_lid_skin():
+    """Two eyes under one light: the left one's interior is sclera (0.8, 0.7, 0.6), the right one's
+    mostly lid skin (0.6, 0.35, 0.25: a turned face's nearer eye). Their chromas differ by far more
+    than EYES_AGREE, so the reference is the left eye's sclera alone; two clean eyes are averaged."""
+    H, W = 128, 256
+    linear = np.full((H, W, 3), 0.2, np.float32)
+    left, right = ellipse(64, 64, 30, 12), ellipse(192, 64, 30, 12)
+    cv2.fillPoly(linear, [np.round(left).astype(np.int32)], (0.8, 0.7, 0.6))
+    cv2.fillPoly(linear, [np.round(right).astype(np.int32)], (0.6, 0.35, 0.25))
+    regions = FaceRegions(oval=ellipse(128, 64, 120, 60), eyes=(left, right), brows=(left, right),
+                          lips=ellipse(128, 110, 10, 4), mouth=ellipse(128, 110, 6, 1))
+    ref, _ = white_reference(linear, regions)
+    np.testing.assert_allclose(ref, [0.8, 0.7, 0.6], atol=0.02)
+    cv2.fillPoly(linear, [np.round(right).astype(np.int32)], (0.78, 0.7, 0.62))  # both sclera: within EYES_AGREE
+    ref, _ = white_reference(linear, regions)
+    np.testing.assert_allclose(ref, [0.79, 0.7, 0.61], atol=0.02)
+
+
 def test_tortoiseshell_frames_and_background_are_masked(synthetic):
     """Frames of the skin's own chroma (darker) pass the colour model but are thin and dark: the
     frame detector takes them; a skin-coloured background beside the head is taken by the person
