@@ -42,7 +42,8 @@ Colour textures are sRGB in [0, 1], float32, S × S, image-style rows (see
   frequencies B solve a screened Poisson problem on the mesh's vertices,
   min Σ r (B − (log seen − D))² + λ Σ_edges |∇B|² (+ a weak pull to the seen skin's mean far
   from anything seen), so the filled skin takes its tone from the reliable seen skin next to it
-  and B + D has the seen skin's values wherever r is high; the result is r · log seen + (1 − r) · (B + D): no edge where the seen skin ends,
+  and B + D has the seen skin's values wherever r is high; the result is
+  r · log seen + (1 − r) · (B + D): no edge where the seen skin ends,
   continuous across UV seams and the mirror line because B lives on the vertices. Only fine
   detail crosses the mirror: mid-frequency blotches and shading residuals of the other side do
   not. Without :class:`SurfaceOperators` B is a UV-space push-pull (masked blurs at growing
@@ -681,12 +682,12 @@ class DefaultBackend:
         return surf.to_texels(x, size)
 
     def _detail_contrast(self, log_rgb: np.ndarray, seen: np.ndarray, size: int) -> float:
-        """Robust σ of the seen skin's fine log-luminance detail (above ~S/256 texels⁻¹):
-        ``log_rgb`` (S, S, 3) log linear RGB, ``seen`` (S, S) bool."""
+        """Robust σ of the seen skin's fine log-luminance detail (above ~S · ``detail_sigma_fraction``
+        texels⁻¹, the band the fill quilts): ``log_rgb`` (S, S, 3) log linear RGB, ``seen`` (S, S) bool."""
         if seen.sum() < 100:
             return 0.0
         log_l = np.log(np.maximum(luminance(np.exp(log_rgb)), 1e-4))
-        detail = log_l - masked_blur(log_l, seen, max(1.0, size / 256.0))
+        detail = log_l - masked_blur(log_l, seen, max(1.0, size * self.detail_sigma_fraction))
         d = detail[seen]
         return float(1.4826 * np.median(np.abs(d - np.median(d))))
 
