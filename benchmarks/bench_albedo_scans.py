@@ -2,9 +2,19 @@
 texture is known, reconstructed by facegeo, the asset's albedo compared with the scan's colour at
 corresponding surface points.
 
-Scans and renders: branch ``scans``'s ``benchmarks/scan_renders.py`` (the 3dMD scan of the
-menpo3d sdist; per view the render, the scan texture's colour at every pixel (Cycles' Diffuse
-Color pass) and the scan point at every pixel). Views here: yaw 0° and ±40° under
+Scans and renders: ``benchmarks/scan_renders.py`` (per view the render, the scan texture's colour
+at every pixel (Cycles' Diffuse Color pass) and the scan point at every pixel) of two scans
+(:mod:`head_scans`), whose colour maps differ in kind:
+
+* ``james``: the 3dMD scan of the menpo3d sdist. Its colour map is two of the scanner's photos,
+  lighting and all: under the renders' even light the subject's right half of the face is 1.5×
+  brighter than the left (median skin luminance of the Diffuse Color pass, yaw 0°), and its log
+  luminance varies with a MAD of 0.33 over the seen skin; a beard. A light estimate that takes
+  the albedo's low frequencies as constant is biased by that baked light (RESULTS.md);
+* ``lee_perry_smith``: Infinite-Realities' scan from the three.js examples (CC BY 3.0): an
+  evenly lit colour map, as an albedo is; eyes closed (no sclera to see), head shaved.
+
+Views here, per scan: yaw 0° and ±40° under
 
 * **even** light (the renders' uniform white environment),
 * **warm** light: the even render's linear RGB times the von Kries gains :data:`WARM` of a
@@ -45,7 +55,7 @@ least-squares scaled onto the truth's over the seen skin; chroma is not fitted):
   covariance) of the truth's colours over the skin texels (glasses, background, hair, dark cast
   shadows or blotches left in).
 
-    python benchmarks/bench_albedo_scans.py --write /tmp/albedo_scans.md    # ~20 min on 2 cores
+    python benchmarks/bench_albedo_scans.py --write /tmp/albedo_scans.md    # ~7 min on 2 cores, both scans
     python benchmarks/bench_albedo_scans.py --time-stages 5                  # texture-stage times
 """
 
@@ -69,7 +79,6 @@ from scipy.spatial import cKDTree
 from skimage.color import deltaE_ciede2000, rgb2lab
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-import scan_renders  # noqa: E402  (branch scans: the renders and their truth)
 from scan_evaluation import similarity_transform  # noqa: E402
 from scan_renders import ViewSpec, load_view, render_views  # noqa: E402
 
@@ -84,7 +93,8 @@ from facegeo.uv.texels import sample_bilinear  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 BASELINE_COMMIT = "b62b557"
-SCAN = "james"
+#: The scans compared (:data:`head_scans.SCANS`), and their labels in the tables.
+SCAN_LABELS = {"james": "James (3dMD)", "lee_perry_smith": "Lee Perry-Smith (IR)"}
 #: von Kries gains (linear sRGB, G = 1) of a ~3200 K light against the renders' white one.
 WARM = np.array([1.0, 0.76, 0.52], np.float32)
 #: The hard side light at ±40°, rendered here with the scans helper's recipe.
@@ -117,24 +127,19 @@ def from_git(path: str, name: str) -> types.ModuleType:
     return module
 
 
-def view_for(render: str):
-    """The scans helper's view ``render``, rendered first where missing (extra views here)."""
+def view_for(scan: str, render: str):
+    """The scans helper's view ``render`` of ``scan``, rendered first where missing (extra views here)."""
     if render in {v.name for v in EXTRA_VIEWS}:
         try:
-            return load_view(SCAN, render, cache=EXTRA_CACHE)
+            return load_view(scan, render, cache=EXTRA_CACHE)
         except facegeo.errors.InputError:
-            standard = scan_renders.VIEWS
-            scan_renders.VIEWS = EXTRA_VIEWS  # render_views renders the views of this module global
-            try:
-                render_views(SCAN, cache=EXTRA_CACHE)
-            finally:
-                scan_renders.VIEWS = standard
-            return load_view(SCAN, render, cache=EXTRA_CACHE)
+            render_views(scan, cache=EXTRA_CACHE, views=EXTRA_VIEWS)
+            return load_view(scan, render, cache=EXTRA_CACHE)
     try:
-        return load_view(SCAN, render)
+        return load_view(scan, render)
     except facegeo.errors.InputError:
-        render_views(SCAN)
-        return load_view(SCAN, render)
+        render_views(scan)
+        return load_view(scan, render)
 
 
 def photo_of(view, light: str) -> np.ndarray:
@@ -153,10 +158,10 @@ class Truth3D:
     colour: np.ndarray
 
     @classmethod
-    def build(cls) -> "Truth3D":
+    def build(cls, scan: str) -> "Truth3D":
         points, colours = [], []
         for name in TRUTH_VIEWS:
-            view = view_for(name)
+            view = view_for(scan, name)
             mask = view.mask
             points.append(view.points[mask])
             colours.append(srgb_to_linear(view.albedo[mask].astype(np.float32) / 255.0))
@@ -204,8 +209,8 @@ def gradient(lab_map: np.ndarray, region: np.ndarray) -> np.ndarray:
     return np.where(ok, np.sqrt(gx + gy), np.nan)
 
 
-def evaluate(name: str, render: str, light: str, model, raster, skin_texels, truth3d: Truth3D, previous) -> dict:
-    view = view_for(render)
+def evaluate(scan: str, name: str, render: str, light: str, model, raster, skin_texels, truth3d: Truth3D, previous) -> dict:
+    view = view_for(scan, render)
     photo = photo_of(view, light)
     S = raster.size
     fit = facegeo.fit(photo, model)
@@ -285,7 +290,7 @@ def evaluate(name: str, render: str, light: str, model, raster, skin_texels, tru
     log_truth = np.log(np.maximum(truth, 1e-4))
     mean = (log_truth * reliable[..., None]).reshape(-1, 3).sum(0) / max(float(reliable.sum()), 1e-6)
     extended = np.exp(DefaultBackend()._base(log_truth, reliable, mean, ctx, FILL_SMOOTHNESS))
-    out = {"view": name, "seen_texels": int(seen_skin.sum()), "filled_texels": int(filled_skin.sum()),
+    out = {"scan": scan, "view": name, "seen_texels": int(seen_skin.sum()), "filled_texels": int(filled_skin.sum()),
            "truth_seam": seam(g_truth), "blur_texels": blur, "fit_rms_px": fit.landmark_rms_px, "methods": {},
            "truth_extended_de_filled": float(np.median(deltaE_ciede2000(lab(extended)[filled_skin], lab(truth)[filled_skin])))
            if filled_skin.any() else float("nan")}
@@ -340,27 +345,35 @@ def fmt(x: float, digits: int = 2) -> str:
 
 
 def report(rows: list[dict]) -> list[str]:
-    lines = ["| view | method | ΔE2000 seen | ΔE2000 filled | chroma seen / filled | gradient ratio (seen / filled) | seam ratio (truth) | off-skin % |",
-             "|---|---|---|---|---|---|---|---|"]
+    lines = ["| scan | view | method | ΔE2000 seen | ΔE2000 filled | chroma seen / filled | gradient ratio (seen / filled) | seam ratio (truth) | off-skin % |",
+             "|---|---|---|---|---|---|---|---|---|"]
     for row in rows:
+        where = f"{SCAN_LABELS[row['scan']]} | {row['view']}"
         for method in METHODS:
             r = row["methods"][method]
             if method == "raw":
-                lines.append(f"| {row['view']} | raw photo | {fmt(r['de_seen'])} | — | {fmt(r['chroma_seen'])} / — | — | — | — |")
+                lines.append(f"| {where} | raw photo | {fmt(r['de_seen'])} | — | {fmt(r['chroma_seen'])} / — | — | — | — |")
                 continue
-            lines.append(f"| {row['view']} | {method} | {fmt(r['de_seen'])} | {fmt(r['de_filled'])} | {fmt(r['chroma_seen'])} / {fmt(r['chroma_filled'])} | "
+            lines.append(f"| {where} | {method} | {fmt(r['de_seen'])} | {fmt(r['de_filled'])} | {fmt(r['chroma_seen'])} / {fmt(r['chroma_filled'])} | "
                          f"{fmt(r['gradient'])} ({fmt(r['gradient_seen'])} / {fmt(r['gradient_filled'])}) | {fmt(r['seam'])} ({fmt(row['truth_seam'])}) | "
                          f"{100 * r['off_skin']:.2f} |")
     lines += ["", "Filled skin, ΔE2000 median: the new backend, the flat colour, and the truth's own colours on the seen texels "
-              "extended by the new backend's fill (what any fill from the seen skin reaches on this scan):", "",
-              "| view | new | flat | truth extended |", "|---|---|---|---|"]
+              "extended by the new backend's fill (what any fill from the seen skin reaches on that scan):", "",
+              "| scan | view | new | flat | truth extended |", "|---|---|---|---|---|"]
     for row in rows:
-        lines.append(f"| {row['view']} | {fmt(row['methods']['new']['de_filled'])} | {fmt(row['methods']['flat']['de_filled'])} | "
+        lines.append(f"| {SCAN_LABELS[row['scan']]} | {row['view']} | {fmt(row['methods']['new']['de_filled'])} | {fmt(row['methods']['flat']['de_filled'])} | "
                      f"{fmt(row.get('truth_extended_de_filled', float('nan')))} |")
     # the bars, on the even and hard side views (the issue's) and on all views
     lines += ["", "| bar | new | previous |", "|---|---|---|"]
-    bar_rows = [r for r in rows if not r["view"].startswith("warm")]
-    for label, subset in (("even + hard side", bar_rows), ("all views (warm too)", rows)):
+    scans = list(dict.fromkeys(r["scan"] for r in rows))
+    groups = [(f"{SCAN_LABELS[scan]}, even + hard side", [r for r in rows if r["scan"] == scan and not r["view"].startswith("warm")])
+              for scan in scans]
+    if len(scans) > 1:
+        groups.append(("both scans, even + hard side", [r for r in rows if not r["view"].startswith("warm")]))
+    groups.append(("all views (warm too)", rows))
+    for label, subset in groups:
+        if not subset:
+            continue
         for method_label, key in (("seen ΔE2000 median over views ≤ 4", "de_seen"),):
             vals = {m: statistics.median(r["methods"][m][key] for r in subset) for m in ("new", "previous")}
             lines.append(f"| {label}: {method_label} | {vals['new']:.2f} | {vals['previous']:.2f} |")
@@ -421,6 +434,7 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--size", type=int, default=1024, help="map size S")
     ap.add_argument("--views", default="", help="comma-separated indices into VIEWS (default all)")
+    ap.add_argument("--scans", nargs="+", default=list(SCAN_LABELS), choices=list(SCAN_LABELS), help="the scans (default both)")
     ap.add_argument("--write", type=Path, default=None, help="also write the markdown report here")
     ap.add_argument("--json", type=Path, default=None, help="also write the raw numbers here")
     ap.add_argument("--time-stages", type=int, default=0, metavar="ROUNDS", help="only time the texture stages, this many rounds")
@@ -437,17 +451,18 @@ def main(argv=None) -> int:
     raster = rasterize_uv(model, size=args.size)
     surf = surface_operators(model, raster)
     skin_texels = (surf.to_texels(skin_vertex_mask(model).astype(np.float32), args.size) > 0.5) & np.asarray(raster.inside)
-    truth3d = Truth3D.build()
     previous = Previous()
     chosen = [VIEWS[int(i)] for i in args.views.split(",") if i] or VIEWS
     rows = []
-    for name, render, light in chosen:
-        row = evaluate(name, render, light, model, raster, skin_texels, truth3d, previous)
-        rows.append(row)
-        print(json.dumps(row), file=sys.stderr)
+    for scan in args.scans:
+        truth3d = Truth3D.build(scan)
+        for name, render, light in chosen:
+            row = evaluate(scan, name, render, light, model, raster, skin_texels, truth3d, previous)
+            rows.append(row)
+            print(json.dumps(row), file=sys.stderr)
     header = [f"command: `python benchmarks/bench_albedo_scans.py {' '.join(sys.argv[1:] if argv is None else argv)}`",
               f"machine: {platform.machine()}, {os.cpu_count()} cores, torch {torch.__version__}; load average at start {load_start}, "
-              f"at end {load()}; total {time.perf_counter() - t_start:.0f} s; S = {args.size}; scan `{SCAN}` (menpo3d), renders 512×768; "
+              f"at end {load()}; total {time.perf_counter() - t_start:.0f} s; S = {args.size}; scans {', '.join(f'`{s}`' for s in args.scans)}, renders 512×768; "
               f"previous = `DefaultBackend` + `skin_mask` of {BASELINE_COMMIT}", ""]
     text = "\n".join(header + report(rows)) + "\n"
     print(text)

@@ -4,7 +4,7 @@
                                          [--fitter MODULE:FACTORY] [--scan-landmarks detected|annotation]
                                          [--sections DIR] [--views NAME ...]
 
-For each scan of :data:`head_scans.SCANS`: the views of :mod:`scan_renders` are rendered (once;
+For each scan of :data:`head_scans.SCANS` whose scale is measured (``--scans`` takes the others too): the views of :mod:`scan_renders` are rendered (once;
 cached in ``~/.cache/facegeo/scans``), the scan's 68 landmarks are found (default ``detected``:
 facegeo's hybrid detector on the frontal render, each point back-projected onto the scan by ray
 casting with the true camera; rays that miss the scan (jaw points on the silhouette) take the scan
@@ -247,7 +247,9 @@ def _load_fitter(spec: str | None) -> ScanFitter:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--scans", nargs="+", default=list(SCANS), choices=list(SCANS))
+    parser.add_argument("--scans", nargs="+", default=[n for n, s in SCANS.items() if s.metric], choices=list(SCANS),
+                        help="default: the scans whose millimetres are measured (a scan of estimated scale gives "
+                             "errors in its assumed millimetres; the ratio to the mean shape is unaffected)")
     parser.add_argument("--true-camera", action="store_true", help="also fit every view with the true intrinsics")
     parser.add_argument("--fitter", help="MODULE:FACTORY returning a ScanFitter (default: facegeo.fit)")
     parser.add_argument("--scan-landmarks", choices=("detected", "annotation"), default="detected")

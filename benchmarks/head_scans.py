@@ -27,6 +27,20 @@ Scans (:data:`SCANS`), their licences and attribution:
     outer eye corners of an adult are about 85–95 mm apart; the ICT-FaceKit mean shape has
     89.2 mm.)
 
+``lee_perry_smith``
+    Infinite-Realities' "Infinite" head scan of Lee Perry-Smith (2010), as three.js ships it in
+    ``examples/obj/leeperrysmith/`` (``LeePerrySmith.obj``, 8,844 vertices, quads, and the
+    1024 × 1024 colour map ``Map-COL.jpg``: an evenly lit, unshaded skin map, eyes closed, head
+    shaved, stubble). Licence: CC BY 3.0 Unported ("Infinite, 3D Head Scan by Lee Perry-Smith is
+    licensed under a Creative Commons Attribution 3.0 Unported License. Based on a work at
+    www.triplegangers.com"; ``LeePerrySmith_License.txt``). No registry carries it, so it is
+    committed, converted (quads split into triangles, xz-compressed; 68 landmarks detected on
+    it), in ``benchmarks/data/lee_perry_smith/`` with the licence and the script that made it
+    (``convert_lee_perry_smith.py``). Units: the OBJ's are
+    ZBrush's; :attr:`ScanSource.scale_to_mm` is an estimate (the similarity fit of its inner-face
+    landmarks onto the ICT-FaceKit mean shape: an average-sized head), so this scan serves the
+    colour benchmarks and not metric shape errors (:attr:`ScanSource.metric` is False).
+
 Looked for and not found in a registry this machine reaches (npm, PyPI, Debian): the
 three.js ``LeePerrySmith`` head (Infinite-Realities, CC-BY 3.0) is in no published ``three``
 package (checked 0.54, 0.56, 0.70, 0.80, 0.100), nor in ``threejs-examples`` 71.0.0, Debian's
@@ -34,13 +48,14 @@ package (checked 0.54, 0.56, 0.70, 0.80, 0.100), nor in ``threejs-examples`` 71.
 ``eos-py``'s wheel ships no model files.
 
 Public API: :data:`SCANS`, :class:`ScanSource`, :class:`HeadScan`, :func:`load_scan`,
-:data:`CACHE`.
+:data:`CACHE`, :data:`DATA`.
 """
 
 from __future__ import annotations
 
 import hashlib
 import json
+import lzma
 import sys
 import tarfile
 import urllib.request
@@ -52,7 +67,7 @@ import numpy as np
 from facegeo.errors import InputError
 from facegeo.mesh_io import read_obj
 
-__all__ = ["SCANS", "ScanSource", "HeadScan", "load_scan", "CACHE"]
+__all__ = ["SCANS", "ScanSource", "HeadScan", "load_scan", "CACHE", "DATA"]
 
 CACHE = Path.home() / ".cache" / "facegeo" / "scans"
 
@@ -63,6 +78,10 @@ class ScanSource:
 
     ``landmark_order``: for a scan annotated with 68 points in another order, the annotation's
     index of each iBUG-68 point (iBUG index -> file index); ``None`` when the file has iBUG order.
+    ``data``: for a scan committed to this repository (no registry carries it), its folder under
+    ``benchmarks/data``; then ``url`` is where it was taken from, ``sha256`` is the digest of
+    ``mesh`` (an xz-compressed OBJ there) and ``landmarks`` a JSON file of ``{"points": (68, 3)}``.
+    ``metric``: the scale to millimetres is measured (False: estimated; no metric shape errors).
     """
 
     name: str
@@ -78,6 +97,8 @@ class ScanSource:
     licence: str
     attribution: str
     scale_to_mm: float = 1.0
+    data: str | None = None
+    metric: bool = True
 
 
 #: menpo's old 68-point order (jaw, right eye, left eye, right brow, nose, left brow, mouth) as
@@ -101,7 +122,27 @@ SCANS: dict[str, ScanSource] = {
         licence="BSD-3-Clause (menpo3d LICENSE.txt: Copyright (c) 2014, Imperial College London and others)",
         attribution="3dMD scan of James Booth from the menpo project's menpo3d package (Imperial College London)",
     ),
+    "lee_perry_smith": ScanSource(
+        name="lee_perry_smith",
+        registry="git",
+        package="three.js",
+        version="examples/obj/leeperrysmith of bhouston/three.js 97d4135 (a fork of mrdoob/three.js, April 2017)",
+        url="https://github.com/bhouston/three.js/tree/97d4135b468a66fbe29a9c71dcd1672fea485f9b/examples/obj/leeperrysmith",
+        sha256="a6a187e6bac27480b28e6f07469873efe7edcf38d765793691f84a50d249b396",
+        mesh="lee_perry_smith.obj.xz",
+        texture="Map-COL.jpg",
+        landmarks="landmarks.json",
+        landmark_order=None,
+        licence="CC BY 3.0 Unported (LeePerrySmith_License.txt)",
+        attribution="Infinite, 3D Head Scan by Lee Perry-Smith (Infinite-Realities, ir-ltd.net; based on a work at "
+                    "www.triplegangers.com), CC BY 3.0, from the three.js examples",
+        scale_to_mm=1049.9364,  # landmarks.json's scale_to_mm (convert_lee_perry_smith.py); load_scan checks they agree
+        data="lee_perry_smith",
+        metric=False,
+    ),
 }
+#: Where committed scans live (:attr:`ScanSource.data`).
+DATA = Path(__file__).resolve().parent / "data"
 
 
 @dataclass
@@ -163,8 +204,30 @@ def _extract(source: ScanSource, folder: Path) -> None:
     archive.unlink()  # the members are kept; the archive is fetched again only if one is removed
 
 
+def _committed(source: ScanSource, folder: Path) -> tuple[Path, Path, Path]:
+    """(mesh OBJ in ``folder``, texture, landmarks) of a scan committed under :data:`DATA`, its
+    digest and scale checked; the OBJ is decompressed into ``folder`` once."""
+    data = DATA / source.data
+    packed = data / source.mesh
+    mesh = folder / packed.name.removesuffix(".xz")
+    found = _sha256(packed)
+    if found != source.sha256:
+        raise InputError(packed, "sha256", source.sha256, found)
+    scale = json.loads((data / source.landmarks).read_text())["scale_to_mm"]
+    if scale != source.scale_to_mm:
+        raise InputError(data / source.landmarks, "scale_to_mm", str(source.scale_to_mm), str(scale))
+    if not mesh.exists():
+        partial = mesh.with_name(mesh.name + ".part")
+        with lzma.open(packed) as f:
+            partial.write_bytes(f.read())
+        partial.replace(mesh)
+    return mesh, data / source.texture, data / source.landmarks
+
+
 def _annotation(path: Path, order: tuple[int, ...] | None) -> np.ndarray:
-    points = np.asarray(json.loads(path.read_text())["groups"]["LJSON"]["landmarks"]["points"], dtype=np.float64)
+    record = json.loads(path.read_text())
+    points = record["points"] if "points" in record else record["groups"]["LJSON"]["landmarks"]["points"]
+    points = np.asarray(points, dtype=np.float64)
     if points.shape != (68, 3):
         raise InputError(path, "landmarks.points", "68 points (x, y, z)", str(points.shape))
     return points[list(order)] if order is not None else points
@@ -177,13 +240,17 @@ def load_scan(name: str, cache: Path = CACHE) -> HeadScan:
     source = SCANS[name]
     folder = cache / name
     folder.mkdir(parents=True, exist_ok=True)
-    _extract(source, folder)
-    vertices, triangles, uv, uv_triangles = read_obj(folder / Path(source.mesh).name)
+    if source.data is not None:
+        mesh, texture, landmarks = _committed(source, folder)
+    else:
+        _extract(source, folder)
+        mesh, texture = folder / Path(source.mesh).name, folder / Path(source.texture).name
+        landmarks = folder / Path(source.landmarks).name if source.landmarks else None
+    vertices, triangles, uv, uv_triangles = read_obj(mesh)
     if uv is None or uv_triangles is None:
-        raise InputError(folder / Path(source.mesh).name, "vt", "texture coordinates on every face")
+        raise InputError(mesh, "vt", "texture coordinates on every face")
     annotation = None
-    if source.landmarks:
-        annotation = _annotation(folder / Path(source.landmarks).name, source.landmark_order) * source.scale_to_mm
+    if landmarks is not None:
+        annotation = _annotation(landmarks, source.landmark_order) * source.scale_to_mm
     return HeadScan(name=name, vertices=vertices * source.scale_to_mm, triangles=triangles, uv=uv,
-                    uv_triangles=uv_triangles, texture=folder / Path(source.texture).name, annotation=annotation,
-                    source=source)
+                    uv_triangles=uv_triangles, texture=texture, annotation=annotation, source=source)

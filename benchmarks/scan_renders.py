@@ -294,12 +294,14 @@ def _make_crop(scan: HeadScan, folder: Path, recipe: str) -> None:
     (folder / "crop.json").write_text(json.dumps(record, indent=1))
 
 
-def render_views(scan_name: str, samples: int = 64, cache: Path = CACHE, blender: str | None = None) -> Path:
-    """Render every missing or outdated view of the scan; returns the renders' folder."""
+def render_views(scan_name: str, samples: int = 64, cache: Path = CACHE, blender: str | None = None,
+                 views: tuple[ViewSpec, ...] = VIEWS) -> Path:
+    """Render every missing or outdated view of ``views`` (default :data:`VIEWS`, and then the
+    crop) of the scan; returns the renders' folder."""
     scan = load_scan(scan_name, cache)
     folder = _folder(scan_name, cache)
     folder.mkdir(parents=True, exist_ok=True)
-    todo = [spec for spec in VIEWS if not _done(folder, spec.name, _recipe(scan, spec, samples))]
+    todo = [spec for spec in views if not _done(folder, spec.name, _recipe(scan, spec, samples))]
     if todo:
         blender = blender or shutil.which("blender")
         if blender is None:
@@ -332,8 +334,8 @@ def render_views(scan_name: str, samples: int = 64, cache: Path = CACHE, blender
                                    {"yaw_deg": spec.yaw, "pitch_deg": spec.pitch, "distance_mm": spec.distance_mm,
                                     "samples": samples})
             (folder / f"{spec.name}.json").write_text(json.dumps(record, indent=1))
-    crop_recipe = _recipe(scan, next(v for v in VIEWS if v.name == CROP_OF), samples) + "-crop"
-    if not _done(folder, "crop", crop_recipe):
+    crop_of = next((v for v in views if v.name == CROP_OF), None)
+    if crop_of is not None and not _done(folder, "crop", crop_recipe := _recipe(scan, crop_of, samples) + "-crop"):
         _make_crop(scan, folder, crop_recipe)
     for stale in ("mesh_vertices.f32", "mesh_triangles.i32", "mesh_corner_uv.f32"):
         (folder / stale).unlink(missing_ok=True)

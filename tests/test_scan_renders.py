@@ -57,3 +57,48 @@ def test_frontal_rotation_undoes_the_scan_frame_and_views_keep_their_angles(mode
     # the face centre sits on the optical axis at the view's distance
     centre = scan.annotation[INNER_FACE].mean(0)
     assert rotation @ centre + translation == pytest.approx([0.0, 0.0, -spec.distance_mm], abs=1e-9)
+
+
+def test_the_committed_scan_loads_with_its_landmarks_in_ibug_order(tmp_path):
+    from head_scans import load_scan
+
+    scan = load_scan("lee_perry_smith", cache=tmp_path)
+    assert scan.vertices.shape == (8844, 3) and scan.triangles.shape == (17684, 3)
+    assert scan.uv_triangles.shape == scan.triangles.shape and scan.texture.exists()
+    assert 0.0 <= scan.uv.min() and scan.uv.max() <= 1.0
+    a = scan.annotation
+    # iBUG order on a frontal face: the subject's right (image left, −x) comes first
+    rotation = frontal_rotation(scan)
+    front = a @ rotation.T
+    assert front[36, 0] < front[45, 0] and front[0, 0] < front[16, 0] and front[48, 0] < front[54, 0]
+    assert front[8, 1] < front[33, 1] < front[27, 1]  # chin below the nose below the bridge
+    assert front[30, 2] == pytest.approx(front[INNER_FACE, 2].max(), abs=3.0)  # the nose tip is the most forward inner point
+    # an average-sized head (the scale is estimated that way): Farkas ex–ex 91 ± 4, ch–ch 54 ± 3 mm
+    assert 80.0 < np.linalg.norm(a[36] - a[45]) < 100.0
+    assert 40.0 < np.linalg.norm(a[48] - a[54]) < 60.0
+
+
+def test_a_committed_scan_whose_file_changed_is_refused(tmp_path, monkeypatch):
+    import dataclasses
+
+    import head_scans
+    from facegeo.errors import InputError
+
+    changed = dataclasses.replace(SCANS["lee_perry_smith"], sha256="0" * 64)
+    monkeypatch.setitem(head_scans.SCANS, "lee_perry_smith", changed)
+    with pytest.raises(InputError, match="sha256"):
+        head_scans.load_scan("lee_perry_smith", cache=tmp_path)
+
+
+def test_quads_are_split_into_two_triangles_with_their_uvs(tmp_path):
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks" / "data" / "lee_perry_smith"))
+    from convert_lee_perry_smith import read_quad_obj
+
+    obj = tmp_path / "quad.obj"
+    obj.write_text("v 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nvt 0 0\nvt 1 0\nvt 1 1\nvt 0 1\nf 1/1 2/2 3/3 4/4\nf 1/4 2/3 3/2\n")
+    vertices, triangles, uv, uv_triangles = read_quad_obj(obj)
+    assert triangles.tolist() == [[0, 1, 2], [0, 2, 3], [0, 1, 2]]
+    assert uv_triangles.tolist() == [[0, 1, 2], [0, 2, 3], [3, 2, 1]]
+    obj.write_text("v 0 0 0\nv 1 0 0\nv 1 1 0\nf 1 2 3\n")
+    with pytest.raises(ValueError, match="without UVs"):
+        read_quad_obj(obj)
