@@ -8,6 +8,8 @@ from facegeo.colour import linear_to_srgb, srgb_to_linear
 from facegeo.lighting import sh_irradiance
 from facegeo.texturing.backend import TextureBackend, TextureContext
 from facegeo.texturing.default_backend import (
+    CONTRAST_RANGE,
+    DIRECTIONAL_RANGE,
     GRAZING_GAIN,
     MAX_GAIN,
     QUILT_BLOCK,
@@ -387,15 +389,13 @@ def face_context():
     return build_context(model, fit_landmarks(model, lm, camera), rasterize_uv(model, size=256))
 
 
-def test_directional_light_and_its_cast_shadows_are_fitted_and_removed(face_context, monkeypatch):
+def test_directional_light_and_its_cast_shadows_are_fitted_and_removed(face_context):
     """A constant albedo under a hard light with the posed mesh's cast shadows: the light model
-    finds the direction and ambient, and the de-lit skin is flat. The gate is opened: the SH
-    fit's directional measure of this clean scene is 0.09–0.13 (its trimming drops the shadowed
-    half), below DIRECTIONAL_RANGE, which is calibrated on real renders (0.29–0.33 there)."""
-    from facegeo.texturing import default_backend
+    finds the direction and ambient, and the de-lit skin is flat. The SH fit's directional
+    measure of this clean scene is 0.09–0.13 (its trimming drops the shadowed half), below
+    DIRECTIONAL_RANGE: its irradiance contrast over the sphere (CONTRAST_RANGE) opens the gate."""
     from facegeo.uv import light_visibility
 
-    monkeypatch.setattr(default_backend, "DIRECTIONAL_RANGE", (0.0, 0.05))
     ctx = face_context
     cover = ctx.coverage
     light = np.array([0.75, 0.25, 0.6])
@@ -409,6 +409,9 @@ def test_directional_light_and_its_cast_shadows_are_fitted_and_removed(face_cont
     photo = linear_to_srgb(np.where(cover[..., None], albedo * shading[..., None], 0.0)).astype(np.float32)
     backend = DefaultBackend()
     out = backend.homogenise(photo, ctx)
+    assert backend.report["analyse"]["directional"] < DIRECTIONAL_RANGE[0]
+    assert backend.report["analyse"]["irradiance_contrast"] > CONTRAST_RANGE[1]
+    assert backend.report["analyse"]["delighting_strength"] == 1.0
     fitted = np.array(backend.report["light"]["direction"])
     assert np.degrees(np.arccos(np.clip(fitted @ light, -1, 1))) < 3.0
     assert backend.report["light"]["ambient_over_light"] == pytest.approx(0.08, abs=0.02)

@@ -8,8 +8,10 @@ Colour textures are sRGB in [0, 1], float32, S × S, image-style rows (see
   skin (:meth:`DefaultBackend.reliability` > 0.5; iteratively trimmed least squares: texels whose
   log-ratio to the fit is beyond 2.5 robust σ, highlights, creases, stray occluders, are left
   out) and applied as shading^strength, the strength rising with how directional the fitted light
-  is (:data:`DIRECTIONAL_RANGE`): under an even light the fit finds only albedo that correlates
-  with the normals and leaves it alone; then the cast shadows and occlusion SH cannot explain: dips
+  is (:data:`DIRECTIONAL_RANGE`) or how far its irradiance would vary over the whole sphere of
+  normals (:data:`CONTRAST_RANGE`: a hard light whose shadowed side the skin mask left out shows
+  little variation over the lit skin that is kept, but a steep one): under an even light the fit
+  finds only albedo that correlates with the normals and leaves it alone; then the cast shadows and occlusion SH cannot explain: dips
   of the de-lit log-luminance at ~S/128 texels below the brighter of its ~S/12 and ~S/5
   neighbourhoods (~25 and ~60 mm; broad shadows such as the jaw's on the neck), deeper than
   :data:`SHADOW_TOLERANCE`. The de-lighting gain 1/shading is bounded to [1/g, g] with g =
@@ -85,7 +87,7 @@ from facegeo.uv.renderer import light_visibility
 
 __all__ = ["DefaultBackend", "REGION_PRIORS", "pad_outside", "masked_blur", "gaussian_blur", "value_noise", "MAX_GAIN",
            "GRAZING_GAIN", "QUILT_BLOCK", "QUILT_ENERGY_CAP", "quilted_detail", "SHADOW_TOLERANCE", "HIGHLIGHT_RATIO", "DETAIL_DEPTH_MM", "DETAIL_LIMIT_MM", "SH_TERMS",
-           "DIRECTIONAL_RANGE", "FORESHORTENING", "EDGE_MM", "DETAIL_EDGE_MM", "PAD_FRACTION"]
+           "DIRECTIONAL_RANGE", "CONTRAST_RANGE", "FORESHORTENING", "EDGE_MM", "DETAIL_EDGE_MM", "PAD_FRACTION"]
 
 #: (roughness, specular) priors per facial region; oily T-zone glossier, brows matte, lips smooth
 #: and less specular (values in the range of measured facial BRDF fits, e.g. Weyrich et al. 2006).
@@ -114,6 +116,18 @@ SH_TERMS = 4
 #: its mean) goes from the first value to the second: an even light's fit finds 0.15–0.21 there
 #: (albedo that correlates with the normals), a hard side light 0.29–0.33.
 DIRECTIONAL_RANGE = (0.2, 0.3)
+#: (none, full): the strength also rises from 0 to 1 as the fit's irradiance contrast over the
+#: sphere of normals, |linear part| / constant (E(n) = c·(1 + κ·n·d): κ ≥ 1 puts part of the head
+#: in the dark), goes from the first value to the second; the strength is the larger of the two.
+#: A hard light whose shadowed side is too dark for the skin mask leaves only lit skin to fit,
+#: whose normals span too little for :data:`DIRECTIONAL_RANGE` (0.17 on bench_albedo_scans'
+#: Lee Perry-Smith scan, hard side 0°) while κ is large (the constant term near or below 0). An
+#: even light: κ 0.3–0.5 on both scans' frontal renders, 0.4–0.9 on the contact sheet's photos
+#: (benchmarks/sheet_albedo.py); the James scan's colour map, whose capture light is baked in,
+#: reads as a hard light at ±40° (4.4, and a constant term below 0).
+CONTRAST_RANGE = (1.0, 2.0)
+#: κ reported (and used) where the constant term is ≤ 0 or smaller than the linear part over this.
+CONTRAST_CAP = 100.0
 #: Candidate light directions of the directional fit (a Fibonacci sphere; those below
 #: :data:`LIGHT_MIN_Z` are left out: a light from behind the head shows the camera no skin).
 LIGHT_CANDIDATES = 400
@@ -424,7 +438,7 @@ class DefaultBackend:
         normals = ctx.normal_camera
         shading = np.ones(cover.shape, np.float32)
         n_fit = int(fit_mask.sum())
-        directional = strength = 0.0
+        directional = strength = contrast = 0.0
         self.report.pop("light", None)
         light: dict[str, Any] | None = None  # the directional light model's report, where it is used
         if n_fit >= 100:
@@ -440,7 +454,11 @@ class DefaultBackend:
             # how directional the fitted light is: under an even light the fit only finds albedo that
             # happens to correlate with the normals, and dividing by it would put that into the albedo
             directional = float(np.std(basis[keep][:, 1:4] @ coeffs[1:4]) / max(float(np.mean(basis[keep] @ coeffs)), 1e-12))
-            strength = float(_smoothstep(np.float32((directional - DIRECTIONAL_RANGE[0]) / (DIRECTIONAL_RANGE[1] - DIRECTIONAL_RANGE[0]))))
+            # the Deep3D basis: constant term 0.886·c0, linear terms 1.772·(c·n), so κ = 2|c_1..3| / c0
+            linear = 2.0 * float(np.linalg.norm(coeffs[1:4]))
+            contrast = linear / coeffs[0] if coeffs[0] > linear / CONTRAST_CAP else CONTRAST_CAP
+            strength = float(max(_smoothstep(np.float32((directional - DIRECTIONAL_RANGE[0]) / (DIRECTIONAL_RANGE[1] - DIRECTIONAL_RANGE[0]))),
+                                 _smoothstep(np.float32((contrast - CONTRAST_RANGE[0]) / (CONTRAST_RANGE[1] - CONTRAST_RANGE[0])))))
             if strength > 0 and ctx.vertices_camera is not None and ctx.position_camera is not None and ctx.triangles is not None:
                 e, light = self._directional_shading(lum, fit_mask, ctx)
             else:  # the SH fit's own shading over the layout
@@ -478,6 +496,7 @@ class DefaultBackend:
         self.report["analyse"] = {
             "fit_texels": n_fit,
             "directional": directional,
+            "irradiance_contrast": contrast,
             "delighting_strength": strength,
             "gain_p05_p95": [float(x) for x in np.percentile(1.0 / shading[fit_mask], [5, 95])] if n_fit else [1.0, 1.0],
             "highlight_fraction_of_seen_skin": float(highlight[fit_mask].mean()) if n_fit else 0.0,
