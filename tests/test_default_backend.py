@@ -431,3 +431,43 @@ def test_even_light_uses_no_light_model(face_context):
     backend = DefaultBackend()
     backend.homogenise(photo, ctx)
     assert backend.report["analyse"]["delighting_strength"] == 0.0 and "light" not in backend.report
+
+
+def test_a_mole_on_the_seen_cheek_is_not_mirrored_onto_the_hidden_one():
+    """Symmetric pores and one dark mole on the seen half: the hidden half takes the mirror's
+    pores (correlated with the truth) but not the mole (SPECK_SIGMAS), quilted skin there."""
+    from scipy import ndimage
+
+    size = 128
+    ctx = hemisphere_context(size)
+    rng = np.random.default_rng(3)
+    pores = rng.normal(size=(size, size)).astype(np.float32)
+    pores = 0.5 * (pores + pores[:, ::-1])
+    log_lum = 0.06 * pores
+    yy, xx = np.mgrid[:size, :size]
+    row, col = 60, 40  # seen half (left); its mirror column is size - 1 - col
+    mole = (yy - row) ** 2 + (xx - col) ** 2 <= 1  # within the fill's detail band (S/128)
+    log_lum[mole] -= 0.6
+    truth = np.clip(srgb_to_linear(np.float32([0.78, 0.58, 0.48])) * np.exp(log_lum)[..., None], 0, 1)
+    x = np.linspace(-1, 1, size)[None, :].repeat(size, 0)
+    visible = (x < 0.0).astype(np.float32)
+    backend = DefaultBackend()
+    out = srgb_to_linear(backend.inpaint(linear_to_srgb(truth) * visible[..., None], visible, ctx)).mean(-1)
+    fine = np.log(out) - masked_blur(np.log(out), ctx.coverage, 3.0)
+    mirror_spot = (yy - row) ** 2 + (xx - (size - 1 - col)) ** 2 <= 1
+    assert fine[mole].mean() < -0.3  # the mole stays where it was seen
+    assert fine[mirror_spot].mean() > -0.05  # and is not copied (-0.28 when it was)
+    hidden = ctx.coverage & (x > 0.3) & (ctx.normal_camera[..., 2] > 0.3) & ~ndimage.binary_dilation(mirror_spot, iterations=6)
+    assert np.corrcoef(fine[hidden], log_lum[hidden])[0, 1] > 0.5  # the pores are
+
+
+def test_shading_confidence_is_low_only_where_the_shading_is_steep():
+    ctx = hemisphere_context(128)
+    x = np.linspace(-1, 1, 128)[None, :].repeat(128, 0)
+    flat = DefaultBackend._shading_confidence(np.ones((128, 128), np.float32), ctx)
+    assert np.all(flat[ctx.coverage] == 1.0)
+    edge = 0.05 + 0.95 / (1 + np.exp(-x / 0.02))  # a cast shadow's edge at x = 0, 20× darker on the left
+    conf = DefaultBackend._shading_confidence(edge.astype(np.float32), ctx)
+    facing = ctx.coverage & (ctx.normal_camera[..., 2] > 0.5)
+    assert conf[facing & (np.abs(x) < 0.02)].max() < 0.05
+    assert conf[facing & (np.abs(x) > 0.3)].min() == 1.0

@@ -36,9 +36,9 @@ Colour textures are sRGB in [0, 1], float32, S × S, image-style rows (see
   white-balanced texture in log RGB, as a **gradient-domain blend**: every seen texel has a
   reliability r (:meth:`DefaultBackend.reliability`: its kept visibility × a foreshortening ramp
   × a ramp over :data:`EDGE_MM` mm from the nearest unseen texel: silhouettes, occluders,
-  highlights); the fill's fine detail D (finer than ~S/128 texels, ~2.5 mm at 1K) is the seen
+  highlights; × a ramp down where the estimated shading is steep: :data:`SHADING_ERROR`); the fill's fine detail D (finer than ~S/128 texels, ~2.5 mm at 1K) is the seen
   texel's own detail away from the seen region's edge, else the mirror texel's where that was
-  reliably seen, else the finest detail (~1 mm at 1K: pores, stubble) of the reliably seen skin
+  reliably seen (not its moles and specks: :data:`SPECK_SIGMAS`), else the finest detail (~1 mm at 1K: pores, stubble) of the reliably seen skin
   quilted in blocks (:func:`quilted_detail`: this face's own texture at its own contrast; 3-D
   value noise of the model-space position only where no whole block of skin was seen); the low
   frequencies B solve a screened Poisson problem on the mesh's vertices,
@@ -86,8 +86,8 @@ from facegeo.texturing.illuminant import chroma, estimate_illuminant, invent_chr
 from facegeo.uv.renderer import light_visibility
 
 __all__ = ["DefaultBackend", "REGION_PRIORS", "pad_outside", "masked_blur", "gaussian_blur", "value_noise", "MAX_GAIN",
-           "GRAZING_GAIN", "QUILT_BLOCK", "QUILT_ENERGY_CAP", "quilted_detail", "SHADOW_TOLERANCE", "HIGHLIGHT_RATIO", "DETAIL_DEPTH_MM", "DETAIL_LIMIT_MM", "SH_TERMS",
-           "DIRECTIONAL_RANGE", "CONTRAST_RANGE", "FORESHORTENING", "EDGE_MM", "DETAIL_EDGE_MM", "PAD_FRACTION"]
+           "GRAZING_GAIN", "QUILT_BLOCK", "QUILT_ENERGY_CAP", "quilted_detail", "SPECK_SIGMAS", "SHADOW_TOLERANCE", "HIGHLIGHT_RATIO", "DETAIL_DEPTH_MM", "DETAIL_LIMIT_MM", "SH_TERMS",
+           "DIRECTIONAL_RANGE", "CONTRAST_RANGE", "SHADING_ERROR", "FORESHORTENING", "EDGE_MM", "DETAIL_EDGE_MM", "PAD_FRACTION"]
 
 #: (roughness, specular) priors per facial region; oily T-zone glossier, brows matte, lips smooth
 #: and less specular (values in the range of measured facial BRDF fits, e.g. Weyrich et al. 2006).
@@ -140,6 +140,13 @@ SHADOW_MAP_MM = 1.0
 #: The shadow map's visibility is blurred over this many mm of surface (σ): the fitted mesh is
 #: only near the true one, and a hard shadow edge of the wrong shape would be drawn into the albedo.
 SHADOW_SOFTNESS_MM = 3.0
+#: (trusted, not trusted): a seen texel's de-lit log-albedo error if the estimated shading were
+#: misplaced by :data:`SHADOW_SOFTNESS_MM` on the surface; between the two its reliability falls
+#: to 0 (:meth:`DefaultBackend._shading_confidence`: shadow edges, a hard light's terminator).
+#: bench_albedo_scans, hard side views of both scans: seen ΔE2000 on Lee Perry-Smith +40°
+#: 3.13 -> 2.90, off-skin 3.26 -> 2.68 %; filled, Lee Perry-Smith 0° 4.47 -> 4.26, James −40°
+#: 12.55 -> 12.10; the other hard views within 0.13.
+SHADING_ERROR = (0.1, 0.4)
 #: (grazing, facing) largest de-lighting gains (as :data:`GRAZING_GAIN`, :data:`MAX_GAIN`) where
 #: the directional light model is used: it is a physical model, and the shadowed side of a face
 #: under a hard light is 5–15× darker than the lit side (bench_albedo_scans, hard side 0°: seen
@@ -178,6 +185,9 @@ QUILT_BLOCK = 1.0 / 64.0
 #: mark (the contact sheet's astronaut and Grace Hopper); bench_albedo_scans' gradient ratio loses
 #: 0.03 to it.
 QUILT_ENERGY_CAP = 2.5
+#: Fine detail beyond this many robust σ of the seen skin's is a mark (a mole, a speck, a lash):
+#: it is not mirrored onto the other side of the face (the Lee Perry-Smith scan's cheek mole was).
+SPECK_SIGMAS = 4.0
 #: Padding outside the UV islands: the edge colour over this fraction of S texels (4 at 1K), then
 #: the median of the map (flat).
 PAD_FRACTION = 1.0 / 256.0
@@ -572,7 +582,10 @@ class DefaultBackend:
         skin = _skin(ctx)
         seen = w > 0.5
         inner = self._inner_distance(seen, ctx)  # the reliability's edge ramp and the fill's own-detail ramp
-        reliable = self._reliability(w, inner, ctx)
+        # where the estimated shading is steep (a shadow's edge, a hard light's terminator) a
+        # misplacement of the fitted mesh by SHADOW_SOFTNESS_MM changes it by slope × that: such
+        # de-lit texels are trusted less and the fill takes over (below: (1 - reliable) · fill)
+        reliable = self._reliability(w, inner, ctx) * self._shading_confidence(an.shading, ctx)
         notes: list[str] = []
         greyscale = is_greyscale(T_inc[seen & cover]) if (seen & cover).any() else False
         # the light's colour: from the reliably seen skin and the photo's white references
@@ -638,6 +651,20 @@ class DefaultBackend:
         return np.where(cover & (weight > 0.5), np.clip(weight, 0.0, 1.0) * fore * _smoothstep(edge), 0.0).astype(np.float32)
 
     @staticmethod
+    def _shading_confidence(shading: np.ndarray, ctx: TextureContext) -> np.ndarray:
+        """(S, S) float32 in [0, 1]: 1 − a ramp of the de-lit log-albedo's error if the shading
+        (S, S) were misplaced on the surface by :data:`SHADOW_SOFTNESS_MM` (its log's slope per mm
+        times that), from :data:`SHADING_ERROR` [0] to [1]; 1 where the shading is flat."""
+        cover = ctx.coverage
+        dy, dx = np.gradient(np.log(np.maximum(shading, 1e-6)))
+        inside = cover.copy()  # central differences only between covered texels
+        inside[1:-1, 1:-1] &= cover[2:, 1:-1] & cover[:-2, 1:-1] & cover[1:-1, 2:] & cover[1:-1, :-2]
+        inside[[0, -1], :] = inside[:, [0, -1]] = False
+        error = np.where(inside, np.hypot(dx, dy), 0.0) / ctx.median_texel_mm * SHADOW_SOFTNESS_MM
+        lo, hi = SHADING_ERROR
+        return (1.0 - _smoothstep((error - lo) / (hi - lo))).astype(np.float32)
+
+    @staticmethod
     def _inner_distance(seen: np.ndarray, ctx: TextureContext) -> np.ndarray:
         """(S, S) float32 distance in mm (texel distance × the median texel size) from each seen
         texel to the nearest covered texel that is not seen; texels outside the layout count as
@@ -663,7 +690,10 @@ class DefaultBackend:
         amp = self._detail_contrast(log_seen, seen & _skin(ctx), size)
         has = (ctx.mirror[..., 0] >= 0) & cover
         mirror = np.where(has, ctx.mirror[..., 0].astype(np.intp) * size + ctx.mirror[..., 1], 0)  # flat index (one gather)
-        w_m = np.where(has, reliable.reshape(-1)[mirror], 0.0).astype(np.float32)
+        # a mole or speck is not mirrored (a face's marks are not symmetric): where the source's
+        # detail is an outlier (and a little around it), the mirror is not used, quilting is
+        source_weight = reliable * (1.0 - self._specks(detail, seen & (reliable > 0.5), size))
+        w_m = np.where(has, source_weight.reshape(-1)[mirror], 0.0).astype(np.float32)
         mirrored = detail.reshape(-1, 3)[mirror]
         need = cover & ~seen & (w_m < 1.0 - 1e-3)
         synthesised = None
@@ -681,6 +711,18 @@ class DefaultBackend:
         own = _smoothstep(inner / DETAIL_EDGE_MM)[..., None] * seen[..., None]
         fill = own * detail + (1 - own) * fill  # where seen (away from its edge: lashes, halos), the photo's own detail
         return np.where(cover[..., None], fill, 0.0).astype(np.float32), w_m, amp
+
+    @staticmethod
+    def _specks(detail: np.ndarray, region: np.ndarray, size: int) -> np.ndarray:
+        """(S, S) float32 in [0, 1]: 1 on the marks of the fine detail (S, S, 3) log RGB, texels
+        whose channel-mean detail is beyond :data:`SPECK_SIGMAS` robust σ of ``region``'s (S, S)
+        bool, grown by a Gaussian of S/512 texels (the mark's rim); 0 elsewhere."""
+        d = detail.mean(-1)
+        if region.sum() < 100:
+            return np.zeros(region.shape, np.float32)
+        sigma = 1.4826 * float(np.median(np.abs(d[region]))) + 1e-6
+        marks = (np.abs(d) > SPECK_SIGMAS * sigma).astype(np.float32)
+        return np.clip(gaussian_blur(marks, max(1.0, size / 512.0)) * 3.0, 0.0, 1.0).astype(np.float32)
 
     def _base(self, values: np.ndarray, w: np.ndarray, mean: np.ndarray, ctx: TextureContext, smoothness: float) -> np.ndarray:
         """(S, S, C) smooth field: ``values`` (S, S, C) known with weight ``w`` (S, S) extended
