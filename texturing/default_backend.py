@@ -6,17 +6,18 @@ Colour textures are sRGB in [0, 1], float32, S × S, image-style rows (see
 * **Shading** (:meth:`DefaultBackend.analyse`): one scalar per texel. Order-1 spherical harmonics
   (:data:`SH_TERMS`) of the camera-space normal are fitted to the luminance of the reliably seen
   skin (:meth:`DefaultBackend.reliability` > 0.5; iteratively trimmed least squares: texels whose
-  log-ratio to the fit is beyond 2.5 robust σ, highlights, creases, stray occluders, are left
-  out) and applied as shading^strength, the strength rising with how directional the fitted light
-  is (:data:`DIRECTIONAL_RANGE`) or how far its irradiance would vary over the whole sphere of
-  normals (:data:`CONTRAST_RANGE`: a hard light whose shadowed side the skin mask left out shows
-  little variation over the lit skin that is kept, but a steep one): under an even light the fit
-  finds only albedo that correlates with the normals and leaves it alone; then the cast shadows and occlusion SH cannot explain: dips
-  of the de-lit log-luminance at ~S/128 texels below the brighter of its ~S/12 and ~S/5
-  neighbourhoods (~25 and ~60 mm; broad shadows such as the jaw's on the neck), deeper than
-  :data:`SHADOW_TOLERANCE`. The de-lighting gain 1/shading is bounded to [1/g, g] with g =
-  :data:`MAX_GAIN` where the surface faces the camera, falling to :data:`GRAZING_GAIN` at grazing
-  angles (SH fits underestimate grazing irradiance; unbounded gains made metallic streaks).
+  log-ratio to the fit is beyond 2.5 robust σ, highlights, creases, stray occluders, are left out)
+  and applied as shading^strength, the strength rising with how directional the fitted light is
+  (:data:`DIRECTIONAL_RANGE`) or how far its irradiance would vary over the whole sphere of normals
+  (:data:`CONTRAST_RANGE`: a hard light whose shadowed side the skin mask left out shows little
+  variation over the lit skin that is kept, but a steep one): under an even light the fit finds
+  only albedo that correlates with the normals and leaves it alone; then the cast shadows and
+  occlusion SH cannot explain: dips of the de-lit log-luminance at ~S/128 texels below the brighter
+  of its ~S/12 and ~S/5 neighbourhoods (~25 and ~60 mm; broad shadows such as the jaw's on the
+  neck), deeper than :data:`SHADOW_TOLERANCE`. The de-lighting gain 1/shading is bounded to [1/g,
+  g] with g = :data:`MAX_GAIN` where the surface faces the camera, falling to :data:`GRAZING_GAIN`
+  at grazing angles (SH fits underestimate grazing irradiance; unbounded gains made metallic
+  streaks).
 * **A directional light** (where the SH fit's strength is above 0 and the context has the posed
   mesh): the SH shading is replaced by a physical model fitted to the same skin,
   luminance ≈ albedo · (ambient + L · max(n·l, 0) · V_l) (:meth:`DefaultBackend._directional_shading`),
@@ -34,22 +35,22 @@ Colour textures are sRGB in [0, 1], float32, S × S, image-style rows (see
   into ``fit.json``).
 * **inpaint** (fill of what the photo does not show, and of the highlights), on the de-lit,
   white-balanced texture in log RGB, as a **gradient-domain blend**: every seen texel has a
-  reliability r (:meth:`DefaultBackend.reliability`: its kept visibility × a foreshortening ramp
-  × a ramp over :data:`EDGE_MM` mm from the nearest unseen texel: silhouettes, occluders,
-  highlights; × a ramp down where the estimated shading is steep: :data:`SHADING_ERROR`); the fill's fine detail D (finer than ~S/128 texels, ~2.5 mm at 1K) is the seen
-  texel's own detail away from the seen region's edge, else the mirror texel's where that was
-  reliably seen (not its moles and specks: :data:`SPECK_SIGMAS`), else the finest detail (~1 mm at 1K: pores, stubble) of the reliably seen skin
-  quilted in blocks (:func:`quilted_detail`: this face's own texture at its own contrast; 3-D
-  value noise of the model-space position only where no whole block of skin was seen); the low
-  frequencies B solve a screened Poisson problem on the mesh's vertices,
-  min Σ r (B − (log seen − D))² + λ Σ_edges |∇B|² (+ a weak pull to the seen skin's mean far
-  from anything seen), so the filled skin takes its tone from the reliable seen skin next to it
-  and B + D has the seen skin's values wherever r is high; the result is
-  r · log seen + (1 − r) · (B + D): no edge where the seen skin ends,
-  continuous across UV seams and the mirror line because B lives on the vertices. Only fine
-  detail crosses the mirror: mid-frequency blotches and shading residuals of the other side do
-  not. Without :class:`SurfaceOperators` B is a UV-space push-pull (masked blurs at growing
-  scales).
+  reliability r (:meth:`DefaultBackend.reliability`: its kept visibility × a foreshortening ramp ×
+  a ramp over :data:`EDGE_MM` mm from the nearest unseen texel: silhouettes, occluders, highlights;
+  × a ramp down where the estimated shading is steep: :data:`SHADING_ERROR`); the fill's fine
+  detail D (finer than ~S/128 texels, ~2.5 mm at 1K) is the seen texel's own detail away from the
+  seen region's edge, else the mirror texel's where that was reliably seen (not its moles and
+  specks: :data:`SPECK_SIGMAS`), else the finest detail (~1 mm at 1K: pores, stubble) of the
+  reliably seen skin quilted in blocks (:func:`quilted_detail`: this face's own texture at its own
+  contrast; 3-D value noise of the model-space position only where no whole block of skin was
+  seen); the low frequencies B solve a screened Poisson problem on the mesh's vertices,
+  min Σ r (B − (log seen − D))² + λ Σ_edges |∇B|² (+ a weak pull to the seen skin's mean far from
+  anything seen), so the filled skin takes its tone from the reliable seen skin next to it and B + D has the
+  seen skin's values wherever r is high; the result is r · log seen + (1 − r) · (B + D): no edge
+  where the seen skin ends, continuous across UV seams and the mirror line because B lives on the
+  vertices. Only fine detail crosses the mirror: mid-frequency blotches and shading residuals of
+  the other side do not. Without :class:`SurfaceOperators` B is a UV-space push-pull (masked blurs
+  at growing scales).
 * **homogenise**: the filled texture divided by the shading and the light's colour.
 * **materials**: albedo = homogenised texture; displacement (mm) and tangent-space normal from its
   high-frequency log-luminance detail at :data:`DETAIL_DEPTH_MM` mm per unit (±
