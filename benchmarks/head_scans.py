@@ -36,8 +36,8 @@ Scans (:data:`SCANS`), their licences and attribution:
     www.triplegangers.com"; ``LeePerrySmith_License.txt``). No registry carries it, so it is
     committed, converted (quads split into triangles, xz-compressed; 68 landmarks detected on
     it), in ``benchmarks/data/lee_perry_smith/`` with the licence and the script that made it
-    (``convert_lee_perry_smith.py``). Units: the OBJ's are
-    ZBrush's; :attr:`ScanSource.scale_to_mm` is an estimate (the similarity fit of its inner-face
+    (``convert_lee_perry_smith.py``). Units: the OBJ's are ZBrush's;
+    :attr:`ScanSource.scale_to_mm` is an estimate (the similarity fit of its inner-face
     landmarks onto the ICT-FaceKit mean shape: an average-sized head), so this scan serves the
     colour benchmarks and not metric shape errors (:attr:`ScanSource.metric` is False).
 
@@ -206,10 +206,10 @@ def _extract(source: ScanSource, folder: Path) -> None:
 
 def _committed(source: ScanSource, folder: Path) -> tuple[Path, Path, Path]:
     """(mesh OBJ in ``folder``, texture, landmarks) of a scan committed under :data:`DATA`, its
-    digest and scale checked; the OBJ is decompressed into ``folder`` once."""
+    digest and scale checked; the OBJ is decompressed into ``folder`` once per digest."""
     data = DATA / source.data
     packed = data / source.mesh
-    mesh = folder / packed.name.removesuffix(".xz")
+    mesh = folder / f"{packed.name.removesuffix('.obj.xz')}-{source.sha256[:12]}.obj"  # a changed file is unpacked anew
     found = _sha256(packed)
     if found != source.sha256:
         raise InputError(packed, "sha256", source.sha256, found)
