@@ -248,8 +248,8 @@ def _load_fitter(spec: str | None) -> ScanFitter:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--scans", nargs="+", default=[n for n, s in SCANS.items() if s.metric], choices=list(SCANS),
-                        help="default: the scans whose millimetres are measured (lee_perry_smith's are estimated, and its mesh has "
-                             "inner surfaces that its 95 mm crop takes in: 8.8-9.2 mm for the fit and the mean shape alike)")
+                        help="default: the scans whose millimetres are measured (lee_perry_smith's are estimated from the "
+                             "ICT mean shape: its errors are in those millimetres; the ratio to the mean shape holds)")
     parser.add_argument("--true-camera", action="store_true", help="also fit every view with the true intrinsics")
     parser.add_argument("--fitter", help="MODULE:FACTORY returning a ScanFitter (default: facegeo.fit)")
     parser.add_argument("--scan-landmarks", choices=("detected", "annotation"), default="detected")

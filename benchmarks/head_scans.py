@@ -40,9 +40,9 @@ Scans (:data:`SCANS`), their licences and attribution:
     :attr:`ScanSource.scale_to_mm` is an estimate (the similarity fit of its inner-face
     landmarks onto the ICT-FaceKit mean shape: an average-sized head), so this scan serves the
     colour benchmarks and not metric shape errors (:attr:`ScanSource.metric` is False). Its mesh
-    also has inner surfaces: 18 % of the vertices within 95 mm of the nose tip lie about 60 mm
-    behind it, 2.3 mm median distance from the ICT mean shape for the rest (the renders and their
-    point maps see only the outer surface).
+    also has inner surfaces: 38 % of its area within 95 mm of the nose tip lies inside the head,
+    about 55 mm behind the nose tip (the renders see only the outer surface, and
+    :func:`scan_evaluation.outer_surface` leaves the inner ones out of the NoW-style samples).
 
 Looked for and not found in a registry this machine reaches (npm, PyPI, Debian): the
 three.js ``LeePerrySmith`` head (Infinite-Realities, CC-BY 3.0) is in no published ``three``

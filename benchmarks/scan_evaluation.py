@@ -4,7 +4,8 @@ The protocol (after NoW, Sanyal et al. 2019, adapted to renders with a known cam
 
 1. **Scan reference** (:func:`prepare_scan`): the scan surface is sampled densely and evenly
    (one point per ``sample_area_mm2`` of surface, area-weighted, fixed seed) and the samples
-   within ``crop_radius_mm`` (95 mm) of the scan's nose tip (iBUG 30) are kept. The scan's 68
+   within ``crop_radius_mm`` (95 mm) of the scan's nose tip (iBUG 30) and on its outer surface
+   (:func:`outer_surface`: not enclosed, as a shell's inside is) are kept. The scan's 68
    iBUG landmarks give its face frame (:func:`face_frame`: +X towards the subject's left, +Y
    up, +Z forward) and its regions (:func:`region_of_samples`: forehead, nose, right/left
    cheek, mouth, chin, as polygons in the frontal (x, y) plane around the landmarks, front-facing
@@ -35,7 +36,7 @@ int vertex ids in iBUG order (the first 68 are read), rotation (3, 3) or None)``
 None: the fitter's own default, i.e. the focal is not given).
 
 Public API: :class:`Prediction`, :data:`ScanFitter`, :class:`ScanReference`, :func:`prepare_scan`,
-:func:`face_frame`, :func:`region_of_samples`, :func:`sample_surface`, :func:`similarity_transform`,
+:func:`face_frame`, :func:`region_of_samples`, :func:`sample_surface`, :func:`outer_surface`, :func:`similarity_transform`,
 :func:`align_to_scan`, :func:`surface_distances`, :func:`evaluate`, :func:`relative_rotation_error`,
 :data:`REGIONS`, :data:`KEYPOINTS`, :data:`DEPTH_PROBES`.
 """
@@ -55,7 +56,7 @@ from facegeo.eval.realy_geometry import closest_points
 from facegeo.similarity_transform import similarity_transform
 
 __all__ = ["Prediction", "ScanFitter", "ScanReference", "prepare_scan", "face_frame", "region_of_samples",
-           "sample_surface", "similarity_transform", "align_to_scan", "surface_distances", "evaluate",
+           "sample_surface", "outer_surface", "similarity_transform", "align_to_scan", "surface_distances", "evaluate",
            "relative_rotation_error", "REGIONS", "KEYPOINTS", "DEPTH_PROBES"]
 
 #: The keypoints of the similarity step (iBUG-68 indices).
@@ -197,10 +198,39 @@ def _front_depth(vertices: np.ndarray, triangles: np.ndarray, frame: np.ndarray,
     return np.where(np.isfinite(t), start_z - t, np.nan)
 
 
+def outer_surface(vertices: np.ndarray, triangles: np.ndarray, points: np.ndarray, normals: np.ndarray,
+                  directions: int = 64) -> np.ndarray:
+    """(N,) bool: the surface points (N, 3) mm from which some ray escapes the mesh: of
+    ``directions`` evenly spread over the hemisphere about each point's normal (N, 3) (or its
+    opposite: triangle winding is not trusted), one that hits nothing. A scan's inner surfaces
+    (the inside of a shell, a mouth bag) are enclosed and fail; the outer skin, nostrils and ear
+    folds included, passes."""
+    k = np.arange(directions) + 0.5
+    z = 1.0 - k / directions  # a Fibonacci hemisphere about +Z
+    phi = np.pi * (3.0 - np.sqrt(5.0)) * k
+    local = np.stack([np.sqrt(1 - z * z) * np.cos(phi), np.sqrt(1 - z * z) * np.sin(phi), z], axis=1)
+    free = np.zeros(len(points), bool)
+    for sign in (1.0, -1.0):
+        n = sign * normals
+        helper = np.where(np.abs(n[:, :1]) < 0.9, np.array([[1.0, 0.0, 0.0]]), np.array([[0.0, 1.0, 0.0]]))
+        u = np.cross(n, helper)
+        u /= np.linalg.norm(u, axis=1, keepdims=True)
+        v = np.cross(n, u)
+        for d in local:
+            todo = ~free
+            if not todo.any():
+                return free
+            ray = d[0] * u[todo] + d[1] * v[todo] + d[2] * n[todo]
+            t = _first_hits(vertices, triangles, points[todo] + 0.05 * ray, ray)
+            free[np.flatnonzero(todo)[~np.isfinite(t)]] = True
+    return free
+
+
 def prepare_scan(vertices: np.ndarray, triangles: np.ndarray, landmarks: np.ndarray, crop_radius_mm: float = 95.0,
                  area_per_sample_mm2: float = 2.0, seed: int = 0) -> ScanReference:
-    """The scan's samples within ``crop_radius_mm`` of its nose tip (iBUG 30), their regions and
-    the depth probes (see the module docstring). ``landmarks``: (68, 3) mm on the scan, iBUG order."""
+    """The scan's samples within ``crop_radius_mm`` of its nose tip (iBUG 30) on its outer
+    surface, their regions and the depth probes (see the module docstring). ``landmarks``:
+    (68, 3) mm on the scan, iBUG order."""
     vertices = np.asarray(vertices, dtype=np.float64)
     triangles = np.asarray(triangles, dtype=np.int64)
     landmarks = np.asarray(landmarks, dtype=np.float64)[:68]
@@ -211,6 +241,8 @@ def prepare_scan(vertices: np.ndarray, triangles: np.ndarray, landmarks: np.ndar
     a, b, c = (vertices[triangles[tri, k]] for k in range(3))
     normals = np.cross(b - a, c - a)
     normals /= np.maximum(np.linalg.norm(normals, axis=1, keepdims=True), 1e-12)
+    outer = outer_surface(vertices, triangles, points, normals)  # a scan's inner surfaces are not its face
+    points, normals = points[outer], normals[outer]
     regions = region_of_samples(points, normals, landmarks, frame)
     flat = (landmarks - landmarks[30]) @ frame.T
     # chin probe (pogonion): on the midline segment from the lower lip (57) to the chin (8), the

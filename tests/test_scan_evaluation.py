@@ -12,8 +12,8 @@ from facegeo.camera import rotation_from_euler
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
 from scan_evaluation import (  # noqa: E402
-    REGIONS, Prediction, evaluate, prepare_scan, region_of_samples, relative_rotation_error, similarity_transform,
-    surface_distances,
+    REGIONS, Prediction, evaluate, outer_surface, prepare_scan, region_of_samples, relative_rotation_error,
+    similarity_transform, surface_distances,
 )
 
 
@@ -107,3 +107,21 @@ def test_relative_rotation_error_is_exact_on_a_synthetic_rotation():
     assert error["angle"] == pytest.approx(3.0, abs=1e-6)
     same = relative_rotation_error(true_view, true_frontal, true_view, true_frontal)
     assert max(abs(v) for v in same.values()) < 1e-6
+
+
+def test_a_shells_inner_surface_is_not_its_outer_surface():
+    """A head-like shell (sphere of 80 mm) with a surface inside it (40 mm) and a dent: the
+    points on the inner sphere are enclosed, those on the outer one (in the dent too) are not,
+    whichever way the triangles wind."""
+    outer = trimesh.creation.icosphere(subdivisions=4, radius=80.0)
+    dent = outer.vertices[:, 2] > 70.0
+    outer.vertices[dent] *= 0.85  # a concavity (a nostril's or an ear's fold, say)
+    inner = trimesh.creation.icosphere(subdivisions=3, radius=40.0)
+    inner.faces = inner.faces[:, ::-1]  # wound the other way
+    vertices = np.concatenate([outer.vertices, inner.vertices])
+    triangles = np.concatenate([outer.faces, inner.faces + len(outer.vertices)])
+    mesh = trimesh.Trimesh(vertices, triangles, process=False)
+    points = mesh.triangles_center
+    free = outer_surface(vertices, triangles, points, mesh.face_normals)
+    on_outer = np.arange(len(triangles)) < len(outer.faces)
+    assert free[on_outer].all() and not free[~on_outer].any()
