@@ -176,12 +176,19 @@ def region_of_samples(points: np.ndarray, normals: np.ndarray, landmarks: np.nda
     return out
 
 
-def _first_hits(vertices: np.ndarray, triangles: np.ndarray, origins: np.ndarray, directions: np.ndarray) -> np.ndarray:
-    """(N,) float64: distance along each ray to the first hit (inf: none), open3d ray casting."""
+def _raycasting_scene(vertices: np.ndarray, triangles: np.ndarray):
+    """The mesh's open3d ray-casting scene (its BVH is built once, for every ray cast into it)."""
     import open3d as o3d
 
     scene = o3d.t.geometry.RaycastingScene()
     scene.add_triangles(o3d.core.Tensor(np.asarray(vertices, np.float32)), o3d.core.Tensor(np.asarray(triangles, np.uint32)))
+    return scene
+
+
+def _first_hits(scene, origins: np.ndarray, directions: np.ndarray) -> np.ndarray:
+    """(N,) float64: distance along each ray into :func:`_raycasting_scene`'s ``scene`` to the first hit (inf: none)."""
+    import open3d as o3d
+
     rays = o3d.core.Tensor(np.concatenate([origins, directions], axis=1).astype(np.float32))
     return scene.cast_rays(rays)["t_hit"].numpy().astype(np.float64)
 
@@ -194,7 +201,7 @@ def _front_depth(vertices: np.ndarray, triangles: np.ndarray, frame: np.ndarray,
     local = np.column_stack([xy, np.full(len(xy), start_z)])
     origins = origin + local @ frame
     directions = np.broadcast_to(-frame[2], origins.shape)
-    t = _first_hits(vertices, triangles, origins, np.ascontiguousarray(directions))
+    t = _first_hits(_raycasting_scene(vertices, triangles), origins, np.ascontiguousarray(directions))
     return np.where(np.isfinite(t), start_z - t, np.nan)
 
 
@@ -209,6 +216,7 @@ def outer_surface(vertices: np.ndarray, triangles: np.ndarray, points: np.ndarra
     z = 1.0 - k / directions  # a Fibonacci hemisphere about +Z
     phi = np.pi * (3.0 - np.sqrt(5.0)) * k
     local = np.stack([np.sqrt(1 - z * z) * np.cos(phi), np.sqrt(1 - z * z) * np.sin(phi), z], axis=1)
+    scene = _raycasting_scene(vertices, triangles)
     free = np.zeros(len(points), bool)
     for sign in (1.0, -1.0):
         n = sign * normals
@@ -221,7 +229,7 @@ def outer_surface(vertices: np.ndarray, triangles: np.ndarray, points: np.ndarra
             if not todo.any():
                 return free
             ray = d[0] * u[todo] + d[1] * v[todo] + d[2] * n[todo]
-            t = _first_hits(vertices, triangles, points[todo] + 0.05 * ray, ray)
+            t = _first_hits(scene, points[todo] + 0.05 * ray, ray)
             free[np.flatnonzero(todo)[~np.isfinite(t)]] = True
     return free
 

@@ -45,11 +45,11 @@ Colour textures are sRGB in [0, 1], float32, S × S, image-style rows (see
   contrast; 3-D value noise of the model-space position only where no whole block of skin was
   seen); the low frequencies B solve a screened Poisson problem on the mesh's vertices,
   min Σ r (B − (log seen − D))² + λ Σ_edges |∇B|² (+ a weak pull to the seen skin's mean far from
-  anything seen), so the filled skin takes its tone from the reliable seen skin next to it and B + D has the
-  seen skin's values wherever r is high; the result is r · log seen + (1 − r) · (B + D): no edge
-  where the seen skin ends, continuous across UV seams and the mirror line because B lives on the
-  vertices. Only fine detail crosses the mirror: mid-frequency blotches and shading residuals of
-  the other side do not. Without :class:`SurfaceOperators` B is a UV-space push-pull (masked blurs
+  anything seen), so the filled skin takes its tone from the reliable seen skin next to it and
+  B + D has the seen skin's values wherever r is high; the result is r · log seen + (1 − r) ·
+  (B + D): no edge where the seen skin ends, continuous across UV seams and the mirror line
+  because B lives on the vertices. Only fine detail crosses the mirror: mid-frequency blotches and
+  shading residuals of the other side do not. Without :class:`SurfaceOperators` B is a UV-space push-pull (masked blurs
   at growing scales).
 * **homogenise**: the filled texture divided by the shading and the light's colour.
 * **materials**: albedo = homogenised texture; displacement (mm) and tangent-space normal from its
