@@ -471,30 +471,3 @@ def test_shading_confidence_is_low_only_where_the_shading_is_steep():
     facing = ctx.coverage & (ctx.normal_camera[..., 2] > 0.5)
     assert conf[facing & (np.abs(x) < 0.02)].max() < 0.05
     assert conf[facing & (np.abs(x) > 0.3)].min() == 1.0
-
-
-def test_the_ambient_light_is_occluded_where_the_mesh_hides_the_sky(face_context):
-    """Under a hard light, what lights the shadowed skin is the ambient term, and less of it
-    reaches concave skin (beside the nose, below the brows): a photo whose ambient is attenuated
-    by the mesh's ambient occlusion (1024 rays, the backend casts 64) is de-lit flat there too,
-    and the fitted ambient is the unoccluded one."""
-    from facegeo.uv import ambient_occlusion, light_visibility
-
-    ctx = face_context
-    cover = ctx.coverage
-    light = np.array([0.75, 0.25, 0.6])
-    light /= np.linalg.norm(light)
-    lit = np.zeros(cover.shape, bool)
-    lit[cover] = light_visibility(ctx.vertices_camera, ctx.triangles, ctx.position_camera[cover], light)
-    sky = ctx.surface.to_texels(ambient_occlusion(ctx.vertices_camera, ctx.triangles, directions=1024)[:, None], ctx.size)[..., 0]
-    shading = 0.15 * sky + np.maximum(ctx.normal_camera @ light, 0.0) * lit
-    albedo = np.array([0.45, 0.3, 0.24], np.float32)
-    photo = linear_to_srgb(np.where(cover[..., None], albedo * shading[..., None], 0.0)).astype(np.float32)
-    backend = DefaultBackend()
-    lum = srgb_to_linear(backend.homogenise(photo, ctx))[..., 1]
-    assert backend.report["light"]["ambient_over_light"] == pytest.approx(0.15, abs=0.03)
-    skin = cover & (ctx.normal_camera[..., 2] > 0.2) & (ctx.skin > 0.5)
-    hollow = skin & ~lit & (sky < 0.75)  # shadowed and concave: the ambient alone, a quarter or more of it hidden
-    assert hollow.sum() > 100
-    reference = np.median(np.log(lum[skin & lit]))
-    assert abs(np.median(np.log(lum[hollow])) - reference) < 0.1  # a constant ambient left them log(0.75) = −0.29 or more too dark

@@ -20,12 +20,10 @@ Colour textures are sRGB in [0, 1], float32, S × S, image-style rows (see
   streaks).
 * **A directional light** (where the SH fit's strength is above 0 and the context has the posed
   mesh): the SH shading is replaced by a physical model fitted to the same skin,
-  luminance ≈ albedo · (ambient · A + L · max(n·l, 0) · V_l) (:meth:`DefaultBackend._directional_shading`),
+  luminance ≈ albedo · (ambient + L · max(n·l, 0) · V_l) (:meth:`DefaultBackend._directional_shading`),
   V_l the texel's visibility from the light by a shadow map of the posed mesh
   (:func:`facegeo.uv.light_visibility`: the nose's, brow's and jaw's cast shadows), blurred over
-  :data:`SHADOW_SOFTNESS_MM`, and A the mesh's ambient occlusion
-  (:func:`facegeo.uv.sky_visibility.ambient_occlusion`: the ambient light reaches less of the
-  skin below the jaw and beside the nose, where a hard light's shadow leaves only it); no dips are looked for then (what is left is albedo), and the gains
+  :data:`SHADOW_SOFTNESS_MM`; no dips are looked for then (what is left is albedo), and the gains
   are bounded by :data:`LIGHT_GAIN` (a hard light's shadowed side is 5–15× darker).
 * **Highlights**: de-lit luminance above :data:`HIGHLIGHT_RATIO` × its neighbourhood's (Gaussian,
   σ = S/48 texels, ~6 mm at 1K, re-estimated without the first pass's candidates); they are
@@ -86,7 +84,6 @@ from facegeo.colour import linear_to_srgb, luminance, srgb_to_linear
 from facegeo.lighting import sh_basis
 from facegeo.texturing.backend import SKIN_CONSTANTS, TextureContext
 from facegeo.texturing.illuminant import chroma, estimate_illuminant, invent_chroma, is_greyscale, remove_cast
-from facegeo.uv.sky_visibility import ambient_occlusion
 from facegeo.uv.renderer import light_visibility
 
 __all__ = ["DefaultBackend", "REGION_PRIORS", "pad_outside", "masked_blur", "gaussian_blur", "value_noise", "MAX_GAIN",
@@ -521,12 +518,11 @@ class DefaultBackend:
     def _directional_shading(lum: np.ndarray, fit_mask: np.ndarray, ctx: TextureContext) -> tuple[np.ndarray, dict[str, Any]]:
         """The shading (S, S) float32 of one directional light and an ambient term fitted to the
         reliably seen skin's luminance ``lum`` (S, S) linear on ``fit_mask`` (S, S) bool:
-        lum ≈ albedo · (ambient · A + L · max(n·l, 0) · V_l), n the camera-space normal, V_l the
+        lum ≈ albedo · (ambient + L · max(n·l, 0) · V_l), n the camera-space normal, V_l the
         texel's visibility from the light (a shadow map of the posed mesh, blurred over
-        :data:`SHADOW_SOFTNESS_MM`), A the posed mesh's ambient occlusion (per vertex, interpolated
-        to the texels), the albedo taken as constant (robust: soft-L1 loss on the log-ratio). l:
-        the best of :data:`LIGHT_CANDIDATES` directions (least squares for ambient and L, median
-        |log-ratio|), refined with V_l of that direction, then V_l recomputed.
+        :data:`SHADOW_SOFTNESS_MM`), the albedo taken as constant (robust: soft-L1 loss on the
+        log-ratio). l: the best of :data:`LIGHT_CANDIDATES` directions (least squares for ambient
+        and L, median |log-ratio|), refined with V_l of that direction, then V_l recomputed.
         Also a JSON-ready report (direction, ambient / L)."""
         from scipy.optimize import least_squares  # here only: 0.3 s of import that an even light never needs
 
@@ -535,11 +531,6 @@ class DefaultBackend:
         n = ctx.normal_camera.reshape(-1, 3)[rows].astype(np.float64)
         log_y = np.log(np.maximum(lum.ravel()[rows].astype(np.float64), 1e-6))
         y = np.exp(log_y)
-        sky = np.ones(cover.shape, np.float32)
-        if ctx.surface is not None:
-            sky = np.where(cover, np.clip(ctx.surface.to_texels(ambient_occlusion(ctx.vertices_camera, ctx.triangles)[:, None], ctx.size)[..., 0],
-                                          0.0, 1.0), 1.0).astype(np.float32)
-        a = sky.ravel()[rows].astype(np.float64)
         # the grid: per candidate direction, ambient and L by least squares, scored by the median |log-ratio|
         k = np.arange(LIGHT_CANDIDATES) + 0.5
         z = 1.0 - 2.0 * k / LIGHT_CANDIDATES
@@ -549,14 +540,10 @@ class DefaultBackend:
         grid_rows = slice(None, None, max(1, len(rows) // 4000))
         cos = np.maximum(n[grid_rows] @ candidates.T, 0.0)  # (n, K)
         yg = y[grid_rows, None]
-        ag = a[grid_rows, None]
-        # the 2 × 2 normal equations of yg ≈ ambient · ag + gain · cos, per candidate
-        saa, sac, scc = float((ag * ag).sum()), (ag * cos).sum(axis=0), (cos * cos).sum(axis=0)
-        say, scy = float((ag * yg).sum()), (cos * yg).sum(axis=0)
-        det = np.maximum(saa * scc - sac * sac, 1e-12 * saa * np.maximum(scc, 1e-12))
-        gain = np.maximum((saa * scy - sac * say) / det, 0.0)
-        ambient = np.maximum((say - gain * sac) / saa, 1e-3 * float(yg.mean()))
-        score = np.median(np.abs(np.log(yg / (ambient * ag + gain * cos))), axis=0)
+        c_mean, y_mean = cos.mean(axis=0), yg.mean()
+        gain = np.maximum(((cos - c_mean) * (yg - y_mean)).mean(axis=0) / np.maximum(cos.var(axis=0), 1e-12), 0.0)
+        ambient = np.maximum(y_mean - gain * c_mean, 1e-3 * y_mean)
+        score = np.median(np.abs(np.log(yg / (ambient + gain * cos))), axis=0)
         best = int(np.argmin(score))
 
         def direction(angles: np.ndarray) -> np.ndarray:
@@ -571,7 +558,7 @@ class DefaultBackend:
             return np.where(cover, masked_blur(lit, cover, SHADOW_SOFTNESS_MM / ctx.median_texel_mm), 1.0)
 
         def residual(x: np.ndarray, v: np.ndarray) -> np.ndarray:
-            return log_y - np.log(np.exp(x[2]) * a + np.exp(x[3]) * np.maximum(n @ direction(x[:2]), 0.0) * v)
+            return log_y - np.log(np.exp(x[2]) + np.exp(x[3]) * np.maximum(n @ direction(x[:2]), 0.0) * v)
 
         l0 = candidates[best]
         x = np.array([np.arccos(np.clip(l0[2], -1, 1)), np.arctan2(l0[1], l0[0]), np.log(ambient[best]), np.log(max(gain[best], 1e-6))])
@@ -579,7 +566,7 @@ class DefaultBackend:
         x = least_squares(residual, x, args=(v.ravel()[rows],), loss="soft_l1", f_scale=0.1, max_nfev=100).x
         light = direction(x[:2])
         v = visible(light)
-        shading = np.exp(x[2]) * sky + np.exp(x[3]) * np.maximum(ctx.normal_camera @ light, 0.0) * v
+        shading = np.exp(x[2]) + np.exp(x[3]) * np.maximum(ctx.normal_camera @ light, 0.0) * v
         report = {"direction": [float(c) for c in light], "ambient_over_light": float(np.exp(x[2] - x[3])),
                   "lit_fraction_of_fit": float((v[fit_mask] > 0.5).mean())}
         return np.where(cover, shading, 1.0).astype(np.float32), report

@@ -1,6 +1,5 @@
 """UV space: the rasteriser, geometry maps (position, normal, MikkTSpace tangent), the
-occlusion-aware unwrap of a photo (T_inc, M_vis), the z-buffer renderer that inverts it and the
-mesh's ambient occlusion (ray-cast).
+occlusion-aware unwrap of a photo (T_inc, M_vis) and the z-buffer renderer that inverts it.
 
 Conventions (DESIGN.md, "Conventions"): mm; camera space looks down −Z; UV [0, 1]² with the origin bottom-left,
 maps stored row 0 = top (texel (i, j) centre at u = (j + 0.5)/S, v = 1 − (i + 0.5)/S); image
@@ -39,16 +38,14 @@ _EXPORTS = {
     "render": "facegeo.uv.renderer",
     "rasterize_mesh": "facegeo.uv.renderer",
     "light_visibility": "facegeo.uv.renderer",
-    "ambient_occlusion": "facegeo.uv.sky_visibility",
 }
 
 __all__ = list(_EXPORTS)
 
 if TYPE_CHECKING:
-    from facegeo.uv.sky_visibility import ambient_occlusion
     from facegeo.uv.maps import GeometryMaps, geometry_maps
     from facegeo.uv.raster import UVRaster, clear_raster_cache, default_padding, rasterize_uv
-    from facegeo.uv.renderer import Rendering, light_visibility, rasterize_mesh, render
+    from facegeo.uv.renderer import Rendering, rasterize_mesh, render
     from facegeo.normals import vertex_normals
     from facegeo.uv.tangents import mesh_tangents, mikktspace_tangents
     from facegeo.uv.unwrapping import FACING_RAMP, Unwrapped, unwrap, unwrap_details
