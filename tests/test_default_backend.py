@@ -79,7 +79,7 @@ def test_homogenise_removes_known_white_sh_shading_and_keeps_chroma():
     albedo = skin_albedo(128)
     e = sh_irradiance(torch.from_numpy(ctx.normal_camera), torch.from_numpy(gamma)).numpy()
     shaded = linear_to_srgb(srgb_to_linear(albedo) * e)
-    backend = DefaultBackend()
+    backend = DefaultBackend(skin_albedo=None)  # a diffuse-only photo: no sheen to remove
     out = backend.homogenise(shaded, ctx)
     # compare up to the global scale the homogenised texture is defined to
     lin_out, lin_ref = srgb_to_linear(out), srgb_to_linear(albedo)
@@ -108,7 +108,7 @@ def test_warm_light_is_removed_with_the_sclera_as_white_reference():
     for name, light in (("warm", np.array([1.0, 0.78, 0.55], np.float32)), ("white", np.ones(3, np.float32))):
         shaded = np.broadcast_to(linear_to_srgb(skin * light), (64, 64, 3)).astype(np.float32)
         ctx.white_reference = sclera * light
-        out = DefaultBackend().homogenise(shaded, ctx)
+        out = DefaultBackend(skin_albedo=None).homogenise(shaded, ctx)
         results[name] = np.median(chroma(srgb_to_linear(out)[ctx.coverage]), axis=0)
     truth = chroma(skin)
     photo_error = np.linalg.norm(chroma(skin * np.array([1.0, 0.78, 0.55])) - truth)
@@ -371,7 +371,7 @@ def test_unseen_texels_get_the_visible_skin_colour_not_the_model_texture():
     x = np.linspace(-1, 1, 64)[None, :].repeat(64, 0)
     visible = (x < 0.3).astype(np.float32)
     ctx.mirror[...] = -1  # nothing mirrors: the hidden part comes from the seen skin alone
-    full = DefaultBackend().inpaint(t_inc, visible, ctx)
+    full = DefaultBackend(skin_albedo=None).inpaint(t_inc, visible, ctx)
     hidden = ctx.coverage & (visible == 0)
     np.testing.assert_allclose(full[hidden].mean(axis=0), colour, atol=0.01)
 
@@ -407,7 +407,7 @@ def test_directional_light_and_its_cast_shadows_are_fitted_and_removed(face_cont
     assert (facing & ~lit & (ctx.normal_camera @ light > 0.3)).sum() > 50  # the nose casts a shadow on lit-facing skin
     albedo = np.array([0.45, 0.3, 0.24], np.float32)
     photo = linear_to_srgb(np.where(cover[..., None], albedo * shading[..., None], 0.0)).astype(np.float32)
-    backend = DefaultBackend()
+    backend = DefaultBackend(skin_albedo=None)  # a diffuse-only photo
     out = backend.homogenise(photo, ctx)
     assert backend.report["analyse"]["directional"] < DIRECTIONAL_RANGE[0]
     assert backend.report["analyse"]["irradiance_contrast"] > CONTRAST_RANGE[1]
@@ -471,3 +471,44 @@ def test_shading_confidence_is_low_only_where_the_shading_is_steep():
     facing = ctx.coverage & (ctx.normal_camera[..., 2] > 0.5)
     assert conf[facing & (np.abs(x) < 0.02)].max() < 0.05
     assert conf[facing & (np.abs(x) > 0.3)].min() == 1.0
+
+
+def test_the_sheen_of_a_white_environment_is_taken_out(face_context):
+    """A constant skin albedo rendered by the GGX shader (roughness 0.5, F0 0.04: not the
+    backend's region priors) under a uniform white environment (300 directional lights over the
+    sphere): the photo's skin is greyer where it turns away from the camera (Fresnel). The
+    de-lit albedo is the skin's own colour there too, and without the specular model it is not."""
+    from facegeo.texturing.ggx import ggx_shaded
+    from facegeo.texturing.illuminant import chroma
+
+    ctx = face_context
+    cover = ctx.coverage
+    k = np.arange(300) + 0.5
+    z = 1 - 2 * k / 300
+    phi = np.pi * (3 - np.sqrt(5)) * k
+    lights = np.stack([np.sqrt(1 - z * z) * np.cos(phi), np.sqrt(1 - z * z) * np.sin(phi), z], 1)
+    radiance = np.full((300, 3), 4 * np.pi / 300)  # radiance 1 from every direction: irradiance π on a plane
+    albedo = np.array([0.55, 0.36, 0.28], np.float32)  # luminance 0.39
+    n = ctx.normal_camera[cover].astype(np.float64)
+    p = ctx.position_camera[cover].astype(np.float64)
+    helper = np.where(np.abs(n[:, :1]) < 0.9, [[1.0, 0, 0]], [[0, 1.0, 0]])
+    ones = np.ones((len(n), 1))
+    lit = ggx_shaded(np.broadcast_to(albedo, n.shape).astype(np.float64), np.broadcast_to([0.0, 0, 1], n.shape), 0.5 * ones,
+                     0.5 * ones, p, n, np.cross(n, helper), lights, radiance, np.zeros(3), 0.0)
+    photo = np.zeros((*cover.shape, 3), np.float32)
+    photo[cover] = linear_to_srgb(np.clip(lit * 0.8, 0, 1))
+    facing = cover & (ctx.skin > 0.5) & (ctx.normal_camera[..., 2] > 0.35)
+    grazing = facing & (ctx.normal_camera[..., 2] < 0.6)
+    truth = chroma(albedo[None])[0]
+
+    def chroma_error(backend):
+        out = srgb_to_linear(backend.homogenise(photo, ctx))
+        return np.linalg.norm(np.median(chroma(out[grazing]), axis=0) - truth), backend.report["analyse"]
+
+    assert grazing.sum() > 200
+    photo_error = np.linalg.norm(np.median(chroma(srgb_to_linear(photo)[grazing]), axis=0) - truth)
+    kept, _ = chroma_error(DefaultBackend(skin_albedo=None))
+    removed, report = chroma_error(DefaultBackend())
+    assert report["specular_fraction_of_seen_skin"] > 0.05
+    assert photo_error > 0.06 and kept > 0.06  # the sheen: the grazing skin's chroma well off the albedo's (0.08)
+    assert removed < 0.2 * kept  # 0.003

@@ -25,6 +25,12 @@ Colour textures are sRGB in [0, 1], float32, S × S, image-style rows (see
   (:func:`facegeo.uv.light_visibility`: the nose's, brow's and jaw's cast shadows), blurred over
   :data:`SHADOW_SOFTNESS_MM`; no dips are looked for then (what is left is albedo), and the gains
   are bounded by :data:`LIGHT_GAIN` (a hard light's shadowed side is 5–15× darker).
+* **The skin's specular reflection** (:meth:`DefaultBackend._specular`): the GGX reflection of
+  the fitted light with the region priors' roughness and F0 (a white environment's sheen,
+  strongest where the skin turns away from the camera; the broad lobe of a hard light), in the
+  photo's units through an assumed mean skin albedo (:data:`SKIN_ALBEDO`), is subtracted from
+  the de-lit texture once the light's colour is out (the sheen is white then), at most
+  1 − :data:`SPECULAR_FLOOR` of a texel.
 * **Highlights**: de-lit luminance above :data:`HIGHLIGHT_RATIO` × its neighbourhood's (Gaussian,
   σ = S/48 texels, ~6 mm at 1K, re-estimated without the first pass's candidates); they are
   treated as unseen (filled) and are the specular map's evidence.
@@ -79,16 +85,18 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 from scipy import ndimage
 
-from facegeo.asset import MAP_NAMES
+from facegeo.asset import MAP_NAMES, SPECULAR_F0_SCALE
 from facegeo.colour import linear_to_srgb, luminance, srgb_to_linear
 from facegeo.lighting import sh_basis
 from facegeo.texturing.backend import SKIN_CONSTANTS, TextureContext
+from facegeo.texturing.ggx import environment_brdf, ggx_shaded
 from facegeo.texturing.illuminant import chroma, estimate_illuminant, invent_chroma, is_greyscale, remove_cast
 from facegeo.uv.renderer import light_visibility
 
 __all__ = ["DefaultBackend", "REGION_PRIORS", "pad_outside", "masked_blur", "gaussian_blur", "value_noise", "MAX_GAIN",
            "GRAZING_GAIN", "QUILT_BLOCK", "QUILT_ENERGY_CAP", "quilted_detail", "SPECK_SIGMAS", "SHADOW_TOLERANCE", "HIGHLIGHT_RATIO", "DETAIL_DEPTH_MM", "DETAIL_LIMIT_MM", "SH_TERMS",
-           "DIRECTIONAL_RANGE", "CONTRAST_RANGE", "SHADING_ERROR", "FORESHORTENING", "EDGE_MM", "DETAIL_EDGE_MM", "PAD_FRACTION"]
+           "DIRECTIONAL_RANGE", "CONTRAST_RANGE", "SHADING_ERROR", "FORESHORTENING", "EDGE_MM", "DETAIL_EDGE_MM", "PAD_FRACTION",
+           "SKIN_ALBEDO", "SPECULAR_FLOOR"]
 
 #: (roughness, specular) priors per facial region; oily T-zone glossier, brows matte, lips smooth
 #: and less specular (values in the range of measured facial BRDF fits, e.g. Weyrich et al. 2006).
@@ -192,6 +200,12 @@ SPECK_SIGMAS = 4.0
 #: Padding outside the UV islands: the edge colour over this fraction of S texels (4 at 1K), then
 #: the median of the map (flat).
 PAD_FRACTION = 1.0 / 256.0
+#: The skin's mean diffuse albedo (linear luminance) assumed to put the specular model in the
+#: photo's units (:meth:`DefaultBackend._specular`): measured skin spans ~0.1 (dark) to ~0.5
+#: (fair); on darker skin less than the whole sheen is removed, on the fairest ~25 % too much.
+SKIN_ALBEDO = 0.4
+#: The specular removal keeps at least this fraction of each texel's de-lit value.
+SPECULAR_FLOOR = 0.5
 
 
 def gaussian_blur(image: np.ndarray, sigma: float) -> np.ndarray:
@@ -322,6 +336,12 @@ def _channel_max(rgb: np.ndarray) -> np.ndarray:
     return np.maximum(np.maximum(rgb[..., 0], rgb[..., 1]), rgb[..., 2])[..., None]
 
 
+def _without_specular(delit: np.ndarray, specular: np.ndarray) -> np.ndarray:
+    """``delit`` (S, S[, 3]) less ``specular`` (broadcasting; white), keeping at least
+    :data:`SPECULAR_FLOOR` of each value."""
+    return np.maximum(delit - specular, SPECULAR_FLOOR * delit).astype(np.float32)
+
+
 def _smoothstep(t: np.ndarray) -> np.ndarray:
     """3t² − 2t³ of t clipped to [0, 1] (float32)."""
     t = np.clip(t, 0.0, 1.0).astype(np.float32)
@@ -415,18 +435,32 @@ class _Analysis:
     shading: np.ndarray
     highlight: np.ndarray
     weight: np.ndarray  # visibility × (1 − highlight): how much of each texel is kept as seen
+    specular: np.ndarray  # the skin's specular reflection in de-lit units (white after the light's colour is removed)
+
+
+@dataclass
+class _Sun:
+    """The fitted directional light model: ``direction`` (3,) towards the light (camera space),
+    ``ambient`` the ambient term, ``direct`` (S, S) the light's intensity where it reaches the
+    texel (L · V_l); the shading is ambient + direct · max(n·l, 0)."""
+
+    direction: np.ndarray
+    ambient: float
+    direct: np.ndarray
 
 
 @dataclass
 class DefaultBackend:
     """Weight-free texture backend. Knobs: the detail band (``detail_sigma_fraction`` of S) and
-    depth (``detail_depth_mm``). ``report`` holds statistics of the last calls; ``constants``
+    depth (``detail_depth_mm``), the skin's mean albedo that scales the specular removal
+    (``skin_albedo``; None for a photo without specular reflection). ``report`` holds statistics of the last calls; ``constants``
     (:data:`~facegeo.texturing.backend.SKIN_CONSTANTS`) the maps not asked for."""
 
     constants: ClassVar[Mapping[str, float]] = SKIN_CONSTANTS
     name: str = "default"
     detail_sigma_fraction: float = 1.0 / 256.0  # detail = frequencies above ~S/256 texels⁻¹ (~1 mm at 1K: pores, wrinkles, creases)
     detail_depth_mm: float = DETAIL_DEPTH_MM
+    skin_albedo: float | None = SKIN_ALBEDO  # None: the photo shows no specular reflection (cross-polarised light)
     report: dict[str, Any] = field(default_factory=dict)
     _analysis: tuple[TextureContext, _Analysis] | None = field(default=None, repr=False)
     _filled: tuple[np.ndarray, np.ndarray] | None = field(default=None, repr=False)
@@ -452,6 +486,7 @@ class DefaultBackend:
         directional = strength = contrast = 0.0
         self.report.pop("light", None)
         light: dict[str, Any] | None = None  # the directional light model's report, where it is used
+        sun: _Sun | None = None
         if n_fit >= 100:
             rows = _subsample(np.flatnonzero(fit_mask.ravel()))
             basis = sh_basis(normals.reshape(-1, 3)[rows].astype(np.float32)).astype(np.float64)[:, :SH_TERMS]
@@ -471,7 +506,7 @@ class DefaultBackend:
             strength = float(max(_smoothstep(np.float32((directional - DIRECTIONAL_RANGE[0]) / (DIRECTIONAL_RANGE[1] - DIRECTIONAL_RANGE[0]))),
                                  _smoothstep(np.float32((contrast - CONTRAST_RANGE[0]) / (CONTRAST_RANGE[1] - CONTRAST_RANGE[0])))))
             if strength > 0 and ctx.vertices_camera is not None and ctx.position_camera is not None and ctx.triangles is not None:
-                e, light = self._directional_shading(lum, fit_mask, ctx)
+                e, light, sun = self._directional_shading(lum, fit_mask, ctx)
             else:  # the SH fit's own shading over the layout
                 flat = np.flatnonzero(cover.ravel())
                 e = np.zeros(cover.size)
@@ -492,6 +527,8 @@ class DefaultBackend:
         bound = grazing + (most - grazing) * facing
         shading = np.where(cover, np.clip(shading, 1.0 / bound, bound), 1.0).astype(np.float32)
         delit_lum = lum / shading
+        specular = self._specular(delit_lum, fit_mask if n_fit else (w > 0), w > 0, ctx, sun)
+        delit_lum = _without_specular(delit_lum, specular)
         lo, hi = HIGHLIGHT_RATIO
         ref_weight = fit_mask if n_fit else cover
         for _ in range(2):  # the neighbourhood's mean without the highlight candidates of the first pass
@@ -500,7 +537,7 @@ class DefaultBackend:
             ref_weight = ref_weight & (ratio < lo)
         highlight = np.clip((ratio - lo) / (hi - lo), 0.0, 1.0) * (w > 0)
         highlight = np.clip(gaussian_blur(highlight, max(1.0, size / 512.0)) * 2.0, 0.0, 1.0) * cover
-        analysis = _Analysis(shading, highlight.astype(np.float32), (w * (1.0 - highlight)).astype(np.float32))
+        analysis = _Analysis(shading, highlight.astype(np.float32), (w * (1.0 - highlight)).astype(np.float32), specular)
         self._analysis = (ctx, analysis)
         if light is not None:
             self.report["light"] = light
@@ -511,11 +548,12 @@ class DefaultBackend:
             "delighting_strength": strength,
             "gain_p05_p95": [float(x) for x in np.percentile(1.0 / shading[fit_mask], [5, 95])] if n_fit else [1.0, 1.0],
             "highlight_fraction_of_seen_skin": float(highlight[fit_mask].mean()) if n_fit else 0.0,
+            "specular_fraction_of_seen_skin": float(specular[fit_mask].sum() / max(float((lum / shading)[fit_mask].sum()), 1e-12)) if n_fit else 0.0,
         }
         return analysis
 
     @staticmethod
-    def _directional_shading(lum: np.ndarray, fit_mask: np.ndarray, ctx: TextureContext) -> tuple[np.ndarray, dict[str, Any]]:
+    def _directional_shading(lum: np.ndarray, fit_mask: np.ndarray, ctx: TextureContext) -> tuple[np.ndarray, dict[str, Any], _Sun]:
         """The shading (S, S) float32 of one directional light and an ambient term fitted to the
         reliably seen skin's luminance ``lum`` (S, S) linear on ``fit_mask`` (S, S) bool:
         lum ≈ albedo · (ambient + L · max(n·l, 0) · V_l), n the camera-space normal, V_l the
@@ -523,7 +561,7 @@ class DefaultBackend:
         :data:`SHADOW_SOFTNESS_MM`), the albedo taken as constant (robust: soft-L1 loss on the
         log-ratio). l: the best of :data:`LIGHT_CANDIDATES` directions (least squares for ambient
         and L, median |log-ratio|), refined with V_l of that direction, then V_l recomputed.
-        Also a JSON-ready report (direction, ambient / L)."""
+        Also a JSON-ready report (direction, ambient / L) and the fitted terms (:class:`_Sun`)."""
         from scipy.optimize import least_squares  # here only: 0.3 s of import that an even light never needs
 
         cover = ctx.coverage
@@ -566,10 +604,53 @@ class DefaultBackend:
         x = least_squares(residual, x, args=(v.ravel()[rows],), loss="soft_l1", f_scale=0.1, max_nfev=100).x
         light = direction(x[:2])
         v = visible(light)
-        shading = np.exp(x[2]) + np.exp(x[3]) * np.maximum(ctx.normal_camera @ light, 0.0) * v
+        sun = _Sun(light, float(np.exp(x[2])), (np.exp(x[3]) * v).astype(np.float32))
+        shading = sun.ambient + sun.direct * np.maximum(ctx.normal_camera @ light, 0.0)
         report = {"direction": [float(c) for c in light], "ambient_over_light": float(np.exp(x[2] - x[3])),
                   "lit_fraction_of_fit": float((v[fit_mask] > 0.5).mean())}
-        return np.where(cover, shading, 1.0).astype(np.float32), report
+        return np.where(cover, shading, 1.0).astype(np.float32), report, sun
+
+    def _specular(self, delit_lum: np.ndarray, reference: np.ndarray, seen: np.ndarray, ctx: TextureContext,
+                  sun: _Sun | None) -> np.ndarray:
+        """(S, S) float32: the skin's specular reflection in the units of the de-lit luminance
+        ``delit_lum`` (S, S), on the ``seen`` (S, S) bool texels (0 elsewhere).
+
+        Per texel, photo = (albedo + q) · D: D is the diffuse radiance of a unit albedo, q the
+        ratio of the specular radiance to it for the skin's GGX (the roughness and F0 of the
+        region priors, :meth:`_priors`, the maps the asset is rendered with) under the fitted
+        light. Even light (an environment): q = E(n·v), the environment BRDF
+        (:func:`facegeo.texturing.ggx.environment_brdf`: ~0.03 facing the camera, ~0.15 at
+        grazing angles). The directional model: q = (ambient · E(n·v) + π · direct · g(n, l, v))
+        / (ambient + direct · max(n·l, 0)), g the GGX lobe of the light (:func:`ggx_shaded`).
+        D in de-lit units: the ``reference`` (S, S) bool texels' mean de-lit luminance is
+        D · (``skin_albedo`` + their mean q) (default :data:`SKIN_ALBEDO`; None: nothing removed). Subtracting D · q takes out the sheen that a
+        white environment leaves on skin turned away from the camera and the broad lobe of a
+        hard light, which made skin look greyer and bluer than it is (stubble most)."""
+        cover = ctx.coverage
+        out = np.zeros(cover.shape, np.float32)
+        rows = np.flatnonzero((seen & cover).ravel())
+        reference = reference & seen & cover
+        if len(rows) == 0 or not reference.any() or self.skin_albedo is None:
+            return out
+        rough, level = self._priors(ctx)
+        n = ctx.normal_camera.reshape(-1, 3)[rows]
+        if ctx.position_camera is not None:
+            position = ctx.position_camera.reshape(-1, 3)[rows]
+            view = -position / np.maximum(np.linalg.norm(position, axis=1, keepdims=True), 1e-6)
+        else:  # no posed mesh: an orthographic view
+            position, view = None, np.broadcast_to(np.float32([0.0, 0.0, 1.0]), n.shape)
+        roughness, level = rough.reshape(-1)[rows], level.reshape(-1)[rows]
+        q = environment_brdf((n * view).sum(axis=1), roughness, SPECULAR_F0_SCALE * level)
+        if sun is not None and position is not None:
+            ambient, direct = sun.ambient, sun.direct.reshape(-1)[rows]
+            helper = np.where(np.abs(n[:, :1]) < 0.9, np.float32([[1.0, 0.0, 0.0]]), np.float32([[0.0, 1.0, 0.0]]))
+            lobe = ggx_shaded(np.zeros_like(n), np.broadcast_to(np.float32([0.0, 0.0, 1.0]), n.shape), roughness[:, None],
+                              level[:, None], position, n, np.cross(n, helper), sun.direction[None].astype(np.float32),
+                              np.ones((1, 3), np.float32), np.zeros(3, np.float32), 0.0)[:, 0]
+            q = (ambient * q + np.pi * direct * lobe) / np.maximum(ambient + direct * np.maximum(n @ sun.direction, 0.0), 1e-6)
+        out.reshape(-1)[rows] = q
+        unit = float(delit_lum[reference].mean()) / (self.skin_albedo + float(out[reference].mean()))
+        return (unit * out).astype(np.float32)
 
     # ---------------------------------------------------------------------------------- inpaint
     def inpaint(self, T_inc: np.ndarray, M_vis: np.ndarray, ctx: TextureContext) -> np.ndarray:
@@ -602,6 +683,7 @@ class DefaultBackend:
         elif greyscale:
             delit = np.repeat(luminance(delit)[..., None], 3, axis=-1)
             notes.append("the photo is greyscale: the albedo's chroma is invented (a generic skin tone, redder lips)")
+        delit = _without_specular(delit, an.specular[..., None])  # white once the light's colour is out
         if reliable[skin].sum() >= 10:
             mean = (delit * reliable[..., None]).reshape(-1, 3).sum(0) / reliable.sum()
         elif (w > 0).any():
@@ -761,7 +843,8 @@ class DefaultBackend:
         if self._filled is not None and self._filled[0] is T_full and self._analysis is not None and self._analysis[0] is ctx:
             shading, albedo = self._analysis[1].shading, self._filled[1]
         else:  # called on its own: analyse the texture as if everything were seen
-            shading = self.analyse(T_full, cover.astype(np.float32), ctx).shading
+            an = self.analyse(T_full, cover.astype(np.float32), ctx)
+            shading = an.shading
             albedo = srgb_to_linear(T_full) / shading[..., None]
             weight = self.reliability(cover.astype(np.float32), ctx) * skin
             if weight.sum() >= 10 and not is_greyscale(T_full[cover]):
@@ -769,6 +852,7 @@ class DefaultBackend:
                 white = None if ctx.white_reference is None else chroma(np.asarray(ctx.white_reference))
                 light, self.report["illuminant"] = estimate_illuminant(chroma(mean_skin), white)
                 albedo = remove_cast(albedo, light)
+            albedo = _without_specular(albedo, an.specular[..., None])
             peak = _channel_max(albedo)
             albedo = np.where(peak > 1.0, albedo / np.maximum(peak, 1e-6), albedo)
         before = self._shading_variance(T_full, ctx.normal_camera, skin, srgb=True)

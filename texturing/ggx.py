@@ -18,7 +18,7 @@ import numpy as np
 from facegeo.asset import SPECULAR_F0_SCALE
 from facegeo.errors import check_finite
 
-__all__ = ["ggx_shaded", "ALPHA_MIN", "EPS_NORM", "EPS_PARALLEL", "EPS_HALF", "EPS_SMITH"]
+__all__ = ["ggx_shaded", "environment_brdf", "ALPHA_MIN", "EPS_NORM", "EPS_PARALLEL", "EPS_HALF", "EPS_SMITH"]
 
 #: Lower bound of α = roughness² (roughness ≈ 0.0447); then D ≤ 1/(π ALPHA_MIN²) ≈ 8e4 and
 #: (n·l)⁺ V ≤ 0.5/ALPHA_MIN = 250. α, not roughness, is clamped.
@@ -131,3 +131,26 @@ def ggx_shaded(
         shading = shading + radiance * nl
         glossy = glossy + radiance * (nl * fresnel * (a2 * (0.5 / math.pi)) / (d * d * den))
     return shading * albedo * (1.0 / math.pi) + glossy + ambient * albedo
+
+
+def environment_brdf(n_dot_v: np.ndarray, roughness: np.ndarray, f0: np.ndarray) -> np.ndarray:
+    """The GGX specular reflectance under a uniform white environment, ∫ f_spec (n·l) dω over the
+    hemisphere, as a function of n·v: Karis's analytic fit of the split-sum lookup table ("Physically
+    Based Shading on Mobile", 2014), F0 · A + B. The specular radiance of a surface under a
+    uniform environment of radiance L is this × L; its diffuse radiance is albedo × L.
+
+    Args:
+        n_dot_v: (...) cosine between normal and view direction (clipped to [0, 1]).
+        roughness: (...) perceptual roughness. f0: (...) reflectance at normal incidence.
+    Returns:
+        (...) float array, broadcast of the inputs: for skin (roughness 0.5, F0 0.04) 0.03
+        facing the camera, 0.05 at n·v = 0.5, 0.15 at grazing angles (Fresnel).
+    """
+    nv = np.clip(n_dot_v, 0.0, 1.0)
+    r = np.asarray(roughness)
+    x = r * -1.0 + 1.0
+    y = r * -0.0275 + 0.0425
+    z = r * -0.572 + 1.04
+    w = r * 0.022 - 0.04
+    a004 = np.minimum(x * x, np.exp2(-9.28 * nv)) * x + y
+    return f0 * (-1.04 * a004 + z) + (1.04 * a004 + w)
