@@ -86,5 +86,7 @@ def test_surface_operators_round_trip_and_seamless_fill(context):
     same = np.flatnonzero(pairs[1:, 0] == pairs[:-1, 0])
     uv_a, uv_b = model.uv[pairs[same, 1]], model.uv[pairs[same + 1, 1]]
     px = lambda uv: (np.clip(((1 - uv[:, 1]) * S).astype(int), 0, S - 1), np.clip((uv[:, 0] * S).astype(int), 0, S - 1))  # noqa: E731
-    a, b = albedo[px(uv_a)], albedo[px(uv_b)]
-    assert np.median(np.abs(a - b).max(axis=1)) < 0.03
+    a, b = px(uv_a), px(uv_b)
+    inside = ctx.coverage[a] & ctx.coverage[b]  # a nearest texel outside the layout reads the padding, not the seam
+    assert inside.sum() > 100
+    assert np.percentile(np.abs(albedo[a] - albedo[b]).max(axis=1)[inside], 90) < 0.03  # (0.0: the same value)

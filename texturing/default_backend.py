@@ -26,7 +26,7 @@ Colour textures are sRGB in [0, 1], float32, S × S, image-style rows (see
   :data:`SHADOW_SOFTNESS_MM`; no dips are looked for then (what is left is albedo), and the gains
   are bounded by :data:`LIGHT_GAIN` (a hard light's shadowed side is 5–15× darker).
 * **The skin's specular reflection** (:meth:`DefaultBackend._specular`): the GGX reflection of
-  the fitted light with the region priors' roughness and F0 (a white environment's sheen,
+  the fitted light with generic skin's roughness and F0 (a white environment's sheen,
   strongest where the skin turns away from the camera; the broad lobe of a hard light), in the
   photo's units through an assumed mean skin albedo (:data:`SKIN_ALBEDO`), is subtracted from
   the de-lit texture once the light's colour is out (the sheen is white then), at most
@@ -616,9 +616,9 @@ class DefaultBackend:
         ``delit_lum`` (S, S), on the ``seen`` (S, S) bool texels (0 elsewhere).
 
         Per texel, photo = (albedo + q) · D: D is the diffuse radiance of a unit albedo, q the
-        ratio of the specular radiance to it for the skin's GGX (the roughness and F0 of the
-        region priors, :meth:`_priors`, the maps the asset is rendered with) under the fitted
-        light. Even light (an environment): q = E(n·v), the environment BRDF
+        ratio of the specular radiance to it for the skin's GGX (generic skin's roughness and
+        specular level, :data:`~facegeo.texturing.backend.SKIN_CONSTANTS`: the region priors are
+        blurred in UV space and differ across UV seams) under the fitted light. Even light (an environment): q = E(n·v), the environment BRDF
         (:func:`facegeo.texturing.ggx.environment_brdf`: ~0.03 facing the camera, ~0.15 at
         grazing angles). The directional model: q = (ambient · E(n·v) + π · direct · g(n, l, v))
         / (ambient + direct · max(n·l, 0)), g the GGX lobe of the light (:func:`ggx_shaded`).
@@ -632,14 +632,14 @@ class DefaultBackend:
         reference = reference & seen & cover
         if len(rows) == 0 or not reference.any() or self.skin_albedo is None:
             return out
-        rough, level = self._priors(ctx)
         n = ctx.normal_camera.reshape(-1, 3)[rows]
         if ctx.position_camera is not None:
             position = ctx.position_camera.reshape(-1, 3)[rows]
             view = -position / np.maximum(np.linalg.norm(position, axis=1, keepdims=True), 1e-6)
         else:  # no posed mesh: an orthographic view
             position, view = None, np.broadcast_to(np.float32([0.0, 0.0, 1.0]), n.shape)
-        roughness, level = rough.reshape(-1)[rows], level.reshape(-1)[rows]
+        roughness = np.full(len(rows), self.constants["roughness"], np.float32)
+        level = np.full(len(rows), self.constants["specular"], np.float32)
         q = environment_brdf((n * view).sum(axis=1), roughness, SPECULAR_F0_SCALE * level)
         if sun is not None and position is not None:
             ambient, direct = sun.ambient, sun.direct.reshape(-1)[rows]
@@ -675,7 +675,10 @@ class DefaultBackend:
         skin_weight = reliable * skin
         illuminant_report: dict[str, Any] = {"greyscale": greyscale}
         if not greyscale and skin_weight.sum() >= 10:
-            mean_skin = (delit * skin_weight[..., None]).reshape(-1, 3).sum(0) / skin_weight.sum()
+            # the skin's colour without its sheen (white before the light's colour is known): the
+            # sheen made skin look less saturated, which the skin locus took for a cooler light
+            free = _without_specular(delit, an.specular[..., None])
+            mean_skin = (free * skin_weight[..., None]).reshape(-1, 3).sum(0) / skin_weight.sum()
             white = None if ctx.white_reference is None else chroma(np.asarray(ctx.white_reference))
             light, illuminant_report = estimate_illuminant(chroma(mean_skin), white)
             illuminant_report["greyscale"] = False
@@ -848,7 +851,8 @@ class DefaultBackend:
             albedo = srgb_to_linear(T_full) / shading[..., None]
             weight = self.reliability(cover.astype(np.float32), ctx) * skin
             if weight.sum() >= 10 and not is_greyscale(T_full[cover]):
-                mean_skin = (albedo * weight[..., None]).reshape(-1, 3).sum(0) / weight.sum()
+                free = _without_specular(albedo, an.specular[..., None])  # as in inpaint
+                mean_skin = (free * weight[..., None]).reshape(-1, 3).sum(0) / weight.sum()
                 white = None if ctx.white_reference is None else chroma(np.asarray(ctx.white_reference))
                 light, self.report["illuminant"] = estimate_illuminant(chroma(mean_skin), white)
                 albedo = remove_cast(albedo, light)
