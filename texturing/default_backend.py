@@ -26,11 +26,11 @@ Colour textures are sRGB in [0, 1], float32, S × S, image-style rows (see
   :data:`SHADOW_SOFTNESS_MM`; no dips are looked for then (what is left is albedo), and the gains
   are bounded by :data:`LIGHT_GAIN` (a hard light's shadowed side is 5–15× darker).
 * **The skin's specular reflection** (:meth:`DefaultBackend._specular`): the GGX reflection of
-  the fitted light with generic skin's roughness and F0 (a white environment's sheen,
-  strongest where the skin turns away from the camera; the broad lobe of a hard light), in the
-  photo's units through an assumed mean skin albedo (:data:`SKIN_ALBEDO`), is subtracted from
-  the de-lit texture once the light's colour is out (the sheen is white then), at most
-  1 − :data:`SPECULAR_FLOOR` of a texel.
+  the environment (or of the directional model's ambient) with generic skin's roughness and F0,
+  a sheen strongest where the skin turns away from the camera, in the photo's units through an
+  assumed mean skin albedo (:data:`SKIN_ALBEDO`), is subtracted from the de-lit texture once
+  the light's colour is out (the sheen is white then), at most 1 − :data:`SPECULAR_FLOOR` of a
+  texel; the light's colour is estimated from the skin without it.
 * **Highlights**: de-lit luminance above :data:`HIGHLIGHT_RATIO` × its neighbourhood's (Gaussian,
   σ = S/48 texels, ~6 mm at 1K, re-estimated without the first pass's candidates); they are
   treated as unseen (filled) and are the specular map's evidence.
@@ -89,7 +89,7 @@ from facegeo.asset import MAP_NAMES, SPECULAR_F0_SCALE
 from facegeo.colour import linear_to_srgb, luminance, srgb_to_linear
 from facegeo.lighting import sh_basis
 from facegeo.texturing.backend import SKIN_CONSTANTS, TextureContext
-from facegeo.texturing.ggx import environment_brdf, ggx_shaded
+from facegeo.texturing.ggx import environment_brdf
 from facegeo.texturing.illuminant import chroma, estimate_illuminant, invent_chroma, is_greyscale, remove_cast
 from facegeo.uv.renderer import light_visibility
 
@@ -439,17 +439,6 @@ class _Analysis:
 
 
 @dataclass
-class _Sun:
-    """The fitted directional light model: ``direction`` (3,) towards the light (camera space),
-    ``ambient`` the ambient term, ``direct`` (S, S) the light's intensity where it reaches the
-    texel (L · V_l); the shading is ambient + direct · max(n·l, 0)."""
-
-    direction: np.ndarray
-    ambient: float
-    direct: np.ndarray
-
-
-@dataclass
 class DefaultBackend:
     """Weight-free texture backend. Knobs: the detail band (``detail_sigma_fraction`` of S) and
     depth (``detail_depth_mm``), the skin's mean albedo that scales the specular removal
@@ -486,7 +475,7 @@ class DefaultBackend:
         directional = strength = contrast = 0.0
         self.report.pop("light", None)
         light: dict[str, Any] | None = None  # the directional light model's report, where it is used
-        sun: _Sun | None = None
+        ambient_share: np.ndarray | None = None  # under the directional model: ambient / shading, per texel
         if n_fit >= 100:
             rows = _subsample(np.flatnonzero(fit_mask.ravel()))
             basis = sh_basis(normals.reshape(-1, 3)[rows].astype(np.float32)).astype(np.float64)[:, :SH_TERMS]
@@ -506,7 +495,8 @@ class DefaultBackend:
             strength = float(max(_smoothstep(np.float32((directional - DIRECTIONAL_RANGE[0]) / (DIRECTIONAL_RANGE[1] - DIRECTIONAL_RANGE[0]))),
                                  _smoothstep(np.float32((contrast - CONTRAST_RANGE[0]) / (CONTRAST_RANGE[1] - CONTRAST_RANGE[0])))))
             if strength > 0 and ctx.vertices_camera is not None and ctx.position_camera is not None and ctx.triangles is not None:
-                e, light, sun = self._directional_shading(lum, fit_mask, ctx)
+                e, light = self._directional_shading(lum, fit_mask, ctx)
+                ambient_share = np.clip(light["ambient"] / np.maximum(e, 1e-12), 0.0, 1.0)
             else:  # the SH fit's own shading over the layout
                 flat = np.flatnonzero(cover.ravel())
                 e = np.zeros(cover.size)
@@ -527,7 +517,7 @@ class DefaultBackend:
         bound = grazing + (most - grazing) * facing
         shading = np.where(cover, np.clip(shading, 1.0 / bound, bound), 1.0).astype(np.float32)
         delit_lum = lum / shading
-        specular = self._specular(delit_lum, fit_mask if n_fit else (w > 0), w > 0, ctx, sun)
+        specular = self._specular(delit_lum, fit_mask if n_fit else (w > 0), w > 0, ctx, ambient_share)
         delit_lum = _without_specular(delit_lum, specular)
         lo, hi = HIGHLIGHT_RATIO
         ref_weight = fit_mask if n_fit else cover
@@ -553,7 +543,7 @@ class DefaultBackend:
         return analysis
 
     @staticmethod
-    def _directional_shading(lum: np.ndarray, fit_mask: np.ndarray, ctx: TextureContext) -> tuple[np.ndarray, dict[str, Any], _Sun]:
+    def _directional_shading(lum: np.ndarray, fit_mask: np.ndarray, ctx: TextureContext) -> tuple[np.ndarray, dict[str, Any]]:
         """The shading (S, S) float32 of one directional light and an ambient term fitted to the
         reliably seen skin's luminance ``lum`` (S, S) linear on ``fit_mask`` (S, S) bool:
         lum ≈ albedo · (ambient + L · max(n·l, 0) · V_l), n the camera-space normal, V_l the
@@ -561,7 +551,7 @@ class DefaultBackend:
         :data:`SHADOW_SOFTNESS_MM`), the albedo taken as constant (robust: soft-L1 loss on the
         log-ratio). l: the best of :data:`LIGHT_CANDIDATES` directions (least squares for ambient
         and L, median |log-ratio|), refined with V_l of that direction, then V_l recomputed.
-        Also a JSON-ready report (direction, ambient / L) and the fitted terms (:class:`_Sun`)."""
+        Also a JSON-ready report (direction, ambient / L, and the ambient term in ``lum``'s units)."""
         from scipy.optimize import least_squares  # here only: 0.3 s of import that an even light never needs
 
         cover = ctx.coverage
@@ -604,28 +594,28 @@ class DefaultBackend:
         x = least_squares(residual, x, args=(v.ravel()[rows],), loss="soft_l1", f_scale=0.1, max_nfev=100).x
         light = direction(x[:2])
         v = visible(light)
-        sun = _Sun(light, float(np.exp(x[2])), (np.exp(x[3]) * v).astype(np.float32))
-        shading = sun.ambient + sun.direct * np.maximum(ctx.normal_camera @ light, 0.0)
+        shading = np.exp(x[2]) + np.exp(x[3]) * np.maximum(ctx.normal_camera @ light, 0.0) * v
         report = {"direction": [float(c) for c in light], "ambient_over_light": float(np.exp(x[2] - x[3])),
-                  "lit_fraction_of_fit": float((v[fit_mask] > 0.5).mean())}
-        return np.where(cover, shading, 1.0).astype(np.float32), report, sun
+                  "ambient": float(np.exp(x[2])), "lit_fraction_of_fit": float((v[fit_mask] > 0.5).mean())}
+        return np.where(cover, shading, 1.0).astype(np.float32), report
 
     def _specular(self, delit_lum: np.ndarray, reference: np.ndarray, seen: np.ndarray, ctx: TextureContext,
-                  sun: _Sun | None) -> np.ndarray:
-        """(S, S) float32: the skin's specular reflection in the units of the de-lit luminance
-        ``delit_lum`` (S, S), on the ``seen`` (S, S) bool texels (0 elsewhere).
+                  ambient_share: np.ndarray | None) -> np.ndarray:
+        """(S, S) float32: the skin's specular reflection of an environment light in the units of
+        the de-lit luminance ``delit_lum`` (S, S), on the ``seen`` (S, S) bool texels (0 elsewhere).
 
         Per texel, photo = (albedo + q) · D: D is the diffuse radiance of a unit albedo, q the
-        ratio of the specular radiance to it for the skin's GGX (generic skin's roughness and
-        specular level, :data:`~facegeo.texturing.backend.SKIN_CONSTANTS`: the region priors are
-        blurred in UV space and differ across UV seams) under the fitted light. Even light (an environment): q = E(n·v), the environment BRDF
-        (:func:`facegeo.texturing.ggx.environment_brdf`: ~0.03 facing the camera, ~0.15 at
-        grazing angles). The directional model: q = (ambient · E(n·v) + π · direct · g(n, l, v))
-        / (ambient + direct · max(n·l, 0)), g the GGX lobe of the light (:func:`ggx_shaded`).
-        D in de-lit units: the ``reference`` (S, S) bool texels' mean de-lit luminance is
-        D · (``skin_albedo`` + their mean q) (default :data:`SKIN_ALBEDO`; None: nothing removed). Subtracting D · q takes out the sheen that a
-        white environment leaves on skin turned away from the camera and the broad lobe of a
-        hard light, which made skin look greyer and bluer than it is (stubble most)."""
+        ratio of the specular radiance to it. For skin (GGX with generic skin's roughness and
+        specular level, :data:`~facegeo.texturing.backend.SKIN_CONSTANTS`) under an even
+        environment, q = E(n·v), the environment BRDF (:func:`facegeo.texturing.ggx.environment_brdf`:
+        ~0.03 facing the camera, ~0.15 at grazing angles); under the directional model only its
+        ambient part, q = E(n·v) · ``ambient_share`` (S, S) (ambient / shading). The directional
+        light's own GGX lobe is left to the highlight test: placed by the fitted mesh's normals it
+        took colour from the wrong skin (Lee Perry-Smith's hard-light views 0.1–0.4 CIEDE2000
+        worse). D in de-lit units: the ``reference`` (S, S) bool texels' mean de-lit luminance is
+        D · (``skin_albedo`` + their mean q) (default :data:`SKIN_ALBEDO`; None: nothing removed).
+        Subtracting D · q takes out the sheen that a white environment leaves on skin turned away
+        from the camera, which made skin look greyer and bluer than it is (stubble most)."""
         cover = ctx.coverage
         out = np.zeros(cover.shape, np.float32)
         rows = np.flatnonzero((seen & cover).ravel())
@@ -635,19 +625,12 @@ class DefaultBackend:
         n = ctx.normal_camera.reshape(-1, 3)[rows]
         if ctx.position_camera is not None:
             position = ctx.position_camera.reshape(-1, 3)[rows]
-            view = -position / np.maximum(np.linalg.norm(position, axis=1, keepdims=True), 1e-6)
+            n_dot_v = -(n * position).sum(axis=1) / np.maximum(np.linalg.norm(position, axis=1), 1e-6)
         else:  # no posed mesh: an orthographic view
-            position, view = None, np.broadcast_to(np.float32([0.0, 0.0, 1.0]), n.shape)
-        roughness = np.full(len(rows), self.constants["roughness"], np.float32)
-        level = np.full(len(rows), self.constants["specular"], np.float32)
-        q = environment_brdf((n * view).sum(axis=1), roughness, SPECULAR_F0_SCALE * level)
-        if sun is not None and position is not None:
-            ambient, direct = sun.ambient, sun.direct.reshape(-1)[rows]
-            helper = np.where(np.abs(n[:, :1]) < 0.9, np.float32([[1.0, 0.0, 0.0]]), np.float32([[0.0, 1.0, 0.0]]))
-            lobe = ggx_shaded(np.zeros_like(n), np.broadcast_to(np.float32([0.0, 0.0, 1.0]), n.shape), roughness[:, None],
-                              level[:, None], position, n, np.cross(n, helper), sun.direction[None].astype(np.float32),
-                              np.ones((1, 3), np.float32), np.zeros(3, np.float32), 0.0)[:, 0]
-            q = (ambient * q + np.pi * direct * lobe) / np.maximum(ambient + direct * np.maximum(n @ sun.direction, 0.0), 1e-6)
+            n_dot_v = n[:, 2]
+        q = environment_brdf(n_dot_v, self.constants["roughness"], SPECULAR_F0_SCALE * self.constants["specular"])
+        if ambient_share is not None:
+            q = q * ambient_share.reshape(-1)[rows]
         out.reshape(-1)[rows] = q
         unit = float(delit_lum[reference].mean()) / (self.skin_albedo + float(out[reference].mean()))
         return (unit * out).astype(np.float32)
