@@ -512,3 +512,5 @@ def test_the_sheen_of_a_white_environment_is_taken_out(face_context):
     assert report["specular_fraction_of_seen_skin"] > 0.05
     assert photo_error > 0.06 and kept > 0.06  # the sheen: the grazing skin's chroma well off the albedo's (0.08)
     assert removed < 0.2 * kept  # 0.003
+    with pytest.raises(ValueError, match="skin_albedo"):
+        DefaultBackend(skin_albedo=0.0)

@@ -442,8 +442,9 @@ class _Analysis:
 class DefaultBackend:
     """Weight-free texture backend. Knobs: the detail band (``detail_sigma_fraction`` of S) and
     depth (``detail_depth_mm``), the skin's mean albedo that scales the specular removal
-    (``skin_albedo``; None for a photo without specular reflection). ``report`` holds statistics of the last calls; ``constants``
-    (:data:`~facegeo.texturing.backend.SKIN_CONSTANTS`) the maps not asked for."""
+    (``skin_albedo`` in (0, 1]; None for a photo without specular reflection). ``report`` holds
+    statistics of the last calls; ``constants`` (:data:`~facegeo.texturing.backend.SKIN_CONSTANTS`)
+    the maps not asked for."""
 
     constants: ClassVar[Mapping[str, float]] = SKIN_CONSTANTS
     name: str = "default"
@@ -453,6 +454,10 @@ class DefaultBackend:
     report: dict[str, Any] = field(default_factory=dict)
     _analysis: tuple[TextureContext, _Analysis] | None = field(default=None, repr=False)
     _filled: tuple[np.ndarray, np.ndarray] | None = field(default=None, repr=False)
+
+    def __post_init__(self) -> None:
+        if self.skin_albedo is not None and not 0.0 < self.skin_albedo <= 1.0:
+            raise ValueError(f"skin_albedo: expected the skin's mean albedo in (0, 1] or None, got {self.skin_albedo}")
 
     # ---------------------------------------------------------------------------------- analysis
     def analyse(self, T_inc: np.ndarray, M_vis: np.ndarray, ctx: TextureContext) -> _Analysis:
@@ -611,7 +616,7 @@ class DefaultBackend:
         ~0.03 facing the camera, ~0.15 at grazing angles); under the directional model only its
         ambient part, q = E(n·v) · ``ambient_share`` (S, S) (ambient / shading). The directional
         light's own GGX lobe is left to the highlight test: placed by the fitted mesh's normals it
-        took colour from the wrong skin (Lee Perry-Smith's hard-light views 0.1–0.4 CIEDE2000
+        took colour from the wrong skin (Lee Perry-Smith's hard-light views up to 0.4 CIEDE2000
         worse). D in de-lit units: the ``reference`` (S, S) bool texels' mean de-lit luminance is
         D · (``skin_albedo`` + their mean q) (default :data:`SKIN_ALBEDO`; None: nothing removed).
         Subtracting D · q takes out the sheen that a white environment leaves on skin turned away
