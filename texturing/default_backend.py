@@ -55,8 +55,8 @@ Colour textures are sRGB in [0, 1], float32, S × S, image-style rows (see
   B + D has the seen skin's values wherever r is high; the result is r · log seen + (1 − r) ·
   (B + D): no edge where the seen skin ends, continuous across UV seams and the mirror line
   because B lives on the vertices. Only fine detail crosses the mirror: mid-frequency blotches and
-  shading residuals of the other side do not. Without :class:`SurfaceOperators` B is a UV-space push-pull (masked blurs
-  at growing scales).
+  shading residuals of the other side do not. Without :class:`SurfaceOperators` B is a UV-space
+  push-pull (masked blurs at growing scales).
 * **homogenise**: the filled texture divided by the shading and the light's colour.
 * **materials**: albedo = homogenised texture; displacement (mm) and tangent-space normal from its
   high-frequency log-luminance detail at :data:`DETAIL_DEPTH_MM` mm per unit (±
@@ -523,6 +523,7 @@ class DefaultBackend:
         shading = np.where(cover, np.clip(shading, 1.0 / bound, bound), 1.0).astype(np.float32)
         delit_lum = lum / shading
         specular = self._specular(delit_lum, fit_mask if n_fit else (w > 0), w > 0, ctx, ambient_share)
+        specular_share = float(specular[fit_mask].sum() / max(float(delit_lum[fit_mask].sum()), 1e-12)) if n_fit else 0.0
         delit_lum = _without_specular(delit_lum, specular)
         lo, hi = HIGHLIGHT_RATIO
         ref_weight = fit_mask if n_fit else cover
@@ -543,7 +544,7 @@ class DefaultBackend:
             "delighting_strength": strength,
             "gain_p05_p95": [float(x) for x in np.percentile(1.0 / shading[fit_mask], [5, 95])] if n_fit else [1.0, 1.0],
             "highlight_fraction_of_seen_skin": float(highlight[fit_mask].mean()) if n_fit else 0.0,
-            "specular_fraction_of_seen_skin": float(specular[fit_mask].sum() / max(float((lum / shading)[fit_mask].sum()), 1e-12)) if n_fit else 0.0,
+            "specular_fraction_of_seen_skin": specular_share,
         }
         return analysis
 
