@@ -48,8 +48,10 @@ Colour textures are sRGB in [0, 1], float32, S × S, image-style rows (see
   seen region's edge, else the mirror texel's where that was reliably seen (not its moles and
   specks: :data:`SPECK_SIGMAS`), else the finest detail (~1 mm at 1K: pores, stubble) of the
   reliably seen skin quilted in blocks (:func:`quilted_detail`: this face's own texture at its own
-  contrast; 3-D value noise of the model-space position only where no whole block of skin was
-  seen); the low frequencies B solve a screened Poisson problem on the mesh's vertices,
+  contrast) plus, away from the seen skin, the octaves up to S/32 texels (~12 mm at 1K) as colour
+  noise with the seen skin's own covariance per octave (:func:`band_noise`: its mottling; 3-D
+  value noise of the model-space position only where no whole block of skin was seen); the low
+  frequencies B solve a screened Poisson problem on the mesh's vertices,
   min Σ r (B − (log seen − D))² + λ Σ_edges |∇B|² (+ a weak pull to the seen skin's mean far from
   anything seen), so the filled skin takes its tone from the reliable seen skin next to it and
   B + D has the seen skin's values wherever r is high; the result is r · log seen + (1 − r) ·
@@ -94,7 +96,7 @@ from facegeo.texturing.illuminant import chroma, estimate_illuminant, invent_chr
 from facegeo.uv.renderer import light_visibility
 
 __all__ = ["DefaultBackend", "REGION_PRIORS", "pad_outside", "masked_blur", "gaussian_blur", "value_noise", "MAX_GAIN",
-           "GRAZING_GAIN", "QUILT_BLOCK", "QUILT_ENERGY_CAP", "quilted_detail", "SPECK_SIGMAS", "SHADOW_TOLERANCE", "HIGHLIGHT_RATIO", "DETAIL_DEPTH_MM", "DETAIL_LIMIT_MM", "SH_TERMS",
+           "GRAZING_GAIN", "QUILT_BLOCK", "QUILT_ENERGY_CAP", "quilted_detail", "band_noise", "MID_BAND_COARSEST", "MID_BAND_STRENGTH", "SPECK_SIGMAS", "SHADOW_TOLERANCE", "HIGHLIGHT_RATIO", "DETAIL_DEPTH_MM", "DETAIL_LIMIT_MM", "SH_TERMS",
            "DIRECTIONAL_RANGE", "CONTRAST_RANGE", "SHADING_ERROR", "FORESHORTENING", "EDGE_MM", "DETAIL_EDGE_MM", "PAD_FRACTION",
            "SKIN_ALBEDO", "SPECULAR_FLOOR"]
 
@@ -194,6 +196,14 @@ QUILT_BLOCK = 1.0 / 64.0
 #: mark (the contact sheet's astronaut and Grace Hopper); bench_albedo_scans' gradient ratio loses
 #: 0.03 to it.
 QUILT_ENERGY_CAP = 2.5
+#: Coarsest octave of the fill's synthesised mid-band detail, as a fraction of S (32 texels, ~12 mm
+#: at 1K): between the quilted finest band and this, the fill gets noise in octaves with the seen
+#: skin's colour covariance per octave (:func:`band_noise`), the mottling that real skin has.
+MID_BAND_COARSEST = 1.0 / 32.0
+#: The fill's mid-band noise has this fraction of the seen skin's covariance in each octave: on a
+#: photo the seen skin's octaves hold shading residue and features besides its mottling, and at
+#: 1.0 the contact sheet's astronaut and Grace Hopper got blotches over scalp and neck.
+MID_BAND_STRENGTH = 0.35
 #: Fine detail beyond this many robust σ of the seen skin's is a mark (a mole, a speck, a lash):
 #: it is not mirrored onto the other side of the face (the Lee Perry-Smith scan's cheek mole was).
 SPECK_SIGMAS = 4.0
@@ -216,8 +226,8 @@ def gaussian_blur(image: np.ndarray, sigma: float) -> np.ndarray:
     factor = 1
     while sigma / (factor * 2) >= 4.0 and min(image.shape[:2]) // (factor * 2) >= 8:
         factor *= 2
-    if factor == 1:
-        return cv2.GaussianBlur(image, (0, 0), sigma, borderType=cv2.BORDER_REFLECT)
+    if factor == 1:  # (OpenCV drops a single channel's axis: the shape is restored)
+        return cv2.GaussianBlur(image, (0, 0), sigma, borderType=cv2.BORDER_REFLECT).reshape(image.shape)
     h, w = image.shape[:2]
     small = cv2.resize(image, (max(1, w // factor), max(1, h // factor)), interpolation=cv2.INTER_AREA)
     small = cv2.GaussianBlur(small, (0, 0), sigma / factor, borderType=cv2.BORDER_REFLECT)
@@ -426,6 +436,101 @@ def quilted_detail(detail: np.ndarray, source: np.ndarray, need: np.ndarray, see
     inner = (slice(block, block + size), slice(block, block + size))
     out = (canvas[:, inner[0], inner[1]] / np.sqrt(np.maximum(weight[inner], 1e-6))).transpose(1, 2, 0)
     return np.where(need[..., None], out, 0.0).astype(np.float32)
+
+
+def band_noise(log_rgb: np.ndarray, source: np.ndarray, need: np.ndarray, position_mm: np.ndarray, cover: np.ndarray,
+               outside: np.ndarray, finest: float, coarsest: float, texel_mm: float, strength: float = 1.0,
+               seed: int = 0) -> np.ndarray:
+    """Colour noise (S, S, 3) float32 over ``need`` (S, S) bool with ``strength`` × the octave
+    statistics of ``log_rgb`` (S, S, 3) on ``source`` (S, S) bool: for each octave of Gaussian σ
+    from ``finest`` to ``coarsest`` texels (differences of Gaussians), the 3 × 3 covariance over
+    the source's places whose local energy in that octave is at most :data:`QUILT_ENERGY_CAP` ×
+    the median place's (the skin's mottling, not a fold, a shadow's edge or a hairline). The noise
+    is a sum of independent layers, one per octave: 3-D value noise of the surface position
+    ``position_mm`` (S, S, 3) in mm on ``cover`` (S, S) bool (a lattice of ``texel_mm``:
+    continuous across UV seams) band-passed to the octave and coloured so that the octaves of the
+    sum, measured as the source's were, have the source's covariances (the octaves overlap: the
+    layers' covariances solve that linear system), each faded in over 2σ texels of ``outside``
+    (S, S), the distance in texels from the seen skin, whose octave the fill's base still holds
+    there. Computed on a grid coarser by the power of two that leaves ``finest`` ≥ 2 of its
+    texels (each layer on one as coarse as its octave allows), then upsampled bilinearly. 0 outside ``need`` and where ``source`` has fewer than 100
+    texels; deterministic for a given ``seed``. (By hand: no library synthesises band-limited
+    noise with a given colour covariance per octave on a UV layout.)"""
+    size = log_rgb.shape[0]
+    out = np.zeros(log_rgb.shape, np.float32)
+    if source.sum() < 100 or not need.any():
+        return out
+    factor = 1
+    while finest / (2 * factor) >= 2.0 and size // (2 * factor) >= 64:
+        factor *= 2
+    small = (size // factor, size // factor)
+
+    def down(image: np.ndarray, weight: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        w = cv2.resize(weight.astype(np.float32), small, interpolation=cv2.INTER_AREA)
+        x = cv2.resize(image * weight[..., None], small, interpolation=cv2.INTER_AREA) / np.maximum(w, 1e-6)[..., None]
+        return x, w
+
+    log_small, source_w = down(log_rgb.astype(np.float32), source)
+    position, cover_w = down(position_mm.astype(np.float32), cover)
+    need_small = cv2.resize(need.astype(np.float32), small, interpolation=cv2.INTER_AREA) > 0.5
+    outside_small = cv2.resize(outside.astype(np.float32), small, interpolation=cv2.INTER_AREA) / factor
+    solid = source_w > 0.99
+    if solid.sum() < 100 or not need_small.any():
+        return out
+    sigmas = [finest / factor]
+    while sigmas[-1] < coarsest / factor * (1 - 1e-6):
+        sigmas.append(min(2.0 * sigmas[-1], coarsest / factor))
+    count = len(sigmas) - 1
+
+    blurred = [masked_blur(log_small, source_w, s) for s in sigmas]
+    wanted = np.empty((count, 3, 3))  # each octave's covariance over the source's places that are not busy
+    for k in range(count):
+        band = blurred[k] - blurred[k + 1]
+        local = masked_blur((band * band).sum(-1), solid, 2.0 * sigmas[k + 1])
+        calm = solid & (local <= QUILT_ENERGY_CAP * np.median(local[solid]))
+        wanted[k] = np.cov(band[calm].astype(np.float64).T)
+    # one independent noise layer per octave (3 channels each), unit variance over ``need``
+    area = cover_w > 0.5
+    spread = {s: np.maximum(gaussian_blur(area.astype(np.float32), s), 1e-6)[..., None] for s in sigmas}
+
+    def smooth(image: np.ndarray, s: float) -> np.ndarray:  # masked_blur over ``area`` of an image that is 0 outside it
+        return gaussian_blur(image, s) / spread[s]
+
+    layers = []
+    for j in range(count):  # each on a grid as coarse as its octave allows (σ ≥ 2 texels), then upsampled
+        step = 1
+        while sigmas[j] / (2 * step) >= 2.0 and small[0] // (2 * step) >= 64:
+            step *= 2
+        grid = (small[0] // step, small[1] // step)
+        points, weight = (position, cover_w) if step == 1 else (
+            cv2.resize(position * cover_w[..., None], grid, interpolation=cv2.INTER_AREA)
+            / np.maximum(cv2.resize(cover_w, grid, interpolation=cv2.INTER_AREA), 1e-6)[..., None],
+            cv2.resize(cover_w, grid, interpolation=cv2.INTER_AREA))
+        inside = weight > 0.5
+        flat = np.flatnonzero(inside.ravel())
+        noise = np.zeros((*grid, 3), np.float32)
+        noise.reshape(-1, 3)[flat] = np.stack([value_noise(points.reshape(-1, 3)[flat], texel_mm * factor * step, seed=seed + 3 * j + c)
+                                               for c in range(3)], axis=1)
+        band = masked_blur(noise, inside, sigmas[j] / step) - masked_blur(noise, inside, sigmas[j + 1] / step)
+        if step > 1:
+            band = cv2.resize(band, small, interpolation=cv2.INTER_LINEAR)
+        band = np.where(area[..., None], band, 0.0)
+        layers.append(band / np.maximum(band[need_small].std(0), 1e-12))
+    # the octaves overlap, so octave k measured on layer j holds a part V_kj of its variance: the
+    # layers' covariances P_j solve Σ_j V_kj P_j = the wanted octave k's (then made positive semi-definite)
+    firsts = np.stack([layer[..., 0] for layer in layers], axis=-1)  # one channel of each layer (all three alike)
+    measured = [smooth(firsts, sigmas[k]) - smooth(firsts, sigmas[k + 1]) for k in range(count)]
+    leak = np.array([[float(np.var(measured[k][..., j][need_small])) for j in range(count)] for k in range(count)])
+    power = np.einsum("jk,kab->jab", np.linalg.inv(leak), wanted) * strength
+    total = np.zeros(log_small.shape, np.float32)
+    for j, (layer, p) in enumerate(zip(layers, power)):
+        values, vectors = np.linalg.eigh((p + p.T) / 2)
+        root = (vectors * np.sqrt(np.clip(values, 0.0, None))).astype(np.float32)  # root @ root.T = P_j
+        ramp = _smoothstep(outside_small / (2.0 * sigmas[j]))[..., None]  # near the seen skin the fill's base still holds the octave
+        total += ramp * (layer @ root.T)
+    if factor > 1:
+        total = cv2.resize(total, (size, size), interpolation=cv2.INTER_LINEAR)
+    return np.where(need[..., None], total, 0.0).astype(np.float32)
 
 
 @dataclass
@@ -751,12 +856,15 @@ class DefaultBackend:
 
     def _fill_detail(self, log_seen: np.ndarray, seen: np.ndarray, inner: np.ndarray, reliable: np.ndarray,
                      ctx: TextureContext) -> tuple[np.ndarray, np.ndarray, np.ndarray | float]:
-        """The fill's fine detail (S, S, 3) in log RGB (zero mean, finer than ~S/128 texels, ~2.5 mm
-        at 1K): where the texel is seen (``seen``), its own; elsewhere the mirror texel's where
+        """The fill's detail (S, S, 3) in log RGB (zero mean): where the texel is seen (``seen``),
+        its own finer than ~S/128 texels (~2.5 mm at 1K); elsewhere the mirror texel's where
         that was reliably seen, and where not, blocks of the reliably seen skin's finest detail
-        (above ~S · ``detail_sigma_fraction`` texels⁻¹: pores, stubble; :func:`quilted_detail`), or
+        (above ~S · ``detail_sigma_fraction`` texels⁻¹: pores, stubble; :func:`quilted_detail`)
+        plus, away from the seen skin, the octaves above it up to :data:`MID_BAND_COARSEST` × S
+        texels as :func:`band_noise` (the skin's mottling, which the fill's smooth base lacks), or
         3-D value noise of the model-space position with the seen skin's contrast where no whole
-        block was seen. Also the mirror's weight (S, S) and that contrast. ``inner``:
+        block was seen; in the seen region's edge, where the texel's own detail fades out, the
+        same mix fades in. Also the mirror's weight (S, S) and that contrast. ``inner``:
         :meth:`_inner_distance` of ``seen`` (S, S) mm."""
         cover = ctx.coverage
         size = ctx.size
@@ -770,11 +878,18 @@ class DefaultBackend:
         source_weight = reliable * (1.0 - self._specks(detail, seen & (reliable > 0.5), size))
         w_m = np.where(has, source_weight.reshape(-1)[mirror], 0.0).astype(np.float32)
         mirrored = detail.reshape(-1, 3)[mirror]
-        need = cover & ~seen & (w_m < 1.0 - 1e-3)
+        own = _smoothstep(inner / DETAIL_EDGE_MM)[..., None] * seen[..., None]
+        # the fill's detail is needed where the texel's own is not wholly used: unseen, and the seen edge
+        need = cover & (own[..., 0] < 1.0 - 1e-3) & (w_m < 1.0 - 1e-3)
         synthesised = None
         if need.any():  # pores and stubble only: quilted wrinkles and blotches made waves on a bald scalp
             fine = np.where(seen[..., None], log_seen - masked_blur(log_seen, seen, max(1.0, size * self.detail_sigma_fraction)), 0.0)
-            synthesised = quilted_detail(fine, seen & _skin(ctx) & (reliable > 0.99) & (inner > DETAIL_EDGE_MM), need)
+            source = seen & _skin(ctx) & (reliable > 0.99) & (inner > DETAIL_EDGE_MM)
+            synthesised = quilted_detail(fine, source, need)
+            if synthesised is not None:  # and the octaves above it: the skin's mottling
+                synthesised += band_noise(log_seen, source, need & ~seen, ctx.position, cover, _euclidean_distance(~seen),
+                                          max(1.0, size * self.detail_sigma_fraction), size * MID_BAND_COARSEST, ctx.median_texel_mm,
+                                          MID_BAND_STRENGTH)
         if synthesised is None:  # no whole block of reliable skin was seen: value noise with its contrast
             noise = np.zeros(cover.shape, np.float32)
             if need.any() and amp > 0:
@@ -783,7 +898,6 @@ class DefaultBackend:
                 noise[need] = amp * n / max(float(n.std()), 1e-6)
             synthesised = noise[..., None]
         fill = w_m[..., None] * mirrored + (1 - w_m[..., None]) * synthesised
-        own = _smoothstep(inner / DETAIL_EDGE_MM)[..., None] * seen[..., None]
         fill = own * detail + (1 - own) * fill  # where seen (away from its edge: lashes, halos), the photo's own detail
         return np.where(cover[..., None], fill, 0.0).astype(np.float32), w_m, amp
 
