@@ -15,6 +15,7 @@ from facegeo.texturing.default_backend import (
     QUILT_BLOCK,
     DefaultBackend,
     band_noise,
+    gradient_noise,
     masked_blur,
     pad_outside,
     quilted_detail,
@@ -276,6 +277,58 @@ def test_value_noise_is_bounded_deterministic_and_continuous():
     np.testing.assert_array_equal(n, value_noise(p, 0.5))
     assert np.abs(value_noise(p + 1e-3, 0.5) - n).max() < 0.05  # 1 µm moves it little
     assert np.corrcoef(n, value_noise(p, 0.5, seed=1))[0, 1] < 0.2
+
+
+def test_gradient_noise_is_zero_on_the_lattice_deterministic_and_band_limited():
+    """Perlin noise: 0 at the lattice points, within [−1, 1], deterministic, another seed another
+    field, a 1 µm step moves it little; on a plane through it, > 80 % of its power lies between
+    wavelengths of one and four cells and < 15 % beyond (value noise: > 25 % beyond)."""
+    rng = np.random.default_rng(1)
+    p = rng.uniform(-50, 50, (4000, 3)).astype(np.float32)
+    n = gradient_noise(p, 2.0)
+    assert np.abs(n).max() <= 1.0 and n.std() > 0.15
+    np.testing.assert_array_equal(n, gradient_noise(p, 2.0))
+    assert abs(np.corrcoef(n, gradient_noise(p, 2.0, seed=1))[0, 1]) < 0.2
+    assert np.abs(gradient_noise(np.round(p / 2.0) * 2.0, 2.0)).max() < 1e-6
+    assert np.abs(gradient_noise(p + 1e-3, 2.0) - n).max() < 0.01
+    # on a tilted plane (a surface through the 3-D field): the power spectrum by wavelength
+    size = 512
+    yy, xx = np.mgrid[:size, :size].astype(np.float32) * 0.25  # 0.25 mm texels, cells of 2 mm
+    rotation = np.linalg.qr(rng.normal(size=(3, 3)))[0].astype(np.float32)
+    plane = (np.stack([xx, yy, np.full_like(xx, 0.37)], -1).reshape(-1, 3) @ rotation.T).astype(np.float32)
+    f = np.fft.fftfreq(size, 0.25)
+    wavelength = 1.0 / np.maximum(np.hypot(*np.meshgrid(f, f)), 1e-9)  # mm
+
+    def shares(noise):
+        v = noise(plane, 2.0).reshape(size, size)
+        power = np.abs(np.fft.fft2(v - v.mean())) ** 2
+        power /= power.sum()
+        return power[(wavelength >= 2.0) & (wavelength < 8.0)].sum(), power[wavelength >= 8.0].sum()
+
+    inside, beyond = shares(gradient_noise)
+    assert inside > 0.8 and beyond < 0.15  # one to four cells
+    assert shares(value_noise)[1] > 0.25  # value noise spreads to long wavelengths
+
+
+def test_band_noise_is_a_function_of_the_surface_point():
+    """Two UV halves that map to the same surface points (a UV seam's two sides, stretched alike)
+    get the same noise at corresponding texels away from where they meet: the fill's mottling
+    has no seam."""
+    size = 512
+    rng = np.random.default_rng(6)
+    ones = np.ones((size, size))
+    texture = masked_blur(rng.normal(size=(size, size, 3)).astype(np.float32), ones, 1.0) * 0.1
+    half = size // 2
+    yy, xx = np.mgrid[:size, :size].astype(np.float32)
+    position = np.stack([(xx % half) * 0.4, yy * 0.4, np.zeros_like(xx)], -1)
+    source = np.zeros((size, size), bool)
+    source[:96] = True
+    need = ~source
+    far = np.full((size, size), 1e3, np.float32)
+    out = band_noise(texture, source, need, position, np.ones((size, size), bool), far, 2.0, 16.0, 0.4)
+    left, right = out[160:-16, 16 : half - 16], out[160:-16, half + 16 : -16]
+    assert left.std() > 0
+    assert np.abs(left - right).max() < 0.05 * left.std()
 
 
 def test_quilted_detail_keeps_the_sources_contrast_and_scale_without_a_block_grid():

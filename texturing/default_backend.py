@@ -86,6 +86,7 @@ import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 from scipy import ndimage
+from scipy.optimize import nnls
 
 from facegeo.asset import MAP_NAMES, SPECULAR_F0_SCALE
 from facegeo.colour import linear_to_srgb, luminance, srgb_to_linear
@@ -96,7 +97,7 @@ from facegeo.texturing.illuminant import chroma, estimate_illuminant, invent_chr
 from facegeo.uv.renderer import light_visibility
 
 __all__ = ["DefaultBackend", "REGION_PRIORS", "pad_outside", "masked_blur", "gaussian_blur", "value_noise", "MAX_GAIN",
-           "GRAZING_GAIN", "QUILT_BLOCK", "QUILT_ENERGY_CAP", "quilted_detail", "band_noise", "MID_BAND_COARSEST", "MID_BAND_STRENGTH", "SPECK_SIGMAS", "SHADOW_TOLERANCE", "HIGHLIGHT_RATIO", "DETAIL_DEPTH_MM", "DETAIL_LIMIT_MM", "SH_TERMS",
+           "GRAZING_GAIN", "QUILT_BLOCK", "QUILT_ENERGY_CAP", "quilted_detail", "band_noise", "gradient_noise", "MID_BAND_COARSEST", "MID_BAND_STRENGTH", "NOISE_CELL_PER_SIGMA", "SPECK_SIGMAS", "SHADOW_TOLERANCE", "HIGHLIGHT_RATIO", "DETAIL_DEPTH_MM", "DETAIL_LIMIT_MM", "SH_TERMS",
            "DIRECTIONAL_RANGE", "CONTRAST_RANGE", "SHADING_ERROR", "FORESHORTENING", "EDGE_MM", "DETAIL_EDGE_MM", "PAD_FRACTION",
            "SKIN_ALBEDO", "SPECULAR_FLOOR"]
 
@@ -202,8 +203,13 @@ QUILT_ENERGY_CAP = 2.5
 MID_BAND_COARSEST = 1.0 / 32.0
 #: The fill's mid-band noise has this fraction of the seen skin's covariance in each octave: on a
 #: photo the seen skin's octaves hold shading residue and features besides its mottling, and at
-#: 1.0 the contact sheet's astronaut and Grace Hopper got blotches over scalp and neck.
+#: 1.0 the contact sheet's astronaut got soft cm-wide blotches over scalp and chest.
+#: bench_albedo_scans (even 0°/−40°, hard side 0°/+40°): Lee Perry-Smith's gradient ratio 0.80–1.11
+#: at 0.35 and 0.87–1.15 at 1.0 (0.74–1.09 without), filled ΔE2000 +0.1–0.4 and +0.3–0.5.
 MID_BAND_STRENGTH = 0.35
+#: Lattice of each octave's gradient noise in :func:`band_noise`, in units of the octave's finer σ
+#: (a difference of Gaussians σ–2σ peaks at a wavelength of ~6.5σ; gradient noise at ~1.5–2 cells).
+NOISE_CELL_PER_SIGMA = 3.5
 #: Fine detail beyond this many robust σ of the seen skin's is a mark (a mole, a speck, a lash):
 #: it is not mirrored onto the other side of the face (the Lee Perry-Smith scan's cheek mole was).
 SPECK_SIGMAS = 4.0
@@ -298,38 +304,58 @@ def pad_outside(image: np.ndarray, inside: np.ndarray, width: int | None = None)
     return out.reshape(image.shape)
 
 
-#: Points per block of :func:`value_noise` (its temporaries stay in the CPU cache).
+#: Points per block of the lattice noises (their temporaries stay in the CPU cache).
 _NOISE_BLOCK = 16384
+#: Perlin's 12 gradient directions (the cube's edge midpoints).
+_GRADIENTS = np.array([[1, 1, 0], [-1, 1, 0], [1, -1, 0], [-1, -1, 0], [1, 0, 1], [-1, 0, 1],
+                       [1, 0, -1], [-1, 0, -1], [0, 1, 1], [0, -1, 1], [0, 1, -1], [0, -1, -1]], np.float32).T.copy()  # (3, 12)
 
 
 def value_noise(position_mm: np.ndarray, cell_mm: float, seed: int = 0) -> np.ndarray:
     """3-D value noise (trilinear interpolation of hashed lattice values in [−1, 1], smoothstep
     weights) at (N, 3) points in mm on a lattice of ``cell_mm``: (N,) float32. A function of
     the surface position, so it is continuous across UV seams."""
+    return _lattice_noise(position_mm, cell_mm, seed, gradient=False)
+
+
+def gradient_noise(position_mm: np.ndarray, cell_mm: float, seed: int = 0) -> np.ndarray:
+    """3-D gradient (Perlin) noise at (N, 3) points in mm on a lattice of ``cell_mm``: (N,)
+    float32, 0 at the lattice points, about one octave wide around a wavelength of ``cell_mm``
+    (so octaves of it are band-limited without any filtering), isotropic on the surface and
+    continuous across UV seams."""
+    return _lattice_noise(position_mm, cell_mm, seed, gradient=True)
+
+
+def _lattice_noise(position_mm: np.ndarray, cell_mm: float, seed: int, gradient: bool) -> np.ndarray:
     g = position_mm.astype(np.float32) / np.float32(cell_mm)
     out = np.empty(len(g), np.float32)
     for start in range(0, len(g), _NOISE_BLOCK):
-        out[start:start + _NOISE_BLOCK] = _value_noise_block(g[start:start + _NOISE_BLOCK], seed)
+        out[start:start + _NOISE_BLOCK] = _lattice_noise_block(g[start:start + _NOISE_BLOCK], seed, gradient)
     return out
 
 
-def _value_noise_block(g: np.ndarray, seed: int) -> np.ndarray:
-    """:func:`value_noise` of (n, 3) float32 lattice coordinates."""
+def _lattice_noise_block(g: np.ndarray, seed: int, gradient: bool) -> np.ndarray:
+    """:func:`value_noise` or :func:`gradient_noise` of (n, 3) float32 lattice coordinates."""
     base = np.floor(g)
     f = g - base
-    f = f * f * (3 - 2 * f)
+    fade = f * f * f * (f * (6 * f - 15) + 10) if gradient else f * f * (3 - 2 * f)  # Perlin's quintic; smoothstep
     base = base.astype(np.int32)
     # per axis, the lattice point's hash term (int32, wrapping) and trilinear weight at offsets 0 and 1
     terms = [(b * k, (b + 1) * k) for b, k in zip(base.T, (73856093, 19349663, 83492791))]
-    weights = [(1 - f[:, axis], f[:, axis]) for axis in range(3)]
+    weights = [(1 - fade[:, axis], fade[:, axis]) for axis in range(3)]
     out = np.zeros(len(g), np.float32)
     for corner in range(8):
         o = ((corner >> 2) & 1, (corner >> 1) & 1, corner & 1)
-        # integer hash of the lattice point (a xorshift-multiply mix), then to [−1, 1]
+        # integer hash of the lattice point (a xorshift-multiply mix)
         h = terms[0][o[0]] ^ terms[1][o[1]] ^ terms[2][o[2]] ^ (seed * 2654435)
         h = (h ^ (h >> 13)) * 1274126177
         h = h ^ (h >> 16)
-        value = (h & 0xFFFF).astype(np.float32) * np.float32(2.0 / 65535.0) - 1.0
+        if gradient:  # the corner's gradient · the offset from the corner
+            pick = ((h & 0xFFFF) * 12) >> 16
+            value = (_GRADIENTS[0][pick] * (f[:, 0] - o[0]) + _GRADIENTS[1][pick] * (f[:, 1] - o[1])
+                     + _GRADIENTS[2][pick] * (f[:, 2] - o[2]))
+        else:  # the corner's value in [−1, 1]
+            value = (h & 0xFFFF).astype(np.float32) * np.float32(2.0 / 65535.0) - 1.0
         out += weights[0][o[0]] * weights[1][o[1]] * weights[2][o[2]] * value
     return out
 
@@ -446,16 +472,18 @@ def band_noise(log_rgb: np.ndarray, source: np.ndarray, need: np.ndarray, positi
     from ``finest`` to ``coarsest`` texels (differences of Gaussians), the 3 × 3 covariance over
     the source's places whose local energy in that octave is at most :data:`QUILT_ENERGY_CAP` ×
     the median place's (the skin's mottling, not a fold, a shadow's edge or a hairline). The noise
-    is a sum of independent layers, one per octave: 3-D value noise of the surface position
-    ``position_mm`` (S, S, 3) in mm on ``cover`` (S, S) bool (a lattice of ``texel_mm``:
-    continuous across UV seams) band-passed to the octave and coloured so that the octaves of the
-    sum, measured as the source's were, have the source's covariances (the octaves overlap: the
-    layers' covariances solve that linear system), each faded in over 2σ texels of ``outside``
-    (S, S), the distance in texels from the seen skin, whose octave the fill's base still holds
-    there. Computed on a grid coarser by the power of two that leaves ``finest`` ≥ 2 of its
-    texels (each layer on one as coarse as its octave allows), then upsampled bilinearly. 0 outside ``need`` and where ``source`` has fewer than 100
-    texels; deterministic for a given ``seed``. (By hand: no library synthesises band-limited
-    noise with a given colour covariance per octave on a UV layout.)"""
+    is a sum of independent layers, one per octave: 3-D gradient noise of the surface position
+    ``position_mm`` (S, S, 3) in mm on ``cover`` (S, S) bool (:func:`gradient_noise`, a lattice
+    of :data:`NOISE_CELL_PER_SIGMA` × σ × ``texel_mm``: band-limited by itself, so isotropic on the
+    surface and continuous across UV seams, where a UV-space filter would be neither), coloured
+    with its octave's covariance at the power that makes the octaves of the sum, measured as the
+    source's were, closest to the source's (the layers' spectra overlap: non-negative least
+    squares), each faded in over 2σ texels of ``outside`` (S, S), the distance in texels from the
+    seen skin, whose octave the fill's base still holds there. Computed on a grid coarser by the
+    power of two that leaves ``finest`` ≥ 2 of its texels (each layer on one as coarse as its
+    lattice allows), then upsampled bilinearly. 0 outside ``need`` and where ``source`` has fewer
+    than 100 texels; deterministic for a given ``seed``. (By hand: no library synthesises noise
+    with a given colour covariance per octave on a surface.)"""
     size = log_rgb.shape[0]
     out = np.zeros(log_rgb.shape, np.float32)
     if source.sum() < 100 or not need.any():
@@ -497,35 +525,37 @@ def band_noise(log_rgb: np.ndarray, source: np.ndarray, need: np.ndarray, positi
         return gaussian_blur(image, s) / spread[s]
 
     layers = []
-    for j in range(count):  # each on a grid as coarse as its octave allows (σ ≥ 2 texels), then upsampled
+    for j in range(count):  # gradient noise peaking at the octave's wavelength (~6.5σ), on a grid as coarse as it allows
+        cell = NOISE_CELL_PER_SIGMA * sigmas[j]  # in texels of the small grid
         step = 1
-        while sigmas[j] / (2 * step) >= 2.0 and small[0] // (2 * step) >= 64:
+        while cell / (2 * step) >= 4.0 and small[0] // (2 * step) >= 32:
             step *= 2
         grid = (small[0] // step, small[1] // step)
         points, weight = (position, cover_w) if step == 1 else (
             cv2.resize(position * cover_w[..., None], grid, interpolation=cv2.INTER_AREA)
             / np.maximum(cv2.resize(cover_w, grid, interpolation=cv2.INTER_AREA), 1e-6)[..., None],
             cv2.resize(cover_w, grid, interpolation=cv2.INTER_AREA))
-        inside = weight > 0.5
-        flat = np.flatnonzero(inside.ravel())
-        noise = np.zeros((*grid, 3), np.float32)
-        noise.reshape(-1, 3)[flat] = np.stack([value_noise(points.reshape(-1, 3)[flat], texel_mm * factor * step, seed=seed + 3 * j + c)
+        flat = np.flatnonzero((weight > 0.25).ravel())
+        layer = np.zeros((*grid, 3), np.float32)
+        layer.reshape(-1, 3)[flat] = np.stack([gradient_noise(points.reshape(-1, 3)[flat], cell * factor * texel_mm, seed=seed + 3 * j + c)
                                                for c in range(3)], axis=1)
-        band = masked_blur(noise, inside, sigmas[j] / step) - masked_blur(noise, inside, sigmas[j + 1] / step)
         if step > 1:
-            band = cv2.resize(band, small, interpolation=cv2.INTER_LINEAR)
-        band = np.where(area[..., None], band, 0.0)
-        layers.append(band / np.maximum(band[need_small].std(0), 1e-12))
-    # the octaves overlap, so octave k measured on layer j holds a part V_kj of its variance: the
-    # layers' covariances P_j solve Σ_j V_kj P_j = the wanted octave k's (then made positive semi-definite)
+            layer = cv2.resize(layer, small, interpolation=cv2.INTER_LINEAR)
+        layer = np.where(area[..., None], layer, 0.0)
+        layers.append(layer / np.maximum(layer[need_small].std(0), 1e-12))
+    # the spectra overlap, so octave k measured on layer j holds a part V_kj of its variance
     firsts = np.stack([layer[..., 0] for layer in layers], axis=-1)  # one channel of each layer (all three alike)
     measured = [smooth(firsts, sigmas[k]) - smooth(firsts, sigmas[k + 1]) for k in range(count)]
     leak = np.array([[float(np.var(measured[k][..., j][need_small])) for j in range(count)] for k in range(count)])
-    power = np.einsum("jk,kab->jab", np.linalg.inv(leak), wanted) * strength
+    # layer j takes octave j's colour covariance at a power t_j with Σ_j V_kj t_j ≈ octave k's
+    # variance (relative least squares, t ≥ 0: a steep spectrum cannot be met exactly)
+    variance = np.trace(wanted, axis1=1, axis2=2)
+    scale, _ = nnls(leak / variance[:, None], np.ones(count))
+    power = (scale / variance)[:, None, None] * wanted * strength  # t_j × the octave's covariance of trace 1
     total = np.zeros(log_small.shape, np.float32)
     for j, (layer, p) in enumerate(zip(layers, power)):
         values, vectors = np.linalg.eigh((p + p.T) / 2)
-        root = (vectors * np.sqrt(np.clip(values, 0.0, None))).astype(np.float32)  # root @ root.T = P_j
+        root = (vectors * np.sqrt(np.clip(values, 0.0, None))).astype(np.float32)  # root @ root.T = p (singular for a greyscale photo)
         ramp = _smoothstep(outside_small / (2.0 * sigmas[j]))[..., None]  # near the seen skin the fill's base still holds the octave
         total += ramp * (layer @ root.T)
     if factor > 1:
