@@ -580,8 +580,8 @@ def test_band_noise_has_the_sources_colour_covariance_per_octave():
     """Source: stationary noise with a known colour mixing (so its octaves have covariance ∝ A Aᵀ)
     on the left half; the noise over the right half, far from the seen skin, has the source's
     covariance in each octave between S/256 and S/32 texels, measured the same way (within 15 %;
-    ``strength`` scales it), is 0 outside ``need`` and where the seen skin is near,
-    deterministic, and another seed gives another field. It runs on the half-size grid (S/256 =
+    ``strength`` scales it), is 0 outside ``need``, where the seen skin is near and where it is
+    flat, deterministic, and another seed gives another field. It runs on the half-size grid (S/256 =
     4 texels at 1K) and is upsampled."""
     size = 1024
     rng = np.random.default_rng(3)
@@ -617,6 +617,9 @@ def test_band_noise_has_the_sources_colour_covariance_per_octave():
     # next to the seen skin (distance 0) the fill's base holds these octaves: nothing is added
     near = band_noise(texture, source, need, position, np.ones((size, size), bool), np.zeros((size, size), np.float32), 4.0, 32.0, 0.4)
     assert np.all(near == 0)
+    # a flat seen skin: nothing to give, and no NaN
+    flat = band_noise(np.full_like(texture, -1.0), source, need, position, np.ones((size, size), bool), far, 4.0, 32.0, 0.4)
+    assert np.all(flat == 0)
     # too little source: nothing
     tiny = np.zeros((size, size), bool)
     tiny[:5, :5] = True

@@ -550,8 +550,11 @@ def band_noise(log_rgb: np.ndarray, source: np.ndarray, need: np.ndarray, positi
     # layer j takes octave j's colour covariance at a power t_j with Σ_j V_kj t_j ≈ octave k's
     # variance (relative least squares, t ≥ 0: a steep spectrum cannot be met exactly)
     variance = np.trace(wanted, axis1=1, axis2=2)
-    scale, _ = nnls(leak / variance[:, None], np.ones(count))
-    power = (scale / variance)[:, None, None] * wanted * strength  # t_j × the octave's covariance of trace 1
+    if variance.max() <= 1e-12:  # flat seen skin: no mottling to give
+        return out
+    weight = 1.0 / np.maximum(variance, 1e-3 * variance.max())
+    scale, _ = nnls(leak * weight[:, None], variance * weight)
+    power = (scale / np.maximum(variance, 1e-12))[:, None, None] * wanted * strength  # t_j × the octave's covariance of trace 1
     total = np.zeros(log_small.shape, np.float32)
     for j, (layer, p) in enumerate(zip(layers, power)):
         values, vectors = np.linalg.eigh((p + p.T) / 2)
