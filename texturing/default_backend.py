@@ -320,9 +320,9 @@ def value_noise(position_mm: np.ndarray, cell_mm: float, seed: int = 0) -> np.nd
 
 def gradient_noise(position_mm: np.ndarray, cell_mm: float, seed: int = 0) -> np.ndarray:
     """3-D gradient (Perlin) noise at (N, 3) points in mm on a lattice of ``cell_mm``: (N,)
-    float32, 0 at the lattice points, about one octave wide around a wavelength of ``cell_mm``
-    (so octaves of it are band-limited without any filtering), isotropic on the surface and
-    continuous across UV seams."""
+    float32, 0 at the lattice points, with most of its power at wavelengths of one to four cells
+    (on a plane through it ~86 %, where value noise has ~30 % beyond: octaves of it are
+    band-limited without any filtering), isotropic on the surface and continuous across UV seams."""
     return _lattice_noise(position_mm, cell_mm, seed, gradient=True)
 
 
@@ -531,11 +531,11 @@ def band_noise(log_rgb: np.ndarray, source: np.ndarray, need: np.ndarray, positi
         while cell / (2 * step) >= 4.0 and small[0] // (2 * step) >= 32:
             step *= 2
         grid = (small[0] // step, small[1] // step)
-        points, weight = (position, cover_w) if step == 1 else (
+        points, covered = (position, cover_w) if step == 1 else (
             cv2.resize(position * cover_w[..., None], grid, interpolation=cv2.INTER_AREA)
             / np.maximum(cv2.resize(cover_w, grid, interpolation=cv2.INTER_AREA), 1e-6)[..., None],
             cv2.resize(cover_w, grid, interpolation=cv2.INTER_AREA))
-        flat = np.flatnonzero((weight > 0.25).ravel())
+        flat = np.flatnonzero((covered > 0.25).ravel())
         layer = np.zeros((*grid, 3), np.float32)
         layer.reshape(-1, 3)[flat] = np.stack([gradient_noise(points.reshape(-1, 3)[flat], cell * factor * texel_mm, seed=seed + 3 * j + c)
                                                for c in range(3)], axis=1)
