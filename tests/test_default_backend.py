@@ -16,6 +16,7 @@ from facegeo.texturing.default_backend import (
     DefaultBackend,
     band_noise,
     gradient_noise,
+    nonnegative_least_squares,
     masked_blur,
     pad_outside,
     quilted_detail,
@@ -308,6 +309,21 @@ def test_gradient_noise_is_zero_on_the_lattice_deterministic_and_band_limited():
     inside, beyond = shares(gradient_noise)
     assert inside > 0.8 and beyond < 0.15  # one to four cells
     assert shares(value_noise)[1] > 0.25  # value noise spreads to long wavelengths
+
+
+def test_nonnegative_least_squares_agrees_with_scipy():
+    """Random small systems, some with a negative unconstrained optimum: the same solution as
+    scipy.optimize.nnls (Lawson–Hanson) within 1e-9."""
+    from scipy.optimize import nnls
+
+    rng = np.random.default_rng(7)
+    for n in (1, 2, 3, 5):
+        for _ in range(20):
+            a = rng.normal(size=(n + 2, n))
+            b = rng.normal(size=n + 2)
+            np.testing.assert_allclose(nonnegative_least_squares(a, b), nnls(a, b)[0], atol=1e-9)
+    with pytest.raises(ValueError, match="at most 8"):
+        nonnegative_least_squares(np.ones((9, 9)), np.ones(9))
 
 
 def test_band_noise_is_a_function_of_the_surface_point():

@@ -86,7 +86,6 @@ import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 from scipy import ndimage
-from scipy.optimize import nnls
 
 from facegeo.asset import MAP_NAMES, SPECULAR_F0_SCALE
 from facegeo.colour import linear_to_srgb, luminance, srgb_to_linear
@@ -97,7 +96,7 @@ from facegeo.texturing.illuminant import chroma, estimate_illuminant, invent_chr
 from facegeo.uv.renderer import light_visibility
 
 __all__ = ["DefaultBackend", "REGION_PRIORS", "pad_outside", "masked_blur", "gaussian_blur", "value_noise", "MAX_GAIN",
-           "GRAZING_GAIN", "QUILT_BLOCK", "QUILT_ENERGY_CAP", "quilted_detail", "band_noise", "gradient_noise", "MID_BAND_COARSEST", "MID_BAND_STRENGTH", "NOISE_CELL_PER_SIGMA", "SPECK_SIGMAS", "SHADOW_TOLERANCE", "HIGHLIGHT_RATIO", "DETAIL_DEPTH_MM", "DETAIL_LIMIT_MM", "SH_TERMS",
+           "GRAZING_GAIN", "QUILT_BLOCK", "QUILT_ENERGY_CAP", "quilted_detail", "band_noise", "gradient_noise", "nonnegative_least_squares", "MID_BAND_COARSEST", "MID_BAND_STRENGTH", "NOISE_CELL_PER_SIGMA", "SPECK_SIGMAS", "SHADOW_TOLERANCE", "HIGHLIGHT_RATIO", "DETAIL_DEPTH_MM", "DETAIL_LIMIT_MM", "SH_TERMS",
            "DIRECTIONAL_RANGE", "CONTRAST_RANGE", "SHADING_ERROR", "FORESHORTENING", "EDGE_MM", "DETAIL_EDGE_MM", "PAD_FRACTION",
            "SKIN_ALBEDO", "SPECULAR_FLOOR"]
 
@@ -464,6 +463,26 @@ def quilted_detail(detail: np.ndarray, source: np.ndarray, need: np.ndarray, see
     return np.where(need[..., None], out, 0.0).astype(np.float32)
 
 
+def nonnegative_least_squares(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """argmin ‖a x − b‖ over x ≥ 0 for a small (m, n) ``a`` (n ≤ 8) and (m,) ``b``: (n,) float64.
+    The optimum is the unconstrained least-squares solution on its own positive set, so the best
+    feasible one over all 2ⁿ − 1 column sets is it. (By hand: scipy.optimize.nnls costs ~0.2 s of
+    import in ``facegeo reconstruct``, for systems of three unknowns.)"""
+    n = a.shape[1]
+    if n > 8:
+        raise ValueError(f"nonnegative_least_squares: expected at most 8 unknowns, got {n}")
+    best, best_residual = np.zeros(n), float(b @ b)
+    for subset in range(1, 1 << n):
+        columns = [j for j in range(n) if subset >> j & 1]
+        x = np.linalg.lstsq(a[:, columns], b, rcond=None)[0]
+        if np.all(x >= 0):
+            residual = float(np.sum((a[:, columns] @ x - b) ** 2))
+            if residual < best_residual:
+                best, best_residual = np.zeros(n), residual
+                best[columns] = x
+    return best
+
+
 def band_noise(log_rgb: np.ndarray, source: np.ndarray, need: np.ndarray, position_mm: np.ndarray, cover: np.ndarray,
                outside: np.ndarray, finest: float, coarsest: float, texel_mm: float, strength: float = 1.0,
                seed: int = 0) -> np.ndarray:
@@ -553,7 +572,7 @@ def band_noise(log_rgb: np.ndarray, source: np.ndarray, need: np.ndarray, positi
     if variance.max() <= 1e-12:  # flat seen skin: no mottling to give
         return out
     weight = 1.0 / np.maximum(variance, 1e-3 * variance.max())
-    scale, _ = nnls(leak * weight[:, None], variance * weight)
+    scale = nonnegative_least_squares(leak * weight[:, None], variance * weight)
     power = (scale / np.maximum(variance, 1e-12))[:, None, None] * wanted * strength  # t_j × the octave's covariance of trace 1
     total = np.zeros(log_small.shape, np.float32)
     for j, (layer, p) in enumerate(zip(layers, power)):
