@@ -493,6 +493,50 @@ def test_directional_light_and_its_cast_shadows_are_fitted_and_removed(face_cont
     assert abs(np.median(np.log(lum[shadowed])) - np.median(np.log(lum[skin & lit]))) < 0.15
 
 
+def test_a_misplaced_shadow_edge_is_taken_out_and_a_beard_far_from_one_kept(face_context, monkeypatch):
+    """The hard light's cast shadows rendered 2 texels (~3 mm) off from where the posed mesh puts
+    them, and a dark patch (−0.6 in log albedo: a beard) on lit skin far from any shadow's edge:
+    within SHADOW_EDGE_MM of a cast shadow's edge the left-over dark strip is taken as shadow (its
+    de-lit luminance ends nearer the skin's than with no dips looked for), the patch stays as
+    dark as it is (before SHADOW_EDGE_MM, no dips were looked for under the light model)."""
+    from scipy import ndimage
+
+    import facegeo.texturing.default_backend as backend_module
+    from facegeo.uv import light_visibility
+
+    ctx = face_context
+    cover = ctx.coverage
+    light = np.array([0.75, 0.25, 0.6])
+    light /= np.linalg.norm(light)
+    lit = np.zeros(cover.shape, bool)
+    lit[cover] = light_visibility(ctx.vertices_camera, ctx.triangles, ctx.position_camera[cover], light)
+    moved = np.roll(lit, 2, axis=1) & cover
+    log_albedo = np.full(cover.shape, np.log(0.4), np.float32)
+    facing = cover & (ctx.normal_camera[..., 2] > 0.3) & (ctx.skin > 0.5) & (ctx.normal_camera @ light > 0.3)
+    edge_mm = ndimage.distance_transform_edt(lit == ndimage.binary_erosion(lit)) * ctx.median_texel_mm
+    far = facing & lit & moved & (edge_mm > 25)
+    centre = np.argwhere(far)[len(np.argwhere(far)) // 2]
+    yy, xx = np.mgrid[: cover.shape[0], : cover.shape[1]]
+    beard = far & ((yy - centre[0]) ** 2 + (xx - centre[1]) ** 2 <= 25)
+    assert beard.sum() > 20
+    log_albedo[beard] -= 0.6
+    shading = 0.08 + np.maximum(ctx.normal_camera @ light, 0.0) * moved
+    colour = np.exp(log_albedo)[..., None] * np.array([1.1, 0.75, 0.6], np.float32)
+    photo = linear_to_srgb(np.where(cover[..., None], colour * shading[..., None], 0.0)).astype(np.float32)
+    strip = facing & lit & ~moved  # dark in the photo, lit by the mesh's shadow map
+
+    def delit(tolerance: float) -> np.ndarray:
+        monkeypatch.setattr(backend_module, "SHADOW_TOLERANCE", tolerance)
+        return np.log(np.maximum(srgb_to_linear(DefaultBackend(skin_albedo=None).homogenise(photo, ctx))[..., 1], 1e-4))
+
+    with_dips, without = delit(backend_module.SHADOW_TOLERANCE), delit(10.0)  # (no dip is that deep: none looked for)
+    skin_level = np.median(with_dips[facing & lit & moved & ~beard])
+    assert strip.sum() > 20
+    left_with, left_without = np.median(with_dips[strip]) - skin_level, np.median(without[strip]) - skin_level
+    assert left_with > left_without + 0.2  # the strip was ~1.5 darker (the shadow side's ambient)
+    assert np.median(with_dips[beard]) - skin_level == pytest.approx(-0.6, abs=0.1)
+
+
 def test_even_light_uses_no_light_model(face_context):
     ctx = face_context
     cover = ctx.coverage
