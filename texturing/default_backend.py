@@ -169,9 +169,10 @@ LIGHT_GAIN = (8.0, 16.0)
 SHADOW_TOLERANCE = 0.15
 #: Under the directional light model, dips of the de-lit luminance count as shadow only within
 #: about this many mm of a cast shadow's edge (where the fitted mesh misplaces it); elsewhere they
-#: are albedo (a beard). bench_albedo_scans, hard side
-#: views: Lee Perry-Smith +40° seen ΔE2000 2.87 → 2.75, filled 5.34 → 4.68, off-skin 2.46 → 1.26 %;
-#: 12 mm did the same within 0.14; James within ±0.15.
+#: are albedo (a beard). bench_albedo_scans: James hard side 0° seen ΔE2000 7.49 → 7.12, Lee
+#: Perry-Smith hard +40° filled 5.34 → 5.07 and off-skin 2.46 → 2.07 %. The terminator too (within 6
+#: mm of any steep shading) did more there (2.87 → 2.75 seen, 1.26 % off-skin) but took James's
+#: stubble at the face's sides for shadow where his scan's baked light reads as a frontal one.
 SHADOW_EDGE_MM = 6.0
 #: (start, full): a texel is a highlight where its de-lit luminance exceeds its neighbourhood's by these ratios.
 HIGHLIGHT_RATIO = (1.3, 1.6)
