@@ -459,19 +459,26 @@ def face_context():
     return build_context(model, fit_landmarks(model, lm, camera), rasterize_uv(model, size=256))
 
 
+def _hard_side_light(ctx):
+    """A light from the camera's right and above (unit camera-space direction) and the covered
+    texels it reaches past the posed mesh's cast shadows ((S, S) bool)."""
+    from facegeo.uv import light_visibility
+
+    light = np.array([0.75, 0.25, 0.6])
+    light /= np.linalg.norm(light)
+    lit = np.zeros(ctx.coverage.shape, bool)
+    lit[ctx.coverage] = light_visibility(ctx.vertices_camera, ctx.triangles, ctx.position_camera[ctx.coverage], light)
+    return light, lit
+
+
 def test_directional_light_and_its_cast_shadows_are_fitted_and_removed(face_context):
     """A constant albedo under a hard light with the posed mesh's cast shadows: the light model
     finds the direction and ambient, and the de-lit skin is flat. The SH fit's directional
     measure of this clean scene is 0.09–0.13 (its trimming drops the shadowed half), below
     DIRECTIONAL_RANGE: its irradiance contrast over the sphere (CONTRAST_RANGE) opens the gate."""
-    from facegeo.uv import light_visibility
-
     ctx = face_context
     cover = ctx.coverage
-    light = np.array([0.75, 0.25, 0.6])
-    light /= np.linalg.norm(light)
-    lit = np.zeros(cover.shape, bool)
-    lit[cover] = light_visibility(ctx.vertices_camera, ctx.triangles, ctx.position_camera[cover], light)
+    light, lit = _hard_side_light(ctx)
     shading = 0.08 + np.maximum(ctx.normal_camera @ light, 0.0) * lit  # hard light, dim ambient, cast shadows
     facing = cover & (ctx.normal_camera[..., 2] > 0.2)
     assert (facing & ~lit & (ctx.normal_camera @ light > 0.3)).sum() > 50  # the nose casts a shadow on lit-facing skin
@@ -502,14 +509,10 @@ def test_a_misplaced_shadow_edge_is_taken_out_and_a_beard_far_from_one_kept(face
     from scipy import ndimage
 
     import facegeo.texturing.default_backend as backend_module
-    from facegeo.uv import light_visibility
 
     ctx = face_context
     cover = ctx.coverage
-    light = np.array([0.75, 0.25, 0.6])
-    light /= np.linalg.norm(light)
-    lit = np.zeros(cover.shape, bool)
-    lit[cover] = light_visibility(ctx.vertices_camera, ctx.triangles, ctx.position_camera[cover], light)
+    light, lit = _hard_side_light(ctx)
     moved = np.roll(lit, 2, axis=1) & cover
     log_albedo = np.full(cover.shape, np.log(0.4), np.float32)
     facing = cover & (ctx.normal_camera[..., 2] > 0.3) & (ctx.skin > 0.5) & (ctx.normal_camera @ light > 0.3)
