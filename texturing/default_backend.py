@@ -521,13 +521,14 @@ def band_noise(log_rgb: np.ndarray, source: np.ndarray, need: np.ndarray, positi
         factor *= 2
     small = (size // factor, size // factor)
 
-    def down(image: np.ndarray, weight: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        w = cv2.resize(weight.astype(np.float32), small, interpolation=cv2.INTER_AREA)
-        x = cv2.resize(image * weight[..., None], small, interpolation=cv2.INTER_AREA) / np.maximum(w, 1e-6)[..., None]
+    def down(image: np.ndarray, weight: np.ndarray, grid: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]:
+        """``image`` (H, W, 3) averaged over ``weight`` (H, W) onto ``grid``, and the weight's own average."""
+        w = cv2.resize(weight.astype(np.float32), grid, interpolation=cv2.INTER_AREA)
+        x = cv2.resize(image * weight[..., None], grid, interpolation=cv2.INTER_AREA) / np.maximum(w, 1e-6)[..., None]
         return x, w
 
-    log_small, source_w = down(log_rgb.astype(np.float32), source)
-    position, cover_w = down(position_mm.astype(np.float32), cover)
+    log_small, source_w = down(log_rgb.astype(np.float32), source, small)
+    position, cover_w = down(position_mm.astype(np.float32), cover, small)
     need_small = cv2.resize(need.astype(np.float32), small, interpolation=cv2.INTER_AREA) > 0.5
     outside_small = cv2.resize(outside.astype(np.float32), small, interpolation=cv2.INTER_AREA) / factor
     solid = source_w > 0.99
@@ -547,11 +548,6 @@ def band_noise(log_rgb: np.ndarray, source: np.ndarray, need: np.ndarray, positi
         wanted[k] = np.cov(band[calm].astype(np.float64).T)
     # one independent noise layer per octave (3 channels each), unit variance over ``need``
     area = cover_w > 0.5
-    spread = {s: np.maximum(gaussian_blur(area.astype(np.float32), s), 1e-6)[..., None] for s in sigmas}
-
-    def smooth(image: np.ndarray, s: float) -> np.ndarray:  # masked_blur over ``area`` of an image that is 0 outside it
-        return gaussian_blur(image, s) / spread[s]
-
     layers = []
     for j in range(count):  # gradient noise peaking at the octave's wavelength (~6.5σ), on a grid as coarse as it allows
         cell = NOISE_CELL_PER_SIGMA * sigmas[j]  # in texels of the small grid
@@ -559,10 +555,7 @@ def band_noise(log_rgb: np.ndarray, source: np.ndarray, need: np.ndarray, positi
         while cell / (2 * step) >= 4.0 and small[0] // (2 * step) >= 32:
             step *= 2
         grid = (small[0] // step, small[1] // step)
-        points, covered = (position, cover_w) if step == 1 else (
-            cv2.resize(position * cover_w[..., None], grid, interpolation=cv2.INTER_AREA)
-            / np.maximum(cv2.resize(cover_w, grid, interpolation=cv2.INTER_AREA), 1e-6)[..., None],
-            cv2.resize(cover_w, grid, interpolation=cv2.INTER_AREA))
+        points, covered = (position, cover_w) if step == 1 else down(position, cover_w, grid)
         flat = np.flatnonzero((covered > 0.25).ravel())
         layer = np.zeros((*grid, 3), np.float32)
         layer.reshape(-1, 3)[flat] = np.stack([gradient_noise(points.reshape(-1, 3)[flat], cell * factor * texel_mm, seed=seed + 3 * j + c)
@@ -573,7 +566,7 @@ def band_noise(log_rgb: np.ndarray, source: np.ndarray, need: np.ndarray, positi
         layers.append(layer / np.maximum(layer[need_small].std(0), 1e-12))
     # the spectra overlap, so octave k measured on layer j holds a part V_kj of its variance
     firsts = np.stack([layer[..., 0] for layer in layers], axis=-1)  # one channel of each layer (all three alike)
-    measured = [smooth(firsts, sigmas[k]) - smooth(firsts, sigmas[k + 1]) for k in range(count)]
+    measured = [masked_blur(firsts, area, sigmas[k]) - masked_blur(firsts, area, sigmas[k + 1]) for k in range(count)]
     leak = np.array([[float(np.var(measured[k][..., j][need_small])) for j in range(count)] for k in range(count)])
     # layer j takes octave j's colour covariance at a power t_j with Σ_j V_kj t_j ≈ octave k's
     # variance (relative least squares, t ≥ 0: a steep spectrum cannot be met exactly)
@@ -837,12 +830,7 @@ class DefaultBackend:
         skin_weight = reliable * skin
         illuminant_report: dict[str, Any] = {"greyscale": greyscale}
         if not greyscale and skin_weight.sum() >= 10:
-            # the skin's colour without its sheen (white before the light's colour is known): the
-            # sheen made skin look less saturated, which the skin locus took for a cooler light
-            free = _without_specular(delit, an.specular[..., None])
-            mean_skin = (free * skin_weight[..., None]).reshape(-1, 3).sum(0) / skin_weight.sum()
-            white = None if ctx.white_reference is None else chroma(np.asarray(ctx.white_reference))
-            light, illuminant_report = estimate_illuminant(chroma(mean_skin), white)
+            light, illuminant_report = self._light_colour(delit, an.specular, skin_weight, ctx)
             illuminant_report["greyscale"] = False
             delit = remove_cast(delit, light)
         elif greyscale:
@@ -880,6 +868,18 @@ class DefaultBackend:
         result = pad_outside(relit.astype(np.float32), cover)
         self._filled = (result, out)
         return result
+
+    @staticmethod
+    def _light_colour(delit: np.ndarray, specular: np.ndarray, weight: np.ndarray, ctx: TextureContext) -> tuple[np.ndarray, dict[str, Any]]:
+        """The light's chroma (2,) and its report (:func:`~facegeo.texturing.illuminant.estimate_illuminant`)
+        from the ``weight`` (S, S)-weighted mean of the de-lit texture ``delit`` (S, S, 3) linear
+        without its sheen ``specular`` (S, S) (white before the light's colour is known: the sheen
+        made skin look less saturated, which the skin locus took for a cooler light) and the
+        context's white reference."""
+        free = _without_specular(delit, specular[..., None])
+        mean_skin = (free * weight[..., None]).reshape(-1, 3).sum(0) / weight.sum()
+        white = None if ctx.white_reference is None else chroma(np.asarray(ctx.white_reference))
+        return estimate_illuminant(chroma(mean_skin), white)
 
     def reliability(self, weight: np.ndarray, ctx: TextureContext) -> np.ndarray:
         """(S, S) float32 in [0, 1]: how far each seen texel is trusted, the kept weight
@@ -1022,10 +1022,7 @@ class DefaultBackend:
             albedo = srgb_to_linear(T_full) / shading[..., None]
             weight = self.reliability(cover.astype(np.float32), ctx) * skin
             if weight.sum() >= 10 and not is_greyscale(T_full[cover]):
-                free = _without_specular(albedo, an.specular[..., None])  # as in inpaint
-                mean_skin = (free * weight[..., None]).reshape(-1, 3).sum(0) / weight.sum()
-                white = None if ctx.white_reference is None else chroma(np.asarray(ctx.white_reference))
-                light, self.report["illuminant"] = estimate_illuminant(chroma(mean_skin), white)
+                light, self.report["illuminant"] = self._light_colour(albedo, an.specular, weight, ctx)
                 albedo = remove_cast(albedo, light)
             albedo = _without_specular(albedo, an.specular[..., None])
             peak = _channel_max(albedo)
