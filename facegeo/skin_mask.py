@@ -73,6 +73,7 @@ from facegeo.hands import Hand, default_hand_detector, hand_mask
 from facegeo.landmarks import scheme as ibug
 from facegeo.person_segmentation import default_person_segmenter
 from facegeo.photo import as_rgb_uint8
+from facegeo.robust_gaussian import robust_gaussian
 
 if TYPE_CHECKING:
     from facegeo.morphable_model import MorphableModel
@@ -215,23 +216,6 @@ def _chroma(linear: np.ndarray) -> np.ndarray:
     return np.stack([np.log(x[..., 0] / x[..., 1]), np.log(x[..., 2] / x[..., 1])], axis=-1)
 
 
-def _robust_gaussian(samples: np.ndarray, rounds: int = 3) -> tuple[np.ndarray, np.ndarray]:
-    """Mean and covariance of (N, 2) samples, re-estimated on the points inside the 97.5 % χ²
-    ellipse (7.38) of the previous estimate, starting from the median and the MAD."""
-    mean = np.median(samples, axis=0)
-    mad = 1.4826 * np.median(np.abs(samples - mean), axis=0)
-    cov = np.diag(np.maximum(mad, 1e-3) ** 2)
-    for _ in range(rounds):
-        d = samples - mean
-        d2 = np.einsum("ni,ij,nj->n", d, np.linalg.inv(cov), d)
-        inl = samples[d2 < 7.38]
-        if len(inl) < 10:
-            break
-        mean = inl.mean(axis=0)
-        cov = np.cov(inl.T) / 0.85 + np.eye(2) * 1e-6  # 0.85: variance kept inside a 97.5 % truncation in 2-D
-    return mean, cov
-
-
 def white_reference(linear: np.ndarray, regions: FaceRegions) -> tuple[np.ndarray | None, int]:
     """Mean linear RGB (3,) float64 of the photo's white references and their pixel count: in
     each eye's interior (the lid polygon shrunk by 15 % towards its centre: no lashes), the
@@ -357,7 +341,7 @@ def skin_mask(image: np.ndarray, landmarks: np.ndarray | None = None, *, regions
         raise NoFaceError(source, "skin", "at least 10 visible skin pixels inside the face", f"{int(sample.sum())}")
 
     chroma = _chroma(linear)
-    mean, cov = _robust_gaussian(chroma[sample])
+    mean, cov = robust_gaussian(chroma[sample])
     # per-pixel Mahalanobis distance with the sensor noise of dark pixels added to the covariance
     g = np.maximum(linear[..., 1].astype(np.float64), 1e-3)
     noise_rg = (NOISE_LINEAR / np.maximum(linear[..., 0], 1e-3)) ** 2 + (NOISE_LINEAR / g) ** 2
@@ -484,3 +468,4 @@ def vertex_regions(model: MorphableModel) -> dict[str, np.ndarray]:
     for name in ("forehead", "nose", "cheeks", "chin"):
         masks[name] = masks[name] * (1 - features)
     return {name: (m * face).astype(np.float32) for name, m in masks.items()}
+

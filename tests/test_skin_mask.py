@@ -8,7 +8,7 @@ import pytest
 from facegeo.assets import asset_path
 from facegeo.errors import NoFaceError
 from facegeo.photo import load_photo
-from facegeo.skin_mask import FaceRegions, _robust_gaussian, skin_mask, skin_mask_image, white_reference
+from facegeo.skin_mask import FaceRegions, skin_mask, skin_mask_image, white_reference
 
 
 def ellipse(cx, cy, ax, ay, n=24):
@@ -64,16 +64,6 @@ def test_occluders_are_masked_and_skin_is_kept(synthetic):
     assert occ[90:93, 92:104].mean() < 0.05  # dark brows are a feature, kept
     img = skin_mask_image(m)
     assert img.dtype == np.uint8 and img[150, 80] == 255 and img[30, 128] == 0
-
-
-def test_robust_gaussian_ignores_a_third_of_outliers():
-    rng = np.random.default_rng(0)
-    cov = np.array([[0.01, 0.004], [0.004, 0.02]])
-    good = rng.multivariate_normal([0.4, -0.3], cov, 4000)
-    bad = rng.uniform(-2, 2, (2000, 2))
-    mean, est = _robust_gaussian(np.concatenate([good, bad]))
-    np.testing.assert_allclose(mean, [0.4, -0.3], atol=0.01)
-    np.testing.assert_allclose(est, cov, rtol=0.25, atol=1e-3)
 
 
 def test_no_face_and_no_landmarks_is_a_clear_error():
