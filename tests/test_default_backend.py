@@ -4,12 +4,13 @@ import numpy as np
 import pytest
 import torch
 
-from facegeo.colour import linear_to_srgb, srgb_to_linear
+from facegeo.colour import linear_to_srgb, luminance, srgb_to_linear
 from facegeo.lighting import sh_irradiance
 from facegeo.texturing.backend import TextureBackend, TextureContext
 from facegeo.texturing.default_backend import (
     CONTRAST_RANGE,
     DIRECTIONAL_RANGE,
+    FRINGE_MM,
     GRAZING_GAIN,
     MAX_GAIN,
     QUILT_BLOCK,
@@ -224,6 +225,38 @@ def test_reliability_fades_towards_silhouettes_and_occluders():
     assert r[64, 64] == 0.0 and r[64, 30] > 0.9  # on the occluder / clear, facing skin
     assert 0 < r[64, 68] < r[64, 69] < r[64, 90] == 1.0  # rises away from the occluder (over EDGE_MM)
     assert r[64, 2] < 0.05 or not ctx.coverage[64, 2]  # grazing at the rim
+
+
+@pytest.mark.parametrize("fringe_mm", [FRINGE_MM, 0.0])
+def test_an_occluders_fringe_is_filled_and_the_same_colour_inside_the_face_kept(fringe_mm, monkeypatch):
+    """Hair above a line is masked, but the mask lets its last two texels of strands (dark,
+    bluish grey) through; the same colour also marks the middle of the face. The fringe is filled
+    with the skin next to it; the mark far from the mask's edge is the face's own and stays. With
+    FRINGE_MM = 0 the strands stay dark (the edge's reliability ramp alone does not remove them)."""
+    monkeypatch.setattr("facegeo.texturing.default_backend.FRINGE_MM", fringe_mm)
+    size = 128
+    ctx = hemisphere_context(size)
+    rng = np.random.default_rng(3)
+    skin = srgb_to_linear(np.float32([0.78, 0.58, 0.48]))
+    truth = skin * np.exp(0.03 * rng.normal(size=(size, size, 1))).astype(np.float32)
+    row = np.arange(size)[:, None].repeat(size, 1)
+    seen = (row >= 40) & ctx.coverage
+    strands = seen & (row < 42)
+    mark = (np.abs(row - 80) < 3) & (np.abs(np.arange(size)[None, :] - 64) < 3)
+    hair = srgb_to_linear(np.float32([0.16, 0.17, 0.2]))
+    photo = np.where((strands | mark)[..., None], hair, truth)
+    backend = DefaultBackend()
+    out = srgb_to_linear(backend.homogenise(backend.inpaint(linear_to_srgb(photo) * seen[..., None], seen.astype(np.float32), ctx), ctx))
+    lum = luminance(out)
+    around = ctx.coverage & (row >= 46) & (row < 56) & (np.abs(np.arange(size)[None, :] - 64) < 30)
+    band = strands & (np.abs(np.arange(size)[None, :] - 64) < 30)
+    ratio = float(np.median(lum[band]) / np.median(lum[around]))
+    if fringe_mm > 0:
+        assert ratio > 0.9  # filled with the skin below it
+        assert backend.report["analyse"]["occluder_fringe_fraction_of_seen_skin"] > 0
+    else:
+        assert ratio < 0.75
+    assert np.median(lum[mark]) < 0.5 * np.median(lum[around])  # the face's own mark is kept
 
 
 def test_inpaint_with_nothing_visible_falls_back_to_the_model_colour():
