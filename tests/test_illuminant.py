@@ -4,8 +4,8 @@ luminance kept; a greyscale photo's invented chroma."""
 import numpy as np
 
 from facegeo.colour import luminance
-from facegeo.texturing.illuminant import (NEUTRAL_TOLERANCE, PLANCKIAN, SCLERA_CHROMA, SKIN_CHROMA, SKIN_LOCUS, WHITE_GATE,
-                                          chroma, estimate_illuminant, invent_chroma, is_greyscale, remove_cast)
+from facegeo.texturing.illuminant import (FIRM_FACTOR, NEUTRAL_TOLERANCE, PLANCKIAN, SCLERA_CHROMA, SKIN_CHROMA, SKIN_LOCUS, WHITE_GATE,
+                                          chroma, estimate_illuminant, firm_shrinkage, invent_chroma, is_greyscale, remove_cast)
 
 
 def test_neutral_light_on_any_skin_tone_is_left_alone():
@@ -15,14 +15,24 @@ def test_neutral_light_on_any_skin_tone_is_left_alone():
         assert report["white_used"]
 
 
-def test_warm_light_is_recovered_with_the_sclera_up_to_the_neutral_tolerance():
+def test_warm_light_is_recovered_with_the_sclera_whole():
+    """A strong light is not shortened by the neutral tolerance (firm, not soft, threshold)."""
     warm = 0.6 * PLANCKIAN  # a strong tungsten cast
     light, report = estimate_illuminant(SKIN_CHROMA + 0.1 * SKIN_LOCUS + warm, SCLERA_CHROMA + warm)
     assert report["white_used"]
-    assert np.linalg.norm(light - warm) < NEUTRAL_TOLERANCE + 0.03
+    assert np.linalg.norm(light - warm) < 0.02
     np.testing.assert_allclose(light / np.linalg.norm(light), PLANCKIAN, atol=0.05)  # the right direction
     without, _ = estimate_illuminant(SKIN_CHROMA + 0.1 * SKIN_LOCUS + warm)
-    assert np.linalg.norm(light - warm) < np.linalg.norm(without - warm)  # the sclera helps
+    assert np.linalg.norm(light - warm) < np.linalg.norm(without - warm) < 0.1  # the sclera helps; the skin alone gets near
+
+
+def test_firm_shrinkage_leaves_near_neutral_lights_alone_and_strong_ones_whole():
+    lengths = np.linspace(0.0, 0.5, 501)
+    shrunk = np.array([x * firm_shrinkage(x) for x in lengths])
+    assert np.all(shrunk[lengths <= NEUTRAL_TOLERANCE] == 0.0)
+    strong = lengths >= FIRM_FACTOR * NEUTRAL_TOLERANCE
+    np.testing.assert_allclose(shrunk[strong], lengths[strong])
+    assert np.all(np.diff(shrunk) >= 0) and np.max(np.diff(shrunk)) < 3 * (lengths[1] - lengths[0])  # monotone, continuous
 
 
 def test_a_white_reference_redder_than_the_skin_is_not_used():

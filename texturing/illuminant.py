@@ -34,7 +34,7 @@ from facegeo.colour import luminance
 
 __all__ = ["estimate_illuminant", "remove_cast", "invent_chroma", "chroma", "is_greyscale", "SKIN_CHROMA", "SKIN_LOCUS",
            "PLANCKIAN", "SCLERA_CHROMA", "LIPS_CHROMA", "SKIN_SIGMA", "SKIN_TONE_SIGMA", "WHITE_SIGMA", "WHITE_GATE",
-           "LIGHT_SIGMA", "TINT_SIGMA", "NEUTRAL_TOLERANCE"]
+           "LIGHT_SIGMA", "TINT_SIGMA", "NEUTRAL_TOLERANCE", "FIRM_FACTOR", "firm_shrinkage"]
 
 
 def _unit(v) -> np.ndarray:
@@ -64,11 +64,16 @@ WHITE_GATE = 0.45
 LIGHT_SIGMA = 0.35
 #: σ of the light's chroma across it (green–magenta tints are rare).
 TINT_SIGMA = 0.06
-#: The estimate is shrunk towards neutral by this much (soft threshold on its length): a light
-#: within it of neutral is not corrected (a sclera's chroma alone varies about as much: the
-#: estimate under a white light came out 0.10 off on the benchmark's scan, 0.20 under a hard
-#: side light whose sclera lies in shadow).
+#: A light estimated within this of neutral is not corrected (a sclera's chroma alone varies
+#: about as much: the estimate under a white light came out 0.10 off on the benchmark's scan,
+#: 0.20 under a hard side light whose sclera lies in shadow; a pink skin with no sclera in view,
+#: 0.10). Firm threshold on the estimate's length: 0 up to the tolerance, the estimate itself
+#: from :data:`FIRM_FACTOR` × the tolerance, linear between. A soft threshold (the estimate
+#: shortened by the tolerance) left a third to a half of a 3200 K light's cast in the albedo
+#: (bench_albedo_scans, warm views: Lee Perry-Smith's chroma error 10.1 → 5.3).
 NEUTRAL_TOLERANCE = 0.12
+#: Where the firm threshold stops shrinking, in units of :data:`NEUTRAL_TOLERANCE`.
+FIRM_FACTOR = 2.0
 
 
 def chroma(linear: np.ndarray) -> np.ndarray:
@@ -111,10 +116,21 @@ def estimate_illuminant(skin: np.ndarray, white: np.ndarray | None = None) -> tu
             x, *_ = np.linalg.lstsq(np.asarray(rows), np.asarray(rhs), rcond=None)
             report["white_used"] = True
     norm = float(np.linalg.norm(x[:2]))
-    x[:2] *= max(0.0, 1.0 - NEUTRAL_TOLERANCE / max(norm, 1e-9))  # shrunk: within the tolerance, neutral
+    x[:2] *= firm_shrinkage(norm)
     report["light_chroma"] = x[:2].tolist()
     report["skin_tone"] = float(x[2])
     return x[:2], report
+
+
+def firm_shrinkage(length: float) -> float:
+    """The factor (in [0, 1]) that the light estimate of this chroma ``length`` is scaled by:
+    0 within :data:`NEUTRAL_TOLERANCE`, 1 beyond :data:`FIRM_FACTOR` × that, continuous between."""
+    lo, hi = NEUTRAL_TOLERANCE, FIRM_FACTOR * NEUTRAL_TOLERANCE
+    if length <= lo:
+        return 0.0
+    if length >= hi:
+        return 1.0
+    return (length - lo) * hi / ((hi - lo) * length)
 
 
 def remove_cast(linear: np.ndarray, light: np.ndarray) -> np.ndarray:
