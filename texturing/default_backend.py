@@ -184,8 +184,8 @@ HIGHLIGHT_RATIO = (1.3, 1.6)
 #: Seen skin this close (mm of surface) to a texel not seen whose de-lit colour is beyond the
 #: :data:`FRINGE_SIGNIFICANCE` χ² quantile of the reliably seen skin's is an occluder's fringe
 #: (hair strands, a frame's rim, background at the silhouette that the photo's mask let through)
-#: and is treated as unseen. bench_albedo_scans (even and hard views): off-skin texels at
-#: James's hairline 5.35 → 1.97 %, Lee Perry-Smith's worst seam 1.44 → 0.90.
+#: and is treated as unseen. bench_albedo_scans: off-skin texels of James even −40° (a
+#: sideburn's edge) 5.35 → 1.17 %, Lee Perry-Smith hard side +40°'s seam 1.44 → 0.86.
 FRINGE_MM = 4.0
 #: The probability of the χ² quantile (3 degrees of freedom) beyond which a colour is not skin's.
 FRINGE_SIGNIFICANCE = 0.999
