@@ -4,8 +4,7 @@
 covariance on the samples inside the 97.5 % χ² ellipsoid of the previous estimate; the
 covariance of a Gaussian truncated there is smaller than the whole one's by
 P(χ²_{D+2} ≤ c) / P(χ²_D ≤ c), which is divided back out. Used by the photo's skin-colour model
-(:mod:`facegeo.skin_mask`, D = 2, with the wider share its thresholds were chosen with) and
-the texture stage's seen-skin colour (D = 3).
+(:mod:`facegeo.skin_mask`, D = 2) and the texture stage's seen-skin colour (D = 3).
 
 The χ² distribution function is written out (the regularised lower incomplete gamma function at
 integer and half-integer shape has closed forms) because importing ``scipy.stats`` costs
@@ -67,18 +66,15 @@ def mahalanobis_squared(x: np.ndarray, mean: np.ndarray, covariance: np.ndarray)
     return np.einsum("...i,ij,...j->...", d, np.linalg.inv(covariance), d)
 
 
-def robust_gaussian(samples: np.ndarray, rounds: int = 3, kept_variance: float | None = None) -> tuple[np.ndarray, np.ndarray]:
+def robust_gaussian(samples: np.ndarray, rounds: int = 3) -> tuple[np.ndarray, np.ndarray]:
     """Mean (D,) and covariance (D, D) float64 of (N, D) samples, re-estimated ``rounds`` times
     on the points inside the :data:`TRIM_QUANTILE` χ² ellipsoid of the previous estimate,
     starting from the median and the MAD (each axis at least 1e-3); a round that would keep
-    fewer than 10 points stops the re-estimation. ``kept_variance``: the inliers' covariance is
-    divided by it; None: the truncated Gaussian's exact share, P(χ²_{D+2} ≤ c) / P(χ²_D ≤ c)
-    (a smaller value gives a wider Gaussian than the samples')."""
+    fewer than 10 points stops the re-estimation."""
     samples = np.asarray(samples, np.float64)
     dim = samples.shape[1]
     cut = chi2_quantile(TRIM_QUANTILE, dim)
-    if kept_variance is None:
-        kept_variance = chi2_cdf(cut, dim + 2) / TRIM_QUANTILE
+    kept_variance = chi2_cdf(cut, dim + 2) / TRIM_QUANTILE  # a truncated Gaussian's variance over the whole one's
     mean = np.median(samples, axis=0)
     mad = 1.4826 * np.median(np.abs(samples - mean), axis=0)
     cov = np.diag(np.maximum(mad, 1e-3) ** 2)

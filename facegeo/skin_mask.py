@@ -98,10 +98,6 @@ DARK_FRACTION = 0.2
 HALO_FRACTION = 0.04
 #: Mahalanobis distances (σ) of the skin-colour model: skin below the first, occluder above the second.
 SKIN_SIGMAS = (2.5, 4.0)
-#: The share of the skin's log-chromaticity variance taken as kept by the trimming: chosen with
-#: :data:`SKIN_SIGMAS` and :data:`NOISE_LINEAR`. The exact share of a Gaussian (0.905) makes the
-#: colour model 3 % narrower, which took a hand's neighbouring cheek for an occluder.
-SKIN_KEPT_VARIANCE = 0.85
 #: A pixel darker than this fraction of its neighbourhood's mean luminance (Gaussian, σ = 12 % of the
 #: inter-ocular distance) is a thin occluder (frame, strand).
 LOCAL_DARK = 0.15
@@ -345,7 +341,7 @@ def skin_mask(image: np.ndarray, landmarks: np.ndarray | None = None, *, regions
         raise NoFaceError(source, "skin", "at least 10 visible skin pixels inside the face", f"{int(sample.sum())}")
 
     chroma = _chroma(linear)
-    mean, cov = robust_gaussian(chroma[sample], kept_variance=SKIN_KEPT_VARIANCE)
+    mean, cov = robust_gaussian(chroma[sample])
     # per-pixel Mahalanobis distance with the sensor noise of dark pixels added to the covariance
     g = np.maximum(linear[..., 1].astype(np.float64), 1e-3)
     noise_rg = (NOISE_LINEAR / np.maximum(linear[..., 0], 1e-3)) ** 2 + (NOISE_LINEAR / g) ** 2
