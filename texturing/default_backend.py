@@ -645,7 +645,8 @@ class DefaultBackend:
         lum = luminance(lin)
         # the fit trusts only reliable skin: facing the camera, away from silhouettes and occluders
         # (at a silhouette the photo mixes in the background: a white wall made grazing skin "lit")
-        fit_mask = _skin(ctx) & (self.reliability(w, ctx) > 0.5) & (lum > 1e-4)
+        inner = self._inner_distance(w > 0.5, ctx)
+        fit_mask = _skin(ctx) & (self._reliability(w, inner, ctx) > 0.5) & (lum > 1e-4)
         normals = ctx.normal_camera
         shading = np.ones(cover.shape, np.float32)
         n_fit = int(fit_mask.sum())
@@ -709,7 +710,7 @@ class DefaultBackend:
         highlight = np.clip((ratio - lo) / (hi - lo), 0.0, 1.0) * (w > 0)
         highlight = np.clip(gaussian_blur(highlight, max(1.0, size / 512.0)) * 2.0, 0.0, 1.0) * cover
         kept = w * (1.0 - highlight)
-        fringe = self._occluder_fringe(lin / shading[..., None], w, fit_mask, ctx) if n_fit >= 100 else None
+        fringe = self._occluder_fringe(lin / shading[..., None], w, inner, fit_mask, ctx) if n_fit >= 100 else None
         if fringe is not None:
             kept = kept * (1.0 - fringe)
         analysis = _Analysis(shading, highlight.astype(np.float32), kept.astype(np.float32), specular)
@@ -729,15 +730,15 @@ class DefaultBackend:
         return analysis
 
     @staticmethod
-    def _occluder_fringe(delit: np.ndarray, w: np.ndarray, fit_mask: np.ndarray, ctx: TextureContext) -> np.ndarray:
+    def _occluder_fringe(delit: np.ndarray, w: np.ndarray, inner: np.ndarray, fit_mask: np.ndarray, ctx: TextureContext) -> np.ndarray:
         """(S, S) float32 in [0, 1]: 1 on the seen skin's texels (``w`` (S, S) > 0) within
-        :data:`FRINGE_MM` of a texel not seen whose de-lit colour ``delit`` (S, S, 3) linear RGB is
+        :data:`FRINGE_MM` (``inner``: :meth:`_inner_distance` of ``w > 0.5``, mm) of a texel not
+        seen whose de-lit colour ``delit`` (S, S, 3) linear RGB is
         not skin's: its log RGB beyond the :data:`FRINGE_SIGNIFICANCE` χ² quantile of a robust
         Gaussian of the reliably seen skin (``fit_mask`` (S, S) bool) farther inside, feathered over
         S/512 texels. A mask's edge lets through the fringe of what it masks (a sideburn's last
         strands, a frame's rim), stretched over many texels where the surface turns away; inside
         the seen region the same colours are the face's own (a mole, a beard) and are kept."""
-        inner = DefaultBackend._inner_distance(w > 0.5, ctx)
         log_rgb = np.log(np.maximum(delit, 1e-4))
         source = np.flatnonzero((fit_mask & (inner > FRINGE_MM)).ravel())
         if len(source) < 100:
