@@ -385,8 +385,8 @@ def _lattice_noise_block(g: np.ndarray, seed: int, gradient: bool) -> np.ndarray
 
 
 def _subsample(rows: np.ndarray, limit: int = 65536) -> np.ndarray:
-    """At most ``limit`` evenly spaced entries of ``rows`` (least-squares fits of 9 SH
-    coefficients need no more)."""
+    """At most ``limit`` evenly spaced entries of ``rows`` (the light fits' least squares of a
+    few coefficients and the fringe's 3 × 3 colour covariance need no more)."""
     return rows if len(rows) <= limit else rows[:: int(np.ceil(len(rows) / limit))]
 
 
