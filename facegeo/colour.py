@@ -1,4 +1,5 @@
-"""sRGB transfer functions (IEC 61966-2-1) and luminance: the one home of the sRGB curves.
+"""sRGB transfer functions (IEC 61966-2-1), luminance and the test for a greyscale photo: the one
+home of the sRGB curves.
 
 NumPy (float32, any shape) for I/O and the texture stage; :func:`srgb_to_linear_slope` (float64,
 with the derivative) for linearising model files; the ``*_torch`` twins (differentiable, any
@@ -14,7 +15,7 @@ import numpy as np
 if TYPE_CHECKING:
     import torch
 
-__all__ = ["srgb_to_linear", "linear_to_srgb", "srgb_to_linear_slope", "srgb_to_linear_torch", "linear_to_srgb_torch",
+__all__ = ["is_greyscale", "srgb_to_linear", "linear_to_srgb", "srgb_to_linear_slope", "srgb_to_linear_torch", "linear_to_srgb_torch",
            "luminance"]
 
 
@@ -57,3 +58,13 @@ def luminance(linear: np.ndarray) -> np.ndarray:
     """Rec. 709 relative luminance of linear RGB (..., 3) -> (...)."""
     rgb = np.asarray(linear, dtype=np.float32)
     return (0.2126 * rgb[..., 0] + 0.7152 * rgb[..., 1] + 0.0722 * rgb[..., 2]).astype(np.float32)
+
+
+def is_greyscale(srgb: np.ndarray, tolerance: float = 2.5 / 255.0) -> bool:
+    """True when at least 99 % of the (N, 3) sRGB colours have R, G and B within ``tolerance``
+    of each other (a greyscale photo stored as RGB, JPEG noise allowed)."""
+    srgb = np.asarray(srgb, np.float32).reshape(-1, 3)
+    if len(srgb) == 0:
+        return False
+    spread = srgb.max(axis=1) - srgb.min(axis=1)
+    return float(np.mean(spread <= tolerance)) >= 0.99

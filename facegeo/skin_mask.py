@@ -31,9 +31,12 @@ The mask is built from what runs offline here, in four parts:
    where the person is; further than 0.3 inter-ocular distances outside the face oval, pixels it
    gives less than 0.5 are background (walls, flags, skies, car interiors: of the skin's colour
    or not). Nearer the face the mesh and the colour model decide (on a partly covered face the
-   segmentation can cut into the cheek). In a greyscale photo (no chroma for the colour model) pixels there
-   brighter than :data:`BRIGHT_FRACTION` × the skin's median luminance are not skin either
-   (white collars, grey hair; in a colour photo the lit side of a face under a hard light can be).
+   segmentation can cut into the cheek). In a greyscale photo (the sampled skin passes
+   :func:`facegeo.colour.is_greyscale`: no chroma for the colour model) nothing further than 0.1
+   inter-ocular distances outside the face oval is skin (a glove, a coat or a collar of the skin's
+   grey: the cameraman's), and at the oval's rim pixels brighter than :data:`BRIGHT_FRACTION` ×
+   the skin's median luminance are not skin either (white collars, grey hair; in a colour photo
+   the lit side of a face under a hard light can be).
 6. **Glasses**: frames are thin structures darker than the skin on both sides, whatever their
    colour (tortoiseshell passes the colour model): in the band of the eyes (from the brows to
    the cheekbones, across the whole face) a morphological black-hat of the log-luminance (the
@@ -67,7 +70,7 @@ from typing import TYPE_CHECKING
 import cv2
 import numpy as np
 
-from facegeo.colour import luminance, srgb_to_linear
+from facegeo.colour import is_greyscale, luminance, srgb_to_linear
 from facegeo.errors import NoFaceError
 from facegeo.hands import Hand, default_hand_detector, hand_mask
 from facegeo.landmarks import scheme as ibug
@@ -119,8 +122,9 @@ MAX_HOLE = 0.15
 EYES_AGREE = 0.15
 #: Person probability below which a pixel outside the face oval is background.
 PERSON_THRESHOLD = 0.5
-#: In a greyscale photo, pixels outside the face oval brighter than this × the sampled skin's
-#: median luminance are not skin (white collars, grey hair: its colour model lets them through).
+#: In a greyscale photo, pixels at the face oval's rim (within 0.1 inter-ocular distances either
+#: side) brighter than this × the sampled skin's median luminance are not skin (white collars,
+#: grey hair: its colour model lets them through).
 BRIGHT_FRACTION = 2.5
 
 
@@ -378,8 +382,9 @@ def skin_mask(image: np.ndarray, landmarks: np.ndarray | None = None, *, regions
     # into the cheek); near the face the colour model and the mesh decide
     near_face = cv2.dilate(oval.astype(np.uint8), _disc(0.3 * iod)).astype(bool)
     occluded |= (np.asarray(person, np.float32) < PERSON_THRESHOLD) & ~near_face
-    if np.sqrt(np.diag(cov)).max() < 0.01:  # a greyscale photo: its colour model cannot tell a white collar from skin
-        occluded |= (lum > BRIGHT_FRACTION * skin_lum) & ~inner_oval
+    if is_greyscale(rgb[sample].astype(np.float32) / 255.0):  # no chroma: the colour model cannot tell a white
+        # collar, a black glove or a grey coat from skin; only the face oval's own surface is kept
+        occluded |= ((lum > BRIGHT_FRACTION * skin_lum) & ~inner_oval) | (~near_oval & ~(lips | brows))
     occluded = cv2.dilate(occluded.astype(np.uint8), _disc(HALO_FRACTION * iod)).astype(bool)
     occluded |= cv2.dilate((eyes | mouth).astype(np.uint8), _disc(0.02 * iod)).astype(bool)  # lashes, lip edge
     occluded = occluded.astype(np.float32)

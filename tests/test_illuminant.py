@@ -3,9 +3,9 @@ luminance kept; a greyscale photo's invented chroma."""
 
 import numpy as np
 
-from facegeo.colour import luminance
+from facegeo.colour import is_greyscale, luminance
 from facegeo.texturing.illuminant import (FIRM_FACTOR, NEUTRAL_TOLERANCE, PLANCKIAN, SCLERA_CHROMA, SKIN_CHROMA, SKIN_LOCUS, WHITE_GATE,
-                                          chroma, estimate_illuminant, firm_shrinkage, invent_chroma, is_greyscale, remove_cast)
+                                          chroma, estimate_illuminant, firm_shrinkage, invent_chroma, remove_cast)
 
 
 def test_neutral_light_on_any_skin_tone_is_left_alone():

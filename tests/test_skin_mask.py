@@ -152,6 +152,24 @@ def test_tortoiseshell_frames_and_background_are_masked(synthetic):
     assert without.occlusion[background].mean() < 0.5  # the colour model alone lets most of the wall through
 
 
+def test_greyscale_photo_keeps_only_the_face_oval(synthetic):
+    """Without chroma a glove or a coat of the skin's grey cannot be told from skin: in a greyscale
+    photo only the face oval (and its near rim) is kept, its shaded cheeks included."""
+    rgb, regions, _ = synthetic
+    grey = rgb.astype(np.float32) @ np.float32([0.299, 0.587, 0.114])
+    yy, xx = np.mgrid[0:256, 0:256]
+    glove = (yy >= 243) & (xx > 106) & (xx < 150)  # below the chin: within 0.3, beyond 0.1 IOD of the oval
+    grey[glove] = grey[150, 128]  # the cheek's own grey
+    image = np.repeat(np.clip(grey, 0, 255).astype(np.uint8)[..., None], 3, axis=-1)
+    person = np.ones((256, 256), np.float32)
+    m = skin_mask(image, regions=regions, person=person, hands=[])
+    assert m.occlusion[glove].min() > 0.95
+    assert m.occlusion[140:165, 70:100].max() < 0.05 and m.occlusion[140:165, 160:190].max() < 0.05
+    colour = rgb.copy()
+    colour[glove] = rgb[150, 128]  # in colour the same patch is skin-coloured: the colour model keeps it (the collar's halo aside)
+    assert skin_mask(colour, regions=regions, person=person, hands=[]).occlusion[249:, 116:140].max() < 0.05
+
+
 def test_person_segmentation_finds_the_bundled_photos_subject():
     from facegeo.person_segmentation import default_person_segmenter
 

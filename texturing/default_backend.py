@@ -94,12 +94,12 @@ import scipy.sparse.linalg as spla
 from scipy import ndimage
 
 from facegeo.asset import MAP_NAMES, SPECULAR_F0_SCALE
-from facegeo.colour import linear_to_srgb, luminance, srgb_to_linear
+from facegeo.colour import is_greyscale, linear_to_srgb, luminance, srgb_to_linear
 from facegeo.lighting import sh_basis
 from facegeo.robust_gaussian import chi2_quantile, mahalanobis_squared, robust_gaussian
 from facegeo.texturing.backend import SKIN_CONSTANTS, TextureContext
 from facegeo.texturing.ggx import environment_brdf
-from facegeo.texturing.illuminant import chroma, estimate_illuminant, invent_chroma, is_greyscale, remove_cast
+from facegeo.texturing.illuminant import chroma, estimate_illuminant, invent_chroma, remove_cast
 from facegeo.uv.renderer import light_visibility
 
 __all__ = ["DefaultBackend", "REGION_PRIORS", "pad_outside", "masked_blur", "gaussian_blur", "value_noise", "MAX_GAIN",

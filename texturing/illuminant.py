@@ -32,7 +32,7 @@ import numpy as np
 
 from facegeo.colour import luminance
 
-__all__ = ["estimate_illuminant", "remove_cast", "invent_chroma", "chroma", "is_greyscale", "SKIN_CHROMA", "SKIN_LOCUS",
+__all__ = ["estimate_illuminant", "remove_cast", "invent_chroma", "chroma", "SKIN_CHROMA", "SKIN_LOCUS",
            "PLANCKIAN", "SCLERA_CHROMA", "LIPS_CHROMA", "SKIN_SIGMA", "SKIN_TONE_SIGMA", "WHITE_SIGMA", "WHITE_GATE",
            "LIGHT_SIGMA", "TINT_SIGMA", "NEUTRAL_TOLERANCE", "FIRM_FACTOR", "firm_shrinkage"]
 
@@ -80,16 +80,6 @@ def chroma(linear: np.ndarray) -> np.ndarray:
     """(..., 3) linear RGB -> (..., 2) float64 (log R/G, log B/G), values floored at 1e-4."""
     x = np.maximum(np.asarray(linear, np.float64), 1e-4)
     return np.stack([np.log(x[..., 0] / x[..., 1]), np.log(x[..., 2] / x[..., 1])], axis=-1)
-
-
-def is_greyscale(srgb: np.ndarray, tolerance: float = 2.5 / 255.0) -> bool:
-    """True when at least 99 % of the (N, 3) sRGB colours have R, G and B within ``tolerance``
-    of each other (a greyscale photo stored as RGB, JPEG noise allowed)."""
-    srgb = np.asarray(srgb, np.float32).reshape(-1, 3)
-    if len(srgb) == 0:
-        return False
-    spread = srgb.max(axis=1) - srgb.min(axis=1)
-    return float(np.mean(spread <= tolerance)) >= 0.99
 
 
 def estimate_illuminant(skin: np.ndarray, white: np.ndarray | None = None) -> tuple[np.ndarray, dict]:
