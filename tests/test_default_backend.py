@@ -676,7 +676,8 @@ def test_band_noise_has_the_sources_colour_covariance_per_octave():
     """Source: stationary noise with a known colour mixing (so its octaves have covariance ∝ A Aᵀ)
     on the left half; the noise over the right half, far from the seen skin, has the source's
     covariance in each octave between S/256 and S/32 texels, measured the same way (within 15 %;
-    ``strength`` scales it), is 0 outside ``need``, where the seen skin is near and where it is
+    ``strength`` scales it, but not in the octaves finer than ``whole_below``; detail already
+    ``present`` is subtracted), is 0 outside ``need``, where the seen skin is near and where it is
     flat, deterministic, and another seed gives another field. It runs on the half-size grid (S/256 =
     4 texels at 1K) and is upsampled."""
     size = 1024
@@ -705,6 +706,18 @@ def test_band_noise_has_the_sources_colour_covariance_per_octave():
     weaker = band_noise(texture, source, need, position, np.ones((size, size), bool), far, 4.0, 32.0, 0.4, strength=0.35)
     for got, want in zip(_octave_covariances(weaker, need, sigmas), wanted):
         assert np.linalg.norm(got - 0.35 * want) / np.linalg.norm(0.35 * want) < 0.15
+    # the octaves finer than ``whole_below`` keep (nearly: the layers' spectra overlap, and this
+    # spectrum is steep) the whole covariance, the coarser ones ``strength`` of it
+    mixed = band_noise(texture, source, need, position, np.ones((size, size), bool), far, 4.0, 32.0, 0.4, strength=0.35, whole_below=16.0)
+    ratios = [np.trace(got) / np.trace(want) for got, want in zip(_octave_covariances(mixed, need, sigmas), wanted)]
+    assert min(ratios[:2]) > 0.75 and abs(ratios[2] - 0.35) < 0.15 * 0.35
+    # detail already there counts: half the amplitude present (a quarter of the covariance), three quarters added
+    topped = band_noise(texture, source, need, position, np.ones((size, size), bool), far, 4.0, 32.0, 0.4, present=0.5 * out, seed=7)
+    for got, want in zip(_octave_covariances(topped, need, sigmas), wanted):
+        assert np.linalg.norm(got - 0.75 * want) / np.linalg.norm(0.75 * want) < 0.2
+    whole = band_noise(texture, source, need, position, np.ones((size, size), bool), far, 4.0, 32.0, 0.4, present=out)
+    for got, want in zip(_octave_covariances(whole, need, sigmas), wanted):
+        assert np.linalg.norm(got) < 0.25 * np.linalg.norm(want)
     coarse = masked_blur(texture, source, 32.0)
     assert np.abs(out[interior]).std() < 2 * np.abs((texture - coarse)[left]).std()  # only the octaves asked for
     np.testing.assert_array_equal(out, band_noise(texture, source, need, position, np.ones((size, size), bool), far, 4.0, 32.0, 0.4))

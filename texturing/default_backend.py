@@ -103,7 +103,7 @@ from facegeo.texturing.illuminant import chroma, estimate_illuminant, invent_chr
 from facegeo.uv.renderer import light_visibility
 
 __all__ = ["DefaultBackend", "REGION_PRIORS", "pad_outside", "masked_blur", "gaussian_blur", "value_noise", "MAX_GAIN",
-           "GRAZING_GAIN", "QUILT_BLOCK", "QUILT_ENERGY_CAP", "quilted_detail", "band_noise", "gradient_noise", "nonnegative_least_squares", "MID_BAND_COARSEST", "MID_BAND_STRENGTH", "NOISE_CELL_PER_SIGMA", "SPECK_SIGMAS", "SHADOW_TOLERANCE", "SHADOW_EDGE_MM", "HIGHLIGHT_RATIO", "DETAIL_DEPTH_MM", "DETAIL_LIMIT_MM", "SH_TERMS",
+           "GRAZING_GAIN", "QUILT_BLOCK", "QUILT_ENERGY_CAP", "quilted_detail", "band_noise", "gradient_noise", "nonnegative_least_squares", "GRAIN_COARSEST", "MID_BAND_COARSEST", "MID_BAND_STRENGTH", "NOISE_CELL_PER_SIGMA", "SPECK_SIGMAS", "SHADOW_TOLERANCE", "SHADOW_EDGE_MM", "HIGHLIGHT_RATIO", "DETAIL_DEPTH_MM", "DETAIL_LIMIT_MM", "SH_TERMS",
            "DIRECTIONAL_RANGE", "CONTRAST_RANGE", "SHADING_ERROR", "FORESHORTENING", "EDGE_MM", "DETAIL_EDGE_MM", "PAD_FRACTION",
            "SKIN_ALBEDO", "SPECULAR_FLOOR"]
 
@@ -221,15 +221,26 @@ QUILT_BLOCK = 1.0 / 64.0
 #: mark (the contact sheet's astronaut and Grace Hopper); bench_albedo_scans' gradient ratio loses
 #: 0.03 to it.
 QUILT_ENERGY_CAP = 2.5
-#: Coarsest octave of the fill's synthesised mid-band detail, as a fraction of S (32 texels, ~12 mm
-#: at 1K): between the quilted finest band and this, the fill gets noise in octaves with the seen
-#: skin's colour covariance per octave (:func:`band_noise`), the mottling that real skin has.
+#: The fill's noise octaves (:data:`MID_BAND_COARSEST`) finer than this fraction of S (8 texels,
+#: ~3 mm at 1K: the skin's grain) get the seen skin's whole covariance, less what the quilted blocks
+#: already carry there; the coarser ones :data:`MID_BAND_STRENGTH` of it. With all at 0.35 the
+#: filled skin had 0.4 of the seen skin's octave RMS at σ 2–4 and 4–8 texels, now 0.6 (Lee
+#: Perry-Smith even 0°; the blocks, zero-mean under a 16-texel window, carry little of σ 2–4).
+#: bench_albedo_scans, even and hard side views: gradient ratio 0.65–0.80 → 0.72–0.84 (James,
+#: whose unseen scan is beard and hairline), 0.78–1.08 → 0.90–1.14 (Lee Perry-Smith); filled
+#: ΔE2000 −0.11 … +0.07 per view.
+GRAIN_COARSEST = 1.0 / 128.0
+#: Coarsest octave of the fill's synthesised noise (:func:`band_noise`), as a fraction of S (32
+#: texels, ~12 mm at 1K): from the quilted band's edge up to this, the fill gets noise in octaves
+#: with the seen skin's colour covariance per octave, the grain and mottling that real skin has.
 MID_BAND_COARSEST = 1.0 / 32.0
-#: The fill's mid-band noise has this fraction of the seen skin's covariance in each octave: on a
-#: photo the seen skin's octaves hold shading residue and features besides its mottling, and at
-#: 1.0 the contact sheet's astronaut got soft cm-wide blotches over scalp and chest.
-#: bench_albedo_scans (even 0°/−40°, hard side 0°/+40°): Lee Perry-Smith's gradient ratio 0.80–1.11
-#: at 0.35 and 0.87–1.15 at 1.0 (0.74–1.09 without), filled ΔE2000 +0.1–0.4 and +0.3–0.5.
+#: The fill's noise has this fraction of the seen skin's covariance in each octave coarser than
+#: :data:`GRAIN_COARSEST`: on a photo the seen skin's octaves hold shading residue and features
+#: besides its mottling, and at 1.0 the contact sheet's astronaut got soft cm-wide blotches over
+#: scalp and chest.
+#: bench_albedo_scans (even 0°/−40°, hard side 0°/+40°; the noise then from S/256, all at this
+#: share): Lee Perry-Smith's gradient ratio 0.80–1.11 at 0.35 and 0.87–1.15 at 1.0 (0.74–1.09
+#: without), filled ΔE2000 +0.1–0.4 and +0.3–0.5.
 MID_BAND_STRENGTH = 0.35
 #: Lattice of each octave's gradient noise in :func:`band_noise`, in units of the octave's finer σ
 #: (a difference of Gaussians σ–2σ peaks at a wavelength of ~6.5σ; gradient noise at ~1.5–2 cells).
@@ -510,9 +521,10 @@ def nonnegative_least_squares(a: np.ndarray, b: np.ndarray) -> np.ndarray:
 
 def band_noise(log_rgb: np.ndarray, source: np.ndarray, need: np.ndarray, position_mm: np.ndarray, cover: np.ndarray,
                outside: np.ndarray, finest: float, coarsest: float, texel_mm: float, strength: float = 1.0,
-               seed: int = 0) -> np.ndarray:
+               whole_below: float = 0.0, present: np.ndarray | None = None, seed: int = 0) -> np.ndarray:
     """Colour noise (S, S, 3) float32 over ``need`` (S, S) bool with ``strength`` × the octave
-    statistics of ``log_rgb`` (S, S, 3) on ``source`` (S, S) bool: for each octave of Gaussian σ
+    statistics of ``log_rgb`` (S, S, 3) on ``source`` (S, S) bool (the whole statistics in the
+    octaves whose finer σ is below ``whole_below`` texels): for each octave of Gaussian σ
     from ``finest`` to ``coarsest`` texels (differences of Gaussians), the 3 × 3 covariance over
     the source's places whose local energy in that octave is at most :data:`QUILT_ENERGY_CAP` ×
     the median place's (the skin's mottling, not a fold, a shadow's edge or a hairline). The noise
@@ -525,9 +537,12 @@ def band_noise(log_rgb: np.ndarray, source: np.ndarray, need: np.ndarray, positi
     squares), each faded in over 2σ texels of ``outside`` (S, S), the distance in texels from the
     seen skin, whose octave the fill's base still holds there. Computed on a grid coarser by the
     power of two that leaves ``finest`` ≥ 2 of its texels (each layer on one as coarse as its
-    lattice allows), then upsampled bilinearly. 0 outside ``need`` and where ``source`` has fewer
-    than 100 texels; deterministic for a given ``seed``. (By hand: no library synthesises noise
-    with a given colour covariance per octave on a surface.)"""
+    lattice allows), then upsampled bilinearly. ``present`` (S, S, 3), detail already on ``need``
+    (the quilted blocks), counts towards each octave: its covariance there is subtracted from the
+    wanted one (the nearest covariance where that leaves a negative part), so the noise adds what
+    it lacks. 0 outside ``need`` and where ``source`` has fewer than 100 texels; deterministic for
+    a given ``seed``. (By hand: no library synthesises noise with a given colour covariance per
+    octave on a surface.)"""
     size = log_rgb.shape[0]
     out = np.zeros(log_rgb.shape, np.float32)
     if source.sum() < 100 or not need.any():
@@ -562,6 +577,16 @@ def band_noise(log_rgb: np.ndarray, source: np.ndarray, need: np.ndarray, positi
         local = masked_blur((band * band).sum(-1), solid, 2.0 * sigmas[k + 1])
         calm = solid & (local <= QUILT_ENERGY_CAP * np.median(local[solid]))
         wanted[k] = np.cov(band[calm].astype(np.float64).T)
+    target = np.where(np.array(sigmas[:-1])[:, None, None] * factor < whole_below, 1.0, strength) * wanted
+    if present is not None:  # the detail already there counts towards each octave: the noise adds what it lacks
+        have, have_w = down(present.astype(np.float32), need, small)
+        inside = have_w > 0.99
+        if inside.sum() >= 100:
+            have_blurred = [masked_blur(have, have_w, s) for s in sigmas]
+            for k in range(count):
+                target[k] -= np.cov((have_blurred[k] - have_blurred[k + 1])[inside].astype(np.float64).T)
+            values, vectors = np.linalg.eigh(target)  # the nearest covariances (negative parts: more than the source's)
+            target = (vectors * np.clip(values, 0.0, None)[:, None, :]) @ vectors.transpose(0, 2, 1)
     # one independent noise layer per octave (3 channels each), unit variance over ``need``
     area = cover_w > 0.5
     layers = []
@@ -582,16 +607,17 @@ def band_noise(log_rgb: np.ndarray, source: np.ndarray, need: np.ndarray, positi
         layers.append(layer / np.maximum(layer[need_small].std(0), 1e-12))
     # the spectra overlap, so octave k measured on layer j holds a part V_kj of its variance
     firsts = np.stack([layer[..., 0] for layer in layers], axis=-1)  # one channel of each layer (all three alike)
-    measured = [masked_blur(firsts, area, sigmas[k]) - masked_blur(firsts, area, sigmas[k + 1]) for k in range(count)]
+    firsts_blurred = [masked_blur(firsts, area, s) for s in sigmas]
+    measured = [firsts_blurred[k] - firsts_blurred[k + 1] for k in range(count)]
     leak = np.array([[float(np.var(measured[k][..., j][need_small])) for j in range(count)] for k in range(count)])
     # layer j takes octave j's colour covariance at a power t_j with Σ_j V_kj t_j ≈ octave k's
     # variance (relative least squares, t ≥ 0: a steep spectrum cannot be met exactly)
-    variance = np.trace(wanted, axis1=1, axis2=2)
-    if variance.max() <= 1e-12:  # flat seen skin: no mottling to give
+    variance = np.trace(target, axis1=1, axis2=2)
+    if variance.max() <= 1e-12:  # flat seen skin, or all its octaves already there: nothing to give
         return out
     weight = 1.0 / np.maximum(variance, 1e-3 * variance.max())
     scale = nonnegative_least_squares(leak * weight[:, None], variance * weight)
-    power = (scale / np.maximum(variance, 1e-12))[:, None, None] * wanted * strength  # t_j × the octave's covariance of trace 1
+    power = (scale / np.maximum(variance, 1e-12))[:, None, None] * target  # t_j × the octave's covariance of trace 1
     total = np.zeros(log_small.shape, np.float32)
     for j, (layer, p) in enumerate(zip(layers, power)):
         values, vectors = np.linalg.eigh((p + p.T) / 2)
@@ -974,7 +1000,8 @@ class DefaultBackend:
         that was reliably seen, and where not, blocks of the reliably seen skin's finest detail
         (above ~S · ``detail_sigma_fraction`` texels⁻¹: pores, stubble; :func:`quilted_detail`)
         plus, away from the seen skin, the octaves above it up to :data:`MID_BAND_COARSEST` × S
-        texels as :func:`band_noise` (the skin's mottling, which the fill's smooth base lacks), or
+        texels as :func:`band_noise` (the skin's grain and mottling, which the fill's smooth base
+        lacks, less what the blocks carry), or
         3-D value noise of the model-space position with the seen skin's contrast where no whole
         block was seen; in the seen region's edge, where the texel's own detail fades out, the
         same mix fades in. Also the mirror's weight (S, S) and that contrast. ``inner``:
@@ -999,10 +1026,10 @@ class DefaultBackend:
             fine = np.where(seen[..., None], log_seen - masked_blur(log_seen, seen, max(1.0, size * self.detail_sigma_fraction)), 0.0)
             source = seen & _skin(ctx) & (reliable > 0.99) & (inner > DETAIL_EDGE_MM)
             synthesised = quilted_detail(fine, source, need)
-            if synthesised is not None:  # and the octaves above it: the skin's mottling
+            if synthesised is not None:  # and the noise's octaves: the skin's grain and mottling
                 synthesised += band_noise(log_seen, source, need & ~seen, ctx.position, cover, _euclidean_distance(~seen),
                                           max(1.0, size * self.detail_sigma_fraction), size * MID_BAND_COARSEST, ctx.median_texel_mm,
-                                          MID_BAND_STRENGTH)
+                                          MID_BAND_STRENGTH, whole_below=size * GRAIN_COARSEST, present=synthesised)
         if synthesised is None:  # no whole block of reliable skin was seen: value noise with its contrast
             noise = np.zeros(cover.shape, np.float32)
             if need.any() and amp > 0:
