@@ -259,6 +259,27 @@ def test_an_occluders_fringe_is_filled_and_the_same_colour_inside_the_face_kept(
     assert np.median(lum[mark]) < 0.5 * np.median(lum[around])  # the face's own mark is kept
 
 
+def test_in_a_greyscale_photo_dark_hair_anywhere_on_the_face_is_filled():
+    """The same strands and mark in a greyscale photo: without chroma the photo's skin mask lets
+    a sideburn or a hairline through anywhere (the cameraman's), so a de-lit colour beyond the
+    seen skin's is taken out wherever it is seen, the mark in the middle of the face included."""
+    size = 128
+    ctx = hemisphere_context(size)
+    rng = np.random.default_rng(3)
+    truth = np.float32(0.3) * np.exp(0.03 * rng.normal(size=(size, size, 1))).astype(np.float32).repeat(3, axis=-1)
+    row = np.arange(size)[:, None].repeat(size, 1)
+    column = np.arange(size)[None, :].repeat(size, 0)
+    seen = (row >= 40) & ctx.coverage
+    mark = (np.abs(row - 80) < 3) & (np.abs(column - 64) < 3)
+    photo = np.where(mark[..., None], np.float32(0.025), truth)
+    backend = DefaultBackend()
+    out = srgb_to_linear(backend.homogenise(backend.inpaint(linear_to_srgb(photo) * seen[..., None], seen.astype(np.float32), ctx), ctx))
+    lum = luminance(out)
+    around = ctx.coverage & (np.abs(row - 80) < 10) & (np.abs(column - 64) < 10) & ~mark
+    assert backend.report["illuminant"]["greyscale"]
+    assert np.median(lum[mark]) > 0.9 * np.median(lum[around])
+
+
 def test_inpaint_with_nothing_visible_falls_back_to_the_model_colour():
     ctx = hemisphere_context(64)
     full = DefaultBackend().inpaint(np.zeros((64, 64, 3), np.float32), np.zeros((64, 64), np.float32), ctx)

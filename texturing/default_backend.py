@@ -39,7 +39,8 @@ Colour textures are sRGB in [0, 1], float32, S × S, image-style rows (see
 * **An occluder's fringe** (:meth:`DefaultBackend._occluder_fringe`): seen skin within
   :data:`FRINGE_MM` of the unseen whose de-lit colour the reliably seen skin's robust Gaussian
   (log RGB) puts beyond its :data:`FRINGE_SIGNIFICANCE` χ² quantile is what the photo's mask let
-  through at its edge (a sideburn's last strands, a frame's rim) and is treated as unseen too.
+  through at its edge (a sideburn's last strands, a frame's rim) and is treated as unseen too; in
+  a greyscale photo, whose mask has no chroma to keep hair out, wherever it is seen.
 * **The light's colour** (:mod:`facegeo.texturing.illuminant`): estimated from the reliably seen
   skin's mean chroma (the skin locus) and the photo's white references (sclera, teeth:
   ``ctx.white_reference``) and divided out of the whole map, luminance kept. A greyscale photo
@@ -637,6 +638,7 @@ class _Analysis:
     highlight: np.ndarray
     weight: np.ndarray  # visibility × (1 − highlight): how much of each texel is kept as seen
     specular: np.ndarray  # the skin's specular reflection in de-lit units (white after the light's colour is removed)
+    greyscale: bool  # the seen texels are grey (:func:`facegeo.colour.is_greyscale`)
 
 
 @dataclass
@@ -739,10 +741,13 @@ class DefaultBackend:
         highlight = np.clip((ratio - lo) / (hi - lo), 0.0, 1.0) * (w > 0)
         highlight = np.clip(gaussian_blur(highlight, max(1.0, size / 512.0)) * 2.0, 0.0, 1.0) * cover
         kept = w * (1.0 - highlight)
-        fringe = self._occluder_fringe(lin, shading, w, inner, fit_mask, ctx) if n_fit >= 100 else None
+        seen = (w > 0.5) & cover
+        greyscale = bool(seen.any()) and is_greyscale(linear_to_srgb(lin[seen]))
+        # without chroma a dark sideburn or hairline passes the photo's skin mask anywhere on the face
+        fringe = self._occluder_fringe(lin, shading, w, inner, fit_mask, ctx, np.inf if greyscale else FRINGE_MM) if n_fit >= 100 else None
         if fringe is not None:
             kept = kept * (1.0 - fringe)
-        analysis = _Analysis(shading, highlight.astype(np.float32), kept.astype(np.float32), specular)
+        analysis = _Analysis(shading, highlight.astype(np.float32), kept.astype(np.float32), specular, greyscale)
         self._analysis = (ctx, analysis)
         if light is not None:
             self.report["light"] = light
@@ -760,15 +765,16 @@ class DefaultBackend:
 
     @staticmethod
     def _occluder_fringe(lin: np.ndarray, shading: np.ndarray, w: np.ndarray, inner: np.ndarray, fit_mask: np.ndarray,
-                         ctx: TextureContext) -> np.ndarray:
+                         ctx: TextureContext, reach: float) -> np.ndarray:
         """(S, S) float32 in [0, 1]: 1 on the seen skin's texels (``w`` (S, S) > 0) within
-        :data:`FRINGE_MM` (``inner``: :meth:`_inner_distance` of ``w > 0.5``, mm) of a texel not
+        ``reach`` mm (``inner``: :meth:`_inner_distance` of ``w > 0.5``, mm) of a texel not
         seen whose de-lit colour (``lin`` (S, S, 3) linear RGB over ``shading`` (S, S)) is not
         skin's: its log RGB beyond the :data:`FRINGE_SIGNIFICANCE` χ² quantile of a robust
         Gaussian of the reliably seen skin (``fit_mask`` (S, S) bool) farther inside, feathered over
         S/512 texels. A mask's edge lets through the fringe of what it masks (a sideburn's last
         strands, a frame's rim), stretched over many texels where the surface turns away; inside
-        the seen region the same colours are the face's own (a mole, a beard) and are kept."""
+        the seen region the same colours are the face's own (a mole, a beard) and are kept, except
+        in a greyscale photo (``reach`` = ∞), whose skin mask had no chroma to keep hair out."""
         def log_delit(rows: np.ndarray) -> np.ndarray:
             return np.log(np.maximum(lin.reshape(-1, 3)[rows] / shading.reshape(-1)[rows, None], 1e-4))
 
@@ -776,7 +782,7 @@ class DefaultBackend:
         if len(source) < 100:
             return np.zeros(w.shape, np.float32)
         mean, cov = robust_gaussian(log_delit(_subsample(source, FRINGE_SAMPLES)))
-        near = np.flatnonzero(((w > 0) & _skin(ctx) & (inner < FRINGE_MM)).ravel())
+        near = np.flatnonzero(((w > 0) & _skin(ctx) & (inner < reach)).ravel())
         outlier = np.zeros(w.shape, np.float32)
         outlier.reshape(-1)[near] = mahalanobis_squared(log_delit(near), mean, cov) > chi2_quantile(FRINGE_SIGNIFICANCE, 3)
         return np.clip(gaussian_blur(outlier, max(1.0, ctx.size / 512.0)) * 2.0, 0.0, 1.0).astype(np.float32)
@@ -895,7 +901,7 @@ class DefaultBackend:
         # de-lit texels are trusted less and the fill takes over (below: (1 - reliable) · fill)
         reliable = self._reliability(w, inner, ctx) * self._shading_confidence(an.shading, ctx)
         notes: list[str] = []
-        greyscale = is_greyscale(T_inc[seen & cover]) if (seen & cover).any() else False
+        greyscale = an.greyscale
         # the light's colour: from the reliably seen skin and the photo's white references
         light = np.zeros(2)
         skin_weight = reliable * skin
