@@ -554,6 +554,33 @@ def test_directional_light_and_its_cast_shadows_are_fitted_and_removed(face_cont
     assert abs(np.median(np.log(lum[shadowed])) - np.median(np.log(lum[skin & lit]))) < 0.15
 
 
+def test_clipped_texels_are_left_out_of_the_light_fit(face_context, monkeypatch):
+    """The same hard light over-exposed 5×: half the seen skin has a channel at the 8-bit ceiling,
+    where the photo gives only a lower bound. Left out of the fit, the light comes back (ambient /
+    light 0.08, direction within 2°); taken as measurements (CLIPPED_LEVEL out of reach) they
+    flatten the lit side's shading and the fit puts the difference into the ambient and the angle."""
+    ctx = face_context
+    cover = ctx.coverage
+    light, lit = _hard_side_light(ctx)
+    shading = 0.08 + np.maximum(ctx.normal_camera @ light, 0.0) * lit
+    albedo = np.array([0.45, 0.3, 0.24], np.float32)
+    photo = linear_to_srgb(np.clip(np.where(cover[..., None], 5.0 * albedo * shading[..., None], 0.0), 0.0, 1.0)).astype(np.float32)
+
+    def fitted():
+        backend = DefaultBackend(skin_albedo=None)
+        backend.analyse(photo, np.ones(cover.shape, np.float32), ctx)
+        direction = np.array(backend.report["light"]["direction"])
+        angle = np.degrees(np.arccos(np.clip(direction @ light, -1, 1)))
+        return backend.report["light"]["ambient_over_light"], angle, backend.report["analyse"]["clipped_fraction_of_seen_skin"]
+
+    ambient, angle, clipped = fitted()
+    assert clipped > 0.4
+    assert ambient == pytest.approx(0.08, abs=0.01) and angle < 2.0
+    monkeypatch.setattr("facegeo.texturing.default_backend.CLIPPED_LEVEL", 2.0)
+    ambient, angle, clipped = fitted()
+    assert clipped == 0.0 and (abs(ambient - 0.08) > 0.03 or angle > 4.0)
+
+
 def test_a_misplaced_shadow_edge_is_taken_out_and_a_beard_far_from_one_kept(face_context, monkeypatch):
     """The hard light's cast shadows rendered 2 texels (~3 mm) off from where the posed mesh puts
     them, and a dark patch (−0.6 in log albedo: a beard) on lit skin far from any shadow's edge:
