@@ -8,6 +8,7 @@ from facegeo.colour import linear_to_srgb, luminance, srgb_to_linear
 from facegeo.lighting import sh_irradiance
 from facegeo.texturing.backend import TextureBackend, TextureContext
 from facegeo.texturing.default_backend import (
+    CLIPPED_LEVEL,
     CONTRAST_RANGE,
     DIRECTIONAL_RANGE,
     FRINGE_MM,
@@ -21,6 +22,7 @@ from facegeo.texturing.default_backend import (
     masked_blur,
     pad_outside,
     quilted_detail,
+    restore_clipped,
     value_noise,
 )
 
@@ -552,6 +554,29 @@ def test_directional_light_and_its_cast_shadows_are_fitted_and_removed(face_cont
     assert spread[1] - spread[0] < 0.35  # was > 2 (the shadowed side and the nose's shadow)
     shadowed = skin & ~lit
     assert abs(np.median(np.log(lum[shadowed])) - np.median(np.log(lum[skin & lit]))) < 0.15
+
+
+def test_a_clipped_channel_is_restored_from_the_skins_colour_around_it():
+    """Skin of one chroma under a brightness ramp, over-exposed so that red clips first, then all
+    three: where only red is at the ceiling it comes back from green and blue and the unclipped
+    skin's ratios (within 1 %); where all three are, nothing is known and the texel is left as it
+    is; no channel is lowered, and a map without clipping is returned as it is."""
+    size = 128
+    colour = np.array([0.9, 0.6, 0.5], np.float32)
+    ramp = np.linspace(0.3, 2.2, size, dtype=np.float32)[None, :, None].repeat(size, 0)
+    truth = colour * ramp
+    ceiling = srgb_to_linear(np.float32(CLIPPED_LEVEL))
+    photo = np.minimum(truth, 1.0)
+    valid = np.ones((size, size), bool)
+    out = restore_clipped(photo, valid, size)
+    red_only = (truth[..., 0] >= ceiling) & (truth[..., 1:] < ceiling).all(-1)
+    every = (truth >= 1.0).all(-1)
+    assert red_only.sum() > 100 and every.sum() > 100
+    np.testing.assert_allclose(out[red_only], truth[red_only], rtol=0.01)
+    np.testing.assert_array_equal(out[every], photo[every])
+    assert np.all(out >= photo)
+    dim = np.minimum(truth * 0.3, 1.0)
+    assert restore_clipped(dim, valid, size) is dim
 
 
 def test_clipped_texels_are_left_out_of_the_light_fit(face_context, monkeypatch):
