@@ -454,21 +454,30 @@ def _push_pull(values: np.ndarray, weight: np.ndarray, size: int, finest: float,
 def restore_clipped(lin: np.ndarray, valid: np.ndarray, size: int) -> np.ndarray:
     """(S, S, 3) linear RGB ``lin`` with each clipped channel (at or above :data:`CLIPPED_LEVEL`)
     raised to what the texel's unclipped channels imply under the local colour ratios of the
-    unclipped ``valid`` (S, S) bool texels (log RGB extended by :func:`_push_pull` down to S/128
-    texels: a clipped cheek takes the chroma of the skin around it), never lowered; texels with
-    every channel clipped, and a map without unclipped valid texels, are left as they are. (As a
-    raw converter's highlight reconstruction by colour propagation; no library here does it.)"""
+    unclipped ``valid`` (S, S) bool texels (their mean colour on a grid 4× coarser, in log RGB
+    extended by :func:`_push_pull` down to S/128 texels: a clipped cheek takes the chroma of the
+    skin around it), never lowered; texels with every channel clipped, and a map without
+    unclipped valid texels, are left as they are. (As a raw converter's highlight reconstruction
+    by colour propagation; no library here does it.)"""
     clipped = lin >= srgb_to_linear(np.float32(CLIPPED_LEVEL))
-    partly = clipped.any(axis=-1) & ~clipped.all(axis=-1)
-    free = valid & ~clipped.any(axis=-1)
-    if not partly.any() or free.sum() < 10:
+    count = clipped.sum(axis=-1)
+    rows, cols = np.nonzero((count > 0) & (count < 3))
+    free = valid & (count == 0)
+    if len(rows) == 0 or free.sum() < 10:
         return lin
-    log = np.log(np.maximum(lin, 1e-4))
-    mean = log[free].mean(axis=0)
-    ref = _push_pull(log, free.astype(np.float32), size, size / 128.0, mean)
+    grid = (max(1, size // 4), max(1, size // 4))
+    weight = cv2.resize(free.astype(np.float32), grid, interpolation=cv2.INTER_AREA)
+    local = cv2.resize(lin * free[..., None], grid, interpolation=cv2.INTER_AREA) / np.maximum(weight, 1e-6)[..., None]
+    log_local = np.log(np.maximum(local, 1e-4))
+    mean = np.log(np.maximum(lin[free].mean(axis=0), 1e-4))
+    ref = cv2.resize(_push_pull(log_local, weight, grid[0], grid[0] / 128.0, mean), (lin.shape[1], lin.shape[0]),
+                     interpolation=cv2.INTER_LINEAR)[rows, cols]
     # the reference's level moved onto the texel's unclipped channels (the mean log offset over them)
-    offset = np.where(clipped, 0.0, log - ref).sum(axis=-1, keepdims=True) / np.maximum((~clipped).sum(axis=-1, keepdims=True), 1)
-    return np.where(clipped & partly[..., None], np.maximum(lin, np.exp(ref + offset)), lin).astype(np.float32)
+    value, cut = lin[rows, cols], clipped[rows, cols]
+    offset = np.where(cut, 0.0, np.log(np.maximum(value, 1e-4)) - ref).sum(axis=-1, keepdims=True) / (~cut).sum(axis=-1, keepdims=True)
+    out = lin.copy()
+    out[rows, cols] = np.where(cut, np.maximum(value, np.exp(ref + offset)), value)
+    return out
 
 
 def quilted_detail(detail: np.ndarray, source: np.ndarray, need: np.ndarray, seed: int = 0) -> np.ndarray | None:
