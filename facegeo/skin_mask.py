@@ -473,4 +473,3 @@ def vertex_regions(model: MorphableModel) -> dict[str, np.ndarray]:
     for name in ("forehead", "nose", "cheeks", "chin"):
         masks[name] = masks[name] * (1 - features)
     return {name: (m * face).astype(np.float32) for name, m in masks.items()}
-

@@ -707,10 +707,11 @@ class DefaultBackend:
     def analyse(self, T_inc: np.ndarray, M_vis: np.ndarray, ctx: TextureContext) -> _Analysis:
         """Shading, highlights and kept weight of a photo texture (module docstring); cached for
         ``ctx`` until the next call."""
-        return self._analyse(srgb_to_linear(T_inc), M_vis, ctx)
+        return self._analyse(T_inc, srgb_to_linear(T_inc), M_vis, ctx)
 
-    def _analyse(self, lin: np.ndarray, M_vis: np.ndarray, ctx: TextureContext) -> _Analysis:
-        """:meth:`analyse` of the texture already linearised: ``lin`` (S, S, 3) float32 linear RGB."""
+    def _analyse(self, T_inc: np.ndarray, lin: np.ndarray, M_vis: np.ndarray, ctx: TextureContext) -> _Analysis:
+        """:meth:`analyse` of the texture ``T_inc`` (S, S, 3) sRGB already linearised: ``lin`` (S, S, 3)
+        float32 linear RGB."""
         cover = ctx.coverage
         size = ctx.size
         w = np.clip(M_vis, 0.0, 1.0).astype(np.float32) * cover
@@ -784,7 +785,8 @@ class DefaultBackend:
         highlight = np.clip(gaussian_blur(highlight, max(1.0, size / 512.0)) * 2.0, 0.0, 1.0) * cover
         kept = w * (1.0 - highlight)
         seen = (w > 0.5) & cover
-        greyscale = bool(seen.any()) and is_greyscale(linear_to_srgb(lin[seen]))
+        seen_skin = seen & _skin(ctx)
+        greyscale = bool(seen.any()) and is_greyscale(T_inc[seen])
         # without chroma a dark sideburn or hairline passes the photo's skin mask anywhere on the face
         fringe = self._occluder_fringe(lin, shading, w, inner, fit_mask, ctx, np.inf if greyscale else FRINGE_MM) if n_fit >= 100 else None
         if fringe is not None:
@@ -800,9 +802,9 @@ class DefaultBackend:
             "delighting_strength": strength,
             "gain_p05_p95": [float(x) for x in np.percentile(1.0 / shading[fit_mask], [5, 95])] if n_fit else [1.0, 1.0],
             "highlight_fraction_of_seen_skin": float(highlight[fit_mask].mean()) if n_fit else 0.0,
-            "clipped_fraction_of_seen_skin": float(clipped[(w > 0.5) & _skin(ctx)].mean()) if ((w > 0.5) & _skin(ctx)).any() else 0.0,
+            "clipped_fraction_of_seen_skin": float(clipped[seen_skin].mean()) if seen_skin.any() else 0.0,
             "specular_fraction_of_seen_skin": specular_share,
-            "occluder_fringe_fraction_of_seen_skin": float(fringe[(w > 0.5) & _skin(ctx)].mean()) if fringe is not None else 0.0,
+            "occluder_fringe_fraction_of_seen_skin": float(fringe[seen_skin].mean()) if fringe is not None else 0.0,
         }
         return analysis
 
@@ -933,7 +935,7 @@ class DefaultBackend:
         photo's lighting (the estimated shading and light colour applied to the filled albedo)."""
         cover = ctx.coverage
         lin = srgb_to_linear(T_inc)
-        an = self._analyse(lin, M_vis, ctx)
+        an = self._analyse(T_inc, lin, M_vis, ctx)
         w = an.weight
         skin = _skin(ctx)
         seen = w > 0.5
