@@ -646,6 +646,38 @@ def test_a_misplaced_shadow_edge_is_taken_out_and_a_beard_far_from_one_kept(face
     assert np.median(with_dips[beard]) - skin_level == pytest.approx(-0.6, abs=0.1)
 
 
+def test_the_fill_takes_its_tone_from_the_lit_skin_not_the_shadowed_fringe(face_context, monkeypatch):
+    """A constant albedo under the hard light whose ambient is 0.08 on the lit side and 0.03 on the
+    shadowed one (the head occludes its environment there): one ambient term cannot explain both,
+    and the seen band beyond the terminator de-lights ~0.3–0.5 (log) darker than the lit skin.
+    The skin hidden past that band takes the lit skin's tone (within 0.2); with the ambient's
+    error taken as nil (AMBIENT_LOG_ERROR = 0: every seen texel the fill's data at its
+    reliability) it takes the band's (0.40 darker)."""
+    import facegeo.texturing.default_backend as backend_module
+
+    ctx = face_context
+    cover = ctx.coverage
+    light, lit = _hard_side_light(ctx)
+    n_dot_l = ctx.normal_camera @ light
+    shading = np.where(n_dot_l > 0, 0.08, 0.03) + np.maximum(n_dot_l, 0.0) * lit
+    albedo = np.array([0.45, 0.3, 0.24], np.float32)
+    photo = linear_to_srgb(np.where(cover[..., None], albedo * shading[..., None], 0.0)).astype(np.float32)
+    seen = cover & (n_dot_l > -0.35)
+    skin = cover & (ctx.skin > 0.5) & (ctx.normal_camera[..., 2] > 0.0)
+    hidden = skin & ~seen & (n_dot_l < -0.45)
+    assert hidden.sum() > 1000
+
+    def hidden_tone() -> float:
+        backend = DefaultBackend(skin_albedo=None)
+        out = srgb_to_linear(backend.homogenise(backend.inpaint(photo, seen.astype(np.float32), ctx), ctx))[..., 1]
+        assert "light" in backend.report
+        return float(np.median(np.log(out[hidden])) - np.median(np.log(out[skin & seen & (n_dot_l > 0.3)])))
+
+    assert abs(hidden_tone()) < 0.2  # (−0.11)
+    monkeypatch.setattr(backend_module, "AMBIENT_LOG_ERROR", 0.0)
+    assert hidden_tone() < -0.3  # (−0.40)
+
+
 def test_even_light_uses_no_light_model(face_context):
     ctx = face_context
     cover = ctx.coverage
