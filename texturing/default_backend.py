@@ -193,12 +193,12 @@ SHADOW_EDGE_MM = 6.0
 #: render's. A seen texel's de-lit log-albedo is off by its ambient share of the shading times that.
 AMBIENT_LOG_ERROR = 0.7
 #: The de-lit error (log) at which a seen texel's weight as the fill's data is halved: under the
-#: directional model the fill's base weights each texel by 1 / (1 + (ambient share ·
+#: directional model the fill's base weights each texel by 1 / (1 + (strength · ambient share ·
 #: :data:`AMBIENT_LOG_ERROR` / this)²), so that the filled skin takes its tone from the lit skin, not
 #: from the shadowed fringe the skin mask left in. bench_albedo_scans, filled ΔE2000 of the hard side
 #: views 0° / −40° / +40°: Lee Perry-Smith 4.58 / 4.54 / 4.21 -> 4.15 / 3.72 / 4.04; James (whose
 #: colour map has the scanner's light baked in: his shadowed fringe is darker in the truth too)
-#: 10.74 / 11.98 / 7.92 -> 11.36 / 11.48 / 7.92; seen skin within 0.05. A ratio of 4 or 8 in place
+#: 10.74 / 11.98 / 7.92 -> 11.36 / 11.48 / 7.92; seen skin within 0.1. A ratio of 4 or 8 in place
 #: of 7: Lee Perry-Smith 4.26 / 3.54 / 4.18 and 4.14 / 3.79 / 3.99.
 FILL_TONE_TOLERANCE = 0.1
 #: (start, full): a texel is a highlight where its de-lit luminance exceeds its neighbourhood's by these ratios.
