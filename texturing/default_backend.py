@@ -432,6 +432,19 @@ def _subsample(rows: np.ndarray, limit: int = 65536) -> np.ndarray:
     return rows if len(rows) <= limit else rows[:: int(np.ceil(len(rows) / limit))]
 
 
+def _clipped_ceiling() -> np.float32:
+    """The linear value of :data:`CLIPPED_LEVEL`: a channel at or above it is clipped."""
+    return srgb_to_linear(np.float32(CLIPPED_LEVEL))
+
+
+def _area_mean(image: np.ndarray, weight: np.ndarray, grid: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]:
+    """``image`` (H, W, C) float32 averaged over ``weight`` (H, W) onto ``grid`` (OpenCV's area
+    resampling), and the weight's own average (grid)."""
+    w = cv2.resize(weight.astype(np.float32), grid, interpolation=cv2.INTER_AREA)
+    x = cv2.resize(image * weight[..., None], grid, interpolation=cv2.INTER_AREA) / np.maximum(w, 1e-6)[..., None]
+    return x, w
+
+
 def _channel_max(rgb: np.ndarray) -> np.ndarray:
     """(..., 3) -> (..., 1): the largest channel (``rgb.max(axis=-1, keepdims=True)``, without
     NumPy's slow reduction over a length-3 axis)."""
@@ -477,15 +490,14 @@ def restore_clipped(lin: np.ndarray, valid: np.ndarray, size: int) -> np.ndarray
     skin around it), never lowered; texels with every channel clipped, and a map without
     unclipped valid texels, are left as they are. (As a raw converter's highlight reconstruction
     by colour propagation; no library here does it.)"""
-    clipped = lin >= srgb_to_linear(np.float32(CLIPPED_LEVEL))
+    clipped = lin >= _clipped_ceiling()
     count = clipped.sum(axis=-1)
     rows, cols = np.nonzero((count > 0) & (count < 3))
     free = valid & (count == 0)
     if len(rows) == 0 or free.sum() < 10:
         return lin
     grid = (max(1, size // 4), max(1, size // 4))
-    weight = cv2.resize(free.astype(np.float32), grid, interpolation=cv2.INTER_AREA)
-    local = cv2.resize(lin * free[..., None], grid, interpolation=cv2.INTER_AREA) / np.maximum(weight, 1e-6)[..., None]
+    local, weight = _area_mean(lin, free, grid)
     log_local = np.log(np.maximum(local, 1e-4))
     mean = np.log(np.maximum(lin[free].mean(axis=0), 1e-4))
     ref = cv2.resize(_push_pull(log_local, weight, grid[0], grid[0] / 128.0, mean), (lin.shape[1], lin.shape[0]),
@@ -612,14 +624,8 @@ def band_noise(log_rgb: np.ndarray, source: np.ndarray, need: np.ndarray, positi
         factor *= 2
     small = (size // factor, size // factor)
 
-    def down(image: np.ndarray, weight: np.ndarray, grid: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]:
-        """``image`` (H, W, 3) averaged over ``weight`` (H, W) onto ``grid``, and the weight's own average."""
-        w = cv2.resize(weight.astype(np.float32), grid, interpolation=cv2.INTER_AREA)
-        x = cv2.resize(image * weight[..., None], grid, interpolation=cv2.INTER_AREA) / np.maximum(w, 1e-6)[..., None]
-        return x, w
-
-    log_small, source_w = down(log_rgb.astype(np.float32), source, small)
-    position, cover_w = down(position_mm.astype(np.float32), cover, small)
+    log_small, source_w = _area_mean(log_rgb.astype(np.float32), source, small)
+    position, cover_w = _area_mean(position_mm.astype(np.float32), cover, small)
     need_small = cv2.resize(need.astype(np.float32), small, interpolation=cv2.INTER_AREA) > 0.5
     outside_small = cv2.resize(outside.astype(np.float32), small, interpolation=cv2.INTER_AREA) / factor
     solid = source_w > 0.99
@@ -630,21 +636,23 @@ def band_noise(log_rgb: np.ndarray, source: np.ndarray, need: np.ndarray, positi
         sigmas.append(min(2.0 * sigmas[-1], coarsest / factor))
     count = len(sigmas) - 1
 
-    blurred = [masked_blur(log_small, source_w, s) for s in sigmas]
+    def octaves(image: np.ndarray, weight: np.ndarray) -> list[np.ndarray]:
+        """``image``'s differences of Gaussians (masked by ``weight``) between consecutive ``sigmas``."""
+        blurred = [masked_blur(image, weight, s) for s in sigmas]
+        return [blurred[k] - blurred[k + 1] for k in range(count)]
+
     wanted = np.empty((count, 3, 3))  # each octave's covariance over the source's places that are not busy
-    for k in range(count):
-        band = blurred[k] - blurred[k + 1]
+    for k, band in enumerate(octaves(log_small, source_w)):
         local = masked_blur((band * band).sum(-1), solid, 2.0 * sigmas[k + 1])
         calm = solid & (local <= QUILT_ENERGY_CAP * np.median(local[solid]))
         wanted[k] = np.cov(band[calm].astype(np.float64).T)
     target = np.where(np.array(sigmas[:-1])[:, None, None] * factor < whole_below, 1.0, strength) * wanted
     if present is not None:  # the detail already there counts towards each octave: the noise adds what it lacks
-        have, have_w = down(present.astype(np.float32), need, small)
+        have, have_w = _area_mean(present.astype(np.float32), need, small)
         inside = have_w > 0.99
         if inside.sum() >= 100:
-            have_blurred = [masked_blur(have, have_w, s) for s in sigmas]
-            for k in range(count):
-                target[k] -= np.cov((have_blurred[k] - have_blurred[k + 1])[inside].astype(np.float64).T)
+            for k, band in enumerate(octaves(have, have_w)):
+                target[k] -= np.cov(band[inside].astype(np.float64).T)
             values, vectors = np.linalg.eigh(target)  # the nearest covariances (negative parts: more than the source's)
             target = (vectors * np.clip(values, 0.0, None)[:, None, :]) @ vectors.transpose(0, 2, 1)
     # one independent noise layer per octave (3 channels each), unit variance over ``need``
@@ -656,7 +664,7 @@ def band_noise(log_rgb: np.ndarray, source: np.ndarray, need: np.ndarray, positi
         while cell / (2 * step) >= 4.0 and small[0] // (2 * step) >= 32:
             step *= 2
         grid = (small[0] // step, small[1] // step)
-        points, covered = (position, cover_w) if step == 1 else down(position, cover_w, grid)
+        points, covered = (position, cover_w) if step == 1 else _area_mean(position, cover_w, grid)
         flat = np.flatnonzero((covered > 0.25).ravel())
         layer = np.zeros((*grid, 3), np.float32)
         layer.reshape(-1, 3)[flat] = np.stack([gradient_noise(points.reshape(-1, 3)[flat], cell * factor * texel_mm, seed=seed + 3 * j + c)
@@ -667,8 +675,7 @@ def band_noise(log_rgb: np.ndarray, source: np.ndarray, need: np.ndarray, positi
         layers.append(layer / np.maximum(layer[need_small].std(0), 1e-12))
     # the spectra overlap, so octave k measured on layer j holds a part V_kj of its variance
     firsts = np.stack([layer[..., 0] for layer in layers], axis=-1)  # one channel of each layer (all three alike)
-    firsts_blurred = [masked_blur(firsts, area, s) for s in sigmas]
-    measured = [firsts_blurred[k] - firsts_blurred[k + 1] for k in range(count)]
+    measured = octaves(firsts, area)
     leak = np.array([[float(np.var(measured[k][..., j][need_small])) for j in range(count)] for k in range(count)])
     # layer j takes octave j's colour covariance at a power t_j with Σ_j V_kj t_j ≈ octave k's
     # variance (relative least squares, t ≥ 0: a steep spectrum cannot be met exactly)
@@ -700,7 +707,7 @@ class _Analysis:
     greyscale: bool  # the seen texels are grey (:func:`facegeo.colour.is_greyscale`)
     # under the directional light model: how much of a de-lit texel's log is the ambient term's,
     # strength × ambient / shading (the shading is applied as shading^strength); else None
-    ambient_share: np.ndarray | None
+    ambient_dependence: np.ndarray | None
 
 
 @dataclass
@@ -740,7 +747,7 @@ class DefaultBackend:
         # the fit trusts only reliable skin: facing the camera, away from silhouettes and occluders
         # (at a silhouette the photo mixes in the background: a white wall made grazing skin "lit")
         inner = self._inner_distance(w > 0.5, ctx)
-        clipped = (_channel_max(lin)[..., 0] >= srgb_to_linear(np.float32(CLIPPED_LEVEL))) & cover
+        clipped = (_channel_max(lin)[..., 0] >= _clipped_ceiling()) & cover
         fit_mask = _skin(ctx) & (self._reliability(w, inner, ctx) > 0.5) & (lum > 1e-4) & ~clipped
         normals = ctx.normal_camera
         shading = np.ones(cover.shape, np.float32)
@@ -994,8 +1001,8 @@ class DefaultBackend:
         # less where the light model's ambient term lights the texel (AMBIENT_LOG_ERROR), plus the
         # fill's detail; the seen texels kept by their reliability
         data = reliable
-        if an.ambient_share is not None:
-            data = reliable / (1.0 + (an.ambient_share * (AMBIENT_LOG_ERROR / FILL_TONE_TOLERANCE)) ** 2)
+        if an.ambient_dependence is not None:
+            data = reliable / (1.0 + (an.ambient_dependence * (AMBIENT_LOG_ERROR / FILL_TONE_TOLERANCE)) ** 2)
         base = self._base(log_seen - detail_fill, data, np.log(np.maximum(mean, 1e-4)), ctx, FILL_SMOOTHNESS)
         out_log = reliable[..., None] * log_seen + (1 - reliable[..., None]) * (base + detail_fill)
         out = np.where(cover[..., None], np.exp(out_log), 0.0)
