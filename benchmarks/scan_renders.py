@@ -306,16 +306,16 @@ def render_views(scan_name: str, samples: int = 64, cache: Path = CACHE, blender
         blender = blender or shutil.which("blender")
         if blender is None:
             raise InputError("blender", "executable", "Debian's blender on PATH (apt-get install -y blender)", "not found")
-        views = []
+        jobs = []
         for spec in todo:
             rotation, translation = view_pose(scan, spec)
             matrix = np.eye(4)
             matrix[:3, :3] = rotation
             matrix[:3, 3] = translation * 0.001
-            views.append({"name": spec.name, "matrix": matrix.ravel().tolist(), "lens_mm": spec.lens_mm,
+            jobs.append({"name": spec.name, "matrix": matrix.ravel().tolist(), "lens_mm": spec.lens_mm,
                           "sensor_mm": SENSOR_MM, "width": WIDTH, "height": HEIGHT, "light": spec.light,
                           "image": str(folder / f"{spec.name}.png"), "albedo": str(folder / f"{spec.name}_albedo.png")})
-        job = {"mesh": _write_raw(folder, scan), "texture": str(scan.texture), "samples": samples, "views": views}
+        job = {"mesh": _write_raw(folder, scan), "texture": str(scan.texture), "samples": samples, "views": jobs}
         (folder / "job.json").write_text(json.dumps(job))
         with open(folder / "render.log", "w") as log:
             done = subprocess.run([blender, "-b", "--factory-startup", "-noaudio", "--python", str(BLENDER_SCRIPT), "--",
