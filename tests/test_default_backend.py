@@ -678,6 +678,62 @@ def test_the_fill_takes_its_tone_from_the_lit_skin_not_the_shadowed_fringe(face_
     assert hidden_tone() < -0.3  # (−0.40)
 
 
+def test_the_hard_lights_own_sheen_is_taken_out_and_a_diffuse_photo_left_as_it_is(face_context, monkeypatch):
+    """A constant skin albedo under the hard light rendered by the GGX shader (roughness 0.5,
+    specular 0.5), with the posed mesh's cast shadows and a dim white ambient: the lit cheek
+    facing the light's mirror direction shows a white sheen, paler and brighter than the skin.
+    De-lit, that skin has the albedo's chroma again (without the sheen's removal,
+    SUN_SHEEN_LOBE_DEG → 0, it keeps most of the sheen), and its luminance is the lit skin's.
+    The same scene without the sheen (diffuse only) comes out the same with or without it."""
+    import facegeo.texturing.default_backend as backend_module
+    from facegeo.texturing.ggx import ggx_shaded
+    from facegeo.texturing.illuminant import chroma
+
+    ctx = face_context
+    cover = ctx.coverage
+    light, lit = _hard_side_light(ctx)
+    albedo = np.array([0.5, 0.33, 0.26], np.float32)
+    n = ctx.normal_camera[cover].astype(np.float64)
+    p = ctx.position_camera[cover].astype(np.float64)
+    helper = np.where(np.abs(n[:, :1]) < 0.9, [[1.0, 0, 0]], [[0, 1.0, 0]])
+    ones = np.ones((len(n), 1))
+
+    def render(specular: float) -> np.ndarray:
+        sun = ggx_shaded(np.broadcast_to(albedo, n.shape).astype(np.float64), np.broadcast_to([0.0, 0, 1], n.shape),
+                         0.5 * ones, specular * ones, p, n, np.cross(n, helper), light[None], np.full((1, 3), np.pi), np.zeros(3), 0.0)
+        photo = np.zeros((*cover.shape, 3), np.float32)
+        photo[cover] = linear_to_srgb(np.clip(sun * lit[cover][:, None] + 0.08 * albedo, 0, 1))
+        return photo
+
+    def delit(photo: np.ndarray, lobe_deg: float) -> np.ndarray:
+        monkeypatch.setattr(backend_module, "SUN_SHEEN_LOBE_DEG", lobe_deg)
+        backend = DefaultBackend()
+        out = srgb_to_linear(backend.homogenise(backend.inpaint(photo, cover.astype(np.float32), ctx), ctx))
+        assert "light" in backend.report
+        return out
+
+    skin = cover & (ctx.skin > 0.5) & (ctx.normal_camera[..., 2] > 0.3)
+    normal_dot_half = ctx.normal_camera @ ((light + [0, 0, 1]) / np.linalg.norm(light + [0, 0, 1]))
+    sheen = skin & lit & (normal_dot_half > np.cos(np.radians(12)))  # the lobe's core
+    matte = skin & lit & (normal_dot_half < np.cos(np.radians(50))) & (ctx.normal_camera @ light > 0.3)
+    assert sheen.sum() > 100 and matte.sum() > 100
+    truth = chroma(albedo[None])[0]
+    photo = render(0.5)
+    assert np.linalg.norm(np.median(chroma(srgb_to_linear(photo)[sheen]), axis=0) - truth) > 0.05  # the sheen's pallor (0.096)
+
+    def errors(out: np.ndarray) -> tuple[float, float]:
+        colour = np.linalg.norm(np.median(chroma(out[sheen]), axis=0) - truth)
+        level = abs(np.median(np.log(luminance(out[sheen]))) - np.median(np.log(luminance(out[matte]))))
+        return float(colour), float(level)
+
+    lobe_deg = backend_module.SUN_SHEEN_LOBE_DEG
+    kept, removed = errors(delit(photo, 1e-3)), errors(delit(photo, lobe_deg))
+    assert kept[0] > 0.05 and removed[0] < 0.2 * kept[0]  # chroma (0.095 → 0.002)
+    assert kept[1] > 0.1 and removed[1] < 0.3 * kept[1]  # the sheen's brightness, log (0.22 → 0.005)
+    diffuse = render(0.0)
+    np.testing.assert_allclose(delit(diffuse, lobe_deg)[skin], delit(diffuse, 1e-3)[skin], atol=0.01)  # (0.005)
+
+
 def test_even_light_uses_no_light_model(face_context):
     ctx = face_context
     cover = ctx.coverage

@@ -33,6 +33,14 @@ Colour textures are sRGB in [0, 1], float32, S × S, image-style rows (see
   assumed mean skin albedo (:data:`SKIN_ALBEDO`), is subtracted from the de-lit texture once
   the light's colour is out (the sheen is white then), at most 1 − :data:`SPECULAR_FLOOR` of a
   texel; the light's colour is estimated from the skin without it.
+* **The directional light's sheen** (:func:`without_sun_sheen`, under the directional model):
+  seen skin near the light's mirror direction (the angle between the normal and the half vector
+  of light and view, a Gaussian of σ = :data:`SUN_SHEEN_LOBE_DEG`: GGX's lobe for skin widened by
+  the fitted mesh's normal error, times the texel's lit share of its shading) is taken as the
+  skin's diffuse colour plus white (the dichromatic model, once the light's colour is out); the
+  white part, smoothed over :data:`SHEEN_SMOOTH_MM`, is subtracted there. Where the de-lit colour
+  is as saturated as the skin away from the lobe nothing is taken, so a lobe the fitted normals
+  misplace takes out no colour.
 * **Highlights**: de-lit luminance above :data:`HIGHLIGHT_RATIO` × its neighbourhood's (Gaussian,
   σ = S/48 texels, ~6 mm at 1K, re-estimated without the first pass's candidates); they are
   treated as unseen (filled) and are the specular map's evidence.
@@ -113,7 +121,7 @@ from facegeo.uv.renderer import light_visibility
 __all__ = ["DefaultBackend", "REGION_PRIORS", "pad_outside", "masked_blur", "gaussian_blur", "value_noise", "MAX_GAIN",
            "GRAZING_GAIN", "QUILT_BLOCK", "QUILT_ENERGY_CAP", "quilted_detail", "restore_clipped", "band_noise", "gradient_noise", "nonnegative_least_squares", "GRAIN_COARSEST", "MID_BAND_COARSEST", "MID_BAND_STRENGTH", "NOISE_CELL_PER_SIGMA", "SPECK_SIGMAS", "SHADOW_TOLERANCE", "SHADOW_EDGE_MM", "AMBIENT_LOG_ERROR", "FILL_TONE_TOLERANCE", "HIGHLIGHT_RATIO", "CLIPPED_LEVEL", "DETAIL_DEPTH_MM", "DETAIL_LIMIT_MM", "SH_TERMS",
            "DIRECTIONAL_RANGE", "CONTRAST_RANGE", "SHADING_ERROR", "FORESHORTENING", "EDGE_MM", "DETAIL_EDGE_MM", "PAD_FRACTION",
-           "SKIN_ALBEDO", "SPECULAR_FLOOR"]
+           "SKIN_ALBEDO", "SPECULAR_FLOOR", "without_sun_sheen", "SUN_SHEEN_LOBE_DEG", "SHEEN_SMOOTH_MM"]
 
 #: (roughness, specular) priors per facial region; oily T-zone glossier, brows matte, lips smooth
 #: and less specular (values in the range of measured facial BRDF fits, e.g. Weyrich et al. 2006).
@@ -288,6 +296,17 @@ PAD_FRACTION = 1.0 / 256.0
 SKIN_ALBEDO = 0.4
 #: The specular removal keeps at least this fraction of each texel's de-lit value.
 SPECULAR_FLOOR = 0.5
+#: σ (degrees) of the directional light's sheen over the angle between the normal and the half
+#: vector of light and view: skin's GGX lobe (roughness 0.55, α ≈ 0.3 rad, ~17°) widened by the
+#: fitted mesh's normal error (median 11–18° against a head scan's, frontal to 40° of yaw) and
+#: the light's direction error. Measured at 20 / 30 / 45 on the scans' hard-light views
+#: (benchmarks/RESULTS.md): within 0.06 CIEDE2000 of each other.
+SUN_SHEEN_LOBE_DEG = 30.0
+#: The sheen's white part is smoothed over this surface distance (mm): its estimate from one
+#: texel's chroma is noisy, and a sheen varies over millimetres, not pores.
+SHEEN_SMOOTH_MM = 2.0
+#: Reference texels needed for the skin's diffuse colour away from the lobe.
+SHEEN_REFERENCE_TEXELS = 200
 
 
 def gaussian_blur(image: np.ndarray, sigma: float) -> np.ndarray:
@@ -510,6 +529,31 @@ def restore_clipped(lin: np.ndarray, valid: np.ndarray, size: int) -> np.ndarray
     return out
 
 
+def without_sun_sheen(delit: np.ndarray, lobe: np.ndarray, seen: np.ndarray, reference: np.ndarray, smooth: float) -> np.ndarray:
+    """(S, S, 3) de-lit, white-balanced linear RGB ``delit`` with a directional light's sheen
+    taken out of the ``seen`` (S, S) bool texels, in proportion to ``lobe`` (S, S) in [0, 1]
+    (how much of the light's mirror reflection a texel may show).
+
+    The dichromatic model: a texel is k · c + w · (1, 1, 1), c the skin's diffuse colour (the
+    median of the ``reference`` (S, S) bool texels outside the lobe, lobe < 0.5, or of all of
+    them when fewer than :data:`SHEEN_REFERENCE_TEXELS` are outside), w ≥ 0 the white of the
+    sheen (least squares per texel; a texel more saturated than c has none). w is smoothed over
+    ``smooth`` texels (masked Gaussian σ) and kept under 0.9 of the texel's smallest channel
+    (what remains is never negative and keeps some of its own colour); lobe · w is subtracted.
+    Returns ``delit`` itself when there are too few reference texels."""
+    rows = reference & (lobe < 0.5)
+    if rows.sum() < SHEEN_REFERENCE_TEXELS:
+        rows = reference
+    if rows.sum() < SHEEN_REFERENCE_TEXELS:
+        return delit
+    diffuse = np.median(delit.reshape(-1, 3)[_subsample(np.flatnonzero(rows.ravel()))], axis=0).astype(np.float64)
+    basis = np.stack([diffuse, np.ones(3)], axis=1)  # (3, 2): the diffuse colour and white
+    white_of = (basis @ np.linalg.inv(basis.T @ basis))[:, 1].astype(np.float32)  # least squares: the white coefficient
+    white = np.maximum(delit @ white_of, 0.0)
+    white = np.minimum(masked_blur(white, seen, smooth), 0.9 * delit.min(axis=-1))
+    return np.where(seen[..., None], delit - (lobe * white)[..., None], delit).astype(np.float32)
+
+
 def quilted_detail(detail: np.ndarray, source: np.ndarray, need: np.ndarray, seed: int = 0) -> np.ndarray | None:
     """Detail (S, S, C) float32 over ``need`` (S, S) bool, made of blocks of ``detail`` (S, S, C)
     copied from random places wholly inside ``source`` (S, S) bool and no busier than
@@ -708,6 +752,9 @@ class _Analysis:
     # under the directional light model: how much of a de-lit texel's log is the ambient term's,
     # strength × ambient / shading (the shading is applied as shading^strength); else None
     ambient_dependence: np.ndarray | None
+    # under the directional light model: how much of the light's sheen a texel may show, in [0, 1]
+    # (:meth:`DefaultBackend._sun_lobe`); else None
+    sun_lobe: np.ndarray | None
 
 
 @dataclass
@@ -756,6 +803,7 @@ class DefaultBackend:
         self.report.pop("light", None)
         light: dict[str, Any] | None = None  # the directional light model's report, where it is used
         ambient_share: np.ndarray | None = None  # under the directional model: ambient / shading, per texel
+        sun_lobe: np.ndarray | None = None
         if n_fit >= 100:
             rows = _subsample(np.flatnonzero(fit_mask.ravel()))
             basis = sh_basis(normals.reshape(-1, 3)[rows].astype(np.float32)).astype(np.float64)[:, :SH_TERMS]
@@ -777,6 +825,7 @@ class DefaultBackend:
             if strength > 0 and ctx.vertices_camera is not None and ctx.position_camera is not None and ctx.triangles is not None:
                 e, cast, light = self._directional_shading(lum, fit_mask, ctx)
                 ambient_share = np.clip(light["ambient"] / np.maximum(e, 1e-12), 0.0, 1.0)
+                sun_lobe = self._sun_lobe(np.asarray(light["direction"]), strength * (1.0 - ambient_share), ctx)
             else:  # the SH fit's own shading over the layout
                 flat = np.flatnonzero(cover.ravel())
                 e = np.zeros(cover.size)
@@ -820,7 +869,7 @@ class DefaultBackend:
         if fringe is not None:
             kept = kept * (1.0 - fringe)
         analysis = _Analysis(shading, highlight.astype(np.float32), kept.astype(np.float32), specular, greyscale,
-                             None if ambient_share is None else (strength * ambient_share).astype(np.float32))
+                             None if ambient_share is None else (strength * ambient_share).astype(np.float32), sun_lobe)
         self._analysis = (ctx, analysis)
         if light is not None:
             self.report["light"] = light
@@ -922,6 +971,24 @@ class DefaultBackend:
                   "ambient": float(np.exp(x[2])), "lit_fraction_of_fit": float((v[fit_mask] > 0.5).mean())}
         return np.where(cover, shading, 1.0).astype(np.float32), np.where(cover, cast, 1.0).astype(np.float32), report
 
+    @staticmethod
+    def _sun_lobe(light: np.ndarray, lit: np.ndarray, ctx: TextureContext) -> np.ndarray:
+        """(S, S) float32 in [0, 1]: where the directional light's sheen may be, for a unit
+        camera-space ``light`` direction (3,): a Gaussian of σ = :data:`SUN_SHEEN_LOBE_DEG` over
+        the angle between the texel's normal and the half vector of light and view, times ``lit``
+        (S, S) (the de-lighting strength × the light's share of the texel's shading: no sheen in
+        a shadow), on covered texels facing the camera."""
+        rows = np.flatnonzero((ctx.coverage & (lit > 0)).ravel())
+        n = ctx.normal_camera.reshape(-1, 3)[rows]
+        position = ctx.position_camera.reshape(-1, 3)[rows]
+        view = -position / np.maximum(np.linalg.norm(position, axis=-1, keepdims=True), 1e-6)
+        half = light.astype(np.float32) + view
+        half /= np.maximum(np.linalg.norm(half, axis=-1, keepdims=True), 1e-6)
+        angle = np.arccos(np.clip((n * half).sum(axis=-1), -1.0, 1.0))
+        lobe = np.zeros(lit.size, np.float32)
+        lobe[rows] = np.where((n * view).sum(axis=-1) > 0, np.exp(-0.5 * (angle / np.radians(SUN_SHEEN_LOBE_DEG)) ** 2), 0.0)
+        return (lobe.reshape(lit.shape) * lit).astype(np.float32)
+
     def _specular(self, delit_lum: np.ndarray, reference: np.ndarray, seen: np.ndarray, ctx: TextureContext,
                   ambient_share: np.ndarray | None) -> np.ndarray:
         """(S, S) float32: the skin's specular reflection of an environment light in the units of
@@ -933,12 +1000,13 @@ class DefaultBackend:
         environment, q = E(n·v), the environment BRDF (:func:`facegeo.texturing.ggx.environment_brdf`:
         ~0.03 facing the camera, ~0.15 at grazing angles); under the directional model only its
         ambient part, q = E(n·v) · ``ambient_share`` (S, S) (ambient / shading). The directional
-        light's own GGX lobe is left to the highlight test: placed by the fitted mesh's normals it
-        took colour from the wrong skin (Lee Perry-Smith's hard-light views up to 0.4 CIEDE2000
-        worse). D in de-lit units: the ``reference`` (S, S) bool texels' mean de-lit luminance is
-        D · (``skin_albedo`` + their mean q) (default :data:`SKIN_ALBEDO`; None: nothing removed).
-        Subtracting D · q takes out the sheen that a white environment leaves on skin turned away
-        from the camera, which made skin look greyer and bluer than it is (stubble most)."""
+        light's own lobe is not modelled here: placed by the fitted mesh's normals it took colour
+        from the wrong skin (Lee Perry-Smith's hard-light views up to 0.4 CIEDE2000 worse); its
+        sheen is told by its colour instead (:func:`without_sun_sheen`). D in de-lit units: the
+        ``reference`` (S, S) bool texels' mean de-lit luminance is D · (``skin_albedo`` + their
+        mean q) (default :data:`SKIN_ALBEDO`; None: nothing removed). Subtracting D · q takes out
+        the sheen that a white environment leaves on skin turned away from the camera, which made
+        skin look greyer and bluer than it is (stubble most)."""
         cover = ctx.coverage
         out = np.zeros(cover.shape, np.float32)
         rows = np.flatnonzero((seen & cover).ravel())
@@ -988,6 +1056,8 @@ class DefaultBackend:
             delit = np.repeat(luminance(delit)[..., None], 3, axis=-1)
             notes.append("the photo is greyscale: the albedo's chroma is invented (a generic skin tone, redder lips)")
         delit = _without_specular(delit, an.specular[..., None])  # white once the light's colour is out
+        if an.sun_lobe is not None and not greyscale:  # (a greyscale photo has no chroma to tell the sheen by)
+            delit = without_sun_sheen(delit, an.sun_lobe, w > 0, (reliable > 0.5) & skin, SHEEN_SMOOTH_MM / ctx.median_texel_mm)
         if reliable[skin].sum() >= 10:
             mean = (delit * reliable[..., None]).reshape(-1, 3).sum(0) / reliable.sum()
         elif (w > 0).any():
