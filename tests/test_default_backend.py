@@ -734,6 +734,27 @@ def test_the_hard_lights_own_sheen_is_taken_out_and_a_diffuse_photo_left_as_it_i
     np.testing.assert_allclose(delit(diffuse, lobe_deg)[skin], delit(diffuse, 1e-3)[skin], atol=0.01)  # (0.005)
 
 
+def test_sheen_removal_leaves_grey_skin_and_too_little_reference_alone():
+    """Without chroma in the reference skin, or without enough of it, nothing is taken out (and
+    nothing is divided by a singular matrix)."""
+    from facegeo.texturing.default_backend import without_sun_sheen
+
+    rng = np.random.default_rng(0)
+    grey = np.repeat(rng.uniform(0.2, 0.6, (32, 32, 1)), 3, axis=-1).astype(np.float32)
+    lobe = np.ones((32, 32), np.float32)
+    everywhere = np.ones((32, 32), bool)
+    with np.errstate(all="raise"):
+        assert without_sun_sheen(grey, lobe, everywhere, everywhere, 1.0) is grey
+    skin = (grey * np.array([1.0, 0.7, 0.55], np.float32)).astype(np.float32)
+    few = np.zeros((32, 32), bool)
+    few[:5, :5] = True
+    assert without_sun_sheen(skin, lobe, everywhere, few, 1.0) is skin
+    pale = skin + 0.1  # white on everything: nothing is brightened, and no channel goes below a tenth
+    out = without_sun_sheen(pale, lobe, everywhere, everywhere, 1.0)
+    assert np.all(out <= pale + 1e-6) and np.all(out >= 0.1 * pale.min(axis=-1, keepdims=True) - 1e-6)
+    assert (out < pale - 1e-3).any()  # the darker texels, paler than the median skin, lose some white
+
+
 def test_even_light_uses_no_light_model(face_context):
     ctx = face_context
     cover = ctx.coverage

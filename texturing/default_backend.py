@@ -540,13 +540,16 @@ def without_sun_sheen(delit: np.ndarray, lobe: np.ndarray, seen: np.ndarray, ref
     sheen (least squares per texel; a texel more saturated than c has none). w is smoothed over
     ``smooth`` texels (masked Gaussian σ) and kept under 0.9 of the texel's smallest channel
     (what remains is never negative and keeps some of its own colour); lobe · w is subtracted.
-    Returns ``delit`` itself when there are too few reference texels."""
+    Returns ``delit`` itself when there are too few reference texels, or when their colour is
+    grey (within 1 % of white's direction: no chroma to tell the sheen by)."""
     rows = reference & (lobe < 0.5)
     if rows.sum() < SHEEN_REFERENCE_TEXELS:
         rows = reference
     if rows.sum() < SHEEN_REFERENCE_TEXELS:
         return delit
     diffuse = np.median(delit.reshape(-1, 3)[_subsample(np.flatnonzero(rows.ravel()))], axis=0).astype(np.float64)
+    if diffuse.sum() / max(np.sqrt(3.0) * float(np.linalg.norm(diffuse)), 1e-12) > 0.9999:  # cos(diffuse, white)
+        return delit
     basis = np.stack([diffuse, np.ones(3)], axis=1)  # (3, 2): the diffuse colour and white
     white_of = (basis @ np.linalg.inv(basis.T @ basis))[:, 1].astype(np.float32)  # least squares: the white coefficient
     white = np.maximum(delit @ white_of, 0.0)
