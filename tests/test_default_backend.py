@@ -527,6 +527,20 @@ def _hard_side_light(ctx):
     return light, lit
 
 
+def _ggx_render(ctx, albedo, lights, radiance, specular):
+    """(N, 3) float64 linear radiance of the covered texels of ``ctx`` (camera at the origin) with
+    a constant ``albedo`` (3,), roughness 0.5 and ``specular`` level under the directional
+    ``lights`` (K, 3) of ``radiance`` (K, 3), by the GGX shader without a normal map."""
+    from facegeo.texturing.ggx import ggx_shaded
+
+    n = ctx.normal_camera[ctx.coverage].astype(np.float64)
+    p = ctx.position_camera[ctx.coverage].astype(np.float64)
+    tangent = np.cross(n, np.where(np.abs(n[:, :1]) < 0.9, [[1.0, 0, 0]], [[0, 1.0, 0]]))
+    ones = np.ones((len(n), 1))
+    return ggx_shaded(np.broadcast_to(albedo, n.shape).astype(np.float64), np.broadcast_to([0.0, 0, 1], n.shape),
+                      0.5 * ones, specular * ones, p, n, tangent, lights, radiance, np.zeros(3), 0.0)
+
+
 def test_directional_light_and_its_cast_shadows_are_fitted_and_removed(face_context):
     """A constant albedo under a hard light with the posed mesh's cast shadows: the light model
     finds the direction and ambient, and the de-lit skin is flat. The SH fit's directional
@@ -686,21 +700,15 @@ def test_the_hard_lights_own_sheen_is_taken_out_and_a_diffuse_photo_left_as_it_i
     SUN_SHEEN_LOBE_DEG → 0, it keeps most of the sheen), and its luminance is the lit skin's.
     The same scene without the sheen (diffuse only) comes out the same with or without it."""
     import facegeo.texturing.default_backend as backend_module
-    from facegeo.texturing.ggx import ggx_shaded
     from facegeo.texturing.illuminant import chroma
 
     ctx = face_context
     cover = ctx.coverage
     light, lit = _hard_side_light(ctx)
     albedo = np.array([0.5, 0.33, 0.26], np.float32)
-    n = ctx.normal_camera[cover].astype(np.float64)
-    p = ctx.position_camera[cover].astype(np.float64)
-    helper = np.where(np.abs(n[:, :1]) < 0.9, [[1.0, 0, 0]], [[0, 1.0, 0]])
-    ones = np.ones((len(n), 1))
 
     def render(specular: float) -> np.ndarray:
-        sun = ggx_shaded(np.broadcast_to(albedo, n.shape).astype(np.float64), np.broadcast_to([0.0, 0, 1], n.shape),
-                         0.5 * ones, specular * ones, p, n, np.cross(n, helper), light[None], np.full((1, 3), np.pi), np.zeros(3), 0.0)
+        sun = _ggx_render(ctx, albedo, light[None], np.full((1, 3), np.pi), specular)
         photo = np.zeros((*cover.shape, 3), np.float32)
         photo[cover] = linear_to_srgb(np.clip(sun * lit[cover][:, None] + 0.08 * albedo, 0, 1))
         return photo
@@ -810,7 +818,6 @@ def test_the_sheen_of_a_white_environment_is_taken_out(face_context):
     backend's region priors) under a uniform white environment (300 directional lights over the
     sphere): the photo's skin is greyer where it turns away from the camera (Fresnel). The
     de-lit albedo is the skin's own colour there too, and without the specular model it is not."""
-    from facegeo.texturing.ggx import ggx_shaded
     from facegeo.texturing.illuminant import chroma
 
     ctx = face_context
@@ -821,12 +828,7 @@ def test_the_sheen_of_a_white_environment_is_taken_out(face_context):
     lights = np.stack([np.sqrt(1 - z * z) * np.cos(phi), np.sqrt(1 - z * z) * np.sin(phi), z], 1)
     radiance = np.full((300, 3), 4 * np.pi / 300)  # radiance 1 from every direction: irradiance π on a plane
     albedo = np.array([0.55, 0.36, 0.28], np.float32)  # luminance 0.39
-    n = ctx.normal_camera[cover].astype(np.float64)
-    p = ctx.position_camera[cover].astype(np.float64)
-    helper = np.where(np.abs(n[:, :1]) < 0.9, [[1.0, 0, 0]], [[0, 1.0, 0]])
-    ones = np.ones((len(n), 1))
-    lit = ggx_shaded(np.broadcast_to(albedo, n.shape).astype(np.float64), np.broadcast_to([0.0, 0, 1], n.shape), 0.5 * ones,
-                     0.5 * ones, p, n, np.cross(n, helper), lights, radiance, np.zeros(3), 0.0)
+    lit = _ggx_render(ctx, albedo, lights, radiance, 0.5)
     photo = np.zeros((*cover.shape, 3), np.float32)
     photo[cover] = linear_to_srgb(np.clip(lit * 0.8, 0, 1))
     facing = cover & (ctx.skin > 0.5) & (ctx.normal_camera[..., 2] > 0.35)
