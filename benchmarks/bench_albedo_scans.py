@@ -252,7 +252,8 @@ def evaluate(scan: str, name: str, render: str, light: str, model, raster, skin_
     filled_skin = skin & (m_vis < 0.5)
     # the methods' albedos (linear)
     albedos = {}
-    for method, backend, skin_arg in (("new", DefaultBackend(), mask),
+    new_backend = DefaultBackend()
+    for method, backend, skin_arg in (("new", new_backend, mask),
                                       ("previous", previous.backend(), previous.mask(photo, fit.landmarks))):
         asset, _ = reconstruct_with_fit(photo, model, fitter=CachedFit(fit), backend=backend, size=S, maps={"albedo"},
                                         skin=skin_arg, parts=False)
@@ -292,6 +293,8 @@ def evaluate(scan: str, name: str, render: str, light: str, model, raster, skin_
     extended = np.exp(DefaultBackend()._base(log_truth, reliable, mean, ctx, FILL_SMOOTHNESS))
     out = {"scan": scan, "view": name, "seen_texels": int(seen_skin.sum()), "filled_texels": int(filled_skin.sum()),
            "truth_seam": seam(g_truth), "blur_texels": blur, "fit_rms_px": fit.landmark_rms_px, "methods": {},
+           "mirror_asymmetry": new_backend.report["inpaint"].get("mirror_asymmetry"),
+           "mirror_tone": new_backend.report["inpaint"].get("mirror_tone"),
            "truth_extended_de_filled": float(np.median(deltaE_ciede2000(lab(extended)[filled_skin], lab(truth)[filled_skin])))
            if filled_skin.any() else float("nan")}
     lab_truth_seen = lab(truth_seen)

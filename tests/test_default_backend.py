@@ -219,6 +219,42 @@ def test_hidden_side_gets_the_mirrors_fine_detail_in_the_local_tone_without_a_se
     assert np.all(np.isfinite(out)) and out.min() >= 0 and out.max() <= 1
 
 
+@pytest.mark.parametrize("baked_light", [False, True])
+def test_the_hidden_side_takes_the_mirrors_tone_only_where_the_seen_face_is_symmetric(baked_light):
+    """A darker (stubbled) jaw on both sides, the right one hidden. Where the skin seen on both
+    sides of the mirror line agrees, the hidden jaw takes the mirror's tone (0.70 of the skin
+    beside it, as in the truth); where a left-to-right ramp (a light the de-lighting left in)
+    makes the seen sides differ, the mirror is not trusted and the hidden jaw takes the tone of
+    the seen skin next to it."""
+    size = 128
+    ctx = hemisphere_context(size)
+    x = np.linspace(-1, 1, size)[None, :].repeat(size, 0)
+    y = -x.T
+    jaw = ((y < -0.35) & (np.abs(x) > 0.35) & (np.abs(x) < 0.8)).astype(np.float32)
+    pores = np.random.default_rng(3).normal(size=(size, size)).astype(np.float32)
+    pores = 0.5 * (pores + pores[:, ::-1])  # left/right symmetric, as the jaw
+    log_tone = -0.36 * masked_blur(jaw, np.ones_like(jaw), 2.0) + 0.05 * pores + (1.0 * x if baked_light else 0.0)
+    truth = srgb_to_linear(np.float32([0.78, 0.58, 0.48])) * np.exp(log_tone)[..., None]
+    visible = (x < 0.3).astype(np.float32)
+    backend = DefaultBackend(skin_albedo=None)
+    out = srgb_to_linear(backend.homogenise(backend.inpaint(linear_to_srgb(np.clip(truth, 0, 1)) * visible[..., None], visible, ctx), ctx))
+    lum = luminance(out)
+    report = backend.report["inpaint"]
+    hidden_jaw = ctx.coverage & (y < -0.45) & (y > -0.6) & (x > 0.45) & (x < 0.6)
+    beside = ctx.coverage & (y > -0.15) & (y < 0.1) & (x > 0.45) & (x < 0.6)  # hidden too, no stubble
+    ratio = np.median(lum[hidden_jaw]) / np.median(lum[beside])
+    if baked_light:
+        assert report["mirror_asymmetry"] > 0.15 and report["mirror_tone"] == 0.0
+        assert ratio > 0.9  # not copied: the left side's darker tone is the ramp's as much as the jaw's
+    else:
+        assert report["mirror_asymmetry"] < 0.03 and report["mirror_tone"] == 1.0
+        # the mirror's tone: the seen jaw's (0.78 of the skin beside it after de-lighting, which takes
+        # a little of the dark lower half for shading; the truth 0.70), not the skin next to it (0.99)
+        seen_ratio = np.median(lum[hidden_jaw[:, ::-1]]) / np.median(lum[beside[:, ::-1]])
+        assert ratio < 0.85 and abs(ratio - seen_ratio) < 0.03
+    assert np.all(np.isfinite(out))
+
+
 def test_reliability_fades_towards_silhouettes_and_occluders():
     ctx = hemisphere_context(128)
     weight = ctx.coverage.astype(np.float32)

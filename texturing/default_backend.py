@@ -78,8 +78,11 @@ Colour textures are sRGB in [0, 1], float32, S × S, image-style rows (see
   ambient term alone carries that term's error whole, and the fill would take its tone from it);
   the result is r · log seen + (1 − r) ·
   (B + D): no edge where the seen skin ends, continuous across UV seams and the mirror line
-  because B lives on the vertices. Only fine detail crosses the mirror: mid-frequency blotches and
-  shading residuals of the other side do not. Without :class:`SurfaceOperators` B is a UV-space
+  because B lives on the vertices. The mirror's low frequencies are data for B too (weight
+  (1 − r) × the mirror's reliability × a trust from the seen skin's own symmetry,
+  :data:`MIRROR_ASYMMETRY`): where both sides are seen and agree (a stubbled jaw, a red cheek on
+  both sides), the hidden side takes the mirror's tone; where they differ (one side still lit or
+  shadowed after de-lighting, a scanner's light baked in), only fine detail crosses the mirror. Without :class:`SurfaceOperators` B is a UV-space
   push-pull (masked blurs at growing scales).
 * **homogenise**: the filled texture divided by the shading and the light's colour.
 * **materials**: albedo = homogenised texture; displacement (mm) and tangent-space normal from its
@@ -209,6 +212,15 @@ AMBIENT_LOG_ERROR = 0.7
 #: 10.74 / 11.98 / 7.92 -> 11.36 / 11.48 / 7.92; seen skin within 0.1. A ratio of 4 or 8 in place
 #: of 7: Lee Perry-Smith 4.26 / 3.54 / 4.18 and 4.14 / 3.79 / 3.99.
 FILL_TONE_TOLERANCE = 0.1
+#: (trusted, not trusted): the RMS left–right difference of the seen skin's de-lit log colour
+#: (Gaussian σ = S/64 texels, ~6 mm at 1K; over the skin seen reliably on both sides) up to which
+#: the hidden side takes the mirror's tone as the fill's data, and from which it does not
+#: (smoothstep between). A face's own asymmetry is below the first; a side still lit or shadowed
+#: after de-lighting, or a colour map with the scanner's light baked in, above the second.
+#: bench_albedo_scans (even and hard side views): Lee Perry-Smith 0.05–0.10, James 0.19–0.42.
+MIRROR_ASYMMETRY = (0.06, 0.15)
+#: The share of the S × S texels that must be seen reliably on both sides to judge the symmetry.
+MIRROR_OVERLAP = 1.0 / 1024.0
 #: (start, full): a texel is a highlight where its de-lit luminance exceeds its neighbourhood's by these ratios.
 HIGHLIGHT_RATIO = (1.3, 1.6)
 #: A photo texel with a channel at or above this sRGB level is clipped (the sensor's or the grade's
@@ -484,6 +496,13 @@ def _smoothstep(t: np.ndarray) -> np.ndarray:
 
 def _skin(ctx: TextureContext) -> np.ndarray:
     return ctx.coverage if ctx.skin is None else ctx.coverage & (ctx.skin > 0.5)
+
+
+def _mirror_index(ctx: TextureContext) -> tuple[np.ndarray, np.ndarray]:
+    """(S, S) bool: the covered texels that have a mirror texel; (S, S) intp: its flat index into
+    an (S·S, …) view (0 where none), so that one gather mirrors a map."""
+    has = (ctx.mirror[..., 0] >= 0) & ctx.coverage
+    return has, np.where(has, ctx.mirror[..., 0].astype(np.intp) * ctx.size + ctx.mirror[..., 1], 0)
 
 
 def _push_pull(values: np.ndarray, weight: np.ndarray, size: int, finest: float, mean: np.ndarray) -> np.ndarray:
@@ -1076,7 +1095,8 @@ class DefaultBackend:
         data = reliable
         if an.ambient_dependence is not None:
             data = reliable / (1.0 + (an.ambient_dependence * (AMBIENT_LOG_ERROR / FILL_TONE_TOLERANCE)) ** 2)
-        base = self._base(log_seen - detail_fill, data, np.log(np.maximum(mean, 1e-4)), ctx, FILL_SMOOTHNESS)
+        values, data, asymmetry, trust = self._with_mirror_tone(log_seen - detail_fill, data, reliable, via_mirror, skin, ctx)
+        base = self._base(values, data, np.log(np.maximum(mean, 1e-4)), ctx, FILL_SMOOTHNESS)
         out_log = reliable[..., None] * log_seen + (1 - reliable[..., None]) * (base + detail_fill)
         out = np.where(cover[..., None], np.exp(out_log), 0.0)
         if greyscale:
@@ -1087,6 +1107,8 @@ class DefaultBackend:
             "seen": float(M_vis[cover].mean()) if cover.any() else 0.0,
             "kept_as_seen": float(reliable[cover].mean()) if cover.any() else 0.0,
             "via_mirror": float(((1 - reliable) * via_mirror)[cover].mean()) if cover.any() else 0.0,
+            "mirror_asymmetry": asymmetry,
+            "mirror_tone": trust,
             "detail_contrast": amp,
         }
         self.report["illuminant"] = illuminant_report
@@ -1108,6 +1130,32 @@ class DefaultBackend:
         mean_skin = (free * weight[..., None]).reshape(-1, 3).sum(0) / weight.sum()
         white = None if ctx.white_reference is None else chroma(np.asarray(ctx.white_reference))
         return estimate_illuminant(chroma(mean_skin), white)
+
+    @staticmethod
+    def _with_mirror_tone(values: np.ndarray, data: np.ndarray, reliable: np.ndarray, via_mirror: np.ndarray,
+                          skin: np.ndarray, ctx: TextureContext) -> tuple[np.ndarray, np.ndarray, float | None, float]:
+        """The fill's data (``values`` (S, S, 3) log RGB without the fill's detail, weight ``data``
+        (S, S)) with the mirror texel's values added where the texel is not wholly ``reliable``
+        (S, S), at weight (1 − reliable) × ``via_mirror`` (S, S, the mirror's reliability) × the
+        trust :data:`MIRROR_ASYMMETRY` gives the seen ``skin``'s (S, S) bool symmetry; also that
+        asymmetry (None where too little skin is seen on both sides: trust 0) and the trust."""
+        size = ctx.size
+        has, mirror = _mirror_index(ctx)
+        both = (reliable > 0.5) & skin & (via_mirror > 0.5) & has
+        if both.sum() < MIRROR_OVERLAP * size * size:
+            return values, data, None, 0.0
+        region = (reliable > 0.5) & skin
+        low = masked_blur(values, region, size / 64.0)
+        difference = (low - low.reshape(-1, 3)[mirror])[both]
+        asymmetry = float(np.sqrt(np.mean(difference ** 2)))
+        lo, hi = MIRROR_ASYMMETRY
+        trust = float(1.0 - _smoothstep(np.float64((asymmetry - lo) / (hi - lo))))
+        if trust <= 0.0:
+            return values, data, asymmetry, 0.0
+        extra = ((1.0 - reliable) * via_mirror * trust).astype(np.float32)
+        total = data + extra
+        mixed = (data[..., None] * values + extra[..., None] * values.reshape(-1, 3)[mirror]) / np.maximum(total, 1e-12)[..., None]
+        return np.where(total[..., None] > 0, mixed, values).astype(np.float32), total.astype(np.float32), asymmetry, trust
 
     def reliability(self, weight: np.ndarray, ctx: TextureContext) -> np.ndarray:
         """(S, S) float32 in [0, 1]: how far each seen texel is trusted, the kept weight
@@ -1168,8 +1216,7 @@ class DefaultBackend:
         sigma = max(1.0, size / 128.0)
         detail = np.where(seen[..., None], log_seen - masked_blur(log_seen, seen, sigma), 0.0)
         amp = self._detail_contrast(log_seen, seen & _skin(ctx), size)
-        has = (ctx.mirror[..., 0] >= 0) & cover
-        mirror = np.where(has, ctx.mirror[..., 0].astype(np.intp) * size + ctx.mirror[..., 1], 0)  # flat index (one gather)
+        has, mirror = _mirror_index(ctx)
         # a mole or speck is not mirrored (a face's marks are not symmetric): where the source's
         # detail is an outlier (and a little around it), the mirror is not used, quilting is
         source_weight = reliable * (1.0 - self._specks(detail, seen & (reliable > 0.5), size))
