@@ -48,8 +48,9 @@ least-squares scaled onto the truth's over the seen skin; chroma is not fitted):
 * **seam ratio**: mean |∇Lab| within 3 texels of the seen/filled boundary divided by the mean
   elsewhere, for the albedo and for the truth;
 * **truth extended** (a ceiling, not a method): the filled skin's ΔE2000 when the truth's own
-  colours on the seen texels are extended by the new backend's gradient-domain fill; no fill
-  from the seen skin can be expected to do better (the scan's unseen skin differs: beard, neck);
+  colours on the seen texels are extended by the new backend's gradient-domain fill (with the
+  mirror's tone as far as the truth's own seen sides agree); no fill from the seen skin can be
+  expected to do better (the scan's unseen skin differs: beard, neck);
 * **off-skin**: share of skin texels whose albedo colour the real skin map never takes: Lab
   Mahalanobis distance > :data:`OFF_SKIN_SIGMAS` from a robust Gaussian (median, MAD-scaled
   covariance) of the truth's colours over the skin texels (glasses, background, hair, dark cast
@@ -87,7 +88,7 @@ from facegeo.colour import linear_to_srgb, luminance, srgb_to_linear  # noqa: E4
 from facegeo.pipeline import reconstruct_with_fit  # noqa: E402
 from facegeo.skin_mask import SkinMask, skin_mask, skin_vertex_mask  # noqa: E402
 from facegeo.texturing.context import build_context, surface_operators  # noqa: E402
-from facegeo.texturing.default_backend import FILL_SMOOTHNESS, DefaultBackend, masked_blur  # noqa: E402
+from facegeo.texturing.default_backend import FILL_SMOOTHNESS, DefaultBackend, _mirror_index, masked_blur  # noqa: E402
 from facegeo.uv import geometry_maps, rasterize_uv, unwrap_details  # noqa: E402
 from facegeo.uv.texels import sample_bilinear  # noqa: E402
 
@@ -284,13 +285,17 @@ def evaluate(scan: str, name: str, render: str, light: str, model, raster, skin_
         tiles = [np.where(skin[..., None], linear_to_srgb(np.clip(t, 0, 1)), 0.3) for t in tiles]
         cv2.imwrite(str(DUMP / f"{render}_{light}.png"), cv2.cvtColor((np.concatenate(tiles, 1)[::2, ::2] * 255).astype(np.uint8), cv2.COLOR_RGB2BGR))
     # what any fill from the seen skin can reach: the truth's own colours on the seen texels,
-    # extended over the rest by the new backend's gradient-domain fill (its private solver, so
-    # that the ceiling is the same method's)
+    # extended over the rest by the new backend's gradient-domain fill (its private solver and its
+    # use of the mirror's tone, trusted by the truth's own symmetry, so that the ceiling is the
+    # same method's)
     ctx = build_context(model, fit, raster)
     reliable = DefaultBackend().reliability((seen & truth_ok).astype(np.float32), ctx)
     log_truth = np.log(np.maximum(truth, 1e-4))
     mean = (log_truth * reliable[..., None]).reshape(-1, 3).sum(0) / max(float(reliable.sum()), 1e-6)
-    extended = np.exp(DefaultBackend()._base(log_truth, reliable, mean, ctx, FILL_SMOOTHNESS))
+    has, mirror = _mirror_index(ctx)
+    via_mirror = np.where(has, reliable.reshape(-1)[mirror], 0.0).astype(np.float32)
+    values, weight, _, _ = DefaultBackend._with_mirror_tone(log_truth, reliable, reliable, via_mirror, skin_texels, ctx)
+    extended = np.exp(DefaultBackend()._base(values, weight, mean, ctx, FILL_SMOOTHNESS))
     out = {"scan": scan, "view": name, "seen_texels": int(seen_skin.sum()), "filled_texels": int(filled_skin.sum()),
            "truth_seam": seam(g_truth), "blur_texels": blur, "fit_rms_px": fit.landmark_rms_px, "methods": {},
            "mirror_asymmetry": new_backend.report["inpaint"].get("mirror_asymmetry"),

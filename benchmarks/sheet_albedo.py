@@ -1,7 +1,7 @@
 """Contact sheet of the default backend on real photos (issues 14, 26): per photo, the photo with
 its skin mask (occluded pixels tinted magenta), the albedo in UV, and the asset relit from the
 front, three-quarter and profile (``relit_preview``'s textured row), one row per photo. It also
-prints, per photo, the texture report's light colour and notes, and how much the normal map
+prints, per photo, the texture report's light colour, the mirror's tone and its trust, and notes, and how much the normal map
 changes a ``shade_ggx`` render under a 60° side light (mean |Δ| over the skin, 8-bit).
 
 Photos (:mod:`sample_photos`): the bundled astronaut (a flag at the edge), matplotlib's Grace
@@ -60,13 +60,15 @@ def row(path: Path, model, size: int, height: int) -> tuple[np.ndarray, str]:
     report = asset.metadata["texture_report"]
     relief = relief_effect(asset, fit, model)
     light = report.get("illuminant", {}).get("light_chroma")
+    asymmetry = report["inpaint"]["mirror_asymmetry"]
     note = (f"{path.name}: {seconds:.1f} s, occluded {100 * skin.occlusion.mean():.0f} % of the photo, "
             f"normal-map relief {relief:.1f}/255 (mean |Δ| under a 60° side light), "
             f"seen {100 * report['inpaint']['seen']:.0f} % of the layout, highlights "
             f"{100 * report['analyse']['highlight_fraction_of_seen_skin']:.1f} % of the seen skin, "
             f"de-lighting strength {report['analyse']['delighting_strength']:.2f}, light chroma "
             f"{'—' if light is None else '(' + ', '.join(f'{v:+.2f}' for v in light) + ')'}, "
-            f"notes {report.get('notes', [])}")
+            f"mirror's tone {report['inpaint']['mirror_tone']:.2f} (left-right difference "
+            f"{'—' if asymmetry is None else f'{asymmetry:.3f}'}), notes {report.get('notes', [])}")
     return np.concatenate([crop, albedo, views], axis=1), note
 
 
