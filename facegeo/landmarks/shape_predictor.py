@@ -28,7 +28,9 @@ stream into integers with a vectorised speculative scan (:func:`_token_starts`),
 
 from __future__ import annotations
 
+import hashlib
 import os
+import re
 import shutil
 import tempfile
 from dataclasses import dataclass
@@ -293,9 +295,50 @@ def predictor_cache_dir() -> Path:
     return (Path(root).expanduser() if root else Path.home() / ".cache") / "facegeo"
 
 
-def _cache_key(path: Path) -> str:
+def _stamp(path: Path) -> str:
+    """A name for one install of the file ``path``: its path, size and modification time, hashed."""
     stat = path.stat()
-    return f"dlib-predictor-v{CACHE_FORMAT}-{path.stem}-{stat.st_size}-{stat.st_mtime_ns}"
+    return hashlib.sha256(f"{path.resolve()}|{stat.st_size}|{stat.st_mtime_ns}".encode()).hexdigest()[:32]
+
+
+def _content_digest(path: Path, root: Path) -> tuple[str, bool]:
+    """The SHA-256 (32 hex digits) of the ``.dat`` file ``path``'s content, the cache folder's key,
+    so that the same file installed again (a new venv, a new modification time) finds its folder
+    instead of adding another 64 MB one; and whether it was remembered for this install under
+    ``root`` / ``dlib-predictor-sources`` (:func:`_remember_digest`) rather than computed (~0.07 s
+    for the 100 MB model)."""
+    try:
+        digest = (root / "dlib-predictor-sources" / _stamp(path)).read_text(encoding="ascii").strip()
+    except (OSError, UnicodeDecodeError):
+        digest = ""
+    if re.fullmatch(r"[0-9a-f]{32}", digest):
+        return digest, True
+    with path.open("rb") as handle:
+        return hashlib.file_digest(handle, "sha256").hexdigest()[:32], False
+
+
+def _remember_digest(path: Path, root: Path, digest: str) -> None:
+    """Keeps ``digest`` for this install of ``path`` (a 32-byte file, staged and renamed into
+    place like the folders); an unwritable cache computes it again next time."""
+    memo = root / "dlib-predictor-sources" / _stamp(path)
+    staged = None
+    try:
+        memo.parent.mkdir(parents=True, exist_ok=True)
+        with tempfile.NamedTemporaryFile("w", encoding="ascii", dir=memo.parent, prefix=f".{memo.name}.", delete=False) as handle:
+            staged = Path(handle.name)
+            handle.write(digest)
+        os.replace(staged, memo)
+    except OSError:
+        if staged is not None:
+            staged.unlink(missing_ok=True)
+
+
+def _stale_folders(root: Path, stem: str) -> list[Path]:
+    """Cache folders of ``stem`` that no current key can name: the earlier layout's (named by the
+    file's size and modification time, one per install) and other formats'."""
+    current = re.compile(rf"dlib-predictor-v{CACHE_FORMAT}-{re.escape(stem)}-[0-9a-f]{{32}}")
+    ours = re.compile(rf"dlib-predictor-v\d+-{re.escape(stem)}-(\d+-\d+|[0-9a-f]{{32}})")
+    return [f for f in root.iterdir() if ours.fullmatch(f.name) and not current.fullmatch(f.name) and f.is_dir()]
 
 
 def _load_cached(folder: Path) -> ShapePredictor | None:
@@ -310,17 +353,22 @@ def cached_predictor(path: str | Path, cache_dir: str | Path | None = None) -> S
     """The predictor of the ``.dat`` file ``path``, memory-mapped from the cache (milliseconds);
     converted and stored there first when missing (:func:`convert_predictor`, ~2 s).
 
-    The cache entry is a folder of ``.npy`` files keyed by the file's name, size and modification
-    time under ``cache_dir`` (default :func:`predictor_cache_dir`); it is written to a temporary
-    folder and renamed into place, so a reader never sees half of one. An unwritable cache only
-    costs the conversion on every call.
+    The cache entry is a folder of ``.npy`` files under ``cache_dir`` (default
+    :func:`predictor_cache_dir`) keyed by the file's name and a digest of its content
+    (:func:`_content_digest`), so reinstalling the same file reuses it; it is written to a temporary
+    folder and renamed into place, so a reader never sees half of one, and then the file name's
+    folders that no current key names (the earlier layout's, one per install) are removed. An
+    unwritable cache only costs the conversion on every call.
     """
     source = Path(path)
     if not source.is_file():
         raise ModelFileError(source, "dlib shape predictor", "an existing .dat file", "no such file")
     root = Path(cache_dir) if cache_dir is not None else predictor_cache_dir()
-    folder = root / _cache_key(source)
+    digest, remembered = _content_digest(source, root)
+    folder = root / f"dlib-predictor-v{CACHE_FORMAT}-{source.stem}-{digest}"
     if folder.is_dir() and (found := _load_cached(folder)) is not None:
+        if not remembered:
+            _remember_digest(source, root, digest)
         return found
     predictor = convert_predictor(source)
     try:
@@ -332,6 +380,9 @@ def cached_predictor(path: str | Path, cache_dir: str | Path | None = None) -> S
         for name in _ARRAYS:
             np.save(staging / f"{name}.npy", np.ascontiguousarray(getattr(predictor, name)))
         os.replace(staging, folder)
+        _remember_digest(source, root, digest)
+        for stale in _stale_folders(root, source.stem):  # (a process still mapping one keeps its files until it exits)
+            shutil.rmtree(stale, ignore_errors=True)
     except OSError:  # another process stored it first (or the disk is full): keep what we have
         pass
     finally:
