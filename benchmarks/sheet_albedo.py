@@ -1,8 +1,9 @@
 """Contact sheet of the default backend on real photos (issues 14, 26): per photo, the photo with
 its skin mask (occluded pixels tinted magenta), the albedo in UV, and the asset relit from the
 front, three-quarter and profile (``relit_preview``'s textured row), one row per photo. It also
-prints, per photo, the texture report's light colour, the mirror's tone and its trust, and notes, and how much the normal map
-changes a ``shade_ggx`` render under a 60° side light (mean |Δ| over the skin, 8-bit).
+prints, per photo, the texture report's light colour, the trust in the mirror's tone and the
+left-right difference it is judged by, and notes, and how much the normal map changes a
+``shade_ggx`` render under a 60° side light (mean |Δ| over the skin, 8-bit).
 
 Photos (:mod:`sample_photos`): the bundled astronaut (a flag at the edge), matplotlib's Grace
 Hopper (warm 1950s light, thick frames), scikit-image's cameraman (greyscale, turned away), the

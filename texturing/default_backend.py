@@ -82,8 +82,8 @@ Colour textures are sRGB in [0, 1], float32, S × S, image-style rows (see
   (1 − r) × the mirror's reliability × a trust from the seen skin's own symmetry,
   :data:`MIRROR_ASYMMETRY`): where both sides are seen and agree (a stubbled jaw, a red cheek on
   both sides), the hidden side takes the mirror's tone; where they differ (one side still lit or
-  shadowed after de-lighting, a scanner's light baked in), only fine detail crosses the mirror. Without :class:`SurfaceOperators` B is a UV-space
-  push-pull (masked blurs at growing scales).
+  shadowed after de-lighting, a scanner's light baked in), only fine detail crosses the mirror.
+  Without :class:`SurfaceOperators` B is a UV-space push-pull (masked blurs at growing scales).
 * **homogenise**: the filled texture divided by the shading and the light's colour.
 * **materials**: albedo = homogenised texture; displacement (mm) and tangent-space normal from its
   high-frequency log-luminance detail at :data:`DETAIL_DEPTH_MM` mm per unit (±
@@ -1140,11 +1140,11 @@ class DefaultBackend:
         trust :data:`MIRROR_ASYMMETRY` gives the seen ``skin``'s (S, S) bool symmetry; also that
         asymmetry (None where too little skin is seen on both sides: trust 0) and the trust."""
         size = ctx.size
-        has, mirror = _mirror_index(ctx)
-        both = (reliable > 0.5) & skin & (via_mirror > 0.5) & has
+        _, mirror = _mirror_index(ctx)
+        region = (reliable > 0.5) & skin
+        both = region & (via_mirror > 0.5)  # (via_mirror is 0 where a texel has no mirror)
         if both.sum() < MIRROR_OVERLAP * size * size:
             return values, data, None, 0.0
-        region = (reliable > 0.5) & skin
         low = masked_blur(values, region, size / 64.0)
         difference = (low - low.reshape(-1, 3)[mirror])[both]
         asymmetry = float(np.sqrt(np.mean(difference ** 2)))
