@@ -490,6 +490,32 @@ def test_quilted_detail_leaves_out_blocks_with_a_speck():
     assert 0.8 < out[~source].std() / 0.02 < 1.2
 
 
+def test_the_seen_skins_detail_keeps_its_contrast_where_it_fades_into_the_fill():
+    """Pores on the seen side, no mirror: where the reliability ramps down towards the visibility
+    boundary, the texel's own detail and the fill's are mixed with weights that keep the
+    contrast, so there is no band of smoother skin along the seen edge. The least reliable seen
+    texels (r ≤ 0.25) keep 0.87 of the reliable skin's fine contrast; mixed linearly, 0.72."""
+    size = 512
+    ctx = hemisphere_context(size)
+    ctx.mirror[...] = -1
+    rng = np.random.default_rng(5)
+    pores = masked_blur(rng.normal(size=(size, size)).astype(np.float32), np.ones((size, size)), 1.0)
+    pores *= 0.06 / pores.std()
+    truth = srgb_to_linear(np.float32([0.78, 0.58, 0.48])) * np.exp(pores)[..., None]
+    x = np.linspace(-1, 1, size)[None, :].repeat(size, 0)
+    visible = (x < 0.1).astype(np.float32)
+    backend = DefaultBackend()
+    out = srgb_to_linear(backend.homogenise(backend.inpaint(linear_to_srgb(truth) * visible[..., None], visible, ctx), ctx))
+    log_l = np.log(np.maximum(out.mean(-1), 1e-4))
+    fine = log_l - masked_blur(log_l, ctx.coverage, 3.0)
+    reliable = backend.reliability(visible, ctx)
+    facing = ctx.coverage & (ctx.normal_camera[..., 2] > 0.6) & (np.abs(ctx.normal_camera[..., 1]) < 0.5)
+    core = facing & (reliable > 0.99) & (x < -0.2)
+    edge = facing & (visible > 0) & (reliable <= 0.25)
+    assert edge.sum() > 500
+    assert fine[edge].std() / fine[core].std() > 0.8
+
+
 def test_hidden_side_without_a_mirror_gets_the_seen_skins_own_fine_texture():
     """Right part hidden and no mirror: the fill's finest detail (above S/256 texels⁻¹) is quilted
     from the seen skin, so it has the seen skin's contrast (within 25 %) and its texture: here

@@ -76,9 +76,12 @@ Colour textures are sRGB in [0, 1], float32, S × S, image-style rows (see
   data weight is r / (1 + (a · :data:`AMBIENT_LOG_ERROR` / :data:`FILL_TONE_TOLERANCE`)²), a
   the texel's ambient share of its shading times the de-lighting strength: skin lit by the
   ambient term alone carries that term's error whole, and the fill would take its tone from it);
-  the result is r · log seen + (1 − r) ·
-  (B + D): no edge where the seen skin ends, continuous across UV seams and the mirror line
-  because B lives on the vertices. The mirror's low frequencies are data for B too (weight
+  the result's tone is r · (log seen − D_own) + (1 − r) · B, its detail the texel's own D_own
+  and the fill's other detail D_fill mixed with weights a = r + (1 − r) · (the own detail's
+  share of D) and 1 − a, divided by √(a² + (1 − a)²) (two independent layers mixed linearly
+  lose up to half their variance: a band of smoother skin along the seen edge): no edge where
+  the seen skin ends, continuous across UV seams and the mirror line because B lives on the
+  vertices. The mirror's low frequencies are data for B too (weight
   (1 − r) × the mirror's reliability × a trust from the seen skin's own symmetry,
   :data:`MIRROR_ASYMMETRY`): where both sides are seen and agree (a stubbled jaw, a red cheek on
   both sides), the hidden side takes the mirror's tone; where they differ (one side still lit or
@@ -1087,7 +1090,8 @@ class DefaultBackend:
         else:  # nothing seen at all: the model's texture
             mean = srgb_to_linear(ctx.mean_texture)[cover].mean(0)
         log_seen = np.log(np.maximum(delit, 1e-4))
-        detail_fill, via_mirror, amp = self._fill_detail(log_seen, seen & cover, inner, reliable, ctx)
+        own, own_detail, other, via_mirror, amp = self._fill_detail(log_seen, seen & cover, inner, reliable, ctx)
+        detail_fill = own * own_detail + (1 - own) * other
         # the gradient-domain blend: the low frequencies of the seen skin minus the fill's detail,
         # solved on the surface with the reliability as data weight (a screened Poisson problem),
         # less where the light model's ambient term lights the texel (AMBIENT_LOG_ERROR), plus the
@@ -1097,7 +1101,12 @@ class DefaultBackend:
             data = reliable / (1.0 + (an.ambient_dependence * (AMBIENT_LOG_ERROR / FILL_TONE_TOLERANCE)) ** 2)
         values, data, asymmetry, trust = self._with_mirror_tone(log_seen - detail_fill, data, reliable, via_mirror, skin, ctx)
         base = self._base(values, data, np.log(np.maximum(mean, 1e-4)), ctx, FILL_SMOOTHNESS)
-        out_log = reliable[..., None] * log_seen + (1 - reliable[..., None]) * (base + detail_fill)
+        # the tone blended by the reliability; the detail by the same weights made to keep its
+        # contrast (the texel's own and the fill's, independent layers mixed with weights a and
+        # 1 − a, have a² + (1 − a)² of their variance: a band of smoother skin along the seen edge)
+        r = reliable[..., None]
+        a = r + (1 - r) * own
+        out_log = r * (log_seen - own_detail) + (1 - r) * base + (a * own_detail + (1 - a) * other) / np.sqrt(a * a + (1 - a) ** 2)
         out = np.where(cover[..., None], np.exp(out_log), 0.0)
         if greyscale:
             out = invent_chroma(luminance(out), ctx.regions.get("lips"))
@@ -1199,18 +1208,19 @@ class DefaultBackend:
         return (_euclidean_distance(seen | ~cover) * ctx.median_texel_mm).astype(np.float32)
 
     def _fill_detail(self, log_seen: np.ndarray, seen: np.ndarray, inner: np.ndarray, reliable: np.ndarray,
-                     ctx: TextureContext) -> tuple[np.ndarray, np.ndarray, np.ndarray | float]:
-        """The fill's detail (S, S, 3) in log RGB (zero mean): where the texel is seen (``seen``),
-        its own finer than ~S/128 texels (~2.5 mm at 1K); elsewhere the mirror texel's where
-        that was reliably seen, and where not, blocks of the reliably seen skin's finest detail
-        (above ~S · ``detail_sigma_fraction`` texels⁻¹: pores, stubble; :func:`quilted_detail`)
-        plus, away from the seen skin, the octaves above it up to :data:`MID_BAND_COARSEST` × S
-        texels as :func:`band_noise` (the skin's grain and mottling, which the fill's smooth base
-        lacks, less what the blocks carry), or
-        3-D value noise of the model-space position with the seen skin's contrast where no whole
-        block was seen; in the seen region's edge, where the texel's own detail fades out, the
-        same mix fades in. Also the mirror's weight (S, S) and that contrast. ``inner``:
-        :meth:`_inner_distance` of ``seen`` (S, S) mm."""
+                     ctx: TextureContext) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, float]:
+        """The fill's detail in log RGB (zero mean) as ``own`` (S, S, 1) × the seen texel's own
+        detail (S, S, 3; finer than ~S/128 texels, ~2.5 mm at 1K; 0 where not ``seen``) + (1 −
+        ``own``) × the other detail (S, S, 3): the mirror texel's where that was reliably seen,
+        and where not, blocks of the reliably seen skin's finest detail (above ~S ·
+        ``detail_sigma_fraction`` texels⁻¹: pores, stubble; :func:`quilted_detail`) plus, away
+        from the seen skin, the octaves above it up to :data:`MID_BAND_COARSEST` × S texels as
+        :func:`band_noise` (the skin's grain and mottling, which the fill's smooth base lacks,
+        less what the blocks carry), or 3-D value noise of the model-space position with the
+        seen skin's contrast where no whole block was seen; the mirror's and the synthesised
+        mixed with weights that keep their contrast. ``own`` is 1 inside the seen region and fades
+        out over :data:`DETAIL_EDGE_MM` towards its edge (lashes, halos). Also the mirror's weight
+        (S, S) and that contrast. ``inner``: :meth:`_inner_distance` of ``seen`` (S, S) mm."""
         cover = ctx.coverage
         size = ctx.size
         sigma = max(1.0, size / 128.0)
@@ -1241,9 +1251,10 @@ class DefaultBackend:
                 n = value_noise(pos, 0.35) + 0.7 * value_noise(pos, 0.7, seed=1) + 0.4 * value_noise(pos, 1.5, seed=2)
                 noise[need] = amp * n / max(float(n.std()), 1e-6)
             synthesised = noise[..., None]
-        fill = w_m[..., None] * mirrored + (1 - w_m[..., None]) * synthesised
-        fill = own * detail + (1 - own) * fill  # where seen (away from its edge: lashes, halos), the photo's own detail
-        return np.where(cover[..., None], fill, 0.0).astype(np.float32), w_m, amp
+        w = w_m[..., None]
+        other = (w * mirrored + (1 - w) * synthesised) / np.sqrt(w * w + (1 - w) ** 2)  # independent: variance kept
+        return (own.astype(np.float32), np.where(cover[..., None], detail, 0.0).astype(np.float32),
+                np.where(cover[..., None], other, 0.0).astype(np.float32), w_m, amp)
 
     @staticmethod
     def _specks(detail: np.ndarray, region: np.ndarray, size: int) -> np.ndarray:
