@@ -15,6 +15,7 @@ from facegeo.texturing.default_backend import (
     GRAZING_GAIN,
     MAX_GAIN,
     QUILT_BLOCK,
+    QUILT_NEIGHBOURHOOD,
     DefaultBackend,
     band_noise,
     gradient_noise,
@@ -488,6 +489,30 @@ def test_quilted_detail_leaves_out_blocks_with_a_speck():
     out = quilted_detail(detail, source, ~source)
     assert out[~source].min() > -0.15  # a copied speck would be ≲ −0.3 (windowed, normalised)
     assert 0.8 < out[~source].std() / 0.02 < 1.2
+
+
+def test_quilted_detail_takes_the_texture_of_the_source_next_to_it():
+    """The source's upper half is stubble (3 × the contrast of the lower half's pores): the fill
+    beside each half gets that half's contrast (within 25 %). Drawn from anywhere, the blocks
+    gave both sides one mix (0.51 and 1.57 of their neighbours'; the busy half's blocks also
+    fell under the cap of the whole source's median)."""
+    size = 512
+    rng = np.random.default_rng(4)
+    ones = np.ones((size, size))
+    texture = masked_blur(rng.normal(size=(size, size, 1)).astype(np.float32), ones, 1.0)
+    texture = texture - masked_blur(texture, ones, size / 256)
+    texture *= 0.02 / texture.std()
+    rows = np.arange(size)[:, None].repeat(size, 1)
+    stubble = rows < size // 2
+    texture[stubble] *= 3.0
+    source = np.zeros((size, size), bool)
+    source[:, : size // 2] = True
+    out = quilted_detail(np.where(source[..., None], texture, 0.0), source, ~source)
+    margin = round(QUILT_NEIGHBOURHOOD * size)  # the neighbourhoods straddle the line between the halves
+    beside_stubble = ~source & (rows < size // 2 - margin)
+    beside_pores = ~source & (rows > size // 2 + margin)
+    assert 0.75 < out[beside_stubble].std() / texture[source & stubble].std() < 1.25  # 0.91
+    assert 0.75 < out[beside_pores].std() / texture[source & ~stubble].std() < 1.25  # 0.93
 
 
 def test_the_seen_skins_detail_keeps_its_contrast_where_it_fades_into_the_fill():

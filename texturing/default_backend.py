@@ -66,7 +66,7 @@ Colour textures are sRGB in [0, 1], float32, S × S, image-style rows (see
   seen region's edge, else the mirror texel's where that was reliably seen (not its moles and
   specks: :data:`SPECK_SIGMAS`), else the finest detail (~1 mm at 1K: pores, stubble) of the
   reliably seen skin quilted in blocks (:func:`quilted_detail`: this face's own texture at its own
-  contrast) plus, away from the seen skin, the octaves up to S/32 texels (~12 mm at 1K) as colour
+  contrast, each block from the seen skin near the texel's nearest seen place) plus, away from the seen skin, the octaves up to S/32 texels (~12 mm at 1K) as colour
   noise with the seen skin's own covariance per octave (:func:`band_noise`: its mottling; 3-D
   value noise of the model-space position only where no whole block of skin was seen); the low
   frequencies B solve a screened Poisson problem on the mesh's vertices,
@@ -125,7 +125,7 @@ from facegeo.texturing.illuminant import chroma, estimate_illuminant, invent_chr
 from facegeo.uv.renderer import light_visibility
 
 __all__ = ["DefaultBackend", "REGION_PRIORS", "pad_outside", "masked_blur", "gaussian_blur", "value_noise", "MAX_GAIN",
-           "GRAZING_GAIN", "QUILT_BLOCK", "QUILT_ENERGY_CAP", "quilted_detail", "restore_clipped", "band_noise", "gradient_noise", "nonnegative_least_squares", "GRAIN_COARSEST", "MID_BAND_COARSEST", "MID_BAND_STRENGTH", "NOISE_CELL_PER_SIGMA", "SPECK_SIGMAS", "SHADOW_TOLERANCE", "SHADOW_EDGE_MM", "AMBIENT_LOG_ERROR", "FILL_TONE_TOLERANCE", "HIGHLIGHT_RATIO", "CLIPPED_LEVEL", "DETAIL_DEPTH_MM", "DETAIL_LIMIT_MM", "SH_TERMS",
+           "GRAZING_GAIN", "QUILT_BLOCK", "QUILT_ENERGY_CAP", "QUILT_NEIGHBOURHOOD", "QUILT_TRIES", "quilted_detail", "restore_clipped", "band_noise", "gradient_noise", "nonnegative_least_squares", "GRAIN_COARSEST", "MID_BAND_COARSEST", "MID_BAND_STRENGTH", "NOISE_CELL_PER_SIGMA", "SPECK_SIGMAS", "SHADOW_TOLERANCE", "SHADOW_EDGE_MM", "AMBIENT_LOG_ERROR", "FILL_TONE_TOLERANCE", "HIGHLIGHT_RATIO", "CLIPPED_LEVEL", "DETAIL_DEPTH_MM", "DETAIL_LIMIT_MM", "SH_TERMS",
            "DIRECTIONAL_RANGE", "CONTRAST_RANGE", "SHADING_ERROR", "FORESHORTENING", "EDGE_MM", "DETAIL_EDGE_MM", "PAD_FRACTION",
            "SKIN_ALBEDO", "SPECULAR_FLOOR", "without_sun_sheen", "SUN_SHEEN_LOBE_DEG", "SHEEN_SMOOTH_MM"]
 
@@ -271,10 +271,21 @@ DETAIL_EDGE_MM = 2.0
 #: drew waves of copied wrinkles over Grace Hopper's scalp.
 QUILT_BLOCK = 1.0 / 64.0
 #: A block of seen skin is quilted from only where its detail's mean square is at most this × the
-#: median block's: a mole, a lash, a speck or a wrinkle copied over the scalp shows as a repeated
-#: mark (the contact sheet's astronaut and Grace Hopper); bench_albedo_scans' gradient ratio loses
-#: 0.03 to it.
+#: median block's of its neighbourhood (:data:`QUILT_NEIGHBOURHOOD`): a mole, a lash, a speck or a
+#: wrinkle copied over the scalp shows as a repeated mark (the contact sheet's astronaut and Grace
+#: Hopper); bench_albedo_scans' gradient ratio loses 0.03 to it.
 QUILT_ENERGY_CAP = 2.5
+#: The fill's blocks come from the seen skin near the block's nearest seen place: a place drawn
+#: uniformly within half this fraction of S (32 texels, ~10 mm at 1K) of it, and a block is too
+#: busy by the median of its square of this side (64 texels; one with fewer places than a block
+#: has texels: by the whole source's). A stubbled jaw goes on under the chin and a smooth forehead
+#: onto the scalp; with blocks from anywhere on the face, James's fill (a full beard) was as calm
+#: as his cheeks. bench_albedo_scans, even and hard views: James's gradient ratio 0.75–0.86 →
+#: 0.76–0.88, Lee Perry-Smith's within ±0.03, filled median 5.91 → 5.97 (benchmarks/RESULTS.md).
+QUILT_NEIGHBOURHOOD = 1.0 / 16.0
+#: Random points tried per radius (1×, 2× and 4× the reach) when a block's place is drawn by
+#: rejection (:func:`quilted_detail`); where all miss, a place anywhere.
+QUILT_TRIES = 8
 #: The fill's noise octaves (:data:`MID_BAND_COARSEST`) finer than this fraction of S (8 texels,
 #: ~3 mm at 1K: the skin's grain) get the seen skin's whole covariance, less what the quilted blocks
 #: already carry there; the coarser ones :data:`MID_BAND_STRENGTH` of it. With all at 0.35 the
@@ -581,11 +592,13 @@ def without_sun_sheen(delit: np.ndarray, lobe: np.ndarray, seen: np.ndarray, ref
 
 def quilted_detail(detail: np.ndarray, source: np.ndarray, need: np.ndarray, seed: int = 0) -> np.ndarray | None:
     """Detail (S, S, C) float32 over ``need`` (S, S) bool, made of blocks of ``detail`` (S, S, C)
-    copied from random places wholly inside ``source`` (S, S) bool and no busier than
-    :data:`QUILT_ENERGY_CAP` × the median place: blocks of :data:`QUILT_BLOCK` × S texels on a
-    half-overlapping grid, each made zero-mean under its separable Hann window and blended with
-    variance-preserving weights Σ w·x / √(Σ w²), so the copy keeps the source's contrast at
-    every scale finer than a block and no block edge shows.
+    copied from places wholly inside ``source`` (S, S) bool and no busier than
+    :data:`QUILT_ENERGY_CAP` × the median place of their neighbourhood: blocks of
+    :data:`QUILT_BLOCK` × S texels on a half-overlapping grid, each the place nearest to a random
+    point within :data:`QUILT_NEIGHBOURHOOD` × S / 2 texels of the place nearest to it (so the copy
+    has the texture of the source next to it), made zero-mean under its separable Hann window and
+    blended with variance-preserving weights Σ w·x / √(Σ w²), so the copy keeps the source's
+    contrast at every scale finer than a block and no block edge shows.
     Deterministic for a given ``seed``. 0 outside ``need``; None where ``source`` holds no whole
     block. (By hand: OpenCV's and scikit-image's inpainting diffuse or copy whole regions; none
     synthesises a stationary detail layer by example.)"""
@@ -601,7 +614,22 @@ def quilted_detail(detail: np.ndarray, source: np.ndarray, need: np.ndarray, see
         return None
     energy = cv2.boxFilter((detail * detail).sum(-1).astype(np.float32), -1, (block, block), anchor=(0, 0),
                            borderType=cv2.BORDER_CONSTANT)[starts[:, 0], starts[:, 1]]  # mean square over each block
-    starts = starts[energy <= QUILT_ENERGY_CAP * np.median(energy)]
+    # too busy by the median of the square of side QUILT_NEIGHBOURHOOD × S that a place starts in
+    side = max(block, round(QUILT_NEIGHBOURHOOD * size))
+    square = (starts[:, 0] // side) * (size // side + 1) + starts[:, 1] // side
+    order = np.argsort(square, kind="stable")
+    _, first, counts = np.unique(square[order], return_index=True, return_counts=True)
+    median = np.array([np.median(energy[order[a: a + n]]) if n >= block * block else np.nan for a, n in zip(first, counts)])
+    limit = np.empty(len(starts))
+    limit[order] = np.repeat(np.where(np.isnan(median), np.median(energy), median), counts)
+    starts = starts[energy <= QUILT_ENERGY_CAP * limit]
+    # each texel's nearest place (its block's centre), in the order of ``starts`` (row-major, as
+    # OpenCV numbers the zero pixels)
+    centres = np.ones((size, size), np.uint8)
+    centres[starts[:, 0] + half, starts[:, 1] + half] = 0
+    _, nearest = cv2.distanceTransformWithLabels(centres, cv2.DIST_L2, 5, labelType=cv2.DIST_LABEL_PIXEL)
+    nearest -= 1
+    reach = QUILT_NEIGHBOURHOOD * size / 2
     ramp = np.sin(np.pi * (np.arange(block) + 0.5) / block) ** 2  # Hann: two at half overlap sum to 1
     window = (ramp[:, None] * ramp[None, :]).astype(np.float32)
     channels = detail.shape[2]
@@ -626,7 +654,21 @@ def quilted_detail(detail: np.ndarray, source: np.ndarray, need: np.ndarray, see
             touch = cell_need[ii - 1, jj - 1] | cell_need[ii - 1, jj] | cell_need[ii, jj - 1] | cell_need[ii, jj]
             if not touch.any():
                 continue
-            pick = starts[rng.integers(len(starts), size=int(touch.sum()))]
+            # a place at a random point within ``reach`` of the place nearest to the block's centre:
+            # uniform over the places there, by rejection (snapping a point that misses to the
+            # nearest place would copy the few places on the region's rim over and over: a brick
+            # pattern); where QUILT_TRIES points miss, within twice and four times ``reach``,
+            # then anywhere
+            bi, bj = np.nonzero(touch)
+            near = starts[nearest[np.clip(rows[bi] * half, 0, size - 1), np.clip(cols[bj] * half, 0, size - 1)]] + half
+            scale = reach * np.repeat([1.0, 2.0, 4.0], QUILT_TRIES)[:, None]
+            angle, radius = rng.uniform(0, 2 * np.pi, scale.shape[0:1] + bi.shape), scale * np.sqrt(rng.random(scale.shape[0:1] + bi.shape))
+            point = np.rint(near + radius[..., None] * np.stack([np.sin(angle), np.cos(angle)], -1)).astype(int)
+            inside = np.all((point >= 0) & (point < size), axis=-1)
+            point = np.clip(point, 0, size - 1)
+            hit = inside & (centres[point[..., 0], point[..., 1]] == 0)
+            chosen = nearest[point[..., 0], point[..., 1]][hit.argmax(0), np.arange(len(bi))]
+            pick = starts[np.where(hit.any(0), chosen, rng.integers(len(starts), size=len(bi)))]
             patches = windows[:, pick[:, 0], pick[:, 1]]  # (C, n, block, block), a copy
             patches -= (patches.reshape(channels, len(pick), -1) @ mean_weights)[:, :, None, None]  # zero mean under the window
             patches *= window
