@@ -491,6 +491,19 @@ def test_quilted_detail_leaves_out_blocks_with_a_speck():
     assert 0.8 < out[~source].std() / 0.02 < 1.2
 
 
+def _albedo_with_the_right_hidden(ctx, log_detail):
+    """A skin colour × exp(``log_detail``) (S, S) on the hemisphere ``ctx``, the part right of
+    x = 0.1 hidden, through the default backend: (the backend, x (S, S), the visibility (S, S),
+    the albedo's log-luminance (S, S))."""
+    size = ctx.size
+    truth = srgb_to_linear(np.float32([0.78, 0.58, 0.48])) * np.exp(log_detail)[..., None]
+    x = np.linspace(-1, 1, size)[None, :].repeat(size, 0)
+    visible = (x < 0.1).astype(np.float32)
+    backend = DefaultBackend()
+    out = srgb_to_linear(backend.homogenise(backend.inpaint(linear_to_srgb(truth) * visible[..., None], visible, ctx), ctx))
+    return backend, x, visible, np.log(np.maximum(out.mean(-1), 1e-4))
+
+
 def test_quilted_detail_takes_the_texture_of_the_source_next_to_it():
     """The source's upper half is stubble (3 × the contrast of the lower half's pores): the fill
     beside each half gets that half's contrast (within 25 %). Drawn from anywhere, the blocks
@@ -526,12 +539,7 @@ def test_the_seen_skins_detail_keeps_its_contrast_where_it_fades_into_the_fill()
     rng = np.random.default_rng(5)
     pores = masked_blur(rng.normal(size=(size, size)).astype(np.float32), np.ones((size, size)), 1.0)
     pores *= 0.06 / pores.std()
-    truth = srgb_to_linear(np.float32([0.78, 0.58, 0.48])) * np.exp(pores)[..., None]
-    x = np.linspace(-1, 1, size)[None, :].repeat(size, 0)
-    visible = (x < 0.1).astype(np.float32)
-    backend = DefaultBackend()
-    out = srgb_to_linear(backend.homogenise(backend.inpaint(linear_to_srgb(truth) * visible[..., None], visible, ctx), ctx))
-    log_l = np.log(np.maximum(out.mean(-1), 1e-4))
+    backend, x, visible, log_l = _albedo_with_the_right_hidden(ctx, pores)
     fine = log_l - masked_blur(log_l, ctx.coverage, 3.0)
     reliable = backend.reliability(visible, ctx)
     facing = ctx.coverage & (ctx.normal_camera[..., 2] > 0.6) & (np.abs(ctx.normal_camera[..., 1]) < 0.5)
@@ -555,12 +563,7 @@ def test_hidden_side_without_a_mirror_gets_the_seen_skins_own_fine_texture():
     rng = np.random.default_rng(3)
     streaks = cv2.GaussianBlur(rng.normal(size=(size, size)).astype(np.float32), (0, 0), sigmaX=3.0, sigmaY=0.6)
     streaks *= 0.06 / streaks.std()
-    truth = srgb_to_linear(np.float32([0.78, 0.58, 0.48])) * np.exp(streaks)[..., None]
-    x = np.linspace(-1, 1, size)[None, :].repeat(size, 0)
-    visible = (x < 0.1).astype(np.float32)
-    backend = DefaultBackend()
-    out = srgb_to_linear(backend.homogenise(backend.inpaint(linear_to_srgb(truth) * visible[..., None], visible, ctx), ctx))
-    log_l = np.log(np.maximum(out.mean(-1), 1e-4))
+    _, x, _, log_l = _albedo_with_the_right_hidden(ctx, streaks)
     fine = log_l - masked_blur(log_l, ctx.coverage, size / 256)
     facing = ctx.coverage & (ctx.normal_camera[..., 2] > 0.6)
     seen, hidden = facing & (x < -0.2), facing & (x > 0.4)

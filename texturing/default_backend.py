@@ -66,8 +66,9 @@ Colour textures are sRGB in [0, 1], float32, S × S, image-style rows (see
   seen region's edge, else the mirror texel's where that was reliably seen (not its moles and
   specks: :data:`SPECK_SIGMAS`), else the finest detail (~1 mm at 1K: pores, stubble) of the
   reliably seen skin quilted in blocks (:func:`quilted_detail`: this face's own texture at its own
-  contrast, each block from the seen skin near the texel's nearest seen place) plus, away from the seen skin, the octaves up to S/32 texels (~12 mm at 1K) as colour
-  noise with the seen skin's own covariance per octave (:func:`band_noise`: its mottling; 3-D
+  contrast, each block from the seen skin near the block's nearest seen place) plus, away from
+  the seen skin, the octaves up to S/32 texels (~12 mm at 1K) as colour noise with the seen
+  skin's own covariance per octave (:func:`band_noise`: its mottling; 3-D
   value noise of the model-space position only where no whole block of skin was seen); the low
   frequencies B solve a screened Poisson problem on the mesh's vertices,
   min Σ r (B − (log seen − D))² + λ Σ_edges |∇B|² (+ a weak pull to the seen skin's mean far from
@@ -594,9 +595,9 @@ def quilted_detail(detail: np.ndarray, source: np.ndarray, need: np.ndarray, see
     """Detail (S, S, C) float32 over ``need`` (S, S) bool, made of blocks of ``detail`` (S, S, C)
     copied from places wholly inside ``source`` (S, S) bool and no busier than
     :data:`QUILT_ENERGY_CAP` × the median place of their neighbourhood: blocks of
-    :data:`QUILT_BLOCK` × S texels on a half-overlapping grid, each the place nearest to a random
-    point within :data:`QUILT_NEIGHBOURHOOD` × S / 2 texels of the place nearest to it (so the copy
-    has the texture of the source next to it), made zero-mean under its separable Hann window and
+    :data:`QUILT_BLOCK` × S texels on a half-overlapping grid, each from a place drawn uniformly
+    within :data:`QUILT_NEIGHBOURHOOD` × S / 2 texels of the place nearest to it (so the copy has
+    the texture of the source next to it), made zero-mean under its separable Hann window and
     blended with variance-preserving weights Σ w·x / √(Σ w²), so the copy keeps the source's
     contrast at every scale finer than a block and no block edge shows.
     Deterministic for a given ``seed``. 0 outside ``need``; None where ``source`` holds no whole
