@@ -440,17 +440,22 @@ def test_band_noise_is_a_function_of_the_surface_point():
     assert np.abs(left - right).max() < 0.05 * left.std()
 
 
+def _quilting_band(size, channels, sigma, seed):
+    """(S, S, C) float32 detail in the band the backend quilts: isotropic noise blurred over
+    1 texel less its blur over S/256 texels, scaled to standard deviation ``sigma``."""
+    ones = np.ones((size, size))
+    noise = masked_blur(np.random.default_rng(seed).normal(size=(size, size, channels)).astype(np.float32), ones, 1.0)
+    band = noise - masked_blur(noise, ones, size / 256)
+    return (band * (sigma / band.std())).astype(np.float32)
+
+
 def test_quilted_detail_keeps_the_sources_contrast_and_scale_without_a_block_grid():
     """Blocks of a source detail layer of known statistics (isotropic noise blurred over 1 texel,
     less its blur over S/256 texels: the band the backend quilts; σ 0.05) quilted over the rest of
     the map: the copy has the source's σ and mean gradient (within 10 %), zero mean, no variance
     pattern with the block grid's period, is deterministic and 0 outside ``need``."""
     size = 1024
-    rng = np.random.default_rng(0)
-    ones = np.ones((size, size))
-    texture = masked_blur(rng.normal(size=(size, size, 2)).astype(np.float32), ones, 1.0)
-    texture = texture - masked_blur(texture, ones, size / 256)
-    texture *= 0.05 / texture.std()
+    texture = _quilting_band(size, 2, 0.05, seed=0)
     source = np.zeros((size, size), bool)
     source[:, : size // 2] = True
     need = ~source
@@ -510,11 +515,7 @@ def test_quilted_detail_takes_the_texture_of_the_source_next_to_it():
     gave both sides one mix (0.51 and 1.57 of their neighbours'; the busy half's blocks also
     fell under the cap of the whole source's median)."""
     size = 512
-    rng = np.random.default_rng(4)
-    ones = np.ones((size, size))
-    texture = masked_blur(rng.normal(size=(size, size, 1)).astype(np.float32), ones, 1.0)
-    texture = texture - masked_blur(texture, ones, size / 256)
-    texture *= 0.02 / texture.std()
+    texture = _quilting_band(size, 1, 0.02, seed=4)
     rows = np.arange(size)[:, None].repeat(size, 1)
     stubble = rows < size // 2
     texture[stubble] *= 3.0
