@@ -509,6 +509,13 @@ def _smoothstep(t: np.ndarray) -> np.ndarray:
     return t * t * (3 - 2 * t)
 
 
+def _mix_keeping_contrast(a: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """(a · x + (1 − a) · y) / √(a² + (1 − a)²) for weights ``a`` in [0, 1] and zero-mean detail
+    layers ``x``, ``y`` (broadcast): two independent layers mixed linearly keep only a² + (1 − a)²
+    of their variance (half at a = ½), so this keeps their contrast where the mix changes."""
+    return (a * x + (1 - a) * y) / np.sqrt(a * a + (1 - a) ** 2)
+
+
 def _skin(ctx: TextureContext) -> np.ndarray:
     return ctx.coverage if ctx.skin is None else ctx.coverage & (ctx.skin > 0.5)
 
@@ -665,9 +672,9 @@ def quilted_detail(detail: np.ndarray, source: np.ndarray, need: np.ndarray, see
             scale = reach * np.repeat([1.0, 2.0, 4.0], QUILT_TRIES)[:, None]
             angle, radius = rng.uniform(0, 2 * np.pi, scale.shape[0:1] + bi.shape), scale * np.sqrt(rng.random(scale.shape[0:1] + bi.shape))
             point = np.rint(near + radius[..., None] * np.stack([np.sin(angle), np.cos(angle)], -1)).astype(int)
-            inside = np.all((point >= 0) & (point < size), axis=-1)
+            on_map = np.all((point >= 0) & (point < size), axis=-1)
             point = np.clip(point, 0, size - 1)
-            hit = inside & (centres[point[..., 0], point[..., 1]] == 0)
+            hit = on_map & (centres[point[..., 0], point[..., 1]] == 0)
             chosen = nearest[point[..., 0], point[..., 1]][hit.argmax(0), np.arange(len(bi))]
             pick = starts[np.where(hit.any(0), chosen, rng.integers(len(starts), size=len(bi)))]
             patches = windows[:, pick[:, 0], pick[:, 1]]  # (C, n, block, block), a copy
@@ -1145,11 +1152,9 @@ class DefaultBackend:
         values, data, asymmetry, trust = self._with_mirror_tone(log_seen - detail_fill, data, reliable, via_mirror, skin, ctx)
         base = self._base(values, data, np.log(np.maximum(mean, 1e-4)), ctx, FILL_SMOOTHNESS)
         # the tone blended by the reliability; the detail by the same weights made to keep its
-        # contrast (the texel's own and the fill's, independent layers mixed with weights a and
-        # 1 − a, have a² + (1 − a)² of their variance: a band of smoother skin along the seen edge)
+        # contrast (mixed linearly, a band of smoother skin along the seen edge)
         r = reliable[..., None]
-        a = r + (1 - r) * own
-        out_log = r * (log_seen - own_detail) + (1 - r) * base + (a * own_detail + (1 - a) * other) / np.sqrt(a * a + (1 - a) ** 2)
+        out_log = r * (log_seen - own_detail) + (1 - r) * base + _mix_keeping_contrast(r + (1 - r) * own, own_detail, other)
         out = np.where(cover[..., None], np.exp(out_log), 0.0)
         if greyscale:
             out = invent_chroma(luminance(out), ctx.regions.get("lips"))
@@ -1294,8 +1299,7 @@ class DefaultBackend:
                 n = value_noise(pos, 0.35) + 0.7 * value_noise(pos, 0.7, seed=1) + 0.4 * value_noise(pos, 1.5, seed=2)
                 noise[need] = amp * n / max(float(n.std()), 1e-6)
             synthesised = noise[..., None]
-        w = w_m[..., None]
-        other = (w * mirrored + (1 - w) * synthesised) / np.sqrt(w * w + (1 - w) ** 2)  # independent: variance kept
+        other = _mix_keeping_contrast(w_m[..., None], mirrored, synthesised)
         return (own.astype(np.float32), np.where(cover[..., None], detail, 0.0).astype(np.float32),
                 np.where(cover[..., None], other, 0.0).astype(np.float32), w_m, amp)
 
