@@ -1,5 +1,6 @@
 """The default texture backend on a synthetic UV context: a hemisphere seen from the front."""
 
+import cv2
 import numpy as np
 import pytest
 import torch
@@ -749,6 +750,41 @@ def test_a_misplaced_shadow_edge_is_taken_out_and_a_beard_far_from_one_kept(face
     left_with, left_without = np.median(with_dips[strip]) - skin_level, np.median(without[strip]) - skin_level
     assert left_with > left_without + 0.2  # the strip was ~1.5 darker (the shadow side's ambient)
     assert np.median(with_dips[beard]) - skin_level == pytest.approx(-0.6, abs=0.1)
+
+
+def test_under_an_even_light_the_meshs_occlusion_is_taken_out_and_a_beard_kept(face_context):
+    """An even environment: each texel's irradiance is the posed mesh's own sky visibility
+    (:func:`facegeo.uv.sky_visibility`; the nostrils, the eyes' corners and the mouth's are
+    occluded), on a constant albedo with a dark patch (−0.6 in log albedo: a beard) on open,
+    facing skin. Where the sky is at most half seen, the dips still take out at least 0.3 (log) of
+    the occlusion (the photo is ~0.8 below the skin there, the de-lit ~0.4); the patch stays as
+    dark as it is (before the mesh's sky bounded the dips, it was taken for a shadow and came out
+    0.24 lighter)."""
+    from facegeo.uv import sky_visibility
+
+    ctx = face_context
+    cover = ctx.coverage
+    sky = ctx.surface.to_texels(sky_visibility(ctx.vertices_camera, ctx.triangles)[:, None], ctx.size)[..., 0]
+    skin = cover & (ctx.skin > 0.5)
+    facing = skin & (ctx.normal_camera[..., 2] > 0.5)
+    open_skin = facing & (cv2.erode(np.where(cover, sky, 1.0).astype(np.float32), np.ones((15, 15), np.uint8)) > 0.97)
+    centre = np.argwhere(open_skin)[len(np.argwhere(open_skin)) // 2]
+    yy, xx = np.mgrid[: cover.shape[0], : cover.shape[1]]
+    beard = open_skin & ((yy - centre[0]) ** 2 + (xx - centre[1]) ** 2 <= 25)
+    assert beard.sum() > 20
+    log_albedo = np.full(cover.shape, np.log(0.4), np.float32)
+    log_albedo[beard] -= 0.6
+    colour = np.exp(log_albedo)[..., None] * np.array([1.1, 0.75, 0.6], np.float32)
+    photo = linear_to_srgb(np.where(cover[..., None], colour * sky[..., None], 0.0)).astype(np.float32)
+    backend = DefaultBackend(skin_albedo=None)
+    delit = np.log(np.maximum(srgb_to_linear(backend.homogenise(photo, ctx))[..., 1], 1e-4))
+    assert backend.report["analyse"]["delighting_strength"] == 0.0 and "light" not in backend.report
+    skin_level = np.median(delit[open_skin & ~beard])
+    occluded = facing & (sky < 0.5)
+    shadow = float(np.median(np.log(sky[occluded])))
+    assert occluded.sum() > 20 and shadow < -0.7
+    assert np.median(delit[occluded]) - skin_level > shadow + 0.3
+    assert np.median(delit[beard]) - skin_level == pytest.approx(-0.6, abs=0.1)
 
 
 def test_the_fill_takes_its_tone_from_the_lit_skin_not_the_shadowed_fringe(face_context, monkeypatch):

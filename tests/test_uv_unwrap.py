@@ -186,3 +186,30 @@ def test_render_buffers(model):
     np.testing.assert_allclose(view.depth[both], t_hit[both], rtol=1e-4)
     with pytest.raises(InputError):
         render(np.zeros((5, 3)), model, fit.camera)
+
+
+def test_sky_visibility_of_a_plane_and_of_the_floor_of_a_square_well():
+    """A flat plane sees the whole sky; the centre of a square well's floor (half-side s, depth
+    h) sees it through the opening only: the view factor of a differential area to a parallel
+    coaxial square, (4/π) · x/√(1+x²) · atan(x/√(1+x²)) with x = s/h (Howell's catalogue of
+    configuration factors, B-3, summed over the four quadrants; 0.55 for s = h)."""
+    from facegeo.uv import sky_visibility
+    from facegeo.uv.renderer import SKY_OFFSET_MM
+
+    grid = np.stack(np.meshgrid(np.linspace(-50, 50, 5), np.linspace(-50, 50, 5)), -1).reshape(-1, 2)
+    plane = np.concatenate([grid, np.zeros((25, 1))], 1)
+    quads = [(r * 5 + c, r * 5 + c + 1, (r + 1) * 5 + c + 1, (r + 1) * 5 + c) for r in range(4) for c in range(4)]
+    triangles = np.array([t for a, b, c, d in quads for t in ((a, b, c), (a, c, d))])
+    np.testing.assert_allclose(sky_visibility(plane, triangles), 1.0)
+
+    s = h = 100.0
+    floor = [(0, 0, 0), (-s, -s, 0), (s, -s, 0), (s, s, 0), (-s, s, 0)]
+    top = [(-s, -s, h), (s, -s, h), (s, s, h), (-s, s, h)]
+    vertices = np.array(floor + top, np.float64)
+    fan = [(0, 1, 2), (0, 2, 3), (0, 3, 4), (0, 4, 1)]  # counter-clockwise from above: the floor faces +z
+    walls = [t for a in range(4) for t in ((1 + a, 1 + (a + 1) % 4, 5 + (a + 1) % 4), (1 + a, 5 + (a + 1) % 4, 5 + a))]
+    x = s / (h - SKY_OFFSET_MM)  # the rays start SKY_OFFSET_MM above the floor
+    root = np.sqrt(1 + x * x)
+    expected = 4.0 / np.pi * (x / root) * np.arctan(x / root)
+    sky = sky_visibility(vertices, np.array(fan + walls), directions=4096)
+    assert sky[0] == pytest.approx(expected, abs=0.01)

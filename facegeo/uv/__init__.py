@@ -38,6 +38,7 @@ _EXPORTS = {
     "render": "facegeo.uv.renderer",
     "rasterize_mesh": "facegeo.uv.renderer",
     "light_visibility": "facegeo.uv.renderer",
+    "sky_visibility": "facegeo.uv.renderer",
 }
 
 __all__ = list(_EXPORTS)
@@ -45,7 +46,7 @@ __all__ = list(_EXPORTS)
 if TYPE_CHECKING:
     from facegeo.uv.maps import GeometryMaps, geometry_maps
     from facegeo.uv.raster import UVRaster, clear_raster_cache, default_padding, rasterize_uv
-    from facegeo.uv.renderer import Rendering, light_visibility, rasterize_mesh, render
+    from facegeo.uv.renderer import Rendering, light_visibility, rasterize_mesh, render, sky_visibility
     from facegeo.normals import vertex_normals
     from facegeo.uv.tangents import mesh_tangents, mikktspace_tangents
     from facegeo.uv.unwrapping import FACING_RAMP, Unwrapped, unwrap, unwrap_details

@@ -24,13 +24,16 @@ from facegeo.errors import InputError
 from facegeo.uv._triangles import triangle_fragments
 from facegeo.uv.texels import sample_uv
 
-__all__ = ["Rendering", "render", "rasterize_mesh", "light_visibility"]
+__all__ = ["Rendering", "render", "rasterize_mesh", "light_visibility", "sky_visibility"]
 
 #: Default near distance in mm: triangles with a corner closer to the camera plane are skipped.
 NEAR_MM = 1.0
 #: :func:`light_visibility`'s light camera stands this far (mm) beyond the mesh along the light:
 #: a pinhole so far away is a directional light (its rays diverge by < 0.2° over a head).
 LIGHT_DISTANCE_MM = 1e5
+#: :func:`sky_visibility`'s rays start this far (mm) off the surface along its normal, so that a
+#: ray does not hit the triangles around its own vertex.
+SKY_OFFSET_MM = 0.5
 
 
 @dataclass(frozen=True, eq=False)
@@ -201,3 +204,44 @@ def light_visibility(vertices: np.ndarray, triangles: np.ndarray, points: np.nda
     nearest = np.full(len(p), np.inf)
     nearest[inside] = depth[pixel[inside, 1], pixel[inside, 0]]
     return -p[:, 2] <= nearest + bias_mm
+
+
+def sky_visibility(vertices: np.ndarray, triangles: np.ndarray, directions: int = 64) -> np.ndarray:
+    """Ambient occlusion: the share of a uniform sky that each vertex of a mesh sees past the mesh
+    itself, cosine-weighted (its irradiance under an even environment, relative to an open plane's).
+
+    Rays are cast from each vertex (moved :data:`SKY_OFFSET_MM` along its normal) in ``directions``
+    fixed directions spread evenly over the sphere (a Fibonacci lattice: the same answer on every
+    run); a ray that meets a triangle is blocked. Ray casting is open3d's (Embree): 64 rays from
+    11k vertices take ~0.1 s; the rasterised shadow maps of :func:`light_visibility` took 0.7 s
+    for 32 directions at 2 mm.
+
+    Args:
+        vertices: (V, 3) positions, mm. triangles: (F, 3) counter-clockwise vertex indices (the
+            normals point out of the surface).
+        directions: rays per vertex.
+    Returns:
+        (V,) float32 in [0, 1]: 1 where nothing of the mesh hides the sky above the vertex.
+    """
+    import open3d as o3d  # here only: its import takes ~0.7 s that the rest of this module never needs
+
+    from facegeo.normals import vertex_normals
+
+    v = np.asarray(vertices, np.float32)
+    f = np.asarray(triangles, np.uint32).reshape(-1, 3)
+    if len(v) == 0:
+        return np.zeros(0, np.float32)
+    n = vertex_normals(v, f).astype(np.float32)
+    k = np.arange(directions) + 0.5
+    z = 1.0 - 2.0 * k / directions
+    phi = np.pi * (3.0 - np.sqrt(5.0)) * k
+    d = np.stack([np.sqrt(1.0 - z * z) * np.cos(phi), np.sqrt(1.0 - z * z) * np.sin(phi), z], axis=1).astype(np.float32)
+    scene = o3d.t.geometry.RaycastingScene()
+    scene.add_triangles(o3d.core.Tensor(v), o3d.core.Tensor(f))
+    origin = v + SKY_OFFSET_MM * n
+    rays = np.concatenate([np.repeat(origin, directions, axis=0), np.tile(d, (len(v), 1))], axis=1)
+    blocked = scene.test_occlusions(o3d.core.Tensor(rays)).numpy().reshape(len(v), directions)
+    cosine = np.maximum(n @ d.T, 0.0)
+    total = cosine.sum(axis=1)
+    seen = (cosine * ~blocked).sum(axis=1)
+    return np.where(total > 0, seen / np.maximum(total, 1e-12), 0.0).astype(np.float32)
