@@ -24,7 +24,7 @@ from facegeo.errors import InputError
 from facegeo.uv._triangles import triangle_fragments
 from facegeo.uv.texels import sample_uv
 
-__all__ = ["Rendering", "render", "rasterize_mesh", "light_visibility", "sky_visibility"]
+__all__ = ["Rendering", "light_visibility", "rasterize_mesh", "render", "sky_visibility"]
 
 #: Default near distance in mm: triangles with a corner closer to the camera plane are skipped.
 NEAR_MM = 1.0
