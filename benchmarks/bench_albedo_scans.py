@@ -51,6 +51,10 @@ least-squares scaled onto the truth's over the seen skin; chroma is not fitted):
   colours on the seen texels are extended by the new backend's gradient-domain fill (with the
   mirror's tone as far as the truth's own seen sides agree); no fill from the seen skin can be
   expected to do better (the scan's unseen skin differs: beard, neck);
+* **truth through the fill**: the gradient ratios (all / seen / filled skin) of the new backend's
+  albedo when its input is the truth's own colours on the seen texels (the photo-pixel truth
+  where the texel is on the scan, else the 3-D truth) with the same visibility: how much of the
+  scan's detail the fill can carry when the seen skin is perfect;
 * **off-skin**: share of skin texels whose albedo colour the real skin map never takes: Lab
   Mahalanobis distance > :data:`OFF_SKIN_SIGMAS` from a robust Gaussian (median, MAD-scaled
   covariance) of the truth's colours over the skin texels (glasses, background, hair, dark cast
@@ -296,7 +300,14 @@ def evaluate(scan: str, name: str, render: str, light: str, model, raster, skin_
     via_mirror = np.where(has, reliable.reshape(-1)[mirror], 0.0).astype(np.float32)
     values, weight, _, _ = DefaultBackend._with_mirror_tone(log_truth, reliable, reliable, via_mirror, skin_texels, ctx)
     extended = np.exp(DefaultBackend()._base(values, weight, mean, ctx, FILL_SMOOTHNESS))
-    out = {"scan": scan, "view": name, "seen_texels": int(seen_skin.sum()), "filled_texels": int(filled_skin.sum()),
+    # the same backend on the truth's own colours where the photo saw the skin
+    through = DefaultBackend()
+    seen_truth = np.where(truth_seen_ok[..., None], truth_seen, truth)
+    t_truth = np.where(seen[..., None], linear_to_srgb(np.clip(seen_truth, 0.0, 1.0)), 0.0).astype(np.float32)
+    via_fill = srgb_to_linear(through.homogenise(through.inpaint(t_truth, m_vis, ctx), ctx))
+    g_via = gradient(lab(masked_blur(via_fill * exposure(via_fill[seen_skin], truth_seen[seen_skin]), skin, blur)), skin)
+    through_fill = [float(np.nanmean(g_via[m]) / np.nanmean(g_truth[m])) if m.any() else float("nan") for m in (skin, seen_skin, filled_skin)]
+    out = {"scan": scan, "view": name, "truth_through_fill_gradient": through_fill, "seen_texels": int(seen_skin.sum()), "filled_texels": int(filled_skin.sum()),
            "truth_seam": seam(g_truth), "blur_texels": blur, "fit_rms_px": fit.landmark_rms_px, "methods": {},
            "mirror_asymmetry": new_backend.report["inpaint"].get("mirror_asymmetry"),
            "mirror_tone": new_backend.report["inpaint"].get("mirror_tone"),
@@ -366,11 +377,16 @@ def report(rows: list[dict]) -> list[str]:
                          f"{fmt(r['gradient'])} ({fmt(r['gradient_seen'])} / {fmt(r['gradient_filled'])}) | {fmt(r['seam'])} ({fmt(row['truth_seam'])}) | "
                          f"{100 * r['off_skin']:.2f} |")
     lines += ["", "Filled skin, ΔE2000 median: the new backend, the flat colour, and the truth's own colours on the seen texels "
-              "extended by the new backend's fill (what any fill from the seen skin reaches on that scan):", "",
-              "| scan | view | new | flat | truth extended |", "|---|---|---|---|---|"]
+              "extended by the new backend's fill (what any fill from the seen skin reaches on that scan); the gradient ratio "
+              "(all / seen / filled skin) of the new backend on the photo and on the truth's own colours on the seen texels "
+              "(truth through the fill):", "",
+              "| scan | view | new | flat | truth extended | gradient: new | gradient: truth through the fill |", "|---|---|---|---|---|---|---|"]
     for row in rows:
-        lines.append(f"| {SCAN_LABELS[row['scan']]} | {row['view']} | {fmt(row['methods']['new']['de_filled'])} | {fmt(row['methods']['flat']['de_filled'])} | "
-                     f"{fmt(row.get('truth_extended_de_filled', float('nan')))} |")
+        new = row["methods"]["new"]
+        via = row.get("truth_through_fill_gradient", [float("nan")] * 3)
+        lines.append(f"| {SCAN_LABELS[row['scan']]} | {row['view']} | {fmt(new['de_filled'])} | {fmt(row['methods']['flat']['de_filled'])} | "
+                     f"{fmt(row.get('truth_extended_de_filled', float('nan')))} | {fmt(new['gradient'])} ({fmt(new['gradient_seen'])} / "
+                     f"{fmt(new['gradient_filled'])}) | {fmt(via[0])} ({fmt(via[1])} / {fmt(via[2])}) |")
     # the bars, on the even and hard side views (the issue's) and on all views
     lines += ["", "| bar | new | previous |", "|---|---|---|"]
     scans = list(dict.fromkeys(r["scan"] for r in rows))
