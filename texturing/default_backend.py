@@ -929,7 +929,7 @@ class DefaultBackend:
                 # under an even light a dip is occlusion only as deep as the fitted mesh's sky
                 # visibility allows within SHADOW_EDGE_MM (the nostrils, the eyes' corners); deeper,
                 # or on open skin, it is albedo (a beard)
-                dip = np.maximum(dip, self._occlusion_floor(ctx))
+                dip = np.maximum(dip, self._occlusion_floor(ctx, dip < 0))
             shading = shading * np.exp(np.where(cover, dip, 0.0))
         facing = np.clip(normals[..., 2] / 0.5, 0.0, 1.0)
         grazing, most = (GRAZING_GAIN, MAX_GAIN) if light is None else LIGHT_GAIN
@@ -1059,16 +1059,22 @@ class DefaultBackend:
         return np.where(cover, shading, 1.0).astype(np.float32), np.where(cover, cast, 1.0).astype(np.float32), report
 
     @staticmethod
-    def _occlusion_floor(ctx: TextureContext) -> np.ndarray:
+    def _occlusion_floor(ctx: TextureContext, dips: np.ndarray) -> np.ndarray:
         """(S, S) float32 ≤ 0: the log of the posed mesh's sky visibility
         (:func:`facegeo.uv.sky_visibility`, the irradiance an even environment leaves it) at its
-        lowest within :data:`SHADOW_EDGE_MM` of each texel (the fitted mesh is a few mm off); 0
-        outside the layout."""
-        sky = ctx.surface.to_texels(sky_visibility(ctx.vertices_camera, ctx.triangles)[:, None], ctx.size)[..., 0]
+        lowest within :data:`SHADOW_EDGE_MM` of each texel (the fitted mesh is a few mm off),
+        evaluated at the vertices within that distance of the ``dips`` (S, S) bool texels only (0
+        elsewhere: no dip there to bound); 0 outside the layout."""
+        cover = ctx.coverage
         radius = max(1, int(round(SHADOW_EDGE_MM / ctx.median_texel_mm)))
         disc = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * radius + 1, 2 * radius + 1))
-        lowest = cv2.erode(np.where(ctx.coverage, sky, 1.0).astype(np.float32), disc)
-        return np.where(ctx.coverage, np.log(np.maximum(lowest, 1e-3)), 0.0).astype(np.float32)
+        near = cv2.dilate((dips & cover).astype(np.uint8), disc).astype(bool) & cover
+        _, touched = ctx.surface.to_vertices(near.astype(np.float32), near.astype(np.float32))
+        at = np.flatnonzero(touched > 0)
+        sky = np.ones(len(touched), np.float32)
+        sky[at] = sky_visibility(ctx.vertices_camera, ctx.triangles, at=at)
+        lowest = cv2.erode(np.where(cover, ctx.surface.to_texels(sky[:, None], ctx.size)[..., 0], 1.0).astype(np.float32), disc)
+        return np.where(cover, np.log(np.maximum(lowest, 1e-3)), 0.0).astype(np.float32)
 
     @staticmethod
     def _sun_lobe(light: np.ndarray, lit: np.ndarray, ctx: TextureContext) -> np.ndarray:
