@@ -62,6 +62,7 @@ least-squares scaled onto the truth's over the seen skin; chroma is not fitted):
 
     python benchmarks/bench_albedo_scans.py --write /tmp/albedo_scans.md    # ~7 min on 2 cores, both scans
     python benchmarks/bench_albedo_scans.py --time-stages 5                  # texture-stage times
+    python benchmarks/bench_albedo_scans.py --time-stages 5 --photo obama.jpg  # ... under an even light
 """
 
 from __future__ import annotations
@@ -421,17 +422,27 @@ def report(rows: list[dict]) -> list[str]:
     return lines
 
 
-def time_stages(rounds: int) -> list[str]:
+def time_stages(rounds: int, photo_name: str | None = None) -> list[str]:
     """Wall time of the texture stages (inpaint + homogenise + materials, all maps) at S = 1024 on
-    the bundled photo, the previous backend and the new one alternating on one fit, unwrap and
-    context (the new skin mask for both): markdown lines with min and median."""
+    the bundled photo (a directional light) or the sample photo ``photo_name``
+    (:mod:`sample_photos`), the previous backend and the new one alternating on one fit, unwrap
+    and context (the new skin mask for both): markdown lines with min and median."""
     from facegeo.assets import asset_path
     from facegeo.photo import load_photo
     from facegeo.texturing.context import build_context
     from facegeo.uv import unwrap
 
     model = facegeo.load_model()
-    photo = load_photo(asset_path("photos/astronaut.png"))
+    if photo_name is None:
+        path = asset_path("photos/astronaut.png")
+    else:
+        from sample_photos import sample_photos, white_house_photos
+
+        found = [p for p in sample_photos() + white_house_photos() if p.name == photo_name]
+        if not found:
+            raise SystemExit(f"--photo: no sample photo named {photo_name!r}")
+        path = found[0]
+    photo = load_photo(path)
     fit = facegeo.fit(photo, model)
     raster = rasterize_uv(model, size=1024)
     maps = geometry_maps(fit.vertices, model, raster, tangents=False)
@@ -446,7 +457,7 @@ def time_stages(rounds: int) -> list[str]:
             t = time.perf_counter()
             backend.materials(backend.homogenise(backend.inpaint(t_inc, m_vis, ctx), ctx), ctx)
             times[label].append(time.perf_counter() - t)
-    lines = [f"Texture stages (inpaint + homogenise + materials, all maps) on `photos/astronaut.png`, S = 1024, "
+    lines = [f"Texture stages (inpaint + homogenise + materials, all maps) on `{path.name}`, S = 1024, "
              f"torch threads {torch.get_num_threads()}, {rounds} alternating rounds; load average {start} at the start, "
              f"{load()} at the end:", "", "| backend | min s | median s |", "|---|---|---|"]
     for label, values in times.items():
@@ -462,13 +473,14 @@ def main(argv=None) -> int:
     ap.add_argument("--write", type=Path, default=None, help="also write the markdown report here")
     ap.add_argument("--json", type=Path, default=None, help="also write the raw numbers here")
     ap.add_argument("--time-stages", type=int, default=0, metavar="ROUNDS", help="only time the texture stages, this many rounds")
+    ap.add_argument("--photo", default=None, help="with --time-stages: a sample photo by file name (default the bundled astronaut)")
     ap.add_argument("--dump", type=Path, default=None, help="write the compared UV maps (truth seen, truth 3-D, methods) here")
     args = ap.parse_args(argv)
     global DUMP
     DUMP = args.dump
     torch.set_num_threads(max(1, os.cpu_count() or 1))
     if args.time_stages:
-        print("\n".join(time_stages(args.time_stages)))
+        print("\n".join(time_stages(args.time_stages, args.photo)))
         return 0
     load_start, t_start = load(), time.perf_counter()
     model = facegeo.load_model()
