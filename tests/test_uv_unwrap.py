@@ -214,3 +214,7 @@ def test_sky_visibility_of_a_plane_and_of_the_floor_of_a_square_well():
     sky = sky_visibility(vertices, np.array(fan + walls), directions=4096)
     assert sky[0] == pytest.approx(expected, abs=0.01)
     assert sky_visibility(vertices, np.array(fan + walls), directions=4096, at=np.array([0, 5])) == pytest.approx(sky[[0, 5]])
+    with pytest.raises(InputError, match="directions"):
+        sky_visibility(vertices, np.array(fan + walls), directions=0)
+    with pytest.raises(InputError, match="vertices"):
+        sky_visibility(vertices[:, :2], np.array(fan + walls))

@@ -225,7 +225,14 @@ def sky_visibility(vertices: np.ndarray, triangles: np.ndarray, directions: int 
         at: (N,) int indices of the vertices to evaluate (default: all).
     Returns:
         (N,) float32 in [0, 1]: 1 where nothing of the mesh hides the sky above the vertex.
+    Raises:
+        InputError: ``directions`` below 1, or vertices or triangles not (·, 3).
     """
+    if int(directions) < 1:
+        raise InputError("<argument>", "directions", "at least 1 ray per vertex", str(directions))
+    if np.ndim(vertices) != 2 or np.shape(vertices)[1] != 3 or np.ndim(triangles) != 2 or np.shape(triangles)[1] != 3:
+        raise InputError("<array>", "vertices, triangles", "(V, 3) positions and (F, 3) vertex indices",
+                         f"{np.shape(vertices)} and {np.shape(triangles)}")
     import igl  # here only: ~0.25 s of import that the rest of this module never needs
 
     from facegeo.normals import vertex_normals
