@@ -946,13 +946,11 @@ def test_the_sheen_of_a_white_environment_is_taken_out(face_context):
     sphere): the photo's skin is greyer where it turns away from the camera (Fresnel). The
     de-lit albedo is the skin's own colour there too, and without the specular model it is not."""
     from facegeo.texturing.illuminant import chroma
+    from facegeo.uv.renderer import sphere_directions
 
     ctx = face_context
     cover = ctx.coverage
-    k = np.arange(300) + 0.5
-    z = 1 - 2 * k / 300
-    phi = np.pi * (3 - np.sqrt(5)) * k
-    lights = np.stack([np.sqrt(1 - z * z) * np.cos(phi), np.sqrt(1 - z * z) * np.sin(phi), z], 1)
+    lights = sphere_directions(300)
     radiance = np.full((300, 3), 4 * np.pi / 300)  # radiance 1 from every direction: irradiance π on a plane
     albedo = np.array([0.55, 0.36, 0.28], np.float32)  # luminance 0.39
     lit = _ggx_render(ctx, albedo, lights, radiance, 0.5)

@@ -126,7 +126,7 @@ from facegeo.robust_gaussian import chi2_quantile, mahalanobis_squared, robust_g
 from facegeo.texturing.backend import SKIN_CONSTANTS, TextureContext
 from facegeo.texturing.ggx import environment_brdf
 from facegeo.texturing.illuminant import chroma, estimate_illuminant, invent_chroma, remove_cast
-from facegeo.uv.renderer import light_visibility, sky_visibility
+from facegeo.uv.renderer import light_visibility, sky_visibility, sphere_directions
 
 __all__ = ["DefaultBackend", "REGION_PRIORS", "pad_outside", "masked_blur", "gaussian_blur", "value_noise", "MAX_GAIN",
            "GRAZING_GAIN", "QUILT_BLOCK", "QUILT_ENERGY_CAP", "QUILT_NEIGHBOURHOOD", "QUILT_TRIES", "quilted_detail", "restore_clipped", "band_noise", "gradient_noise", "nonnegative_least_squares", "GRAIN_COARSEST", "MID_BAND_COARSEST", "MID_BAND_STRENGTH", "NOISE_CELL_PER_SIGMA", "SPECK_SIGMAS", "SHADOW_TOLERANCE", "SHADOW_EDGE_MM", "AMBIENT_LOG_ERROR", "FILL_TONE_TOLERANCE", "HIGHLIGHT_RATIO", "CLIPPED_LEVEL", "DETAIL_DEPTH_MM", "DETAIL_LIMIT_MM", "SH_TERMS",
@@ -1017,10 +1017,7 @@ class DefaultBackend:
         log_y = np.log(np.maximum(lum.ravel()[rows].astype(np.float64), 1e-6))
         y = np.exp(log_y)
         # the grid: per candidate direction, ambient and L by least squares, scored by the median |log-ratio|
-        k = np.arange(LIGHT_CANDIDATES) + 0.5
-        z = 1.0 - 2.0 * k / LIGHT_CANDIDATES
-        phi = np.pi * (3.0 - np.sqrt(5.0)) * k
-        candidates = np.stack([np.sqrt(1 - z * z) * np.cos(phi), np.sqrt(1 - z * z) * np.sin(phi), z], axis=1)
+        candidates = sphere_directions(LIGHT_CANDIDATES)
         candidates = candidates[candidates[:, 2] >= LIGHT_MIN_Z]
         grid_rows = slice(None, None, max(1, len(rows) // 4000))
         cos = np.maximum(n[grid_rows] @ candidates.T, 0.0)  # (n, K)
