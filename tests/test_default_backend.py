@@ -173,6 +173,25 @@ def test_highlights_are_found_removed_and_make_the_skin_glossier():
     assert maps["roughness"][40, 50] < maps["roughness"][40, 20] - 0.05
 
 
+def test_seen_skin_far_from_the_reliable_skin_is_judged_against_its_own_neighbourhood():
+    """Reliable skin only in the middle of the hemisphere: the rim is beyond the highlight
+    neighbourhood's reach (~3σ, 8 texels at S = 128). Judged against that skin, its mean there
+    was 0 and the whole rim passed for a highlight (filled, weight 0); against the seen texels
+    around it, only a white spot on it is one."""
+    size = 128
+    ctx = hemisphere_context(size)
+    r = (np.arange(size) + 0.5) / size * 2 - 1
+    x, y = np.meshgrid(r, -r)
+    ctx.skin[...] = (np.hypot(x, y) < 0.35) * ctx.coverage
+    lin = srgb_to_linear(np.broadcast_to(np.float32([0.75, 0.55, 0.45]), (size, size, 3)))
+    rows, cols = np.arange(size)[:, None], np.arange(size)[None, :]
+    spot = 0.5 * np.exp(-((rows - 64) ** 2 + (cols - 12) ** 2) / (2 * 1.5**2))  # on the rim, row 64, column 12
+    an = DefaultBackend().analyse(linear_to_srgb(lin + spot[..., None]), ctx.coverage.astype(np.float32), ctx)
+    rim = ctx.coverage & (np.hypot(x, y) > 0.6) & (np.hypot(rows - 64, cols - 12) > 8)
+    assert an.highlight[rim].max() == 0.0 and an.weight[rim].min() > 0.99
+    assert an.highlight[64, 12] > 0.9
+
+
 def test_gains_are_bounded_and_smaller_at_grazing_angles():
     gamma = np.zeros((3, 9), np.float32)
     gamma[:, 0], gamma[:, 3] = 0.6, -0.8  # strong side light: half the sphere nearly black

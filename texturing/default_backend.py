@@ -45,8 +45,9 @@ Colour textures are sRGB in [0, 1], float32, S × S, image-style rows (see
   is as saturated as the skin away from the lobe nothing is taken, so a lobe the fitted normals
   misplace takes out no colour.
 * **Highlights**: de-lit luminance above :data:`HIGHLIGHT_RATIO` × its neighbourhood's (Gaussian,
-  σ = S/48 texels, ~6 mm at 1K, re-estimated without the first pass's candidates); they are
-  treated as unseen (filled) and are the specular map's evidence.
+  σ = S/48 texels, ~6 mm at 1K, re-estimated without the first pass's candidates; the reliable
+  skin's, and the seen texels' where no reliable skin is near: :data:`HIGHLIGHT_REFERENCE_SUPPORT`);
+  they are treated as unseen (filled) and are the specular map's evidence.
 * **Clipped texels** (a channel at :data:`CLIPPED_LEVEL`, over-exposed skin) are left out of
   every fit: their values are lower bounds. Where only some channels are clipped, those are raised
   to what the others and the surrounding skin's colour ratios imply (:func:`restore_clipped`).
@@ -129,7 +130,7 @@ from facegeo.texturing.illuminant import chroma, estimate_illuminant, invent_chr
 from facegeo.uv.renderer import light_visibility, sky_visibility, sphere_directions
 
 __all__ = ["DefaultBackend", "REGION_PRIORS", "pad_outside", "masked_blur", "gaussian_blur", "value_noise", "MAX_GAIN",
-           "GRAZING_GAIN", "QUILT_BLOCK", "QUILT_ENERGY_CAP", "QUILT_NEIGHBOURHOOD", "QUILT_TRIES", "quilted_detail", "restore_clipped", "band_noise", "gradient_noise", "nonnegative_least_squares", "GRAIN_COARSEST", "MID_BAND_COARSEST", "MID_BAND_STRENGTH", "NOISE_CELL_PER_SIGMA", "SPECK_SIGMAS", "SHADOW_TOLERANCE", "SHADOW_EDGE_MM", "AMBIENT_LOG_ERROR", "FILL_TONE_TOLERANCE", "HIGHLIGHT_RATIO", "CLIPPED_LEVEL", "DETAIL_DEPTH_MM", "DETAIL_LIMIT_MM", "SH_TERMS",
+           "GRAZING_GAIN", "QUILT_BLOCK", "QUILT_ENERGY_CAP", "QUILT_NEIGHBOURHOOD", "QUILT_TRIES", "quilted_detail", "restore_clipped", "band_noise", "gradient_noise", "nonnegative_least_squares", "GRAIN_COARSEST", "MID_BAND_COARSEST", "MID_BAND_STRENGTH", "NOISE_CELL_PER_SIGMA", "SPECK_SIGMAS", "SHADOW_TOLERANCE", "SHADOW_EDGE_MM", "AMBIENT_LOG_ERROR", "FILL_TONE_TOLERANCE", "HIGHLIGHT_RATIO", "HIGHLIGHT_REFERENCE_SUPPORT", "CLIPPED_LEVEL", "DETAIL_DEPTH_MM", "DETAIL_LIMIT_MM", "SH_TERMS",
            "DIRECTIONAL_RANGE", "CONTRAST_RANGE", "SHADING_ERROR", "FORESHORTENING", "EDGE_MM", "DETAIL_EDGE_MM", "PAD_FRACTION",
            "SKIN_ALBEDO", "SPECULAR_FLOOR", "without_sun_sheen", "SUN_SHEEN_LOBE_DEG", "SHEEN_SMOOTH_MM"]
 
@@ -234,6 +235,11 @@ MIRROR_ASYMMETRY = (0.06, 0.15)
 MIRROR_OVERLAP = 1.0 / 1024.0
 #: (start, full): a texel is a highlight where its de-lit luminance exceeds its neighbourhood's by these ratios.
 HIGHLIGHT_RATIO = (1.3, 1.6)
+#: A highlight's neighbourhood is the reliable skin's where that skin has at least this share of
+#: the neighbourhood's Gaussian weight, else the seen texels' around it. (Without it, seen texels
+#: beyond the Gaussian's reach of the reliable skin, ~3σ = 24 mm at 1K, had a neighbourhood mean
+#: of 0 and were all highlights: filled, and glossier in the specular map.)
+HIGHLIGHT_REFERENCE_SUPPORT = 0.01
 #: A photo texel with a channel at or above this sRGB level is clipped (the sensor's or the grade's
 #: ceiling): its brightness and chroma are lower bounds, not measurements, and it is left out of
 #: the light fits (and of the sheen's and the fringe's reference skin). bench_albedo_scans' hard
@@ -941,6 +947,11 @@ class DefaultBackend:
         delit_lum = _without_specular(delit_lum, specular)
         lo, hi = HIGHLIGHT_RATIO
         ref_weight = fit_mask if n_fit else cover
+        # a seen texel with (almost) no reference skin within the neighbourhood's reach (an ear, the
+        # neck, the scalp away from the face's reliable skin) is judged against the seen texels
+        # around it: there the masked mean was 0 and the whole region passed for a highlight
+        reach = gaussian_blur(ref_weight.astype(np.float32), size / 48.0) > HIGHLIGHT_REFERENCE_SUPPORT
+        ref_weight = ref_weight | ((w > 0) & cover & ~reach)
         for _ in range(2):  # the neighbourhood's mean without the highlight candidates of the first pass
             ref_lum = masked_blur(delit_lum, ref_weight, size / 48.0)
             ratio = delit_lum / np.maximum(ref_lum, 1e-6)
