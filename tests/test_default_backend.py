@@ -570,6 +570,39 @@ def test_the_seen_skins_detail_keeps_its_contrast_where_it_fades_into_the_fill()
     assert fine[edge].std() / fine[core].std() > 0.8
 
 
+def test_foreshortened_seen_skin_keeps_its_own_mottling():
+    """Mottling (σ 4–8 texels at S = 512, the band from S/128 to S/64) on the seen side; a wide
+    region of it marked as seen at ~75° (normal z 0.25: reliability 0.5 from foreshortening
+    alone). Its tone still fades into the fill's base there, but its mottling is the photo's: the
+    band keeps 0.94 of the truth's amplitude (faded with the tone, 0.73). No specular reflection
+    is modelled (``skin_albedo=None``): the synthetic photo has none."""
+    size = 512
+    ctx = hemisphere_context(size)
+    ctx.mirror[...] = -1
+    x = np.linspace(-1, 1, size)[None, :].repeat(size, 0)
+    y = np.linspace(1, -1, size)[:, None].repeat(size, 1)
+    slanted = ctx.coverage & (x < -0.3)
+    ctx.normal_camera[slanted] = [0.0, 0.0, 0.25]  # only the reliability reads it
+    rng = np.random.default_rng(7)
+    ones = np.ones((size, size))
+    noise = rng.normal(size=(size, size)).astype(np.float32)
+    mottling = masked_blur(noise, ones, 4.0) - masked_blur(noise, ones, 8.0)
+    mottling *= 0.08 / mottling.std()
+    truth = srgb_to_linear(np.float32([0.78, 0.58, 0.48])) * np.exp(mottling)[..., None]
+    visible = (x < 0.1).astype(np.float32)
+    backend = DefaultBackend(skin_albedo=None)
+    out = srgb_to_linear(backend.homogenise(backend.inpaint(linear_to_srgb(truth) * visible[..., None], visible, ctx), ctx))
+    log_l = np.log(np.maximum(out.mean(-1), 1e-4))
+
+    def band(image):
+        return masked_blur(image, ctx.coverage, 4.0) - masked_blur(image, ctx.coverage, 8.0)
+
+    region = slanted & (x < -0.4) & (np.hypot(x, y) < 0.85)  # away from its edges
+    assert abs(float(backend.reliability(visible, ctx)[region].mean()) - 0.5) < 0.01
+    gain = np.polyfit(band(mottling)[region], band(log_l)[region], 1)[0]
+    assert 0.85 < gain < 1.1
+
+
 def test_hidden_side_without_a_mirror_gets_the_seen_skins_own_fine_texture():
     """Right part hidden and no mirror: the fill's finest detail (above S/256 texels⁻¹) is quilted
     from the seen skin, so it has the seen skin's contrast (within 25 %) and its texture: here

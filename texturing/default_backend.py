@@ -81,7 +81,9 @@ Colour textures are sRGB in [0, 1], float32, S × S, image-style rows (see
   data weight is r / (1 + (a · :data:`AMBIENT_LOG_ERROR` / :data:`FILL_TONE_TOLERANCE`)²), a
   the texel's ambient share of its shading times the de-lighting strength: skin lit by the
   ambient term alone carries that term's error whole, and the fill would take its tone from it);
-  the result's tone is r · (log seen − D_own) + (1 − r) · B, its detail the texel's own D_own
+  the result's tone is r · (log seen − D_own) + (1 − r) · (B + M), M the seen texel's own band
+  from D's scale to :data:`OWN_MID_BAND_COARSEST` × S (its mottling) less B's, where its colour
+  is trusted (kept weight × shading confidence) away from the seen edge; its detail the texel's own D_own
   and the fill's other detail D_fill mixed with weights a = r + (1 − r) · (the own detail's
   share of D) and 1 − a, divided by √(a² + (1 − a)²) (two independent layers mixed linearly
   lose up to half their variance: a band of smoother skin along the seen edge): no edge where
@@ -130,7 +132,7 @@ from facegeo.texturing.illuminant import chroma, estimate_illuminant, invent_chr
 from facegeo.uv.renderer import light_visibility, sky_visibility, sphere_directions
 
 __all__ = ["DefaultBackend", "REGION_PRIORS", "pad_outside", "masked_blur", "gaussian_blur", "value_noise", "MAX_GAIN",
-           "GRAZING_GAIN", "QUILT_BLOCK", "QUILT_ENERGY_CAP", "QUILT_NEIGHBOURHOOD", "QUILT_TRIES", "quilted_detail", "restore_clipped", "band_noise", "gradient_noise", "nonnegative_least_squares", "GRAIN_COARSEST", "MID_BAND_COARSEST", "MID_BAND_STRENGTH", "NOISE_CELL_PER_SIGMA", "SPECK_SIGMAS", "SHADOW_TOLERANCE", "SHADOW_EDGE_MM", "AMBIENT_LOG_ERROR", "FILL_TONE_TOLERANCE", "HIGHLIGHT_RATIO", "HIGHLIGHT_REFERENCE_SUPPORT", "CLIPPED_LEVEL", "DETAIL_DEPTH_MM", "DETAIL_LIMIT_MM", "SH_TERMS",
+           "GRAZING_GAIN", "QUILT_BLOCK", "QUILT_ENERGY_CAP", "QUILT_NEIGHBOURHOOD", "QUILT_TRIES", "quilted_detail", "restore_clipped", "band_noise", "gradient_noise", "nonnegative_least_squares", "GRAIN_COARSEST", "MID_BAND_COARSEST", "OWN_MID_BAND_COARSEST", "MID_BAND_STRENGTH", "NOISE_CELL_PER_SIGMA", "SPECK_SIGMAS", "SHADOW_TOLERANCE", "SHADOW_EDGE_MM", "AMBIENT_LOG_ERROR", "FILL_TONE_TOLERANCE", "HIGHLIGHT_RATIO", "HIGHLIGHT_REFERENCE_SUPPORT", "CLIPPED_LEVEL", "DETAIL_DEPTH_MM", "DETAIL_LIMIT_MM", "SH_TERMS",
            "DIRECTIONAL_RANGE", "CONTRAST_RANGE", "SHADING_ERROR", "FORESHORTENING", "EDGE_MM", "DETAIL_EDGE_MM", "PAD_FRACTION",
            "SKIN_ALBEDO", "SPECULAR_FLOOR", "without_sun_sheen", "SUN_SHEEN_LOBE_DEG", "SHEEN_SMOOTH_MM"]
 
@@ -278,6 +280,18 @@ EDGE_MM = 4.0
 #: The seen texels' own fine detail is used from this many mm inside the seen region (nearer its
 #: edge, the mirror's or noise: the edge's texels carry lashes, frame shadows, highlight halos).
 DETAIL_EDGE_MM = 2.0
+#: A seen texel's own band from its fine detail (S/128 texels) up to this fraction of S (16 texels,
+#: ~6 mm at 1K: mottling, small wrinkles) replaces the fill base's wherever its colour is trusted
+#: (kept weight × shading confidence, from :data:`DETAIL_EDGE_MM` inside the seen region), instead
+#: of fading into that smooth base with the reliability's foreshortening and edge ramps: the seen
+#: skin with reliability ≤ 0.95 (a third of it on James even −40°: highlight holes, the far
+#: cheek) had 0.70 of the scan's gradient there, its de-lit photo 1.02. bench_albedo_scans (12 even
+#: and hard side views): James's gradient ratio 0.76–0.88 → 0.77–0.89 (hard side 0° 0.797 → 0.805),
+#: seen ΔE2000 −0.04 … +0.01, filled within ±0.02; Lee Perry-Smith's gradient +0.01, seam ratio
+#: at most 1.10. Seen skin at 50 % reliability from foreshortening alone keeps 0.94 of its
+#: mottling instead of 0.73 (the test's hemisphere). At S/32 (an earlier form, without the base's
+#: band taken out): Lee Perry-Smith's seam ratio up to 1.27.
+OWN_MID_BAND_COARSEST = 1.0 / 64.0
 #: Side of the blocks of seen skin detail that the fill's detail is quilted from, as a fraction of
 #: S (16 texels, ~6 mm at 1K: a few pores). bench_albedo_scans, the filled skin's gradient ratio
 #: over the even and hard views: 0.29–0.43 with value noise, 0.41–0.53 with these blocks of the
@@ -1154,7 +1168,8 @@ class DefaultBackend:
         # where the estimated shading is steep (a shadow's edge, a hard light's terminator) a
         # misplacement of the fitted mesh by SHADOW_SOFTNESS_MM changes it by slope × that: such
         # de-lit texels are trusted less and the fill takes over (below: (1 - reliable) · fill)
-        reliable = self._reliability(w, inner, ctx) * self._shading_confidence(an.shading, ctx)
+        confidence = self._shading_confidence(an.shading, ctx)
+        reliable = self._reliability(w, inner, ctx) * confidence
         notes: list[str] = []
         greyscale = an.greyscale
         # the light's colour: from the reliably seen skin and the photo's white references
@@ -1189,10 +1204,14 @@ class DefaultBackend:
             data = reliable / (1.0 + (an.ambient_dependence * (AMBIENT_LOG_ERROR / FILL_TONE_TOLERANCE)) ** 2)
         values, data, asymmetry, trust = self._with_mirror_tone(log_seen - detail_fill, data, reliable, via_mirror, skin, ctx)
         base = self._base(values, data, np.log(np.maximum(mean, 1e-4)), ctx, FILL_SMOOTHNESS)
+        # in the base's place, the seen texel's own mottling where its colour is trusted (kept
+        # weight × shading confidence) away from the seen edge, whatever its foreshortening and its
+        # distance to the edge: near an edge the base has too little of it, and its noise is not the photo's
+        mottling = own * (w * confidence)[..., None] * self._own_mottling(log_seen, own_detail, base, seen & cover, ctx.size)
         # the tone blended by the reliability; the detail by the same weights made to keep its
         # contrast (mixed linearly, a band of smoother skin along the seen edge)
         r = reliable[..., None]
-        out_log = r * (log_seen - own_detail) + (1 - r) * base + _mix_keeping_contrast(r + (1 - r) * own, own_detail, other)
+        out_log = r * (log_seen - own_detail) + (1 - r) * (base + mottling) + _mix_keeping_contrast(r + (1 - r) * own, own_detail, other)
         out = np.where(cover[..., None], np.exp(out_log), 0.0)
         if greyscale:
             out = invent_chroma(luminance(out), ctx.regions.get("lips"))
@@ -1340,6 +1359,18 @@ class DefaultBackend:
         other = _mix_keeping_contrast(w_m[..., None], mirrored, synthesised)
         return (own.astype(np.float32), np.where(cover[..., None], detail, 0.0).astype(np.float32),
                 np.where(cover[..., None], other, 0.0).astype(np.float32), w_m, amp)
+
+    @staticmethod
+    def _own_mottling(log_seen: np.ndarray, own_detail: np.ndarray, base: np.ndarray, seen: np.ndarray, size: int) -> np.ndarray:
+        """(S, S, 3) float32: on the ``seen`` (S, S) bool texels, the band of their log RGB
+        ``log_seen`` (S, S, 3) between the fine ``own_detail`` (S, S, 3; finer than S/128 texels)
+        and :data:`OWN_MID_BAND_COARSEST` × S texels (the skin's mottling) less the same band of
+        the fill's ``base`` (S, S, 3) log RGB: added to the base, it replaces the base's band by
+        the photo's; 0 elsewhere."""
+        coarsest = size * OWN_MID_BAND_COARSEST
+        # band(x) = blur_fine(x) − blur_coarse(x), and blur_fine(log_seen) = log_seen − own_detail
+        band = log_seen - own_detail - masked_blur(base, seen, max(1.0, size / 128.0)) - masked_blur(log_seen - base, seen, coarsest)
+        return np.where(seen[..., None], band, 0.0).astype(np.float32)
 
     @staticmethod
     def _specks(detail: np.ndarray, region: np.ndarray, size: int) -> np.ndarray:
