@@ -7,13 +7,15 @@ JOB.json holds ``mesh`` (paths of raw little-endian arrays: ``vertices`` float32
 ``triangles`` int32 (F, 3), ``corner_uv`` float32 (F, 3, 2)), ``texture`` (an sRGB image),
 ``samples``, and ``views``: each ``{"name", "matrix" (4 x 4 row-major, scan mm -> camera
 metres: X_c = R·X·0.001 + t·0.001), "lens_mm", "sensor_mm" (along the long side), "width",
-"height", "light" ("soft" | "hard-side"), "image", "albedo"}`` (output PNG paths).
+"height", "light" ("soft" | "hard-side" | "sun-sky"), "image", "albedo"}`` (output PNG paths).
 
 Scene: the camera sits at the world origin with no rotation, so Blender's camera axes are
 facegeo's (looking down −Z, +Y up) and world space is camera space (metres); the scan is placed
 by the view's matrix. Lights are fixed in camera space: "soft" is a uniform white environment
 (radiance 1: a fully open Lambertian point shows its albedo); "hard-side" is a dim environment
-(0.06) and a small sun from the subject's left (the image's right), a little above and in front.
+(0.06) and a small sun from the subject's left (the image's right), a little above and in front;
+"sun-sky" is that sun warm (~4500 K) under a blue sky (an environment of 0.4, ~10000 K): the
+shadowed skin is lit by a light of another colour than the lit skin, as outdoors.
 Outputs per view: the render (8-bit sRGB, view transform Standard) and the Diffuse Color pass
 (the texture's colour at each pixel, unshaded: the ground-truth albedo), both through the
 compositor. A ``done`` list with the written files is printed as ``RENDERED <json>``.
@@ -151,14 +153,26 @@ def _quaternion_from_z(d):
     return (math.cos(angle / 2), x * h, y * h, z * h)
 
 
+#: Linear RGB (largest channel 1) of the "sun-sky" light's sun (~4500 K, luminance 0.84) and sky
+#: (~10000 K, luminance 0.72).
+SUN_COLOUR = (1.0, 0.81, 0.63)
+SKY_COLOUR = (0.59, 0.73, 1.0)
+
+
 def set_light(world, sun, light):
     background = world.node_tree.nodes["Background"]
     background.inputs["Color"].default_value = (1.0, 1.0, 1.0, 1.0)
+    sun.data.color = (1.0, 1.0, 1.0)
     if light == "soft":
         background.inputs["Strength"].default_value = 1.0
         sun.hide_render = True
     elif light == "hard-side":
         background.inputs["Strength"].default_value = 0.06
+        sun.hide_render = False
+    elif light == "sun-sky":
+        background.inputs["Color"].default_value = (*SKY_COLOUR, 1.0)
+        background.inputs["Strength"].default_value = 0.4
+        sun.data.color = SUN_COLOUR
         sun.hide_render = False
     else:
         raise ValueError(f"unknown light {light!r}")
