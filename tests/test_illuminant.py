@@ -2,10 +2,12 @@
 luminance kept; a greyscale photo's invented chroma."""
 
 import numpy as np
+import pytest
 
 from facegeo.colour import is_greyscale, luminance
-from facegeo.texturing.illuminant import (FIRM_FACTOR, NEUTRAL_TOLERANCE, PLANCKIAN, SCLERA_CHROMA, SKIN_CHROMA, SKIN_LOCUS, WHITE_GATE,
-                                          chroma, estimate_illuminant, firm_shrinkage, invent_chroma, remove_cast)
+from facegeo.texturing.illuminant import (AMBIENT_CHROMA_TOLERANCE, AMBIENT_SHARE_SPREAD, FIRM_FACTOR, NEUTRAL_TOLERANCE, PLANCKIAN,
+                                          SCLERA_CHROMA, SKIN_CHROMA, SKIN_LOCUS, WHITE_GATE, ambient_chroma_trend, chroma,
+                                          estimate_illuminant, firm_shrinkage, invent_chroma, remove_cast)
 
 
 def test_neutral_light_on_any_skin_tone_is_left_alone():
@@ -51,6 +53,36 @@ def test_remove_cast_divides_the_light_and_keeps_luminance():
     out = remove_cast(lit, light)
     np.testing.assert_allclose(luminance(out), luminance(lit), rtol=1e-5)
     np.testing.assert_allclose(chroma(out), chroma(albedo), atol=1e-5)
+
+
+def test_remove_cast_takes_a_light_per_texel():
+    rng = np.random.default_rng(1)
+    albedo = rng.uniform(0.05, 0.9, (4, 5, 3)).astype(np.float32)
+    light = rng.uniform(-0.5, 0.5, (4, 5, 2))
+    lit = albedo * np.exp(np.stack([light[..., 0], np.zeros((4, 5)), light[..., 1]], -1)).astype(np.float32)
+    np.testing.assert_allclose(chroma(remove_cast(lit, light)), chroma(albedo), atol=1e-5)
+
+
+def test_ambient_chroma_trend_finds_a_cooler_ambient_and_leaves_skins_own_variation():
+    rng = np.random.default_rng(2)
+    n = 5000
+    share = rng.uniform(0.0, 0.8, n)
+    weight = rng.uniform(0.5, 1.0, n)
+    skin = rng.normal(0.0, 0.05, (n, 2))  # the skin's own chroma scatter
+    delta = np.array([-0.4, 0.5])  # a bluer ambient (sky) than the directional light (sun)
+    found, mean, report = ambient_chroma_trend(skin + share[:, None] * delta, share, weight)
+    np.testing.assert_allclose(found, (delta @ PLANCKIAN) * PLANCKIAN, atol=0.01)  # its part along the Planckian locus
+    np.testing.assert_allclose(report["ambient_chroma_slope"], delta, atol=0.01)
+    assert mean == pytest.approx(np.average(share, weights=weight))
+    assert report["ambient_share_spread"] == pytest.approx(0.8 / np.sqrt(12), abs=0.01)
+    # skin whose colour varies with its shading by less than the tolerance: no light colour
+    weak = -0.8 * AMBIENT_CHROMA_TOLERANCE / report["ambient_share_spread"] * PLANCKIAN
+    assert np.all(ambient_chroma_trend(skin + share[:, None] * weak, share, weight)[0] == 0.0)
+    # skin redder and warmer in shade (as its own colour is): not taken for a light
+    assert np.all(ambient_chroma_trend(skin - share[:, None] * delta, share, weight)[0] == 0.0)
+    # one light does nearly all the lighting: nothing to tell apart
+    narrow = 0.3 + 0.5 * AMBIENT_SHARE_SPREAD * (share - 0.4) / 0.8
+    assert np.all(ambient_chroma_trend(skin + narrow[:, None] * delta, narrow, weight)[0] == 0.0)
 
 
 def test_invented_chroma_has_the_luminance_and_skin_or_lip_chroma():

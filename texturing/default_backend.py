@@ -58,7 +58,11 @@ Colour textures are sRGB in [0, 1], float32, S × S, image-style rows (see
   a greyscale photo, whose mask has no chroma to keep hair out, wherever it is seen.
 * **The light's colour** (:mod:`facegeo.texturing.illuminant`): estimated from the reliably seen
   skin's mean chroma (the skin locus) and the photo's white references (sclera, teeth:
-  ``ctx.white_reference``) and divided out of the whole map, luminance kept. A greyscale photo
+  ``ctx.white_reference``) and divided out of the whole map, luminance kept; under the
+  directional light model, the ambient term's colour apart from the directional light's where
+  the shade is the cooler (a sun and its blue sky): the light's chroma per texel moves with its
+  ambient share of the shading as the de-lit skin's does along the Planckian locus
+  (:func:`~facegeo.texturing.illuminant.ambient_chroma_trend`). A greyscale photo
   gets a generic skin chroma, and ``report["notes"]`` says so (the pipeline copies the notes
   into ``fit.json``).
 * **inpaint** (fill of what the photo does not show, and of the highlights), on the de-lit,
@@ -128,7 +132,7 @@ from facegeo.lighting import sh_basis
 from facegeo.robust_gaussian import chi2_quantile, mahalanobis_squared, robust_gaussian
 from facegeo.texturing.backend import SKIN_CONSTANTS, TextureContext
 from facegeo.texturing.ggx import environment_brdf
-from facegeo.texturing.illuminant import chroma, estimate_illuminant, invent_chroma, remove_cast
+from facegeo.texturing.illuminant import ambient_chroma_trend, chroma, estimate_illuminant, invent_chroma, remove_cast
 from facegeo.uv.renderer import light_visibility, sky_visibility, sphere_directions
 
 __all__ = ["DefaultBackend", "REGION_PRIORS", "pad_outside", "masked_blur", "gaussian_blur", "value_noise", "MAX_GAIN",
@@ -1179,6 +1183,8 @@ class DefaultBackend:
         if not greyscale and skin_weight.sum() >= 10:
             light, illuminant_report = self._light_colour(delit, an.specular, skin_weight, ctx)
             illuminant_report["greyscale"] = False
+            if an.ambient_dependence is not None:  # two lights: the ambient term's colour told apart
+                light = self._light_colour_map(light, delit, an.specular, an.ambient_dependence, skin_weight, illuminant_report)
             delit = remove_cast(delit, light)
         elif greyscale:
             delit = np.repeat(luminance(delit)[..., None], 3, axis=-1)
@@ -1227,7 +1233,7 @@ class DefaultBackend:
         }
         self.report["illuminant"] = illuminant_report
         self.report["notes"] = notes
-        cast = np.exp(np.array([light[0], 0.0, light[1]], np.float32))
+        cast = np.exp(np.stack([light[..., 0], np.zeros_like(light[..., 0]), light[..., 1]], axis=-1)).astype(np.float32)
         relit = linear_to_srgb(np.clip(out * cast * an.shading[..., None], 0.0, None))
         result = pad_outside(relit.astype(np.float32), cover)
         self._filled = (result, out)
@@ -1244,6 +1250,25 @@ class DefaultBackend:
         mean_skin = (free * weight[..., None]).reshape(-1, 3).sum(0) / weight.sum()
         white = None if ctx.white_reference is None else chroma(np.asarray(ctx.white_reference))
         return estimate_illuminant(chroma(mean_skin), white)
+
+    @staticmethod
+    def _light_colour_map(light: np.ndarray, delit: np.ndarray, specular: np.ndarray, ambient: np.ndarray, weight: np.ndarray,
+                          report: dict[str, Any]) -> np.ndarray:
+        """(S, S, 2) the light's chroma per texel: the mean light's ``light`` (2,) plus
+        (a − ā) · Δ, ``ambient`` (S, S) the texels' ambient share a of the shading (clipped to
+        the 5–95 % range of the fitted texels' shares) and Δ its slope
+        (:func:`~facegeo.texturing.illuminant.ambient_chroma_trend`) over the texels of ``weight``
+        (S, S) > 0.5, on the de-lit texture ``delit`` (S, S, 3) linear without its sheen
+        ``specular`` (S, S); ``report`` gets Δ and the share's spread."""
+        rows = weight > 0.5
+        free = _without_specular(delit[rows], specular[rows][:, None])
+        delta, mean, trend = ambient_chroma_trend(chroma(free), ambient[rows], weight[rows])
+        report.update(trend)
+        # not extrapolated beyond the shares that the fit saw (a neck under the jaw, wholly in shade)
+        share = ambient.astype(np.float64)
+        if rows.any():
+            share = np.clip(share, *np.quantile(ambient[rows], [0.05, 0.95]))
+        return (np.asarray(light, np.float64) + (share - mean)[..., None] * delta).astype(np.float32)
 
     @staticmethod
     def _with_mirror_tone(values: np.ndarray, data: np.ndarray, reliable: np.ndarray, via_mirror: np.ndarray,

@@ -21,6 +21,13 @@ where it is seen. The numbers are linear sRGB of skin under a neutral (D65) ligh
 ColorChecker's light and dark skin patches lie at (0.57, −0.31) and (0.71, −0.38); the
 constants put the locus's centre between lighter skin and them.
 
+**Two lights of two colours.** Where the texture backend fits a directional light and an ambient
+term (a sun and its blue sky), the skin in the directional light's shadow is lit by another
+colour than the lit skin: the light's chroma at a texel is then ``L + (a − ā)·Δ``, ``a`` the
+texel's ambient share of its shading, ``ā`` its mean over the skin that ``L`` was estimated from
+(:func:`ambient_chroma_trend`: ``Δ`` is the slope of the de-lit skin's chroma against ``a`` along
+the Planckian direction, where the shade is the cooler: skin's own colour is redder in shade).
+
 :func:`remove_cast` divides the cast out and keeps each texel's luminance. A greyscale photo
 carries no chroma at all: :func:`invent_chroma` gives the albedo a generic skin chroma (lips a
 redder one) and the pipeline notes it.
@@ -34,7 +41,8 @@ from facegeo.colour import luminance
 
 __all__ = ["estimate_illuminant", "remove_cast", "invent_chroma", "chroma", "SKIN_CHROMA", "SKIN_LOCUS",
            "PLANCKIAN", "SCLERA_CHROMA", "LIPS_CHROMA", "SKIN_SIGMA", "SKIN_TONE_SIGMA", "WHITE_SIGMA", "WHITE_GATE",
-           "LIGHT_SIGMA", "TINT_SIGMA", "NEUTRAL_TOLERANCE", "FIRM_FACTOR", "firm_shrinkage"]
+           "LIGHT_SIGMA", "TINT_SIGMA", "NEUTRAL_TOLERANCE", "FIRM_FACTOR", "firm_shrinkage", "ambient_chroma_trend",
+           "AMBIENT_SHARE_SPREAD", "AMBIENT_CHROMA_TOLERANCE"]
 
 
 def _unit(v) -> np.ndarray:
@@ -74,6 +82,15 @@ TINT_SIGMA = 0.06
 NEUTRAL_TOLERANCE = 0.12
 #: Where the firm threshold stops shrinking, in units of :data:`NEUTRAL_TOLERANCE`.
 FIRM_FACTOR = 2.0
+#: The ambient share's weighted σ over the skin below which its light's colour is not told apart
+#: (one light does nearly all the lighting: the scans' turned views under the sun + sky light,
+#: 0.01–0.04).
+AMBIENT_SHARE_SPREAD = 0.05
+#: The chroma spread (the slope × the share's σ) that skin's own colour shows with its shading,
+#: not taken for the lights' colours: the scans' colour maps under one white light (the even and
+#: hard side views of bench_albedo_scans) show at most 0.032 (0.027 along the Planckian
+#: direction); their sun + sky views 0.15–0.19.
+AMBIENT_CHROMA_TOLERANCE = 0.03
 
 
 def chroma(linear: np.ndarray) -> np.ndarray:
@@ -112,10 +129,11 @@ def estimate_illuminant(skin: np.ndarray, white: np.ndarray | None = None) -> tu
     return x[:2], report
 
 
-def firm_shrinkage(length: float) -> float:
-    """The factor (in [0, 1]) that the light estimate of this chroma ``length`` is scaled by:
-    0 within :data:`NEUTRAL_TOLERANCE`, 1 beyond :data:`FIRM_FACTOR` × that, continuous between."""
-    lo, hi = NEUTRAL_TOLERANCE, FIRM_FACTOR * NEUTRAL_TOLERANCE
+def firm_shrinkage(length: float, tolerance: float = NEUTRAL_TOLERANCE) -> float:
+    """The factor (in [0, 1]) that an estimate of this chroma ``length`` is scaled by: 0 within
+    ``tolerance`` (default :data:`NEUTRAL_TOLERANCE`, the light's), 1 beyond :data:`FIRM_FACTOR`
+    × that, continuous between."""
+    lo, hi = tolerance, FIRM_FACTOR * tolerance
     if length <= lo:
         return 0.0
     if length >= hi:
@@ -123,10 +141,44 @@ def firm_shrinkage(length: float) -> float:
     return (length - lo) * hi / ((hi - lo) * length)
 
 
+def ambient_chroma_trend(skin_chroma: np.ndarray, ambient_share: np.ndarray, weight: np.ndarray) -> tuple[np.ndarray, float, dict]:
+    """How the light's chroma changes with the ambient term's share of the shading: the skin
+    texels' chroma ``skin_chroma`` (N, 2) (already without the mean light's), their ambient share
+    ``ambient_share`` (N,) in [0, 1] and weight ``weight`` (N,) -> (``Δ`` (2,) float64, the
+    weighted mean share ``ā``, report). ``Δ`` is the weighted least-squares slope of the chroma
+    against the share along the Planckian direction (lights lie near its locus), where it makes
+    the more ambient-lit skin cooler (a sky, a window's daylight): skin's own colour goes the
+    other way in shade (light scattered under the skin comes out redder, and the lit side keeps
+    some sheen), so a warmer shade is not told from it and is left as it is. Firmly shrunk
+    (:func:`firm_shrinkage`) by the chroma spread that skin's own colour shows with its shading:
+    the slope × the share's σ against :data:`AMBIENT_CHROMA_TOLERANCE`. 0 where the share's
+    weighted σ is below :data:`AMBIENT_SHARE_SPREAD` (one light does nearly all the lighting)."""
+    c = np.asarray(skin_chroma, np.float64)
+    a = np.asarray(ambient_share, np.float64)
+    w = np.asarray(weight, np.float64)
+    if len(a) < 2 or w.sum() <= 0:
+        return np.zeros(2), 0.0, {"ambient_share_spread": 0.0, "ambient_chroma": [0.0, 0.0]}
+    mean = float(np.average(a, weights=w))
+    spread = float(np.sqrt(np.average((a - mean) ** 2, weights=w)))
+    report = {"ambient_share_spread": spread, "ambient_chroma": [0.0, 0.0]}
+    if spread < AMBIENT_SHARE_SPREAD:
+        return np.zeros(2), mean, report
+    centred = c - np.average(c, axis=0, weights=w)
+    slope = (w[:, None] * (a - mean)[:, None] * centred).sum(axis=0) / (w * (a - mean) ** 2).sum()
+    along = float(slope @ PLANCKIAN)  # > 0: warmer with more ambient light
+    report["ambient_chroma_slope"] = slope.tolist()
+    if along >= 0.0:
+        return np.zeros(2), mean, report
+    delta = firm_shrinkage(-along * spread, AMBIENT_CHROMA_TOLERANCE) * along * PLANCKIAN
+    report["ambient_chroma"] = delta.tolist()
+    return delta, mean, report
+
+
 def remove_cast(linear: np.ndarray, light: np.ndarray) -> np.ndarray:
-    """(..., 3) linear RGB with the light's chroma ``light`` (2,) divided out channel-wise, each
-    colour's luminance kept. float32."""
-    gain = np.exp(-np.array([light[0], 0.0, light[1]], np.float64)).astype(np.float32)
+    """(..., 3) linear RGB with the light's chroma ``light`` ((2,), or (..., 2) per texel) divided
+    out channel-wise, each colour's luminance kept. float32."""
+    light = np.asarray(light, np.float64)
+    gain = np.exp(-np.stack([light[..., 0], np.zeros_like(light[..., 0]), light[..., 1]], axis=-1)).astype(np.float32)
     out = np.asarray(linear, np.float32) * gain
     return out * (luminance(linear) / np.maximum(luminance(out), 1e-8))[..., None]
 
