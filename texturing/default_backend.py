@@ -132,7 +132,7 @@ from facegeo.lighting import sh_basis
 from facegeo.robust_gaussian import chi2_quantile, mahalanobis_squared, robust_gaussian
 from facegeo.texturing.backend import SKIN_CONSTANTS, TextureContext
 from facegeo.texturing.ggx import environment_brdf
-from facegeo.texturing.illuminant import ambient_chroma_trend, chroma, estimate_illuminant, invent_chroma, remove_cast
+from facegeo.texturing.illuminant import ambient_chroma_trend, cast_gains, chroma, estimate_illuminant, invent_chroma, remove_cast
 from facegeo.uv.renderer import light_visibility, sky_visibility, sphere_directions
 
 __all__ = ["DefaultBackend", "REGION_PRIORS", "pad_outside", "masked_blur", "gaussian_blur", "value_noise", "MAX_GAIN",
@@ -1233,8 +1233,7 @@ class DefaultBackend:
         }
         self.report["illuminant"] = illuminant_report
         self.report["notes"] = notes
-        cast = np.exp(np.stack([light[..., 0], np.zeros_like(light[..., 0]), light[..., 1]], axis=-1)).astype(np.float32)
-        relit = linear_to_srgb(np.clip(out * cast * an.shading[..., None], 0.0, None))
+        relit = linear_to_srgb(np.clip(out * cast_gains(light) * an.shading[..., None], 0.0, None))
         result = pad_outside(relit.astype(np.float32), cover)
         self._filled = (result, out)
         return result

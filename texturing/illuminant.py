@@ -42,7 +42,7 @@ from facegeo.colour import luminance
 __all__ = ["estimate_illuminant", "remove_cast", "invent_chroma", "chroma", "SKIN_CHROMA", "SKIN_LOCUS",
            "PLANCKIAN", "SCLERA_CHROMA", "LIPS_CHROMA", "SKIN_SIGMA", "SKIN_TONE_SIGMA", "WHITE_SIGMA", "WHITE_GATE",
            "LIGHT_SIGMA", "TINT_SIGMA", "NEUTRAL_TOLERANCE", "FIRM_FACTOR", "firm_shrinkage", "ambient_chroma_trend",
-           "AMBIENT_SHARE_SPREAD", "AMBIENT_CHROMA_TOLERANCE"]
+           "AMBIENT_SHARE_SPREAD", "AMBIENT_CHROMA_TOLERANCE", "cast_gains"]
 
 
 def _unit(v) -> np.ndarray:
@@ -174,12 +174,17 @@ def ambient_chroma_trend(skin_chroma: np.ndarray, ambient_share: np.ndarray, wei
     return delta, mean, report
 
 
+def cast_gains(light: np.ndarray) -> np.ndarray:
+    """The channel gains (..., 3) float32 ``exp(L_1), 1, exp(L_2)`` by which a light of chroma
+    ``light`` ((2,), or (..., 2) per texel) multiplies linear RGB (green kept)."""
+    light = np.asarray(light, np.float64)
+    return np.exp(np.stack([light[..., 0], np.zeros_like(light[..., 0]), light[..., 1]], axis=-1)).astype(np.float32)
+
+
 def remove_cast(linear: np.ndarray, light: np.ndarray) -> np.ndarray:
     """(..., 3) linear RGB with the light's chroma ``light`` ((2,), or (..., 2) per texel) divided
     out channel-wise, each colour's luminance kept. float32."""
-    light = np.asarray(light, np.float64)
-    gain = np.exp(-np.stack([light[..., 0], np.zeros_like(light[..., 0]), light[..., 1]], axis=-1)).astype(np.float32)
-    out = np.asarray(linear, np.float32) * gain
+    out = np.asarray(linear, np.float32) / cast_gains(light)
     return out * (luminance(linear) / np.maximum(luminance(out), 1e-8))[..., None]
 
 
