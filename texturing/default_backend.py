@@ -1253,8 +1253,8 @@ class DefaultBackend:
     @staticmethod
     def _light_colour_map(light: np.ndarray, delit: np.ndarray, specular: np.ndarray, ambient: np.ndarray, weight: np.ndarray,
                           report: dict[str, Any]) -> np.ndarray:
-        """(S, S, 2) the light's chroma per texel: the mean light's ``light`` (2,) plus
-        (a − ā) · Δ, ``ambient`` (S, S) the texels' ambient share a of the shading (clipped to
+        """(S, S, 2) the light's chroma per texel (``light`` itself where Δ is 0): the mean
+        light's ``light`` (2,) plus (a − ā) · Δ, ``ambient`` (S, S) the texels' ambient share a of the shading (clipped to
         the 5–95 % range of the fitted texels' shares) and Δ its slope
         (:func:`~facegeo.texturing.illuminant.ambient_chroma_trend`) over the texels of ``weight``
         (S, S) > 0.5, on the de-lit texture ``delit`` (S, S, 3) linear without its sheen
@@ -1263,10 +1263,10 @@ class DefaultBackend:
         free = _without_specular(delit[rows], specular[rows][:, None])
         delta, mean, trend = ambient_chroma_trend(chroma(free), ambient[rows], weight[rows])
         report.update(trend)
+        if not delta.any():  # one light colour (the sample photos so far): no map
+            return light
         # not extrapolated beyond the shares that the fit saw (a neck under the jaw, wholly in shade)
-        share = ambient.astype(np.float64)
-        if rows.any():
-            share = np.clip(share, *np.quantile(ambient[rows], [0.05, 0.95]))
+        share = np.clip(ambient.astype(np.float64), *np.quantile(ambient[rows], [0.05, 0.95]))
         return (np.asarray(light, np.float64) + (share - mean)[..., None] * delta).astype(np.float32)
 
     @staticmethod
