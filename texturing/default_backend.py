@@ -1181,10 +1181,11 @@ class DefaultBackend:
         skin_weight = reliable * skin
         illuminant_report: dict[str, Any] = {"greyscale": greyscale}
         if not greyscale and skin_weight.sum() >= 10:
-            light, illuminant_report = self._light_colour(delit, an.specular, skin_weight, ctx)
+            free = _without_specular(delit, an.specular[..., None])  # the light's colour is judged without the sheen
+            light, illuminant_report = self._light_colour(free, skin_weight, ctx)
             illuminant_report["greyscale"] = False
             if an.ambient_dependence is not None:  # two lights: the ambient term's colour told apart
-                light = self._light_colour_map(light, delit, an.specular, an.ambient_dependence, skin_weight, illuminant_report)
+                light = self._light_colour_map(light, free, an.ambient_dependence, skin_weight, illuminant_report)
             delit = remove_cast(delit, light)
         elif greyscale:
             delit = np.repeat(luminance(delit)[..., None], 3, axis=-1)
@@ -1239,29 +1240,26 @@ class DefaultBackend:
         return result
 
     @staticmethod
-    def _light_colour(delit: np.ndarray, specular: np.ndarray, weight: np.ndarray, ctx: TextureContext) -> tuple[np.ndarray, dict[str, Any]]:
+    def _light_colour(free: np.ndarray, weight: np.ndarray, ctx: TextureContext) -> tuple[np.ndarray, dict[str, Any]]:
         """The light's chroma (2,) and its report (:func:`~facegeo.texturing.illuminant.estimate_illuminant`)
-        from the ``weight`` (S, S)-weighted mean of the de-lit texture ``delit`` (S, S, 3) linear
-        without its sheen ``specular`` (S, S) (white before the light's colour is known: the sheen
-        made skin look less saturated, which the skin locus took for a cooler light) and the
-        context's white reference."""
-        free = _without_specular(delit, specular[..., None])
+        from the ``weight`` (S, S)-weighted mean of ``free`` (S, S, 3) linear, the de-lit texture
+        without its sheen (white before the light's colour is known: the sheen made skin look less
+        saturated, which the skin locus took for a cooler light), and the context's white reference."""
         mean_skin = (free * weight[..., None]).reshape(-1, 3).sum(0) / weight.sum()
         white = None if ctx.white_reference is None else chroma(np.asarray(ctx.white_reference))
         return estimate_illuminant(chroma(mean_skin), white)
 
     @staticmethod
-    def _light_colour_map(light: np.ndarray, delit: np.ndarray, specular: np.ndarray, ambient: np.ndarray, weight: np.ndarray,
+    def _light_colour_map(light: np.ndarray, free: np.ndarray, ambient: np.ndarray, weight: np.ndarray,
                           report: dict[str, Any]) -> np.ndarray:
         """(S, S, 2) the light's chroma per texel (``light`` itself where Δ is 0): the mean
-        light's ``light`` (2,) plus (a − ā) · Δ, ``ambient`` (S, S) the texels' ambient share a of the shading (clipped to
-        the 5–95 % range of the fitted texels' shares) and Δ its slope
+        light's ``light`` (2,) plus (a − ā) · Δ, ``ambient`` (S, S) the texels' ambient share a of
+        the shading (clipped to the 5–95 % range of the fitted texels' shares) and Δ its slope
         (:func:`~facegeo.texturing.illuminant.ambient_chroma_trend`) over the texels of ``weight``
-        (S, S) > 0.5, on the de-lit texture ``delit`` (S, S, 3) linear without its sheen
-        ``specular`` (S, S); ``report`` gets Δ and the share's spread."""
+        (S, S) > 0.5, on ``free`` (S, S, 3) linear, the de-lit texture without its sheen;
+        ``report`` gets Δ and the share's spread."""
         rows = weight > 0.5
-        free = _without_specular(delit[rows], specular[rows][:, None])
-        delta, mean, trend = ambient_chroma_trend(chroma(free), ambient[rows], weight[rows])
+        delta, mean, trend = ambient_chroma_trend(chroma(free[rows]), ambient[rows], weight[rows])
         report.update(trend)
         if not delta.any():  # one light colour (the sample photos so far): no map
             return light
@@ -1449,7 +1447,7 @@ class DefaultBackend:
             albedo = srgb_to_linear(T_full) / shading[..., None]
             weight = self.reliability(cover.astype(np.float32), ctx) * skin
             if weight.sum() >= 10 and not is_greyscale(T_full[cover]):
-                light, self.report["illuminant"] = self._light_colour(albedo, an.specular, weight, ctx)
+                light, self.report["illuminant"] = self._light_colour(_without_specular(albedo, an.specular[..., None]), weight, ctx)
                 albedo = remove_cast(albedo, light)
             albedo = _without_specular(albedo, an.specular[..., None])
             peak = _channel_max(albedo)
