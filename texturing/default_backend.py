@@ -136,7 +136,7 @@ from facegeo.texturing.illuminant import ambient_chroma_trend, cast_gains, chrom
 from facegeo.uv.renderer import light_visibility, sky_visibility, sphere_directions
 
 __all__ = ["DefaultBackend", "REGION_PRIORS", "pad_outside", "masked_blur", "gaussian_blur", "value_noise", "MAX_GAIN",
-           "GRAZING_GAIN", "QUILT_BLOCK", "QUILT_ENERGY_CAP", "QUILT_NEIGHBOURHOOD", "QUILT_TRIES", "quilted_detail", "restore_clipped", "band_noise", "gradient_noise", "nonnegative_least_squares", "GRAIN_COARSEST", "MID_BAND_COARSEST", "OWN_MID_BAND_COARSEST", "MID_BAND_STRENGTH", "NOISE_CELL_PER_SIGMA", "SPECK_SIGMAS", "SHADOW_TOLERANCE", "SHADOW_EDGE_MM", "AMBIENT_LOG_ERROR", "FILL_TONE_TOLERANCE", "HIGHLIGHT_RATIO", "HIGHLIGHT_REFERENCE_SUPPORT", "CLIPPED_LEVEL", "DETAIL_DEPTH_MM", "DETAIL_LIMIT_MM", "SH_TERMS",
+           "GRAZING_GAIN", "QUILT_BLOCK", "QUILT_ENERGY_CAP", "QUILT_NEIGHBOURHOOD", "QUILT_TRIES", "quilted_detail", "restore_clipped", "band_noise", "gradient_noise", "nonnegative_least_squares", "GRAIN_COARSEST", "MID_BAND_COARSEST", "OWN_DETAIL_COARSEST", "OWN_MID_BAND_COARSEST", "MID_BAND_STRENGTH", "NOISE_CELL_PER_SIGMA", "SPECK_SIGMAS", "SHADOW_TOLERANCE", "SHADOW_EDGE_MM", "AMBIENT_LOG_ERROR", "FILL_TONE_TOLERANCE", "HIGHLIGHT_RATIO", "HIGHLIGHT_REFERENCE_SUPPORT", "CLIPPED_LEVEL", "DETAIL_DEPTH_MM", "DETAIL_LIMIT_MM", "SH_TERMS",
            "DIRECTIONAL_RANGE", "CONTRAST_RANGE", "SHADING_ERROR", "FORESHORTENING", "EDGE_MM", "DETAIL_EDGE_MM", "PAD_FRACTION",
            "SKIN_ALBEDO", "SPECULAR_FLOOR", "without_sun_sheen", "SUN_SHEEN_LOBE_DEG", "SHEEN_SMOOTH_MM"]
 
@@ -284,10 +284,13 @@ EDGE_MM = 4.0
 #: The seen texels' own fine detail is used from this many mm inside the seen region (nearer its
 #: edge, the mirror's or noise: the edge's texels carry lashes, frame shadows, highlight halos).
 DETAIL_EDGE_MM = 2.0
-#: A seen texel's own band from its fine detail (S/128 texels) up to this fraction of S (16 texels,
-#: ~6 mm at 1K: mottling, small wrinkles) replaces the fill base's wherever its colour is trusted
-#: (kept weight × shading confidence, from :data:`DETAIL_EDGE_MM` inside the seen region), instead
-#: of fading into that smooth base with the reliability's foreshortening and edge ramps: the seen
+#: A seen texel's own fine detail (the fill's D_own, mirrored to the other side) is its band finer
+#: than this fraction of S (8 texels, ~3 mm at 1K: pores, stubble, fine wrinkles).
+OWN_DETAIL_COARSEST = 1.0 / 128.0
+#: A seen texel's own band from its fine detail (:data:`OWN_DETAIL_COARSEST`) up to this fraction
+#: of S (16 texels, ~6 mm at 1K: mottling, small wrinkles) replaces the fill base's wherever its
+#: colour is trusted (kept weight × shading confidence, from :data:`DETAIL_EDGE_MM` inside the seen
+#: region), instead of fading into that smooth base with the reliability's foreshortening and edge ramps: the seen
 #: skin with reliability ≤ 0.95 (a third of it on James even −40°: highlight holes, the far
 #: cheek) had 0.70 of the scan's gradient there, its de-lit photo 1.02. bench_albedo_scans (12 even
 #: and hard side views): James's gradient ratio 0.76–0.88 → 0.77–0.89 (hard side 0° 0.797 → 0.805),
@@ -1350,8 +1353,7 @@ class DefaultBackend:
         (S, S) and that contrast. ``inner``: :meth:`_inner_distance` of ``seen`` (S, S) mm."""
         cover = ctx.coverage
         size = ctx.size
-        sigma = max(1.0, size / 128.0)
-        detail = np.where(seen[..., None], log_seen - masked_blur(log_seen, seen, sigma), 0.0)
+        detail = np.where(seen[..., None], log_seen - masked_blur(log_seen, seen, max(1.0, size * OWN_DETAIL_COARSEST)), 0.0)
         amp = self._detail_contrast(log_seen, seen & _skin(ctx), size)
         has, mirror = _mirror_index(ctx)
         # a mole or speck is not mirrored (a face's marks are not symmetric): where the source's
@@ -1385,13 +1387,13 @@ class DefaultBackend:
     @staticmethod
     def _own_mottling(log_seen: np.ndarray, own_detail: np.ndarray, base: np.ndarray, seen: np.ndarray, size: int) -> np.ndarray:
         """(S, S, 3) float32: on the ``seen`` (S, S) bool texels, the band of their log RGB
-        ``log_seen`` (S, S, 3) between the fine ``own_detail`` (S, S, 3; finer than S/128 texels)
+        ``log_seen`` (S, S, 3) between the fine ``own_detail`` (S, S, 3; :data:`OWN_DETAIL_COARSEST`)
         and :data:`OWN_MID_BAND_COARSEST` × S texels (the skin's mottling) less the same band of
         the fill's ``base`` (S, S, 3) log RGB: added to the base, it replaces the base's band by
         the photo's; 0 elsewhere."""
         coarsest = size * OWN_MID_BAND_COARSEST
         # band(x) = blur_fine(x) − blur_coarse(x), and blur_fine(log_seen) = log_seen − own_detail
-        band = log_seen - own_detail - masked_blur(base, seen, max(1.0, size / 128.0)) - masked_blur(log_seen - base, seen, coarsest)
+        band = log_seen - own_detail - masked_blur(base, seen, max(1.0, size * OWN_DETAIL_COARSEST)) - masked_blur(log_seen - base, seen, coarsest)
         return np.where(seen[..., None], band, 0.0).astype(np.float32)
 
     @staticmethod
