@@ -20,9 +20,10 @@ from test_export_support import ict_asset
 SCRIPT = Path(__file__).resolve().parent / "blender" / "import_glb.py"
 
 
-def _blender() -> str:
+@pytest.fixture(scope="module")
+def blender() -> str:
     """Debian's ``blender`` with the NumPy its glTF importer needs (Debian's Blender 3.4 runs the
-    system Python 3.11), else the test is skipped with what to install."""
+    system Python 3.11), probed once for the module, else the tests are skipped with what to install."""
     blender = shutil.which("blender")
     if blender is None:
         pytest.skip("blender is not installed (apt-get install blender python3-numpy)")
@@ -34,8 +35,7 @@ def _blender() -> str:
 
 
 @pytest.mark.slow
-def test_glb_imports_into_blender_with_textures_bound(tmp_path):
-    blender = _blender()
+def test_glb_imports_into_blender_with_textures_bound(tmp_path, blender):
     glb = write_glb(ict_asset(size=128), tmp_path / "face.glb", level=1)
     report_path = tmp_path / "report.json"
     result = subprocess.run([blender, "-b", "--factory-startup", "--python", str(SCRIPT), "--", str(glb), str(report_path)],
@@ -58,14 +58,13 @@ def test_glb_imports_into_blender_with_textures_bound(tmp_path):
 
 
 @pytest.mark.slow
-def test_blender_imports_the_targets_as_shape_keys_and_jaw_open_opens_the_mouth(tmp_path):
+def test_blender_imports_the_targets_as_shape_keys_and_jaw_open_opens_the_mouth(tmp_path, blender):
     """Blender 3.4 imports face.glb with one shape key per target, named as the file's
     targetNames; jawOpen = 1 drops the chin by more than 10 mm and moves the teeth and tongue."""
     import pygltflib
 
     from arkit_support import shaped_asset
 
-    blender = _blender()
     asset, model, alpha, _ = shaped_asset()
     glb = write_glb(asset, tmp_path / "face.glb")
     names = {m.name: (m.extras or {}).get("targetNames") for m in pygltflib.GLTF2().load_binary(str(glb)).meshes}
