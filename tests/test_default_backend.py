@@ -26,6 +26,7 @@ from facegeo.texturing.default_backend import (
     quilted_detail,
     restore_clipped,
     value_noise,
+    white_share,
 )
 
 
@@ -190,6 +191,39 @@ def test_seen_skin_far_from_the_reliable_skin_is_judged_against_its_own_neighbou
     rim = ctx.coverage & (np.hypot(x, y) > 0.6) & (np.hypot(rows - 64, cols - 12) > 8)
     assert an.highlight[rim].max() == 0.0 and an.weight[rim].min() > 0.99
     assert an.highlight[64, 12] > 0.9
+
+
+def test_white_share_tells_a_white_specular_from_brighter_skin():
+    """The dichromatic model: skin + white is all white excess, brighter skin none, and a mix its share."""
+    skin = srgb_to_linear(np.float32([0.75, 0.55, 0.45]))
+    reference = np.broadcast_to(skin, (1, 3, 3))
+    texture = np.stack([skin + 0.2, 1.5 * skin, 1.2 * skin + 0.1])[None]
+    share = white_share(texture.astype(np.float32), reference.astype(np.float32))
+    excess = luminance(texture[0]) - luminance(skin)
+    np.testing.assert_allclose(share[0], [1.0, 0.0, 0.1 / excess[2]], atol=1e-4)
+    assert white_share(np.float32([[0.5 * skin]]), np.float32([[skin]]))[0, 0] == 0.0  # darker: no excess
+
+
+def test_skin_between_stubble_hairs_is_no_highlight_but_a_shine_and_a_white_glint_are():
+    """Stubble: 2 × 2-texel dark hairs on a checkerboard over the lower half (texel ~0.4 mm). The skin
+    between them is ~1.8 × the neighbourhood's mean, which the hairs drag down, and no whiter than
+    it: it was all highlight (filled, smooth holes in the stubble); now none of it is. A shine
+    (2.5 × over σ = 2.5 mm) and a white glint (σ = 1 texel) on the forehead still are."""
+    size = 512
+    ctx = hemisphere_context(size)
+    r = (np.arange(size) + 0.5) / size * 2 - 1
+    x, y = np.meshgrid(r, -r)
+    rows, cols = np.mgrid[0:size, 0:size]
+    lin = np.broadcast_to(srgb_to_linear(np.float32([0.75, 0.55, 0.45])), (size, size, 3)).copy()
+    stubble = (y < -0.1) & (np.abs(x) < 0.5) & ((rows // 2 + cols // 2) % 2 == 0)
+    lin[stubble] = srgb_to_linear(np.float32([0.25, 0.17, 0.12]))
+    glint = 0.6 * np.exp(-((rows - 120) ** 2 + (cols - 200) ** 2) / (2 * 1.0**2))
+    shine = np.exp(-((rows - 120) ** 2 + (cols - 330) ** 2) / (2 * 6.0**2))
+    lin = (lin + glint[..., None]) * (1 + 1.5 * shine)[..., None]
+    an = DefaultBackend().analyse(linear_to_srgb(np.clip(lin, 0, 1)), ctx.coverage.astype(np.float32), ctx)
+    between = (y < -0.15) & (np.abs(x) < 0.45) & ~stubble & ctx.coverage
+    assert an.highlight[between].max() == 0.0 and an.weight[between].min() > 0.99
+    assert an.highlight[120, 200] > 0.9 and an.highlight[120, 330] > 0.9
 
 
 def test_gains_are_bounded_and_smaller_at_grazing_angles():

@@ -46,7 +46,9 @@ Colour textures are sRGB in [0, 1], float32, S × S, image-style rows (see
   misplace takes out no colour.
 * **Highlights**: de-lit luminance above :data:`HIGHLIGHT_RATIO` × its neighbourhood's (Gaussian,
   σ = S/48 texels, ~6 mm at 1K, re-estimated without the first pass's candidates; the reliable
-  skin's, and the seen texels' where no reliable skin is near: :data:`HIGHLIGHT_REFERENCE_SUPPORT`);
+  skin's, and the seen texels' where no reliable skin is near: :data:`HIGHLIGHT_REFERENCE_SUPPORT`),
+  over a patch (:data:`HIGHLIGHT_PATCH_MM`) or, on a narrower spot, whiter than the neighbourhood
+  (:func:`white_share`, :data:`HIGHLIGHT_WHITE_SHARE`: not the skin between a beard's hairs);
   they are treated as unseen (filled) and are the specular map's evidence.
 * **Clipped texels** (a channel at :data:`CLIPPED_LEVEL`, over-exposed skin) are left out of
   every fit: their values are lower bounds. Where only some channels are clipped, those are raised
@@ -136,7 +138,7 @@ from facegeo.texturing.illuminant import ambient_chroma_trend, cast_gains, chrom
 from facegeo.uv.renderer import light_visibility, sky_visibility, sphere_directions
 
 __all__ = ["DefaultBackend", "REGION_PRIORS", "pad_outside", "masked_blur", "gaussian_blur", "value_noise", "MAX_GAIN",
-           "GRAZING_GAIN", "QUILT_BLOCK", "QUILT_ENERGY_CAP", "QUILT_NEIGHBOURHOOD", "QUILT_TRIES", "quilted_detail", "restore_clipped", "band_noise", "gradient_noise", "nonnegative_least_squares", "GRAIN_COARSEST", "MID_BAND_COARSEST", "OWN_DETAIL_COARSEST", "OWN_MID_BAND_COARSEST", "MID_BAND_STRENGTH", "NOISE_CELL_PER_SIGMA", "SPECK_SIGMAS", "SHADOW_TOLERANCE", "SHADOW_EDGE_MM", "AMBIENT_LOG_ERROR", "FILL_TONE_TOLERANCE", "HIGHLIGHT_RATIO", "HIGHLIGHT_REFERENCE_SUPPORT", "CLIPPED_LEVEL", "DETAIL_DEPTH_MM", "DETAIL_LIMIT_MM", "SH_TERMS",
+           "GRAZING_GAIN", "QUILT_BLOCK", "QUILT_ENERGY_CAP", "QUILT_NEIGHBOURHOOD", "QUILT_TRIES", "quilted_detail", "restore_clipped", "band_noise", "gradient_noise", "nonnegative_least_squares", "GRAIN_COARSEST", "MID_BAND_COARSEST", "OWN_DETAIL_COARSEST", "OWN_MID_BAND_COARSEST", "MID_BAND_STRENGTH", "NOISE_CELL_PER_SIGMA", "SPECK_SIGMAS", "SHADOW_TOLERANCE", "SHADOW_EDGE_MM", "AMBIENT_LOG_ERROR", "FILL_TONE_TOLERANCE", "HIGHLIGHT_RATIO", "HIGHLIGHT_REFERENCE_SUPPORT", "HIGHLIGHT_PATCH_MM", "HIGHLIGHT_WHITE_SHARE", "white_share", "CLIPPED_LEVEL", "DETAIL_DEPTH_MM", "DETAIL_LIMIT_MM", "SH_TERMS",
            "DIRECTIONAL_RANGE", "CONTRAST_RANGE", "SHADING_ERROR", "FORESHORTENING", "EDGE_MM", "DETAIL_EDGE_MM", "PAD_FRACTION",
            "SKIN_ALBEDO", "SPECULAR_FLOOR", "without_sun_sheen", "SUN_SHEEN_LOBE_DEG", "SHEEN_SMOOTH_MM"]
 
@@ -246,6 +248,24 @@ HIGHLIGHT_RATIO = (1.3, 1.6)
 #: beyond the Gaussian's reach of the reliable skin, ~3σ = 24 mm at 1K, had a neighbourhood mean
 #: of 0 and were all highlights: filled, and glossier in the specular map.)
 HIGHLIGHT_REFERENCE_SUPPORT = 0.01
+#: A highlight at the photo's scale is a patch: a texel is one by its luminance alone where its
+#: neighbourhood within this σ (mm of surface) is as bright (that patch's evidence reaching 2σ
+#: over its rim, which the blur darkens); a brighter texel on a narrower spot is one only as far
+#: as it is whiter than its neighbourhood (:data:`HIGHLIGHT_WHITE_SHARE`). The skin between a
+#: beard's or stubble's hairs is 1.8–2 × a neighbourhood mean that the hairs drag down and no
+#: whiter than it: it was filled, smooth holes in the stubble. bench_albedo_scans, James's nine
+#: even, warm and hard side views: gradient ratio +0.004–0.017 (even −40° 0.768 → 0.776), seen
+#: ΔE2000 −0.14 … +0.07 (even 0° 1.76 → 1.62); Lee Perry-Smith (no beard) unchanged. At 2.5 mm
+#: James even −40° 0.783, at 1.0 mm 0.775; without the rim's reach the highlights' rims stayed
+#: (pale-pink smears by Breaking Bad's mouth), and at 4 mm without it a lower lip's wet shine
+#: under warm light (``obama2.jpg``: the specular is the light's colour, not white).
+HIGHLIGHT_PATCH_MM = 1.5
+#: (start, full): the share of a texel's luminance excess over its neighbourhood that a white
+#: component explains (the dichromatic model: a specular reflection adds the light's colour, white
+#: under a neutral light) at which a bright spot narrower than :data:`HIGHLIGHT_PATCH_MM` starts to
+#: be, and is wholly, a highlight. James's flagged beard texels explain none (their saturation
+#: −0.006 … −0.016 against the neighbourhood; a white specular of that strength takes ~0.2).
+HIGHLIGHT_WHITE_SHARE = (0.2, 0.5)
 #: A photo texel with a channel at or above this sRGB level is clipped (the sensor's or the grade's
 #: ceiling): its brightness and chroma are lower bounds, not measurements, and it is left out of
 #: the light fits (and of the sheen's and the fringe's reference skin). bench_albedo_scans' hard
@@ -602,6 +622,21 @@ def restore_clipped(lin: np.ndarray, valid: np.ndarray, size: int) -> np.ndarray
     out = lin.copy()
     out[rows, cols] = np.where(cut, np.maximum(value, np.exp(ref + offset)), value)
     return out
+
+
+def white_share(texture: np.ndarray, reference: np.ndarray) -> np.ndarray:
+    """(S, S) float32 in [0, 1]: the share of each texel's luminance excess over ``reference``
+    (S, S, 3) linear RGB (its neighbourhood's colour) that a white component explains, by the
+    dichromatic model: ``texture`` (S, S, 3) linear RGB = k · reference + s · (1, 1, 1), k and s by
+    least squares over the three channels; the share is s over (luminance(texture) −
+    luminance(reference)) (0 where the texel is not brighter). A brighter skin colour gives 0, a
+    specular reflection of a white light 1."""
+    rr, rt = np.einsum("...k,...k->...", reference, reference), np.einsum("...k,...k->...", reference, texture)
+    r1 = reference[..., 0] + reference[..., 1] + reference[..., 2]  # (a sum over the last axis of 3 is ~4× slower)
+    t1 = texture[..., 0] + texture[..., 1] + texture[..., 2]
+    s = (rr * t1 - r1 * rt) / np.maximum(3.0 * rr - r1 * r1, 1e-12)  # Cramer's rule on the 2 × 2 normal equations
+    excess = np.maximum(luminance(texture) - luminance(reference), 1e-6)
+    return np.clip(s / excess, 0.0, 1.0).astype(np.float32)
 
 
 def without_sun_sheen(delit: np.ndarray, lobe: np.ndarray, seen: np.ndarray, reference: np.ndarray, smooth: float) -> np.ndarray:
@@ -973,16 +1008,29 @@ class DefaultBackend:
         # around it: there the masked mean was 0 and the whole region passed for a highlight
         reach = gaussian_blur(ref_weight.astype(np.float32), size / 48.0) > HIGHLIGHT_REFERENCE_SUPPORT
         ref_weight = ref_weight | ((w > 0) & cover & ~reach)
-        for _ in range(2):  # the neighbourhood's mean without the highlight candidates of the first pass
-            ref_lum = masked_blur(delit_lum, ref_weight, size / 48.0)
-            ratio = delit_lum / np.maximum(ref_lum, 1e-6)
-            ref_weight = ref_weight & (ratio < lo)
-        highlight = np.clip((ratio - lo) / (hi - lo), 0.0, 1.0) * (w > 0)
-        highlight = np.clip(gaussian_blur(highlight, max(1.0, size / 512.0)) * 2.0, 0.0, 1.0) * cover
-        kept = w * (1.0 - highlight)
         seen = (w > 0.5) & cover
         seen_skin = seen & _skin(ctx)
         greyscale = bool(seen.any()) and is_greyscale(T_inc[seen])
+        # by its luminance alone on a patch as wide as HIGHLIGHT_PATCH_MM; on a narrower spot only as
+        # far as it is whiter than its neighbourhood (a greyscale photo has no chroma to tell by)
+        patch_lum = masked_blur(delit_lum, (w > 0).astype(np.float32), HIGHLIGHT_PATCH_MM / ctx.median_texel_mm)
+        if greyscale:
+            white = np.float32(1.0)
+        else:
+            texture = lin / shading[..., None]
+            white_lo, white_hi = HIGHLIGHT_WHITE_SHARE
+            white = np.clip((white_share(texture, masked_blur(texture, ref_weight, size / 48.0)) - white_lo) / (white_hi - white_lo), 0.0, 1.0)
+        reach_texels = max(1, round(2.0 * HIGHLIGHT_PATCH_MM / ctx.median_texel_mm))
+        around = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * reach_texels + 1, 2 * reach_texels + 1))
+        for _ in range(2):  # the neighbourhood's mean without the highlight candidates of the first pass
+            ref_lum = np.maximum(masked_blur(delit_lum, ref_weight, size / 48.0), 1e-6)
+            ratio = delit_lum / ref_lum
+            # a patch's evidence reaches over its rim (2σ), which the patch's blur makes darker
+            patch = cv2.dilate(np.clip((patch_lum / ref_lum - lo) / (hi - lo), 0.0, 1.0).astype(np.float32), around)
+            highlight = np.clip((ratio - lo) / (hi - lo), 0.0, 1.0) * np.maximum(patch, white) * (w > 0)
+            ref_weight = ref_weight & (highlight == 0)
+        highlight = np.clip(gaussian_blur(highlight, max(1.0, size / 512.0)) * 2.0, 0.0, 1.0) * cover
+        kept = w * (1.0 - highlight)
         # without chroma a dark sideburn or hairline passes the photo's skin mask anywhere on the face
         fringe = self._occluder_fringe(lin, shading, w, inner, fit_mask, ctx, np.inf if greyscale else FRINGE_MM) if n_fit >= 100 else None
         if fringe is not None:
