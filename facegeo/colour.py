@@ -66,5 +66,6 @@ def is_greyscale(srgb: np.ndarray, tolerance: float = 2.5 / 255.0) -> bool:
     srgb = np.asarray(srgb, np.float32).reshape(-1, 3)
     if len(srgb) == 0:
         return False
-    spread = srgb.max(axis=1) - srgb.min(axis=1)
+    r, g, b = srgb[:, 0], srgb[:, 1], srgb[:, 2]  # (NumPy's reductions over a length-3 axis are ~10× slower)
+    spread = np.maximum(np.maximum(r, g), b) - np.minimum(np.minimum(r, g), b)
     return float(np.mean(spread <= tolerance)) >= 0.99

@@ -551,6 +551,11 @@ def _channel_max(rgb: np.ndarray) -> np.ndarray:
     return np.maximum(np.maximum(rgb[..., 0], rgb[..., 1]), rgb[..., 2])[..., None]
 
 
+def _channel_min(rgb: np.ndarray) -> np.ndarray:
+    """(..., 3) -> (...): the smallest channel (``rgb.min(axis=-1)``, as :func:`_channel_max`)."""
+    return np.minimum(np.minimum(rgb[..., 0], rgb[..., 1]), rgb[..., 2])
+
+
 def _without_specular(delit: np.ndarray, specular: np.ndarray) -> np.ndarray:
     """``delit`` (S, S[, 3]) less ``specular`` (broadcasting; white), keeping at least
     :data:`SPECULAR_FLOOR` of each value."""
@@ -605,7 +610,7 @@ def restore_clipped(lin: np.ndarray, valid: np.ndarray, size: int) -> np.ndarray
     unclipped valid texels, are left as they are. (As a raw converter's highlight reconstruction
     by colour propagation; no library here does it.)"""
     clipped = lin >= _clipped_ceiling()
-    count = clipped.sum(axis=-1)
+    count = clipped[..., 0].astype(np.uint8) + clipped[..., 1] + clipped[..., 2]  # (a sum over the length-3 axis is ~10× slower)
     rows, cols = np.nonzero((count > 0) & (count < 3))
     free = valid & (count == 0)
     if len(rows) == 0 or free.sum() < 10:
@@ -663,7 +668,7 @@ def without_sun_sheen(delit: np.ndarray, lobe: np.ndarray, seen: np.ndarray, ref
     basis = np.stack([diffuse, np.ones(3)], axis=1)  # (3, 2): the diffuse colour and white
     white_of = (basis @ np.linalg.inv(basis.T @ basis))[:, 1].astype(np.float32)  # least squares: the white coefficient
     white = np.maximum(delit @ white_of, 0.0)
-    white = np.minimum(masked_blur(white, seen, smooth), 0.9 * delit.min(axis=-1))
+    white = np.minimum(masked_blur(white, seen, smooth), 0.9 * _channel_min(delit))
     return np.where(seen[..., None], delit - (lobe * white)[..., None], delit).astype(np.float32)
 
 
@@ -689,7 +694,7 @@ def quilted_detail(detail: np.ndarray, source: np.ndarray, need: np.ndarray, see
     starts = np.argwhere(inside > 0)
     if len(starts) == 0:
         return None
-    energy = cv2.boxFilter((detail * detail).sum(-1).astype(np.float32), -1, (block, block), anchor=(0, 0),
+    energy = cv2.boxFilter(np.einsum("...k,...k->...", detail, detail).astype(np.float32), -1, (block, block), anchor=(0, 0),
                            borderType=cv2.BORDER_CONSTANT)[starts[:, 0], starts[:, 1]]  # mean square over each block
     # too busy by the median of the square of side QUILT_NEIGHBOURHOOD × S that a place starts in
     side = max(block, round(QUILT_NEIGHBOURHOOD * size))
@@ -1449,7 +1454,7 @@ class DefaultBackend:
         """(S, S) float32 in [0, 1]: 1 on the marks of the fine detail (S, S, 3) log RGB, texels
         whose channel-mean detail is beyond :data:`SPECK_SIGMAS` robust σ of ``region``'s (S, S)
         bool, grown by a Gaussian of S/512 texels (the mark's rim); 0 elsewhere."""
-        d = detail.mean(-1)
+        d = (detail[..., 0] + detail[..., 1] + detail[..., 2]) / 3  # (as detail.mean(-1), ~10× faster)
         if region.sum() < 100:
             return np.zeros(region.shape, np.float32)
         sigma = 1.4826 * float(np.median(np.abs(d[region]))) + 1e-6
