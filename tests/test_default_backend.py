@@ -437,6 +437,7 @@ def test_gradient_noise_is_zero_on_the_lattice_deterministic_and_band_limited():
     assert np.abs(n).max() <= 1.0 and n.std() > 0.15
     np.testing.assert_array_equal(n, gradient_noise(p, 2.0))
     assert abs(np.corrcoef(n, gradient_noise(p, 2.0, seed=1))[0, 1]) < 0.2
+    np.testing.assert_array_equal(gradient_noise(p, 2.0, seed=(0, 1)), np.stack([n, gradient_noise(p, 2.0, seed=1)], axis=1))  # seeds at once
     assert np.abs(gradient_noise(np.round(p / 2.0) * 2.0, 2.0)).max() < 1e-6
     assert np.abs(gradient_noise(p + 1e-3, 2.0) - n).max() < 0.01
     # on a tilted plane (a surface through the 3-D field): the power spectrum by wavelength

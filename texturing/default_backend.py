@@ -481,27 +481,32 @@ def value_noise(position_mm: np.ndarray, cell_mm: float, seed: int = 0) -> np.nd
     """3-D value noise (trilinear interpolation of hashed lattice values in [−1, 1], smoothstep
     weights) at (N, 3) points in mm on a lattice of ``cell_mm``: (N,) float32. A function of
     the surface position, so it is continuous across UV seams."""
-    return _lattice_noise(position_mm, cell_mm, seed, gradient=False)
+    return _lattice_noise(position_mm, cell_mm, (seed,), gradient=False)[:, 0]
 
 
-def gradient_noise(position_mm: np.ndarray, cell_mm: float, seed: int = 0) -> np.ndarray:
+def gradient_noise(position_mm: np.ndarray, cell_mm: float, seed: int | tuple[int, ...] = 0) -> np.ndarray:
     """3-D gradient (Perlin) noise at (N, 3) points in mm on a lattice of ``cell_mm``: (N,)
     float32, 0 at the lattice points, with most of its power at wavelengths of one to four cells
     (on a plane through it ~86 %, where value noise has ~30 % beyond: octaves of it are
-    band-limited without any filtering), isotropic on the surface and continuous across UV seams."""
-    return _lattice_noise(position_mm, cell_mm, seed, gradient=True)
+    band-limited without any filtering), isotropic on the surface and continuous across UV seams.
+    A tuple of seeds gives (N, len(seed)), one independent noise per seed (each the same as for
+    that seed alone; the lattice's coordinates and weights are computed once)."""
+    if isinstance(seed, tuple):
+        return _lattice_noise(position_mm, cell_mm, seed, gradient=True)
+    return _lattice_noise(position_mm, cell_mm, (seed,), gradient=True)[:, 0]
 
 
-def _lattice_noise(position_mm: np.ndarray, cell_mm: float, seed: int, gradient: bool) -> np.ndarray:
+def _lattice_noise(position_mm: np.ndarray, cell_mm: float, seeds: tuple[int, ...], gradient: bool) -> np.ndarray:
+    """(N, len(seeds)) float32: :func:`value_noise` or :func:`gradient_noise` for each seed."""
     g = position_mm.astype(np.float32) / np.float32(cell_mm)
-    out = np.empty(len(g), np.float32)
+    out = np.empty((len(g), len(seeds)), np.float32)
     for start in range(0, len(g), _NOISE_BLOCK):
-        out[start:start + _NOISE_BLOCK] = _lattice_noise_block(g[start:start + _NOISE_BLOCK], seed, gradient)
+        out[start:start + _NOISE_BLOCK] = _lattice_noise_block(g[start:start + _NOISE_BLOCK], seeds, gradient)
     return out
 
 
-def _lattice_noise_block(g: np.ndarray, seed: int, gradient: bool) -> np.ndarray:
-    """:func:`value_noise` or :func:`gradient_noise` of (n, 3) float32 lattice coordinates."""
+def _lattice_noise_block(g: np.ndarray, seeds: tuple[int, ...], gradient: bool) -> np.ndarray:
+    """(n, len(seeds)): :func:`value_noise` or :func:`gradient_noise` of (n, 3) float32 lattice coordinates."""
     base = np.floor(g)
     f = g - base
     fade = f * f * f * (f * (6 * f - 15) + 10) if gradient else f * f * (3 - 2 * f)  # Perlin's quintic; smoothstep
@@ -509,20 +514,23 @@ def _lattice_noise_block(g: np.ndarray, seed: int, gradient: bool) -> np.ndarray
     # per axis, the lattice point's hash term (int32, wrapping) and trilinear weight at offsets 0 and 1
     terms = [(b * k, (b + 1) * k) for b, k in zip(base.T, (73856093, 19349663, 83492791))]
     weights = [(1 - fade[:, axis], fade[:, axis]) for axis in range(3)]
-    out = np.zeros(len(g), np.float32)
+    offsets = [(f[:, axis], f[:, axis] - 1) for axis in range(3)]  # the offset from the corner at 0 and 1
+    out = np.zeros((len(g), len(seeds)), np.float32)
     for corner in range(8):
         o = ((corner >> 2) & 1, (corner >> 1) & 1, corner & 1)
-        # integer hash of the lattice point (a xorshift-multiply mix)
-        h = terms[0][o[0]] ^ terms[1][o[1]] ^ terms[2][o[2]] ^ (seed * 2654435)
-        h = (h ^ (h >> 13)) * 1274126177
-        h = h ^ (h >> 16)
-        if gradient:  # the corner's gradient · the offset from the corner
-            pick = ((h & 0xFFFF) * 12) >> 16
-            value = (_GRADIENTS[0][pick] * (f[:, 0] - o[0]) + _GRADIENTS[1][pick] * (f[:, 1] - o[1])
-                     + _GRADIENTS[2][pick] * (f[:, 2] - o[2]))
-        else:  # the corner's value in [−1, 1]
-            value = (h & 0xFFFF).astype(np.float32) * np.float32(2.0 / 65535.0) - 1.0
-        out += weights[0][o[0]] * weights[1][o[1]] * weights[2][o[2]] * value
+        weight = weights[0][o[0]] * weights[1][o[1]] * weights[2][o[2]]
+        lattice = terms[0][o[0]] ^ terms[1][o[1]] ^ terms[2][o[2]]
+        for i, seed in enumerate(seeds):
+            # integer hash of the lattice point (a xorshift-multiply mix)
+            h = lattice ^ (seed * 2654435)
+            h = (h ^ (h >> 13)) * 1274126177
+            h = h ^ (h >> 16)
+            if gradient:  # the corner's gradient · the offset from the corner
+                pick = ((h & 0xFFFF) * 12) >> 16
+                value = _GRADIENTS[0][pick] * offsets[0][o[0]] + _GRADIENTS[1][pick] * offsets[1][o[1]] + _GRADIENTS[2][pick] * offsets[2][o[2]]
+            else:  # the corner's value in [−1, 1]
+                value = (h & 0xFFFF).astype(np.float32) * np.float32(2.0 / 65535.0) - 1.0
+            out[:, i] += weight * value
     return out
 
 
@@ -860,8 +868,7 @@ def band_noise(log_rgb: np.ndarray, source: np.ndarray, need: np.ndarray, positi
         points, covered = (position, cover_w) if step == 1 else _area_mean(position, cover_w, grid)
         flat = np.flatnonzero((covered > 0.25).ravel())
         layer = np.zeros((*grid, 3), np.float32)
-        layer.reshape(-1, 3)[flat] = np.stack([gradient_noise(points.reshape(-1, 3)[flat], cell * factor * texel_mm, seed=seed + 3 * j + c)
-                                               for c in range(3)], axis=1)
+        layer.reshape(-1, 3)[flat] = gradient_noise(points.reshape(-1, 3)[flat], cell * factor * texel_mm, seed=(seed + 3 * j, seed + 3 * j + 1, seed + 3 * j + 2))
         if step > 1:
             layer = cv2.resize(layer, small, interpolation=cv2.INTER_LINEAR)
         layer = np.where(area[..., None], layer, 0.0)
