@@ -1026,17 +1026,21 @@ class DefaultBackend:
         # by its luminance alone on a patch as wide as HIGHLIGHT_PATCH_MM; on a narrower spot only as
         # far as it is whiter than its neighbourhood (a greyscale photo has no chroma to tell by)
         patch_lum = masked_blur(delit_lum, (w > 0).astype(np.float32), HIGHLIGHT_PATCH_MM / ctx.median_texel_mm)
-        if greyscale:
-            white = np.float32(1.0)
-        else:
+        white = np.full(cover.shape, np.float32(greyscale))
+        if not greyscale:  # (judged where a pass finds the texel bright enough: elsewhere it does not count)
             texture = lin / shading[..., None]
-            white_lo, white_hi = HIGHLIGHT_WHITE_SHARE
-            white = np.clip((white_share(texture, masked_blur(texture, ref_weight, size / 48.0)) - white_lo) / (white_hi - white_lo), 0.0, 1.0)
+            colour = masked_blur(texture, ref_weight, size / 48.0)
+            judged = np.zeros(cover.shape, bool)
         reach_texels = max(1, round(2.0 * HIGHLIGHT_PATCH_MM / ctx.median_texel_mm))
         around = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * reach_texels + 1, 2 * reach_texels + 1))
         for _ in range(2):  # the neighbourhood's mean without the highlight candidates of the first pass
             ref_lum = np.maximum(masked_blur(delit_lum, ref_weight, size / 48.0), 1e-6)
             ratio = delit_lum / ref_lum
+            if not greyscale:
+                todo = (ratio > lo) & ~judged
+                white_lo, white_hi = HIGHLIGHT_WHITE_SHARE
+                white[todo] = np.clip((white_share(texture[todo], colour[todo]) - white_lo) / (white_hi - white_lo), 0.0, 1.0)
+                judged |= todo
             # a patch's evidence reaches over its rim (2σ), which the patch's blur makes darker
             patch = cv2.dilate(np.clip((patch_lum / ref_lum - lo) / (hi - lo), 0.0, 1.0).astype(np.float32), around)
             highlight = np.clip((ratio - lo) / (hi - lo), 0.0, 1.0) * np.maximum(patch, white) * (w > 0)
