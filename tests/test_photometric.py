@@ -7,7 +7,8 @@ import torch
 
 from facegeo import Camera, load_model, project
 from facegeo.camera import rotation_from_euler
-from facegeo.colour import linear_to_srgb, linear_to_srgb_torch, srgb_to_linear, srgb_to_linear_slope, srgb_to_linear_torch
+from facegeo.colour import (channel_max, channel_min, channel_sum, linear_to_srgb, linear_to_srgb_torch, srgb_to_linear,
+                            srgb_to_linear_slope, srgb_to_linear_torch)
 from facegeo.fitting import fit_landmarks
 from facegeo.fitting.photometric import fit_photometric
 from facegeo.skin_mask import skin_vertex_mask
@@ -52,6 +53,17 @@ def test_srgb_twins_agree_with_the_numpy_curves():
     g = torch.tensor([0.02, 0.5], dtype=torch.float64, requires_grad=True)
     srgb_to_linear_torch(g).sum().backward()
     np.testing.assert_allclose(g.grad.numpy(), srgb_to_linear_slope(g.detach().numpy())[1], rtol=1e-12)
+
+
+def test_channel_reductions_equal_numpys():
+    """The per-channel max, min and sum are NumPy's reductions over the last axis, bit for bit
+    (a bool array's sum through its uint8 view)."""
+    rgb = np.random.default_rng(0).random((5, 7, 3), dtype=np.float32)
+    np.testing.assert_array_equal(channel_max(rgb), rgb.max(axis=-1, keepdims=True))
+    np.testing.assert_array_equal(channel_min(rgb), rgb.min(axis=-1))
+    np.testing.assert_array_equal(channel_sum(rgb), rgb.sum(axis=-1))
+    flags = rgb > 0.5
+    np.testing.assert_array_equal(channel_sum(flags.view(np.uint8)), flags.sum(axis=-1))
 
 
 def test_recovers_sh_lighting_of_a_rendered_face():

@@ -129,7 +129,7 @@ import scipy.sparse.linalg as spla
 from scipy import ndimage
 
 from facegeo.asset import MAP_NAMES, SPECULAR_F0_SCALE
-from facegeo.colour import is_greyscale, linear_to_srgb, luminance, srgb_to_linear
+from facegeo.colour import channel_max, channel_min, channel_sum, is_greyscale, linear_to_srgb, luminance, srgb_to_linear
 from facegeo.lighting import sh_basis
 from facegeo.robust_gaussian import chi2_quantile, mahalanobis_squared, robust_gaussian
 from facegeo.texturing.backend import SKIN_CONSTANTS, TextureContext
@@ -553,23 +553,6 @@ def _area_mean(image: np.ndarray, weight: np.ndarray, grid: tuple[int, int]) -> 
     return x, w
 
 
-def _channel_max(rgb: np.ndarray) -> np.ndarray:
-    """(..., 3) -> (..., 1): the largest channel (``rgb.max(axis=-1, keepdims=True)``, without
-    NumPy's slow reduction over a length-3 axis)."""
-    return np.maximum(np.maximum(rgb[..., 0], rgb[..., 1]), rgb[..., 2])[..., None]
-
-
-def _channel_min(rgb: np.ndarray) -> np.ndarray:
-    """(..., 3) -> (...): the smallest channel (``rgb.min(axis=-1)``, as :func:`_channel_max`)."""
-    return np.minimum(np.minimum(rgb[..., 0], rgb[..., 1]), rgb[..., 2])
-
-
-def _channel_sum(rgb: np.ndarray) -> np.ndarray:
-    """(..., 3) -> (...): the channels' sum (``rgb.sum(axis=-1)``, as :func:`_channel_max`; a
-    bool array's as 0/1 needs ``rgb.view(np.uint8)``)."""
-    return rgb[..., 0] + rgb[..., 1] + rgb[..., 2]
-
-
 def _without_specular(delit: np.ndarray, specular: np.ndarray) -> np.ndarray:
     """``delit`` (S, S[, 3]) less ``specular`` (broadcasting; white), keeping at least
     :data:`SPECULAR_FLOOR` of each value."""
@@ -624,7 +607,7 @@ def restore_clipped(lin: np.ndarray, valid: np.ndarray, size: int) -> np.ndarray
     unclipped valid texels, are left as they are. (As a raw converter's highlight reconstruction
     by colour propagation; no library here does it.)"""
     clipped = lin >= _clipped_ceiling()
-    count = _channel_sum(clipped.view(np.uint8))
+    count = channel_sum(clipped.view(np.uint8))
     rows, cols = np.nonzero((count > 0) & (count < 3))
     free = valid & (count == 0)
     if len(rows) == 0 or free.sum() < 10:
@@ -651,7 +634,7 @@ def white_share(texture: np.ndarray, reference: np.ndarray) -> np.ndarray:
     luminance(reference)) (0 where the texel is not brighter). A brighter skin colour gives 0, a
     specular reflection of a white light 1."""
     rr, rt = np.einsum("...k,...k->...", reference, reference), np.einsum("...k,...k->...", reference, texture)
-    r1, t1 = _channel_sum(reference), _channel_sum(texture)
+    r1, t1 = channel_sum(reference), channel_sum(texture)
     s = (rr * t1 - r1 * rt) / np.maximum(3.0 * rr - r1 * r1, 1e-12)  # Cramer's rule on the 2 × 2 normal equations
     excess = np.maximum(luminance(texture) - luminance(reference), 1e-6)
     return np.clip(s / excess, 0.0, 1.0).astype(np.float32)
@@ -681,7 +664,7 @@ def without_sun_sheen(delit: np.ndarray, lobe: np.ndarray, seen: np.ndarray, ref
     basis = np.stack([diffuse, np.ones(3)], axis=1)  # (3, 2): the diffuse colour and white
     white_of = (basis @ np.linalg.inv(basis.T @ basis))[:, 1].astype(np.float32)  # least squares: the white coefficient
     white = np.maximum(delit @ white_of, 0.0)
-    white = np.minimum(masked_blur(white, seen, smooth), 0.9 * _channel_min(delit))
+    white = np.minimum(masked_blur(white, seen, smooth), 0.9 * channel_min(delit))
     return np.where(seen[..., None], delit - (lobe * white)[..., None], delit).astype(np.float32)
 
 
@@ -955,7 +938,7 @@ class DefaultBackend:
         # the fit trusts only reliable skin: facing the camera, away from silhouettes and occluders
         # (at a silhouette the photo mixes in the background: a white wall made grazing skin "lit")
         inner = self._inner_distance(w > 0.5, ctx)
-        clipped = (_channel_max(lin)[..., 0] >= _clipped_ceiling()) & cover
+        clipped = (channel_max(lin)[..., 0] >= _clipped_ceiling()) & cover
         fit_mask = _skin(ctx) & (self._reliability(w, inner, ctx) > 0.5) & (lum > 1e-4) & ~clipped
         normals = ctx.normal_camera
         shading = np.ones(cover.shape, np.float32)
@@ -1294,7 +1277,7 @@ class DefaultBackend:
         out = np.where(cover[..., None], np.exp(out_log), 0.0)
         if greyscale:
             out = invent_chroma(luminance(out), ctx.regions.get("lips"))
-        peak = _channel_max(out)
+        peak = channel_max(out)
         out = np.where(peak > 1.0, out / np.maximum(peak, 1e-6), out).astype(np.float32)  # keeps chroma
         self.report["inpaint"] = {
             "seen": float(M_vis[cover].mean()) if cover.any() else 0.0,
@@ -1470,7 +1453,7 @@ class DefaultBackend:
         """(S, S) float32 in [0, 1]: 1 on the marks of the fine detail (S, S, 3) log RGB, texels
         whose channel-mean detail is beyond :data:`SPECK_SIGMAS` robust σ of ``region``'s (S, S)
         bool, grown by a Gaussian of S/512 texels (the mark's rim); 0 elsewhere."""
-        d = _channel_sum(detail) / 3  # (detail.mean(-1))
+        d = channel_sum(detail) / 3  # (detail.mean(-1))
         if region.sum() < 100:
             return np.zeros(region.shape, np.float32)
         sigma = 1.4826 * float(np.median(np.abs(d[region]))) + 1e-6
@@ -1521,7 +1504,7 @@ class DefaultBackend:
                 light, self.report["illuminant"] = self._light_colour(_without_specular(albedo, an.specular[..., None]), weight, ctx)
                 albedo = remove_cast(albedo, light)
             albedo = _without_specular(albedo, an.specular[..., None])
-            peak = _channel_max(albedo)
+            peak = channel_max(albedo)
             albedo = np.where(peak > 1.0, albedo / np.maximum(peak, 1e-6), albedo)
         before = self._shading_variance(T_full, ctx.normal_camera, skin, srgb=True)
         after = self._shading_variance(albedo, ctx.normal_camera, skin)
