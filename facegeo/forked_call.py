@@ -51,6 +51,7 @@ class PendingCall:
 
     def __init__(self, pid: int, pipe: int):
         self._pid, self._pipe = pid, pipe
+        self._reaped = False  # the child's exit status collected: its pid may belong to another process now
 
     def result(self) -> Any:
         """Wait for the child: the function's answer, or its exception raised here."""
@@ -59,6 +60,7 @@ class PendingCall:
             while chunk := pipe.read(1 << 20):
                 chunks.append(chunk)
         _, status = os.waitpid(self._pid, 0)
+        self._reaped = True
         if not chunks:
             raise RuntimeError(f"the forked process ended without an answer ({_ended(status)})")
         kind, value = pickle.loads(b"".join(chunks))
@@ -67,12 +69,17 @@ class PendingCall:
         return value
 
     def abandon(self) -> None:
-        """Stop the child (the parent failed first or was interrupted): nothing is collected."""
+        """Stop the child (the parent failed first or was interrupted): nothing is collected. A
+        call whose :meth:`result` already waited for the child (it raised the child's error) has
+        nothing left to stop: the caller's exception stands as it is."""
+        if self._reaped:
+            return
         try:
             os.kill(self._pid, signal.SIGKILL)
         except ProcessLookupError:
             pass
         os.waitpid(self._pid, 0)
+        self._reaped = True
         try:
             os.close(self._pipe)
         except OSError:  # result() had closed it

@@ -148,3 +148,27 @@ def test_a_fork_after_opencv_used_its_thread_pool_does_not_hang():
     # a photo larger than max_side is downscaled with cv2.resize before the fork: before the fix
     # the child hung for ever in cv2.setNumThreads (OpenCV's pool does not survive a fork)
     assert _python(AFTER_OPENCV_POOL, timeout=60) == "True True"
+
+
+def _cli(*args: str) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "-m", "facegeo.cli", *args], capture_output=True, text=True, timeout=300)
+
+
+def test_a_photo_the_child_refuses_gets_the_same_line_from_reconstruct_as_from_fit(tmp_path):
+    # the child's error is raised from result(), which has already waited for the child: the
+    # job's clean-up (abandon) must not wait again (it printed "No child processes" instead)
+    import cv2
+    import numpy as np
+
+    noise = tmp_path / "noise.png"
+    cv2.imwrite(str(noise), np.random.default_rng(0).integers(0, 256, (300, 400, 3), dtype=np.uint8))
+    transparent = tmp_path / "transparent.png"
+    bgr = cv2.imread(PHOTO)
+    cv2.imwrite(str(transparent), np.dstack([bgr, np.zeros(bgr.shape[:2], np.uint8)]))
+    for photo in (noise, transparent):
+        fitted = _cli("fit", str(photo), "-o", str(tmp_path / "fit_out"))
+        made = _cli("reconstruct", str(photo), "-o", str(tmp_path / "out"))
+        assert fitted.returncode == made.returncode == 2, made.stderr[-2000:]
+        assert made.stderr == fitted.stderr and len(made.stderr.strip().splitlines()) == 1, made.stderr
+        assert made.stderr.startswith(f"facegeo: error: {photo}: "), made.stderr
+        assert not (tmp_path / "out").exists() and not (tmp_path / "fit_out").exists()
