@@ -280,8 +280,8 @@ def reconstruct_into_folder(photo_path: str | Path, output: str | Path, options:
             raise
         asset, result = reconstruct_with_fit(photo, model, backend=backend, size=options.size, upscale=options.upscale,
                                              maps=options.maps, detector=options.landmarks, skin=skin, progress=progress,
-                                             fitter=lambda *args, **kwargs: fitted)  # the fit is done: handed in through the seam
-        timings = {**asset.metadata["timings_s"], "fit": fit_seconds}
+                                             fitted=(fitted, fit_seconds))
+        timings = dict(asset.metadata["timings_s"])  # asset.json's stage timings, and fit.json's after export
         files: list[str] = []
         with StagedOutput(output, replace=True) as stage:
             if progress is not None:

@@ -59,6 +59,7 @@ def reconstruct_with_fit(
     progress: Callable[[str], None] | None = None,
     parts: bool = True,
     fitter: Fitter = fit,
+    fitted: tuple[Fit, float] | None = None,
 ) -> tuple[Asset, Fit]:
     """Reconstruct a textured face from one photo.
 
@@ -85,6 +86,9 @@ def reconstruct_with_fit(
         fitter: any :class:`facegeo.fitting.Fitter`, called once as
             ``fitter(photo, model=, landmarks=, detector=, camera=)``; default the
             analysis-by-synthesis :func:`facegeo.fit`, or e.g. a ``facegeo.regressor.Predictor``.
+        fitted: ``(fit, seconds)``: a fit of this photo already made (e.g. in a forked child,
+            :func:`facegeo.jobs.reconstruct_into_folder`) and the seconds it took, reported as the
+            ``fit`` stage's time; ``fitter`` is then not called.
     Returns:
         ``(asset, fit)``: the asset in model space (upright, mm) with its maps, and the fit.
     """
@@ -111,8 +115,11 @@ def reconstruct_with_fit(
         return time.perf_counter()
 
     t = stage("fit")
-    result = fitter(photo, model=model, landmarks=landmarks, detector=detector, camera=camera)
-    timings["fit"] = time.perf_counter() - t
+    if fitted is None:
+        result = fitter(photo, model=model, landmarks=landmarks, detector=detector, camera=camera)
+        timings["fit"] = time.perf_counter() - t
+    else:
+        result, timings["fit"] = fitted
 
     t = stage("unwrap")
     if skin is None:

@@ -3,6 +3,7 @@ from the library's registries, help for every subcommand, a parser that imports 
 
 from __future__ import annotations
 
+import json
 import subprocess
 import sys
 
@@ -139,6 +140,15 @@ def test_a_reconstruction_imports_no_torch(tmp_path):
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
     assert out.strip() == "[]"
     assert {"preview.png", "face.usdz", "face.glb"} <= {p.name for p in (tmp_path / "out").iterdir()}
+    # one run, one record: asset.json's stage timings are fit.json's (the forked fit's own seconds,
+    # not the parent's hand-over), and so are the fit's own timings
+    fit_record = json.loads((tmp_path / "out" / "fit.json").read_text())
+    metadata = json.loads((tmp_path / "out" / "asset.json").read_text())["metadata"]
+    stages = fit_record["timings_s"].pop("stages")
+    assert metadata["timings_s"] == {name: stages[name] for name in metadata["timings_s"]}
+    assert set(metadata["timings_s"]) == {"fit", "unwrap", "inpaint", "homogenise", "materials", "upscale", "parts"}
+    assert stages["fit"] >= sum(fit_record["timings_s"][name] for name in ("detect", "landmarks")) > 0.01
+    assert metadata["fit"]["timings_s"] == fit_record["timings_s"]
 
 
 RUN = """
