@@ -139,6 +139,27 @@ def test_nan_rows_are_ignored(model):
     landmarks[[3, 40, 70]] = np.nan
     fit = fit_landmarks(model, landmarks, CAMERA)
     assert np.isfinite(fit.landmark_rms_px) and fit.landmark_rms_px < 0.5
+    finite = np.isfinite(fit.landmark_errors_px)
+    assert np.flatnonzero(~finite).tolist() == [3, 40, 70]
+    assert fit.landmark_rms_px == pytest.approx(float(np.sqrt(np.mean(fit.landmark_errors_px[finite].astype(np.float64) ** 2))), rel=1e-6)
+    assert fit.info["notes"] == ["3 of 88 landmarks NaN or infinite, left out of the fit and of its RMS: points 3, 40, 70"]
+    assert np.isfinite(fit.landmark_rms_percent_iod)
+
+
+@pytest.mark.parametrize("missing", [[36], [45], [36, 39, 42, 45]])
+def test_missing_outer_eye_corners_are_named_not_returned_as_nan(model, missing):
+    # their distance is the fit's scale: without them the fit returned a NaN RMS silently
+    _, _, landmarks = synthetic(model, np.random.default_rng(9), 10.0)
+    landmarks[missing] = np.nan
+    named = ", ".join(str(i) for i in missing if i in (36, 45))
+    with pytest.raises(InputError, match=f"outer eye corners .*found NaN or infinite at point {named}$"):
+        fit_landmarks(model, landmarks, CAMERA)
+
+
+def test_weights_that_leave_too_few_points_are_refused(model):
+    _, _, landmarks = synthetic(model, np.random.default_rng(9), 10.0)
+    with pytest.raises(InputError, match="positive weight, found 0"):
+        fit_landmarks(model, landmarks, CAMERA, weights=np.zeros(88, np.float32))
 
 
 def test_bad_landmarks_raise(model):

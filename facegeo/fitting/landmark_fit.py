@@ -25,12 +25,12 @@ from threadpoolctl import threadpool_limits
 
 from facegeo.array_namespace import is_tensor
 from facegeo.camera import OPENCV_FROM_OPENGL, Camera
-from facegeo.errors import InputError
+from facegeo.errors import InputError, check_finite
 from facegeo.fitting.checks import check_landmarks
 from facegeo.fitting.landmark_problem import LandmarkProblem, SurfacePoints
 from facegeo.fitting.priors import CORRECTIVES, DEFAULT_PRIORS, LANDMARK_SCHEDULE, FitPriors, LandmarkStage
 from facegeo.fitting.result import Fit
-from facegeo.landmarks.scheme import INNER_FACE, LANDMARK_WEIGHTS, N_LANDMARKS, inter_ocular_distance
+from facegeo.landmarks.scheme import INNER_FACE, LANDMARK_WEIGHTS, N_LANDMARKS, OUTER_EYE_CORNERS, inter_ocular_distance
 from facegeo.lighting import AMBIENT_WHITE
 from facegeo.morphable_model import MorphableModel
 
@@ -242,12 +242,17 @@ def solve_landmarks(
     if targets.shape != (N_LANDMARKS, 2):
         raise InputError("<landmarks>", "landmarks", f"shape ({N_LANDMARKS}, 2) in pixels", str(targets.shape))
     valid = np.isfinite(targets).all(axis=1)
-    if valid[INNER_FACE].sum() < 6:
-        raise InputError("<landmarks>", "landmarks", "at least 6 finite non-jaw iBUG points",
-                         f"{int(valid[INNER_FACE].sum())}")
     weights = LANDMARK_WEIGHTS if weights is None else np.asarray(weights, dtype=np.float32)
     if weights.shape != (N_LANDMARKS,) or not np.all(np.isfinite(weights)) or np.any(weights < 0):
         raise InputError("<weights>", "weights", f"({N_LANDMARKS},) finite, non-negative", str(weights.shape))
+    used = valid & (weights > 0)
+    if used[INNER_FACE].sum() < 6:
+        raise InputError("<landmarks>", "landmarks", "at least 6 finite non-jaw iBUG points of positive weight",
+                         f"{int(used[INNER_FACE].sum())}")
+    if not valid[OUTER_EYE_CORNERS].all():  # their distance is the fit's scale and the RMS's unit
+        missing = ", ".join(str(i) for i in OUTER_EYE_CORNERS[~valid[OUTER_EYE_CORNERS]])
+        raise InputError("<landmarks>", "landmarks", "finite outer eye corners (iBUG 36 and 45: the fit's scale)",
+                         f"NaN or infinite at point {missing}")
     check_landmarks(targets, camera)
 
     with threadpool_limits(limits=LANDMARK_FIT_THREADS, user_api="blas"):
@@ -298,8 +303,15 @@ def solve_landmarks(
             "expression_at_upper": int(((d >= prior.upper - 1e-9) & np.isfinite(prior.upper)).sum()),
         },
     }
-    return LandmarkSolution(_assemble(model, problem, state, camera, targets, timings, info), problem, noise,
-                            prior.exp_scale, prior.exp_rate)
+    if not valid.all():
+        left_out = np.flatnonzero(~valid)
+        info["notes"] = [f"{len(left_out)} of {N_LANDMARKS} landmarks NaN or infinite, left out of the fit and of its RMS: "
+                         f"point{'s' if len(left_out) > 1 else ''} {', '.join(map(str, left_out))}"]
+    result = _assemble(model, problem, state, camera, targets, timings, info)
+    # never a NaN out of the public API: a solve that diverged is refused, naming what went wrong
+    check_finite({f"fit {name}": getattr(result, name) for name in ("rotation", "translation", "alpha", "delta", "vertices",
+                                                                     "landmarks_fitted", "landmark_rms_px")}, "<landmarks>")
+    return LandmarkSolution(result, problem, noise, prior.exp_scale, prior.exp_rate)
 
 
 #: BLAS threads for the landmark fit's small (176 × ~160) linear algebra: on a loaded 2-core

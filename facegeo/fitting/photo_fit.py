@@ -124,7 +124,7 @@ def fit(
         detector=detection.detector if detection else "given",
         face_box=detection.box.tolist() if detection else None,
         faces_found=detection.n_faces if detection else None,
-        notes=notes,
+        notes=notes + result.info.get("notes", []),  # the landmark fit's own (e.g. points left out)
     )
     check_fit(result, image)
     return result
