@@ -13,7 +13,9 @@ does (POSIX) and the process may have children (not a daemonic worker): :func:`c
 so; elsewhere the caller runs the function itself. The child inherits the caller's modules and
 data (the loaded model, the photo); it pickles back through a pipe the function's answer or the
 exception it raised (a :class:`facegeo.errors.FacegeoError` reaches the user as the same clear
-error; any other as a RuntimeError carrying the child's traceback). OpenCV's pthreads pool does
+error; any other as a RuntimeError carrying the child's traceback; a child that ends without an
+answer, e.g. killed when memory ran out, as :class:`ChildLost`, and the job fits in the caller
+instead). OpenCV's pthreads pool does
 not survive a fork either: it is stopped (one thread) while forking and the caller gets its count
 back. The child runs its OpenCV and BLAS pools on one thread (the caller keeps the other core),
 takes the default action on SIGINT and SIGTERM (it ends without a word; the caller reports the
@@ -35,7 +37,16 @@ from typing import Any
 
 from facegeo.errors import FacegeoError
 
-__all__ = ["can_fork", "fork_call", "PendingCall"]
+__all__ = ["can_fork", "fork_call", "PendingCall", "ChildLost"]
+
+
+class ChildLost(RuntimeError):
+    """The forked child ended without an answer (killed by a signal, e.g. by the kernel when
+    memory ran out): the caller may run the function itself instead. ``how``: e.g. "by signal SIGKILL"."""
+
+    def __init__(self, how: str):
+        self.how = how
+        super().__init__(f"the forked process ended {how} without an answer")
 
 
 def can_fork() -> bool:
@@ -54,7 +65,8 @@ class PendingCall:
         self._reaped = False  # the child's exit status collected: its pid may belong to another process now
 
     def result(self) -> Any:
-        """Wait for the child: the function's answer, or its exception raised here."""
+        """Wait for the child: the function's answer, or its exception raised here
+        (:class:`ChildLost` when the child ended without one)."""
         chunks = []
         with os.fdopen(self._pipe, "rb") as pipe:
             while chunk := pipe.read(1 << 20):
@@ -62,7 +74,7 @@ class PendingCall:
         _, status = os.waitpid(self._pid, 0)
         self._reaped = True
         if not chunks:
-            raise RuntimeError(f"the forked process ended without an answer ({_ended(status)})")
+            raise ChildLost(_ended(status))
         kind, value = pickle.loads(b"".join(chunks))
         if kind == "error":
             raise value
@@ -88,8 +100,8 @@ class PendingCall:
 
 def _ended(status: int) -> str:
     if os.WIFSIGNALED(status):
-        return f"signal {signal.Signals(os.WTERMSIG(status)).name}"
-    return f"exit status {os.WEXITSTATUS(status)}"
+        return f"by signal {signal.Signals(os.WTERMSIG(status)).name}"
+    return f"with exit status {os.WEXITSTATUS(status)}"
 
 
 def fork_call(function: Callable[..., Any], *args: Any) -> PendingCall:

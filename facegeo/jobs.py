@@ -244,7 +244,7 @@ def reconstruct_into_folder(photo_path: str | Path, output: str | Path, options:
         facegeo.errors.FacegeoError: bad photo or options, no face, failed fit checks, missing
             weights, an unwritable output, or another run writing into ``output``.
     """
-    from facegeo.forked_call import can_fork, fork_call
+    from facegeo.forked_call import ChildLost, can_fork, fork_call
     from facegeo.photo import load_photo
     from facegeo.staged_output import StagedOutput, locked_output
     from facegeo.texturing.registry import BACKENDS
@@ -273,7 +273,11 @@ def reconstruct_into_folder(photo_path: str | Path, output: str | Path, options:
                 from facegeo.uv import rasterize_uv
 
                 layout_priors(model, rasterize_uv(model, size=options.size))
-            fitted, skin, fit_seconds = pending.result() if pending is not None else _fit_and_skin(photo, str(photo_path), options)
+            try:
+                fitted, skin, fit_seconds = pending.result() if pending is not None else _fit_and_skin(photo, str(photo_path), options)
+            except ChildLost as lost:  # the child was killed (e.g. out of memory): the same fit, here
+                fitted, skin, fit_seconds = _fit_and_skin(photo, str(photo_path), options)
+                fitted.info.setdefault("notes", []).append(f"the forked fit ended {lost.how} without an answer; fitted again in the main process")
         except BaseException:
             if pending is not None:
                 pending.abandon()

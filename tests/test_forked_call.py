@@ -172,3 +172,36 @@ def test_a_photo_the_child_refuses_gets_the_same_line_from_reconstruct_as_from_f
         assert made.stderr == fitted.stderr and len(made.stderr.strip().splitlines()) == 1, made.stderr
         assert made.stderr.startswith(f"facegeo: error: {photo}: "), made.stderr
         assert not (tmp_path / "out").exists() and not (tmp_path / "fit_out").exists()
+
+
+LOST = """
+import os, signal
+from facegeo.forked_call import ChildLost, fork_call
+pending = fork_call(lambda: os.kill(os.getpid(), signal.SIGKILL))
+try:
+    pending.result()
+except ChildLost as lost:
+    pending.abandon()  # already reaped: nothing to wait for
+    print(lost.how)
+"""
+
+
+def test_a_child_killed_without_an_answer_is_reported_as_lost():
+    assert _python(LOST) == "by signal SIGKILL"
+
+
+@pytest.mark.skipif(not Path("/proc/self/stat").exists(), reason="needs /proc")
+def test_a_killed_forked_fit_is_fitted_again_in_the_main_process(tmp_path):
+    # e.g. the kernel's out-of-memory killer chose the child: the user still gets the asset
+    out = tmp_path / "out"
+    proc = subprocess.Popen([sys.executable, "-m", "facegeo.cli", "reconstruct", PHOTO, "-o", str(out), "--size", "256"],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    deadline = time.monotonic() + 120
+    while not (children := _children(proc.pid)) and proc.poll() is None and time.monotonic() < deadline:
+        time.sleep(0.02)
+    assert children, "no forked fit seen"
+    os.kill(children[0], signal.SIGKILL)
+    said, err = proc.communicate(timeout=300)
+    assert proc.returncode == 0, err[-3000:]
+    assert "note: the forked fit ended by signal SIGKILL without an answer; fitted again in the main process" in said
+    assert {"fit.json", "asset.json", "face.glb", "face.usdz", "preview.png"} <= {p.name for p in out.iterdir()}
