@@ -403,6 +403,59 @@ def test_pipeline_fitter_seam(model, faces):
     np.testing.assert_allclose(asset.metadata["fit"]["alpha"], result.alpha)
 
 
+def _camera_case(model, faces):
+    """(photo, landmarks (88, 2) px, predictor, refining predictor): one 96 px synthetic render and
+    an untrained tiny network (seeded), once plain and once with ``refine``."""
+    from facegeo import load_photo
+    from facegeo.regressor import Predictor
+
+    folder, truth = faces
+    config = tiny_config()
+    with torch.random.fork_rng():
+        torch.manual_seed(0)
+        net = MSSFRegressor(config.network, ModelSignature.of(model))
+    return (load_photo(folder / str(truth["names"][2])), truth["landmarks"][2], Predictor(net, model, config),
+            Predictor(net, model, config, refine=True))
+
+
+def test_an_unknown_focal_is_predicted_with_the_fits_estimate(model, faces):
+    """Issue 47: a photo of unknown lens is predicted in the camera the fit estimates from the same
+    landmarks, not in the 40° placeholder, and the Fit reports it with the fit's note."""
+    from facegeo import fit
+
+    photo, landmarks, predictor, _ = _camera_case(model, faces)
+    unknown = Camera.unknown_focal(96, 96)
+    fitted = fit(photo, model=model, landmarks=landmarks, camera=unknown, photometric=False)
+    assert fitted.camera.focal != pytest.approx(unknown.focal, rel=0.05)  # the estimate is not the placeholder
+    predicted = predictor(photo, landmarks=landmarks, camera=unknown)
+    assert predicted.camera == fitted.camera and not predicted.camera.focal_known
+    estimate_note = [n for n in fitted.info["notes"] if n.startswith("focal length unknown")]
+    assert len(estimate_note) == 1 and estimate_note[0] in predicted.info["notes"]
+    inner = predicted.landmark_vertices[17:]  # the jaw's fitted points slide between vertices
+    uv = project(predicted.shape_vertices[inner], predicted.rotation, predicted.translation, fitted.camera)
+    np.testing.assert_allclose(uv, predicted.landmarks_fitted[17:], atol=1e-2)  # the prediction is posed in that camera
+
+
+def test_refine_fits_in_the_predictions_camera(model, faces):
+    """Issue 47: with ``refine`` and an unknown lens the fit starts from the prediction in the
+    prediction's camera and estimates no focal of its own (one estimate, one note)."""
+    photo, landmarks, predictor, refining = _camera_case(model, faces)
+    unknown = Camera.unknown_focal(96, 96)
+    predicted = predictor(photo, landmarks=landmarks, camera=unknown)
+    refined = refining(photo, landmarks=landmarks, camera=unknown, photometric=False)
+    assert refined.info["fitter"] == "regressor+refine" and refined.camera == predicted.camera
+    assert len([n for n in refined.info["notes"] if n.startswith("focal length unknown")]) == 1
+
+
+def test_a_known_focal_is_kept_for_prediction_and_refinement(model, faces):
+    photo, landmarks, predictor, refining = _camera_case(model, faces)
+    known = Camera(150.0, 47.0, 49.5, 96, 96)
+    predicted = predictor(photo, landmarks=landmarks, camera=known)
+    refined = refining(photo, landmarks=landmarks, camera=known, photometric=False)
+    assert predicted.camera == known and refined.camera == known
+    assert not any(n.startswith("focal length") for n in predicted.info["notes"] + refined.info["notes"])
+
+
 @pytest.mark.slow
 def test_training_lowers_the_landmark_loss_and_learns_the_pose(model, tmp_path):
     """A tiny MSSF trained 300 steps on CPU (≈ 3 min on a loaded 2-core machine): the landmark

@@ -9,6 +9,7 @@ state and, for training runs, the optimiser state, step counters and RNG states.
 
 from __future__ import annotations
 
+import dataclasses
 import io
 import time
 from pathlib import Path
@@ -21,6 +22,7 @@ from facegeo.camera import Camera, project
 from facegeo.errors import InputError
 from facegeo.torch_checkpoint import read_torch_file
 from facegeo.fitting import Fit
+from facegeo.fitting.camera_estimate import camera_for_face
 from facegeo.landmarks.detectors import LandmarkDetector, get_detector
 from facegeo.model_files import load_model
 from facegeo.morphable_model import MorphableModel
@@ -85,7 +87,7 @@ class Predictor:
         for. config: its :class:`RegressorConfig`. detector: landmark detector for the crop
         (and the reported landmark errors) when no landmarks are given. source: the checkpoint.
         refine: also run the analysis-by-synthesis fit (:func:`facegeo.fit`) started from the
-        prediction, on the same landmarks.
+        prediction, on the same landmarks and in the same camera.
     """
 
     def __init__(self, network: MSSFRegressor, model: MorphableModel, config: RegressorConfig,
@@ -102,12 +104,20 @@ class Predictor:
             image: (H, W, 3) uint8 RGB, a path or a :class:`Photo`.
             model: must be the predictor's model (or None); another gives :class:`InputError`.
             landmarks: (88, 2) px to crop around and report errors against (else detected).
-            detector: overrides the predictor's detector. camera: default 40° field of view.
+            detector: overrides the predictor's detector.
+            camera: the photo's intrinsics (default: :meth:`Camera.for_image`'s 40° field of
+                view, taken as known). A camera whose focal is not known (``focal_known`` False,
+                :meth:`Camera.unknown_focal`) gets the focal :func:`facegeo.fit` would estimate
+                from the same landmarks (:func:`~facegeo.fitting.camera_estimate.camera_for_face`),
+                once, before the prediction.
             photometric: with ``refine``, run the fit's photometric stage (the prediction itself
                 always includes β and γ).
         Returns:
-            A :class:`Fit`; ``info["fitter"]`` is ``"regressor"`` or ``"regressor+refine"``;
-            timings ``detect``, ``regress`` (and the fit's with ``refine``).
+            A :class:`Fit` in the camera it was predicted with (``Fit.camera``: for an unknown
+            focal the estimated one, ``focal_known`` still False, and the estimate's note in
+            ``info["notes"]``, as :func:`facegeo.fit` reports it); ``info["fitter"]`` is
+            ``"regressor"`` or ``"regressor+refine"`` (refined in the same camera); timings
+            ``detect``, ``regress`` (and the fit's with ``refine``).
         """
         if model is not None and model is not self.model and ModelSignature.of(model) != self.network.signature:
             raise InputError(self.source, "model", f"the model the regressor was trained for ({self.network.signature.name})", model.name)
@@ -134,6 +144,9 @@ class Predictor:
         targets = np.asarray(landmarks, np.float64)
         if targets.shape != (88, 2):
             raise InputError("<landmarks>", "landmarks", "shape (88, 2) in pixels", str(targets.shape))
+        camera, camera_note = camera_for_face(camera, targets, self.model)
+        if camera_note:
+            notes.append(camera_note)
         t0 = time.perf_counter()
         size = self.config.network.image_size
         x0, y0, side = crop_box(targets, self.config.network.crop_scale)
@@ -165,15 +178,19 @@ class Predictor:
             info={"fitter": "regressor", "checkpoint": self.source, "source": source, "model": self.model.name,
                   "detector": detector_name, "notes": notes, "valid_landmarks": int(valid.sum())},
         )
-        return self._refined(prediction, image, camera, photometric) if self.refine else prediction
+        return self._refined(prediction, image, photometric) if self.refine else prediction
 
-    def _refined(self, prediction: Fit, image: np.ndarray | Photo, camera: Camera, photometric: bool) -> Fit:
-        """The analysis-by-synthesis fit on the prediction's landmarks, started from the prediction."""
+    def _refined(self, prediction: Fit, image: np.ndarray | Photo, photometric: bool) -> Fit:
+        """The analysis-by-synthesis fit on the prediction's landmarks, started from the prediction
+        and in its camera: the fit is handed that camera as known, so it estimates no focal of its
+        own, and the refined fit reports ``prediction.camera`` (``focal_known`` as predicted)."""
         from facegeo import fitting
 
         notes = list(prediction.info["notes"])
-        result = fitting.fit(image, model=self.model, landmarks=prediction.landmarks, camera=camera,
+        result = fitting.fit(image, model=self.model, landmarks=prediction.landmarks,
+                             camera=dataclasses.replace(prediction.camera, focal_known=True),
                              photometric=photometric, init=prediction)
+        result.camera = prediction.camera
         result.timings = {**prediction.timings, **result.timings}
         result.info.update(fitter="regressor+refine", checkpoint=self.source, detector=prediction.info["detector"],
                            notes=notes + [n for n in result.info.get("notes", []) if n not in notes],
