@@ -66,7 +66,9 @@ class PendingCall:
 
     def result(self) -> Any:
         """Wait for the child: the function's answer, or its exception raised here
-        (:class:`ChildLost` when the child ended without one)."""
+        (:class:`ChildLost` when the child ended without one; KeyboardInterrupt when SIGINT or
+        SIGTERM ended it: an interruption meant for the caller too, even where the caller's own
+        handler missed it)."""
         chunks = []
         with os.fdopen(self._pipe, "rb") as pipe:
             while chunk := pipe.read(1 << 20):
@@ -74,6 +76,8 @@ class PendingCall:
         _, status = os.waitpid(self._pid, 0)
         self._reaped = True
         if not chunks:
+            if os.WIFSIGNALED(status) and os.WTERMSIG(status) in (signal.SIGINT, signal.SIGTERM):
+                raise KeyboardInterrupt(f"the forked process ended {_ended(status)}")  # the user's interruption reached it
             raise ChildLost(_ended(status))
         kind, value = pickle.loads(b"".join(chunks))
         if kind == "error":

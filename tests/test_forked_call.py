@@ -190,6 +190,22 @@ def test_a_child_killed_without_an_answer_is_reported_as_lost():
     assert _python(LOST) == "by signal SIGKILL"
 
 
+INTERRUPTED = """
+import os, signal
+from facegeo.forked_call import fork_call
+pending = fork_call(lambda: os.kill(os.getpid(), signal.SIGTERM))
+try:
+    pending.result()
+except KeyboardInterrupt as stop:
+    print(stop)
+"""
+
+
+def test_a_child_ended_by_an_interruption_interrupts_the_caller():
+    # never fitted again in the caller: the user's Ctrl-C or a service manager's SIGTERM means stop
+    assert _python(INTERRUPTED) == "the forked process ended by signal SIGTERM"
+
+
 @pytest.mark.skipif(not Path("/proc/self/stat").exists(), reason="needs /proc")
 def test_a_killed_forked_fit_is_fitted_again_in_the_main_process(tmp_path):
     # e.g. the kernel's out-of-memory killer chose the child: the user still gets the asset
