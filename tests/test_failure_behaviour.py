@@ -28,7 +28,7 @@ from facegeo.cli import main
 from facegeo.errors import InputError, NoFaceError, OutputError
 from facegeo.export.asset_io import load_asset, save_asset
 from facegeo.export.writers import export_asset
-from facegeo.fitting.checks import MAX_RMS_PERCENT_IOD, check_fit
+from facegeo.fitting.checks import MAX_LANDMARK_ERROR_PERCENT, check_fit, landmark_error_percent
 from facegeo.fitting import fit, fit_landmarks
 from facegeo.landmarks.scheme import inter_ocular_distance
 from facegeo.photo import Photo, load_photo
@@ -598,8 +598,8 @@ def test_turned_photo_is_fitted_upright(model, astronaut, quarter_turns):
 def test_landmarks_the_model_cannot_follow_are_refused(model, astronaut):
     good = fit(astronaut, model, photometric=False)
     check_fit(good, astronaut)  # the correct fit passes
-    iod = inter_ocular_distance(good.landmarks)
-    wrong = dataclasses.replace(good, landmark_rms_px=1.01 * MAX_RMS_PERCENT_IOD * iod / 100.0)
+    over = 1.01 * MAX_LANDMARK_ERROR_PERCENT / landmark_error_percent(good)  # every point missed just over the bar
+    wrong = dataclasses.replace(good, landmark_errors_px=good.landmark_errors_px * np.float32(over))
     with pytest.raises(NoFaceError, match="landmarks the face model can follow"):
         check_fit(wrong, astronaut)
     behind = dataclasses.replace(good, vertices=good.vertices * np.array([1, 1, -1], np.float32))
