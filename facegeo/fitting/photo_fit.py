@@ -5,6 +5,7 @@ landmark fit (:mod:`facegeo.fitting.landmark_fit`) -> albedo and SH lighting
 from __future__ import annotations
 
 import time
+from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -13,9 +14,11 @@ import numpy as np
 from facegeo.camera import Camera
 from facegeo.colour import srgb_to_linear
 from facegeo.fitting.camera_estimate import camera_for_face
-from facegeo.fitting.checks import check_fit
+from facegeo.fitting.checks import (FOLLOWED_SHARE, MAX_LANDMARK_ERROR_PERCENT, check_fit, frontal_inter_ocular_distance,
+                                     landmark_error_percent)
 from facegeo.fitting.dense_term import DEFAULT_DENSE, DenseSettings, dense_surface_points, landmark_weights_with_dense
-from facegeo.fitting.landmark_fit import solve_landmarks
+from facegeo.fitting.landmark_fit import LandmarkSolution, solve_landmarks
+from facegeo.fitting.landmark_problem import SurfacePoints
 from facegeo.fitting.photometric import fit_photometric
 from facegeo.fitting.priors import DEFAULT_PRIORS, FitPriors
 from facegeo.fitting.result import Fit
@@ -29,7 +32,7 @@ from facegeo.photo import Photo, as_rgb_uint8, load_photo
 if TYPE_CHECKING:
     from facegeo.fitting.shading_refine import ShadingSettings
 
-__all__ = ["fit"]
+__all__ = ["fit", "observe_photo", "finish_photo_fit", "PhotoObservation"]
 
 
 def fit(
@@ -66,6 +69,83 @@ def fit(
             settings (:mod:`facegeo.fitting.shading_refine`; implies the photometric stage);
             None (default): landmarks and the photometric stage only.
     """
+    seen = observe_photo(image, model, landmarks, detector, camera, dense)
+    solution = solve_landmarks(seen.model, seen.landmarks, seen.camera, weights=seen.weights, priors=priors, init=init,
+                               surface_points=seen.surface_points)
+    return finish_photo_fit(seen, solution, photometric, shading)
+
+
+def finish_photo_fit(seen: PhotoObservation, solution: LandmarkSolution, photometric: bool = True,
+                     shading: ShadingSettings | None = None) -> Fit:
+    """The second half of :func:`fit`: the landmark ``solution`` of the photo ``seen``
+    (:func:`observe_photo`) completed with albedo and SH lighting (``photometric``), the optional
+    ``shading`` stage, the photo's notes and detection record, and checked
+    (:func:`~facegeo.fitting.checks.check_fit`). Returns the solution's fit, completed in place."""
+    model, pixels, detection = seen.model, seen.pixels, seen.detection
+    result = solution.fit
+    result.timings = {**seen.timings, **result.timings}
+    if photometric or shading is not None:
+        t0 = time.perf_counter()
+        linear = srgb_to_linear(pixels.astype(np.float32) / 255.0)
+        fit_photometric(model, result, linear)
+        result.timings["photometric"] = time.perf_counter() - t0
+        if shading is not None and "skipped" not in result.info.get("photometric", {}):
+            from facegeo.fitting.shading_refine import refine_with_shading  # torch: only for this opt-in stage
+
+            t0 = time.perf_counter()
+            result.info["shading"] = refine_with_shading(model, result, solution.problem, solution.noise, linear,
+                                                         solution.expression_scale, solution.expression_rate, shading)
+            fit_photometric(model, result, linear)  # albedo and light for the refined shape
+            result.timings["shading"] = time.perf_counter() - t0
+    result.info.update(
+        source=seen.source,
+        model=model.name,
+        detector=detection.detector if detection else "given",
+        face_box=detection.box.tolist() if detection else None,
+        faces_found=detection.n_faces if detection else None,
+        notes=seen.notes + result.info.get("notes", []),  # the landmark fit's own (e.g. points left out)
+    )
+    # what check_fit's landmark bar reads (facegeo.fitting.checks), reported with the fit
+    result.info["landmark_check"] = {"error_percent": round(landmark_error_percent(result), 3),
+                                     "limit_percent": MAX_LANDMARK_ERROR_PERCENT, "followed_share": FOLLOWED_SHARE,
+                                     "frontal_iod_px": round(frontal_inter_ocular_distance(result), 2)}
+    check_fit(result, seen.image)
+    return result
+
+
+@dataclass
+class PhotoObservation:
+    """What a fit observes in one photo (:func:`observe_photo`): ``image`` (the loaded
+    :class:`Photo` or the array), ``source`` (its path or ``"<array>"``), ``pixels`` (H, W, 3)
+    uint8 RGB, the ``model``, ``landmarks`` (88, 2) float px, the ``camera`` (its focal estimated
+    when it was unknown), the ``detection`` (None for given landmarks), the landmark ``weights``
+    (88,) and dense ``surface_points`` (None without the dense term), ``timings`` (s) and ``notes``."""
+
+    image: np.ndarray | Photo
+    source: str
+    pixels: np.ndarray
+    model: MorphableModel
+    landmarks: np.ndarray
+    camera: Camera
+    detection: FaceLandmarks | None
+    weights: np.ndarray | None
+    surface_points: SurfacePoints | None
+    timings: dict[str, float]
+    notes: list[str]
+
+
+def observe_photo(
+    image: np.ndarray | str | Path | Photo,
+    model: MorphableModel | None = None,
+    landmarks: np.ndarray | None = None,
+    detector: str | LandmarkDetector = "hybrid",
+    camera: Camera | None = None,
+    dense: DenseSettings | None = DEFAULT_DENSE,
+) -> PhotoObservation:
+    """The first half of :func:`fit` (same arguments): the photo loaded, the landmarks detected
+    (unless given), the camera's focal estimated when unknown and the dense surface points placed
+    on the model; what a landmark fit of this photo needs, alone or beside other photos of the
+    same person (:func:`facegeo.fitting.fit_photos`)."""
     timings: dict[str, float] = {}
     notes: list[str] = []
     if isinstance(image, (str, Path)):
@@ -102,29 +182,5 @@ def fit(
             surface = dense_surface_points(model, detection.dense, correspondence, inter_ocular_distance(landmarks), dense,
                                            detection.dense_spread)
             weights = landmark_weights_with_dense(LANDMARK_WEIGHTS, dense)
-    solution = solve_landmarks(model, landmarks, camera, weights=weights, priors=priors, init=init, surface_points=surface)
-    result = solution.fit
-    result.timings = {**timings, **result.timings}
-    if photometric or shading is not None:
-        t0 = time.perf_counter()
-        linear = srgb_to_linear(pixels.astype(np.float32) / 255.0)
-        fit_photometric(model, result, linear)
-        result.timings["photometric"] = time.perf_counter() - t0
-        if shading is not None and "skipped" not in result.info.get("photometric", {}):
-            from facegeo.fitting.shading_refine import refine_with_shading  # torch: only for this opt-in stage
-
-            t0 = time.perf_counter()
-            result.info["shading"] = refine_with_shading(model, result, solution.problem, solution.noise, linear,
-                                                         solution.expression_scale, solution.expression_rate, shading)
-            fit_photometric(model, result, linear)  # albedo and light for the refined shape
-            result.timings["shading"] = time.perf_counter() - t0
-    result.info.update(
-        source=source,
-        model=model.name,
-        detector=detection.detector if detection else "given",
-        face_box=detection.box.tolist() if detection else None,
-        faces_found=detection.n_faces if detection else None,
-        notes=notes + result.info.get("notes", []),  # the landmark fit's own (e.g. points left out)
-    )
-    check_fit(result, image)
-    return result
+    return PhotoObservation(image, source, pixels, model, np.asarray(landmarks, dtype=np.float64), camera, detection, weights,
+                            surface, timings, notes)
