@@ -130,6 +130,19 @@ def test_occluding_contour_follows_the_pose(model):
     assert mean[turned, 1].min() >= mean[model.landmark_indices[CHIN], 1] - 8.0 - 1e-6
 
 
+def test_a_bin_facing_the_camera_to_its_end_gives_its_last_vertex(model):
+    # the facing run of a bin that starts after its first vertex and reaches its end: the contour
+    # vertex is the bin's last (it indexed past the bin: an IndexError on shuffled landmarks)
+    silhouette = silhouette_of(model)
+    sign = np.ones(len(silhouette.vertices))
+    for members in silhouette.bins:
+        sign[members[0]] = -1.0  # the innermost vertex faces away, every other one the camera
+    positions = -sign[:, None] * silhouette.normals  # facing iff n · (−X) > 0
+    picks = silhouette.contour(positions, np.eye(3))
+    expected = [members[-1] for members in silhouette.bins if len(members) > 1]
+    assert picks.tolist() == expected
+
+
 def test_unknown_focal_puts_the_face_at_the_assumed_distance(model):
     """A camera of unknown focal gets f = d · iod_px / iod_mm; the fit then places the face near
     d; a known focal is kept as it is."""

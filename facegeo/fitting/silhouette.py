@@ -89,7 +89,8 @@ class Silhouette:
             f = facing[members]
             if not f.any():
                 continue
-            first_away = np.flatnonzero(~f[np.argmax(f):])  # after the first facing vertex
-            end = np.argmax(f) + (first_away[0] if len(first_away) else len(f))
+            start = int(np.argmax(f))  # the first facing vertex
+            first_away = np.flatnonzero(~f[start:])
+            end = start + (first_away[0] if len(first_away) else len(f) - start)  # facing to the bin's end: its last vertex
             picks.append(members[end - 1])
         return np.asarray(picks, dtype=np.int64)
