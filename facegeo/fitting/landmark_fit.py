@@ -37,7 +37,8 @@ from facegeo.morphable_model import MorphableModel
 if TYPE_CHECKING:
     import torch
 
-__all__ = ["fit_landmarks", "solve_landmarks", "LandmarkSolution", "CONVERGED_RELATIVE_DECREASE", "NOISE_TOLERANCE", "LANDMARK_FIT_THREADS", "rotation_step"]
+__all__ = ["fit_landmarks", "solve_landmarks", "LandmarkSolution", "LandmarkPrior", "estimate_noise", "assemble_fit",
+           "CONVERGED_RELATIVE_DECREASE", "NOISE_TOLERANCE", "LANDMARK_FIT_THREADS", "rotation_step"]
 
 CONVERGED_RELATIVE_DECREASE = 1e-4
 #: The noise re-estimation stops once σ changes by less than this (relative, in log).
@@ -68,7 +69,7 @@ def _initial_pose(model: MorphableModel, targets: np.ndarray, camera: Camera) ->
 
 
 
-class _Prior:
+class LandmarkPrior:
     """The prior terms of E for one model and :class:`FitPriors`: scales, rates, bounds."""
 
     def __init__(self, model: MorphableModel, priors: FitPriors):
@@ -94,7 +95,7 @@ def rotation_step(omega: np.ndarray) -> np.ndarray:
     return cv2.Rodrigues(omega)[0]
 
 
-def _levenberg_marquardt(problem: LandmarkProblem, state: dict[str, np.ndarray], stage: LandmarkStage, prior: _Prior,
+def _levenberg_marquardt(problem: LandmarkProblem, state: dict[str, np.ndarray], stage: LandmarkStage, prior: LandmarkPrior,
                          noise: float) -> int:
     """Run ``stage.iterations`` damped Gauss–Newton steps on E (:class:`FitPriors`) for the
     landmark noise ``noise`` (inter-ocular units), updating ``state`` in place.
@@ -164,7 +165,7 @@ def _levenberg_marquardt(problem: LandmarkProblem, state: dict[str, np.ndarray],
     return accepted
 
 
-def _estimate_noise(problem: LandmarkProblem, state: dict[str, np.ndarray], prior: _Prior, noise: float) -> tuple[float, float]:
+def estimate_noise(problem: LandmarkProblem, state: dict[str, np.ndarray], prior: LandmarkPrior, noise: float) -> tuple[float, float]:
     """(σ, p_eff): the landmark noise re-estimated from the residuals (:class:`FitPriors`)."""
     model = problem.model
     problem.slide(state["rotation"], state["translation"], state["alpha"], state["delta"])
@@ -258,7 +259,7 @@ def solve_landmarks(
     with threadpool_limits(limits=LANDMARK_FIT_THREADS, user_api="blas"):
         timings: dict[str, float] = {}
         t0 = time.perf_counter()
-        prior = _Prior(model, priors)
+        prior = LandmarkPrior(model, priors)
         if init is None:
             rotation, translation = _initial_pose(model, targets, camera)
             alpha, delta = np.zeros(model.n_id), np.zeros(model.n_exp)
@@ -281,7 +282,7 @@ def solve_landmarks(
         last = schedule[-1]
         for round_ in range(priors.noise_rounds + 1):
             if round_ > 0 or len(schedule) > 1:  # the noise is estimated once some shape is fitted
-                estimate, p_eff = _estimate_noise(problem, state, prior, noise)
+                estimate, p_eff = estimate_noise(problem, state, prior, noise)
                 estimate = max(estimate, priors.noise_floor)
                 if round_ > 0 and abs(np.log(estimate / noise)) < NOISE_TOLERANCE:
                     break
@@ -307,7 +308,7 @@ def solve_landmarks(
         left_out = np.flatnonzero(~valid)
         info["notes"] = [f"{len(left_out)} of {N_LANDMARKS} landmarks NaN or infinite, left out of the fit and of its RMS: "
                          f"point{'s' if len(left_out) > 1 else ''} {', '.join(map(str, left_out))}"]
-    result = _assemble(model, problem, state, camera, targets, timings, info)
+    result = assemble_fit(model, problem, state, camera, targets, timings, info)
     # never a NaN out of the public API: a solve that diverged is refused, naming what went wrong
     check_finite({f"fit {name}": getattr(result, name) for name in ("rotation", "translation", "alpha", "delta", "vertices",
                                                                      "landmarks_fitted", "landmark_rms_px")}, "<landmarks>")
@@ -315,12 +316,12 @@ def solve_landmarks(
 
 
 #: BLAS threads for the landmark fit's small (176 × ~160) linear algebra: on a loaded 2-core
-
-
+#: machine more threads made it 5–15× slower for identical results (benchmarks/bench_fit_speed.py,
+#: results in benchmarks/RESULTS.md).
 LANDMARK_FIT_THREADS = 1
 
 
-def _assemble(
+def assemble_fit(
     model: MorphableModel,
     problem: LandmarkProblem,
     state: dict[str, np.ndarray],
@@ -329,6 +330,10 @@ def _assemble(
     timings: dict[str, float],
     info: dict[str, Any],
 ) -> Fit:
+    """The :class:`Fit` of a solved landmark problem: ``state`` (rotation (3, 3), translation (3,)
+    mm, alpha (n_id,), delta (n_exp,), float64) posed in ``camera``, the 88 ``targets`` (px) and
+    their errors (px; the RMS over the points the fit used), ``timings`` and ``info`` as given.
+    Shared by the single-view fit and the fit of several views (:mod:`facegeo.fitting.shared_identity`)."""
     projected = problem.projected(state["rotation"], state["translation"], state["alpha"], state["delta"])
     fitted = projected[:N_LANDMARKS]
     if problem.n_points > N_LANDMARKS:  # the surface points' residuals, px
