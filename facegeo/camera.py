@@ -22,6 +22,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from facegeo.array_namespace import array_namespace, is_tensor
+from facegeo.errors import InputError
 
 if TYPE_CHECKING:  # torch is imported by whoever passes a tensor; NumPy callers (the fit) never load it
     import torch
@@ -62,11 +63,12 @@ class Camera:
     focal_known: bool = True
 
     def __post_init__(self) -> None:
-        values = (self.focal, self.cx, self.cy)
-        if not all(math.isfinite(v) for v in values) or self.focal <= 0:
-            raise ValueError(f"Camera: expected a finite focal > 0 and principal point, got {values}")
+        if not (math.isfinite(self.focal) and self.focal > 0):
+            raise InputError("<camera>", "focal", "a finite focal length > 0 in pixels", repr(self.focal))
+        if not (math.isfinite(self.cx) and math.isfinite(self.cy)):
+            raise InputError("<camera>", "principal point", "finite pixel coordinates", f"({self.cx!r}, {self.cy!r})")
         if self.width <= 0 or self.height <= 0:
-            raise ValueError(f"Camera: expected a positive image size, got {self.width}x{self.height}")
+            raise InputError("<camera>", "image size", "a positive width and height in pixels", f"{self.width}x{self.height}")
 
     @classmethod
     def for_image(cls, width: int, height: int, fov_deg: float = DEFAULT_FOV_DEG) -> "Camera":

@@ -10,6 +10,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from scipy.spatial.transform import Rotation
 
+from facegeo.errors import InputError
 from facegeo.camera import (
     OPENCV_FROM_OPENGL,
     Camera,
@@ -114,5 +115,9 @@ def test_camera_for_image_and_scaling():
     half = cam.scaled(0.5)
     assert half.focal == pytest.approx(200.0)
     assert (half.cx, half.width, half.height) == (200.0, 400, 300)
-    with pytest.raises(ValueError):
+    with pytest.raises(InputError, match="^<camera>: focal: expected a finite focal length > 0 in pixels, found -1.0$"):
         Camera(-1.0, 0, 0, 10, 10)
+    with pytest.raises(InputError, match="principal point"):
+        Camera(100.0, float("nan"), 0, 10, 10)
+    with pytest.raises(InputError, match="image size: expected a positive width and height in pixels, found 0x10"):
+        Camera(100.0, 0, 0, 0, 10)

@@ -160,6 +160,11 @@ def test_weights_that_leave_too_few_points_are_refused(model):
     _, _, landmarks = synthetic(model, np.random.default_rng(9), 10.0)
     with pytest.raises(InputError, match="positive weight, found 0"):
         fit_landmarks(model, landmarks, CAMERA, weights=np.zeros(88, np.float32))
+    weights = np.ones(88, np.float32)
+    weights[[7, 9]] = np.nan
+    with pytest.raises(InputError, match=r"weights: expected finite, non-negative values, found 2 of 88 NaN, infinite or "
+                                         r"negative \(first at point 7\)"):
+        fit_landmarks(model, landmarks, CAMERA, weights=weights)
 
 
 def test_bad_landmarks_raise(model):

@@ -244,8 +244,12 @@ def solve_landmarks(
         raise InputError("<landmarks>", "landmarks", f"shape ({N_LANDMARKS}, 2) in pixels", str(targets.shape))
     valid = np.isfinite(targets).all(axis=1)
     weights = LANDMARK_WEIGHTS if weights is None else np.asarray(weights, dtype=np.float32)
-    if weights.shape != (N_LANDMARKS,) or not np.all(np.isfinite(weights)) or np.any(weights < 0):
-        raise InputError("<weights>", "weights", f"({N_LANDMARKS},) finite, non-negative", str(weights.shape))
+    if weights.shape != (N_LANDMARKS,):
+        raise InputError("<weights>", "weights", f"shape ({N_LANDMARKS},)", str(weights.shape))
+    if not np.all(np.isfinite(weights) & (weights >= 0)):
+        bad = np.flatnonzero(~(np.isfinite(weights) & (weights >= 0)))
+        raise InputError("<weights>", "weights", "finite, non-negative values",
+                         f"{len(bad)} of {N_LANDMARKS} NaN, infinite or negative (first at point {bad[0]})")
     used = valid & (weights > 0)
     if used[INNER_FACE].sum() < 6:
         raise InputError("<landmarks>", "landmarks", "at least 6 finite non-jaw iBUG points of positive weight",
