@@ -33,6 +33,7 @@ from __future__ import annotations
 import json
 import os
 import zipfile
+import zlib
 from pathlib import Path
 from typing import Any
 
@@ -180,8 +181,8 @@ def _read_blendshapes(root: Path, meta_path: Path, doc: dict[str, Any], surfaces
                 out[surface] = Blendshapes(names, deltas, weights.copy())
     except KeyError as exc:
         raise InputError(file, str(exc).strip("'\""), "the surface's shape, vertex and delta arrays", "missing") from None
-    except (OSError, ValueError) as exc:
-        raise InputError(file, "blendshapes", "an .npz file written by facegeo", str(exc)) from None
+    except (OSError, ValueError, EOFError, zipfile.BadZipFile, zlib.error) as exc:  # unreadable, truncated or corrupt
+        raise InputError(file, "blendshapes", "an .npz file written by facegeo", f"{type(exc).__name__}: {exc}") from None
     return out
 
 

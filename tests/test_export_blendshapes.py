@@ -259,6 +259,21 @@ def test_asset_folder_keeps_the_blendshapes(face, tmp_path):
     assert face_only.blendshapes.deltas.shape[1] == len(face_only.vertices)
 
 
+@pytest.mark.parametrize("damage", ["truncated", "corrupt member"])
+def test_a_damaged_blendshapes_file_is_named_in_one_error(face, tmp_path, damage):
+    asset, *_ = face
+    folder = save_asset(asset, tmp_path / "a")
+    path = folder / "blendshapes.npz"
+    data = bytearray(path.read_bytes())
+    if damage == "truncated":
+        data = data[:300]
+    else:  # the zip's directory intact, a member's bytes not (its CRC fails on reading)
+        data[len(data) // 2:len(data) // 2 + 200] = bytes(200)
+    path.write_bytes(bytes(data))
+    with pytest.raises(InputError, match=r"blendshapes\.npz: blendshapes: expected an \.npz file written by facegeo, found BadZipFile"):
+        load_asset(folder)
+
+
 def test_mismatched_blendshapes_are_refused(face):
     asset, *_ = face
     with pytest.raises(InputError, match="blendshapes.deltas"):
