@@ -68,7 +68,9 @@ from facegeo.lighting import sh_irradiance
 from facegeo.pipeline import reconstruct_with_fit
 from facegeo.skin_mask import SkinMask, skin_vertex_mask, vertex_regions
 from facegeo.texturing.context import surface_operators
-from facegeo.texturing.default_backend import DefaultBackend, masked_blur, value_noise
+from facegeo.texturing.default import DefaultBackend
+from facegeo.texturing.default.noise import value_noise
+from facegeo.texturing.image_filters import masked_blur
 from facegeo.texturing.shading import shade_ggx
 from facegeo.uv.texels import sample_uv
 from facegeo.uv import geometry_maps, rasterize_mesh, rasterize_uv, render, unwrap_details

@@ -97,7 +97,10 @@ from facegeo.errors import NoFaceError  # noqa: E402
 from facegeo.pipeline import reconstruct_with_fit  # noqa: E402
 from facegeo.skin_mask import SkinMask, skin_mask, skin_vertex_mask  # noqa: E402
 from facegeo.texturing.context import build_context, surface_operators  # noqa: E402
-from facegeo.texturing.default_backend import FILL_SMOOTHNESS, DefaultBackend, _mirror_index, masked_blur  # noqa: E402
+from facegeo.texturing.default import DEFAULT_SETTINGS, DefaultBackend  # noqa: E402
+from facegeo.texturing.default.fill import fill_base, with_mirror_tone  # noqa: E402
+from facegeo.texturing.default.texels import mirror_index  # noqa: E402
+from facegeo.texturing.image_filters import masked_blur  # noqa: E402
 from facegeo.uv import geometry_maps, rasterize_uv, unwrap_details  # noqa: E402
 from facegeo.uv.texels import sample_bilinear  # noqa: E402
 
@@ -306,10 +309,10 @@ def evaluate(scan: str, name: str, render: str, light: str, model, raster, skin_
     reliable = DefaultBackend().reliability((seen & truth_ok).astype(np.float32), ctx)
     log_truth = np.log(np.maximum(truth, 1e-4))
     mean = (log_truth * reliable[..., None]).reshape(-1, 3).sum(0) / max(float(reliable.sum()), 1e-6)
-    has, mirror = _mirror_index(ctx)
+    has, mirror = mirror_index(ctx)
     via_mirror = np.where(has, reliable.reshape(-1)[mirror], 0.0).astype(np.float32)
-    values, weight, _, _ = DefaultBackend._with_mirror_tone(log_truth, reliable, reliable, via_mirror, skin_texels, ctx)
-    extended = np.exp(DefaultBackend()._base(values, weight, mean, ctx, FILL_SMOOTHNESS))
+    values, weight, _, _ = with_mirror_tone(log_truth, reliable, reliable, via_mirror, skin_texels, ctx, DEFAULT_SETTINGS)
+    extended = np.exp(fill_base(values, weight, mean, ctx, DEFAULT_SETTINGS.fill_smoothness, DEFAULT_SETTINGS))
     # the same backend on the truth's own colours where the photo saw the skin
     through = DefaultBackend()
     seen_truth = np.where(truth_seen_ok[..., None], truth_seen, truth)

@@ -47,7 +47,8 @@ from facegeo.camera import Camera, project, rotation_from_euler
 from facegeo.colour import linear_to_srgb, srgb_to_linear
 from facegeo.lighting import sh_irradiance
 from facegeo.texturing.context import build_context
-from facegeo.texturing.default_backend import DefaultBackend, pad_outside
+from facegeo.texturing.default import DefaultBackend
+from facegeo.texturing.image_filters import pad_outside
 from facegeo.uv import rasterize_uv, render, unwrap
 
 ROOT = Path(__file__).resolve().parents[1]

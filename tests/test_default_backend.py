@@ -1,5 +1,7 @@
 """The default texture backend on a synthetic UV context: a hemisphere seen from the front."""
 
+from dataclasses import FrozenInstanceError, replace
+
 import cv2
 import numpy as np
 import pytest
@@ -8,26 +10,18 @@ import torch
 from facegeo.colour import linear_to_srgb, luminance, srgb_to_linear
 from facegeo.lighting import sh_irradiance
 from facegeo.texturing.backend import TextureBackend, TextureContext
-from facegeo.texturing.default_backend import (
-    CLIPPED_LEVEL,
-    CONTRAST_RANGE,
-    DIRECTIONAL_RANGE,
-    FRINGE_MM,
-    GRAZING_GAIN,
-    MAX_GAIN,
-    QUILT_BLOCK,
-    QUILT_NEIGHBOURHOOD,
-    DefaultBackend,
-    band_noise,
-    gradient_noise,
-    nonnegative_least_squares,
-    masked_blur,
-    pad_outside,
-    quilted_detail,
-    restore_clipped,
-    value_noise,
-    white_share,
-)
+from facegeo.texturing.default import DEFAULT_SETTINGS, DefaultBackend, DefaultSettings
+from facegeo.texturing.default.clipping import restore_clipped
+from facegeo.texturing.default.highlights import white_share
+from facegeo.texturing.default.least_squares import nonnegative_least_squares
+from facegeo.texturing.default.noise import band_noise, gradient_noise, value_noise
+from facegeo.texturing.default.quilting import quilted_detail
+from facegeo.texturing.default.reliability import shading_confidence
+from facegeo.texturing.default.sheen import without_sun_sheen
+from facegeo.texturing.image_filters import masked_blur, pad_outside
+
+#: The settings for a photo without specular reflection (the synthetic photos here, diffuse only).
+DIFFUSE = replace(DEFAULT_SETTINGS, skin_albedo=None)
 
 
 def psnr(a, b, mask):
@@ -82,13 +76,13 @@ def test_homogenise_removes_known_white_sh_shading_and_keeps_chroma():
     gamma = np.zeros((3, 9), np.float32)
     gamma[:, 0] = 0.9
     gamma[:, 2] = 0.2  # frontal light
-    gamma[:, 3] = -0.35  # from the side: clearly directional (a weaker one is left in, DIRECTIONAL_RANGE)
+    gamma[:, 3] = -0.35  # from the side: clearly directional (a weaker one is left in, directional_range)
     gamma[:, 1] = 0.1
     ctx = hemisphere_context(128)
     albedo = skin_albedo(128)
     e = sh_irradiance(torch.from_numpy(ctx.normal_camera), torch.from_numpy(gamma)).numpy()
     shaded = linear_to_srgb(srgb_to_linear(albedo) * e)
-    backend = DefaultBackend(skin_albedo=None)  # a diffuse-only photo: no sheen to remove
+    backend = DefaultBackend(settings=DIFFUSE)  # a diffuse-only photo: no sheen to remove
     out = backend.homogenise(shaded, ctx)
     # compare up to the global scale the homogenised texture is defined to
     lin_out, lin_ref = srgb_to_linear(out), srgb_to_linear(albedo)
@@ -117,7 +111,7 @@ def test_warm_light_is_removed_with_the_sclera_as_white_reference():
     for name, light in (("warm", np.array([1.0, 0.78, 0.55], np.float32)), ("white", np.ones(3, np.float32))):
         shaded = np.broadcast_to(linear_to_srgb(skin * light), (64, 64, 3)).astype(np.float32)
         ctx.white_reference = sclera * light
-        out = DefaultBackend(skin_albedo=None).homogenise(shaded, ctx)
+        out = DefaultBackend(settings=DIFFUSE).homogenise(shaded, ctx)
         results[name] = np.median(chroma(srgb_to_linear(out)[ctx.coverage]), axis=0)
     truth = chroma(skin)
     photo_error = np.linalg.norm(chroma(skin * np.array([1.0, 0.78, 0.55])) - truth)
@@ -139,7 +133,7 @@ def test_greyscale_photo_gets_an_invented_skin_chroma_and_a_note():
 def test_even_light_leaves_albedo_that_correlates_with_the_normals_alone():
     """Under an even light (constant shading) an albedo darker towards one side (a beard zone)
     correlates with the normals: an SH fit finds a 'light' there, but it is too weakly directional
-    to be divided out (DIRECTIONAL_RANGE): the albedo keeps its gradient."""
+    to be divided out (directional_range): the albedo keeps its gradient."""
     ctx = hemisphere_context(128)
     x = ctx.normal_camera[..., 0]
     albedo = linear_to_srgb(srgb_to_linear(np.float32([0.78, 0.58, 0.48])) * (1.0 - 0.12 * x)[..., None])
@@ -234,8 +228,9 @@ def test_gains_are_bounded_and_smaller_at_grazing_angles():
     shaded = linear_to_srgb(srgb_to_linear(skin_albedo(128)) * np.maximum(e, 0.02))
     an = DefaultBackend().analyse(shaded, ctx.coverage.astype(np.float32), ctx)
     gain = 1.0 / an.shading[ctx.coverage]
-    assert gain.max() <= MAX_GAIN + 1e-5 and gain.min() >= 1.0 / MAX_GAIN - 1e-5
-    bound = GRAZING_GAIN + (MAX_GAIN - GRAZING_GAIN) * np.clip(ctx.normal_camera[..., 2] / 0.5, 0, 1)
+    max_gain, grazing_gain = DEFAULT_SETTINGS.max_gain, DEFAULT_SETTINGS.grazing_gain
+    assert gain.max() <= max_gain + 1e-5 and gain.min() >= 1.0 / max_gain - 1e-5
+    bound = grazing_gain + (max_gain - grazing_gain) * np.clip(ctx.normal_camera[..., 2] / 0.5, 0, 1)
     assert np.all(1.0 / an.shading[ctx.coverage] <= bound[ctx.coverage] + 1e-5)
     assert np.all(an.shading[ctx.coverage] <= bound[ctx.coverage] + 1e-5)
 
@@ -291,7 +286,7 @@ def test_the_hidden_side_takes_the_mirrors_tone_only_where_the_seen_face_is_symm
     log_tone = -0.36 * masked_blur(jaw, np.ones_like(jaw), 2.0) + 0.05 * pores + (1.0 * x if baked_light else 0.0)
     truth = srgb_to_linear(np.float32([0.78, 0.58, 0.48])) * np.exp(log_tone)[..., None]
     visible = (x < 0.3).astype(np.float32)
-    backend = DefaultBackend(skin_albedo=None)
+    backend = DefaultBackend(settings=DIFFUSE)
     out = srgb_to_linear(backend.homogenise(backend.inpaint(linear_to_srgb(np.clip(truth, 0, 1)) * visible[..., None], visible, ctx), ctx))
     lum = luminance(out)
     report = backend.report["inpaint"]
@@ -316,17 +311,16 @@ def test_reliability_fades_towards_silhouettes_and_occluders():
     weight[60:68, 60:68] = 0.0  # an occluder in the middle
     r = DefaultBackend().reliability(weight, ctx)
     assert r[64, 64] == 0.0 and r[64, 30] > 0.9  # on the occluder / clear, facing skin
-    assert 0 < r[64, 68] < r[64, 69] < r[64, 90] == 1.0  # rises away from the occluder (over EDGE_MM)
+    assert 0 < r[64, 68] < r[64, 69] < r[64, 90] == 1.0  # rises away from the occluder (over edge_mm)
     assert r[64, 2] < 0.05 or not ctx.coverage[64, 2]  # grazing at the rim
 
 
-@pytest.mark.parametrize("fringe_mm", [FRINGE_MM, 0.0])
-def test_an_occluders_fringe_is_filled_and_the_same_colour_inside_the_face_kept(fringe_mm, monkeypatch):
+@pytest.mark.parametrize("fringe_mm", [DEFAULT_SETTINGS.fringe_mm, 0.0])
+def test_an_occluders_fringe_is_filled_and_the_same_colour_inside_the_face_kept(fringe_mm):
     """Hair above a line is masked, but the mask lets its last two texels of strands (dark,
     bluish grey) through; the same colour also marks the middle of the face. The fringe is filled
     with the skin next to it; the mark far from the mask's edge is the face's own and stays. With
-    FRINGE_MM = 0 the strands stay dark (the edge's reliability ramp alone does not remove them)."""
-    monkeypatch.setattr("facegeo.texturing.default_backend.FRINGE_MM", fringe_mm)
+    fringe_mm = 0 the strands stay dark (the edge's reliability ramp alone does not remove them)."""
     size = 128
     ctx = hemisphere_context(size)
     rng = np.random.default_rng(3)
@@ -338,7 +332,7 @@ def test_an_occluders_fringe_is_filled_and_the_same_colour_inside_the_face_kept(
     mark = (np.abs(row - 80) < 3) & (np.abs(np.arange(size)[None, :] - 64) < 3)
     hair = srgb_to_linear(np.float32([0.16, 0.17, 0.2]))
     photo = np.where((strands | mark)[..., None], hair, truth)
-    backend = DefaultBackend()
+    backend = DefaultBackend(settings=replace(DEFAULT_SETTINGS, fringe_mm=fringe_mm))
     out = srgb_to_linear(backend.homogenise(backend.inpaint(linear_to_srgb(photo) * seen[..., None], seen.astype(np.float32), ctx), ctx))
     lum = luminance(out)
     around = ctx.coverage & (row >= 46) & (row < 56) & (np.abs(np.arange(size)[None, :] - 64) < 30)
@@ -524,7 +518,7 @@ def test_quilted_detail_keeps_the_sources_contrast_and_scale_without_a_block_gri
     ratio = gradient(out[:, size // 2 + 2 :]) / gradient(texture[:, : size // 2])
     assert 0.9 < ratio < 1.1
     # no grid: the variance by position modulo the block's half is flat
-    half = round(QUILT_BLOCK * size / 2)
+    half = round(DEFAULT_SETTINGS.quilt_block * size / 2)
     region = out[:, size // 2 + 2 * half : size // 2 + 2 * half + 8 * half]
     by_phase = [(region[:, k::half] ** 2).mean() for k in range(half)]
     assert max(by_phase) / min(by_phase) < 1.3
@@ -538,7 +532,7 @@ def test_quilted_detail_keeps_the_sources_contrast_and_scale_without_a_block_gri
 
 def test_quilted_detail_leaves_out_blocks_with_a_speck():
     """Pores (σ 0.02) with a few dark specks (−0.5: a mole, a lash) on 1 % of the source: blocks
-    holding a speck are busier than QUILT_ENERGY_CAP × the median block, so no speck is copied."""
+    holding a speck are busier than quilt_energy_cap × the median block, so no speck is copied."""
     size = 512
     rng = np.random.default_rng(2)
     detail = (0.02 * rng.normal(size=(size, size, 1))).astype(np.float32)
@@ -577,7 +571,7 @@ def test_quilted_detail_takes_the_texture_of_the_source_next_to_it():
     source = np.zeros((size, size), bool)
     source[:, : size // 2] = True
     out = quilted_detail(np.where(source[..., None], texture, 0.0), source, ~source)
-    margin = round(QUILT_NEIGHBOURHOOD * size)  # the neighbourhoods straddle the line between the halves
+    margin = round(DEFAULT_SETTINGS.quilt_neighbourhood * size)  # the neighbourhoods straddle the line between the halves
     beside_stubble = ~source & (rows < size // 2 - margin)
     beside_pores = ~source & (rows > size // 2 + margin)
     assert 0.75 < out[beside_stubble].std() / texture[source & stubble].std() < 1.25  # 0.91
@@ -625,7 +619,7 @@ def test_foreshortened_seen_skin_keeps_its_own_mottling():
     mottling *= 0.08 / mottling.std()
     truth = srgb_to_linear(np.float32([0.78, 0.58, 0.48])) * np.exp(mottling)[..., None]
     visible = (x < 0.1).astype(np.float32)
-    backend = DefaultBackend(skin_albedo=None)
+    backend = DefaultBackend(settings=DIFFUSE)
     out = srgb_to_linear(backend.homogenise(backend.inpaint(linear_to_srgb(truth) * visible[..., None], visible, ctx), ctx))
     log_l = np.log(np.maximum(out.mean(-1), 1e-4))
 
@@ -676,7 +670,7 @@ def test_unseen_texels_get_the_visible_skin_colour_not_the_model_texture():
     x = np.linspace(-1, 1, 64)[None, :].repeat(64, 0)
     visible = (x < 0.3).astype(np.float32)
     ctx.mirror[...] = -1  # nothing mirrors: the hidden part comes from the seen skin alone
-    full = DefaultBackend(skin_albedo=None).inpaint(t_inc, visible, ctx)
+    full = DefaultBackend(settings=DIFFUSE).inpaint(t_inc, visible, ctx)
     hidden = ctx.coverage & (visible == 0)
     np.testing.assert_allclose(full[hidden].mean(axis=0), colour, atol=0.01)
 
@@ -724,7 +718,7 @@ def test_directional_light_and_its_cast_shadows_are_fitted_and_removed(face_cont
     """A constant albedo under a hard light with the posed mesh's cast shadows: the light model
     finds the direction and ambient, and the de-lit skin is flat. The SH fit's directional
     measure of this clean scene is 0.09–0.13 (its trimming drops the shadowed half), below
-    DIRECTIONAL_RANGE: its irradiance contrast over the sphere (CONTRAST_RANGE) opens the gate."""
+    directional_range: its irradiance contrast over the sphere (contrast_range) opens the gate."""
     ctx = face_context
     cover = ctx.coverage
     light, lit = _hard_side_light(ctx)
@@ -733,10 +727,10 @@ def test_directional_light_and_its_cast_shadows_are_fitted_and_removed(face_cont
     assert (facing & ~lit & (ctx.normal_camera @ light > 0.3)).sum() > 50  # the nose casts a shadow on lit-facing skin
     albedo = np.array([0.45, 0.3, 0.24], np.float32)
     photo = linear_to_srgb(np.where(cover[..., None], albedo * shading[..., None], 0.0)).astype(np.float32)
-    backend = DefaultBackend(skin_albedo=None)  # a diffuse-only photo
+    backend = DefaultBackend(settings=DIFFUSE)  # a diffuse-only photo
     out = backend.homogenise(photo, ctx)
-    assert backend.report["analyse"]["directional"] < DIRECTIONAL_RANGE[0]
-    assert backend.report["analyse"]["irradiance_contrast"] > CONTRAST_RANGE[1]
+    assert backend.report["analyse"]["directional"] < DEFAULT_SETTINGS.directional_range[0]
+    assert backend.report["analyse"]["irradiance_contrast"] > DEFAULT_SETTINGS.contrast_range[1]
     assert backend.report["analyse"]["delighting_strength"] == 1.0
     fitted = np.array(backend.report["light"]["direction"])
     assert np.degrees(np.arccos(np.clip(fitted @ light, -1, 1))) < 3.0
@@ -765,7 +759,7 @@ def test_a_warm_sun_and_a_blue_sky_are_both_taken_out(face_context):
     radiance = direct[..., None] * sun + 0.35 * sky
     albedo = np.array([0.45, 0.3, 0.24], np.float32)
     photo = linear_to_srgb(np.where(cover[..., None], albedo * radiance, 0.0)).astype(np.float32)
-    backend = DefaultBackend(skin_albedo=None)  # a diffuse-only photo
+    backend = DefaultBackend(settings=DIFFUSE)  # a diffuse-only photo
     out = srgb_to_linear(backend.homogenise(backend.inpaint(photo, cover.astype(np.float32), ctx), ctx))
     skin = cover & (ctx.normal_camera[..., 2] > 0.3) & (ctx.skin > 0.5)
     in_sun, in_shade = skin & (direct > 0.5), skin & (direct == 0)
@@ -788,7 +782,7 @@ def test_a_clipped_channel_is_restored_from_the_skins_colour_around_it():
     colour = np.array([0.9, 0.6, 0.5], np.float32)
     ramp = np.linspace(0.3, 2.2, size, dtype=np.float32)[None, :, None].repeat(size, 0)
     truth = colour * ramp
-    ceiling = srgb_to_linear(np.float32(CLIPPED_LEVEL))
+    ceiling = srgb_to_linear(np.float32(DEFAULT_SETTINGS.clipped_level))
     photo = np.minimum(truth, 1.0)
     valid = np.ones((size, size), bool)
     out = restore_clipped(photo, valid, size)
@@ -802,10 +796,10 @@ def test_a_clipped_channel_is_restored_from_the_skins_colour_around_it():
     assert restore_clipped(dim, valid, size) is dim
 
 
-def test_clipped_texels_are_left_out_of_the_light_fit(face_context, monkeypatch):
+def test_clipped_texels_are_left_out_of_the_light_fit(face_context):
     """The same hard light over-exposed 5×: half the seen skin has a channel at the 8-bit ceiling,
     where the photo gives only a lower bound. Left out of the fit, the light comes back (ambient /
-    light 0.08, direction within 2°); taken as measurements (CLIPPED_LEVEL out of reach) they
+    light 0.08, direction within 2°); taken as measurements (clipped_level out of reach) they
     flatten the lit side's shading and the fit puts the difference into the ambient and the angle."""
     ctx = face_context
     cover = ctx.coverage
@@ -814,8 +808,8 @@ def test_clipped_texels_are_left_out_of_the_light_fit(face_context, monkeypatch)
     albedo = np.array([0.45, 0.3, 0.24], np.float32)
     photo = linear_to_srgb(np.clip(np.where(cover[..., None], 5.0 * albedo * shading[..., None], 0.0), 0.0, 1.0)).astype(np.float32)
 
-    def fitted():
-        backend = DefaultBackend(skin_albedo=None)
+    def fitted(settings=DIFFUSE):
+        backend = DefaultBackend(settings=settings)
         backend.analyse(photo, np.ones(cover.shape, np.float32), ctx)
         direction = np.array(backend.report["light"]["direction"])
         angle = np.degrees(np.arccos(np.clip(direction @ light, -1, 1)))
@@ -824,20 +818,17 @@ def test_clipped_texels_are_left_out_of_the_light_fit(face_context, monkeypatch)
     ambient, angle, clipped = fitted()
     assert clipped > 0.4
     assert ambient == pytest.approx(0.08, abs=0.01) and angle < 2.0
-    monkeypatch.setattr("facegeo.texturing.default_backend.CLIPPED_LEVEL", 2.0)
-    ambient, angle, clipped = fitted()
+    ambient, angle, clipped = fitted(replace(DIFFUSE, clipped_level=2.0))
     assert clipped == 0.0 and (abs(ambient - 0.08) > 0.03 or angle > 4.0)
 
 
-def test_a_misplaced_shadow_edge_is_taken_out_and_a_beard_far_from_one_kept(face_context, monkeypatch):
+def test_a_misplaced_shadow_edge_is_taken_out_and_a_beard_far_from_one_kept(face_context):
     """The hard light's cast shadows rendered 2 texels (~3 mm) off from where the posed mesh puts
     them, and a dark patch (−0.6 in log albedo: a beard) on lit skin far from any shadow's edge:
-    within SHADOW_EDGE_MM of a cast shadow's edge the left-over dark strip is taken as shadow (its
+    within shadow_edge_mm of a cast shadow's edge the left-over dark strip is taken as shadow (its
     de-lit luminance ends nearer the skin's than with no dips looked for), the patch stays as
-    dark as it is (before SHADOW_EDGE_MM, no dips were looked for under the light model)."""
+    dark as it is (before shadow_edge_mm, no dips were looked for under the light model)."""
     from scipy import ndimage
-
-    import facegeo.texturing.default_backend as backend_module
 
     ctx = face_context
     cover = ctx.coverage
@@ -858,10 +849,10 @@ def test_a_misplaced_shadow_edge_is_taken_out_and_a_beard_far_from_one_kept(face
     strip = facing & lit & ~moved  # dark in the photo, lit by the mesh's shadow map
 
     def delit(tolerance: float) -> np.ndarray:
-        monkeypatch.setattr(backend_module, "SHADOW_TOLERANCE", tolerance)
-        return np.log(np.maximum(srgb_to_linear(DefaultBackend(skin_albedo=None).homogenise(photo, ctx))[..., 1], 1e-4))
+        backend = DefaultBackend(settings=replace(DIFFUSE, shadow_tolerance=tolerance))
+        return np.log(np.maximum(srgb_to_linear(backend.homogenise(photo, ctx))[..., 1], 1e-4))
 
-    with_dips, without = delit(backend_module.SHADOW_TOLERANCE), delit(10.0)  # (no dip is that deep: none looked for)
+    with_dips, without = delit(DEFAULT_SETTINGS.shadow_tolerance), delit(10.0)  # (no dip is that deep: none looked for)
     skin_level = np.median(with_dips[facing & lit & moved & ~beard])
     assert strip.sum() > 20
     left_with, left_without = np.median(with_dips[strip]) - skin_level, np.median(without[strip]) - skin_level
@@ -893,7 +884,7 @@ def test_under_an_even_light_the_meshs_occlusion_is_taken_out_and_a_beard_kept(f
     log_albedo[beard] -= 0.6
     colour = np.exp(log_albedo)[..., None] * np.array([1.1, 0.75, 0.6], np.float32)
     photo = linear_to_srgb(np.where(cover[..., None], colour * sky[..., None], 0.0)).astype(np.float32)
-    backend = DefaultBackend(skin_albedo=None)
+    backend = DefaultBackend(settings=DIFFUSE)
     delit = np.log(np.maximum(srgb_to_linear(backend.homogenise(photo, ctx))[..., 1], 1e-4))
     assert backend.report["analyse"]["delighting_strength"] == 0.0 and "light" not in backend.report
     skin_level = np.median(delit[open_skin & ~beard])
@@ -904,15 +895,13 @@ def test_under_an_even_light_the_meshs_occlusion_is_taken_out_and_a_beard_kept(f
     assert np.median(delit[beard]) - skin_level == pytest.approx(-0.6, abs=0.1)
 
 
-def test_the_fill_takes_its_tone_from_the_lit_skin_not_the_shadowed_fringe(face_context, monkeypatch):
+def test_the_fill_takes_its_tone_from_the_lit_skin_not_the_shadowed_fringe(face_context):
     """A constant albedo under the hard light whose ambient is 0.08 on the lit side and 0.03 on the
     shadowed one (the head occludes its environment there): one ambient term cannot explain both,
     and the seen band beyond the terminator de-lights ~0.3–0.5 (log) darker than the lit skin.
     The skin hidden past that band takes the lit skin's tone (within 0.2); with the ambient's
-    error taken as nil (AMBIENT_LOG_ERROR = 0: every seen texel the fill's data at its
+    error taken as nil (ambient_log_error = 0: every seen texel the fill's data at its
     reliability) it takes the band's (0.40 darker)."""
-    import facegeo.texturing.default_backend as backend_module
-
     ctx = face_context
     cover = ctx.coverage
     light, lit = _hard_side_light(ctx)
@@ -925,25 +914,23 @@ def test_the_fill_takes_its_tone_from_the_lit_skin_not_the_shadowed_fringe(face_
     hidden = skin & ~seen & (n_dot_l < -0.45)
     assert hidden.sum() > 1000
 
-    def hidden_tone() -> float:
-        backend = DefaultBackend(skin_albedo=None)
+    def hidden_tone(settings: DefaultSettings = DIFFUSE) -> float:
+        backend = DefaultBackend(settings=settings)
         out = srgb_to_linear(backend.homogenise(backend.inpaint(photo, seen.astype(np.float32), ctx), ctx))[..., 1]
         assert "light" in backend.report
         return float(np.median(np.log(out[hidden])) - np.median(np.log(out[skin & seen & (n_dot_l > 0.3)])))
 
     assert abs(hidden_tone()) < 0.2  # (−0.11)
-    monkeypatch.setattr(backend_module, "AMBIENT_LOG_ERROR", 0.0)
-    assert hidden_tone() < -0.3  # (−0.40)
+    assert hidden_tone(replace(DIFFUSE, ambient_log_error=0.0)) < -0.3  # (−0.40)
 
 
-def test_the_hard_lights_own_sheen_is_taken_out_and_a_diffuse_photo_left_as_it_is(face_context, monkeypatch):
+def test_the_hard_lights_own_sheen_is_taken_out_and_a_diffuse_photo_left_as_it_is(face_context):
     """A constant skin albedo under the hard light rendered by the GGX shader (roughness 0.5,
     specular 0.5), with the posed mesh's cast shadows and a dim white ambient: the lit cheek
     facing the light's mirror direction shows a white sheen, paler and brighter than the skin.
     De-lit, that skin has the albedo's chroma again (without the sheen's removal,
-    SUN_SHEEN_LOBE_DEG → 0, it keeps most of the sheen), and its luminance is the lit skin's.
+    sun_sheen_lobe_deg → 0, it keeps most of the sheen), and its luminance is the lit skin's.
     The same scene without the sheen (diffuse only) comes out the same with or without it."""
-    import facegeo.texturing.default_backend as backend_module
     from facegeo.texturing.illuminant import chroma
 
     ctx = face_context
@@ -958,8 +945,7 @@ def test_the_hard_lights_own_sheen_is_taken_out_and_a_diffuse_photo_left_as_it_i
         return photo
 
     def delit(photo: np.ndarray, lobe_deg: float) -> np.ndarray:
-        monkeypatch.setattr(backend_module, "SUN_SHEEN_LOBE_DEG", lobe_deg)
-        backend = DefaultBackend()
+        backend = DefaultBackend(settings=replace(DEFAULT_SETTINGS, sun_sheen_lobe_deg=lobe_deg))
         out = srgb_to_linear(backend.homogenise(backend.inpaint(photo, cover.astype(np.float32), ctx), ctx))
         assert "light" in backend.report
         return out
@@ -978,7 +964,7 @@ def test_the_hard_lights_own_sheen_is_taken_out_and_a_diffuse_photo_left_as_it_i
         level = abs(np.median(np.log(luminance(out[sheen]))) - np.median(np.log(luminance(out[matte]))))
         return float(colour), float(level)
 
-    lobe_deg = backend_module.SUN_SHEEN_LOBE_DEG
+    lobe_deg = DEFAULT_SETTINGS.sun_sheen_lobe_deg
     kept, removed = errors(delit(photo, 1e-3)), errors(delit(photo, lobe_deg))
     assert kept[0] > 0.05 and removed[0] < 0.2 * kept[0]  # chroma (0.095 → 0.002)
     assert kept[1] > 0.1 and removed[1] < 0.3 * kept[1]  # the sheen's brightness, log (0.22 → 0.005)
@@ -989,8 +975,6 @@ def test_the_hard_lights_own_sheen_is_taken_out_and_a_diffuse_photo_left_as_it_i
 def test_sheen_removal_leaves_grey_skin_and_too_little_reference_alone():
     """Without chroma in the reference skin, or without enough of it, nothing is taken out (and
     nothing is divided by a singular matrix)."""
-    from facegeo.texturing.default_backend import without_sun_sheen
-
     rng = np.random.default_rng(0)
     grey = np.repeat(rng.uniform(0.2, 0.6, (32, 32, 1)), 3, axis=-1).astype(np.float32)
     lobe = np.ones((32, 32), np.float32)
@@ -1019,7 +1003,7 @@ def test_even_light_uses_no_light_model(face_context):
 
 def test_a_mole_on_the_seen_cheek_is_not_mirrored_onto_the_hidden_one():
     """Symmetric pores and one dark mole on the seen half: the hidden half takes the mirror's
-    pores (correlated with the truth) but not the mole (SPECK_SIGMAS), quilted skin there."""
+    pores (correlated with the truth) but not the mole (speck_sigmas), quilted skin there."""
     from scipy import ndimage
 
     size = 128
@@ -1048,10 +1032,10 @@ def test_a_mole_on_the_seen_cheek_is_not_mirrored_onto_the_hidden_one():
 def test_shading_confidence_is_low_only_where_the_shading_is_steep():
     ctx = hemisphere_context(128)
     x = np.linspace(-1, 1, 128)[None, :].repeat(128, 0)
-    flat = DefaultBackend._shading_confidence(np.ones((128, 128), np.float32), ctx)
+    flat = shading_confidence(np.ones((128, 128), np.float32), ctx, DEFAULT_SETTINGS)
     assert np.all(flat[ctx.coverage] == 1.0)
     edge = 0.05 + 0.95 / (1 + np.exp(-x / 0.02))  # a cast shadow's edge at x = 0, 20× darker on the left
-    conf = DefaultBackend._shading_confidence(edge.astype(np.float32), ctx)
+    conf = shading_confidence(edge.astype(np.float32), ctx, DEFAULT_SETTINGS)
     facing = ctx.coverage & (ctx.normal_camera[..., 2] > 0.5)
     assert conf[facing & (np.abs(x) < 0.02)].max() < 0.05
     assert conf[facing & (np.abs(x) > 0.3)].min() == 1.0
@@ -1083,13 +1067,13 @@ def test_the_sheen_of_a_white_environment_is_taken_out(face_context):
 
     assert grazing.sum() > 200
     photo_error = np.linalg.norm(np.median(chroma(srgb_to_linear(photo)[grazing]), axis=0) - truth)
-    kept, _ = chroma_error(DefaultBackend(skin_albedo=None))
+    kept, _ = chroma_error(DefaultBackend(settings=DIFFUSE))
     removed, report = chroma_error(DefaultBackend())
     assert report["specular_fraction_of_seen_skin"] > 0.05
     assert photo_error > 0.06 and kept > 0.06  # the sheen: the grazing skin's chroma well off the albedo's (0.08)
     assert removed < 0.2 * kept  # 0.003
     with pytest.raises(ValueError, match="skin_albedo"):
-        DefaultBackend(skin_albedo=0.0)
+        DefaultSettings(skin_albedo=0.0)
 
 
 def _octave_covariances(image, region, sigmas):
@@ -1184,3 +1168,33 @@ def test_band_noise_takes_the_skins_mottling_not_its_folds():
                                  _octave_covariances(folded, source, sigmas)):
         assert abs(got[0, 0] / clean[0, 0] - 1) < 0.25
         assert got[0, 0] < 0.75 * total[0, 0]
+
+
+def test_settings_are_frozen_hashable_and_hold_todays_values():
+    """One frozen settings object: no knob can be set on it (a caller derives another with
+    dataclasses.replace), and equal settings are equal and hash alike."""
+    with pytest.raises(FrozenInstanceError):
+        DEFAULT_SETTINGS.fringe_mm = 0.0
+    assert DefaultBackend().settings is DEFAULT_SETTINGS
+    assert replace(DEFAULT_SETTINGS) == DEFAULT_SETTINGS and hash(replace(DEFAULT_SETTINGS)) == hash(DEFAULT_SETTINGS)
+    assert DEFAULT_SETTINGS.fringe_mm == 4.0 and DEFAULT_SETTINGS.quilt_block == 1.0 / 64.0 and DEFAULT_SETTINGS.skin_albedo == 0.4
+
+
+def test_a_settings_value_passed_to_one_backend_changes_only_its_maps():
+    """A non-default value reaches the maps through the settings the backend was given: the
+    displacement's limit and depth of one backend, while another backend made at the same time
+    with the default settings gives the default maps (nothing global was changed)."""
+    ctx = hemisphere_context(64)
+    rng = np.random.default_rng(0)
+    albedo = (0.6 * np.exp(0.03 * rng.normal(size=(64, 64, 1)))).repeat(3, axis=-1).astype(np.float32)  # fine detail
+    albedo[31:33, 31:33] = 0.2  # a dark pit: −1.1 in log luminance, beyond the default limit (0.3 mm)
+    shallow = DefaultBackend(settings=replace(DEFAULT_SETTINGS, detail_limit_mm=0.1, detail_depth_mm=0.5))
+    default = DefaultBackend()
+    d_shallow = shallow.materials(albedo, ctx, maps={"displacement"})["displacement"]
+    d_default = default.materials(albedo, ctx, maps={"displacement"})["displacement"]
+    assert d_shallow.min() == pytest.approx(-0.1) and d_default.min() == pytest.approx(-DEFAULT_SETTINGS.detail_limit_mm)
+    far = ctx.coverage.copy()
+    far[24:40, 24:40] = False  # away from the pit: the unclipped detail, half as deep
+    assert np.abs(d_default[far]).max() > 0.02
+    np.testing.assert_allclose(d_shallow[far], 0.5 * d_default[far], atol=1e-6)
+    assert np.array_equal(DefaultBackend().materials(albedo, ctx, maps={"displacement"})["displacement"], d_default)

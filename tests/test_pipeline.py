@@ -136,7 +136,7 @@ def test_a_second_backend_needs_only_the_protocol(small_asset):
     """What the pipeline reads of a backend is what TextureBackend declares: the four stages,
     ``name``, ``report`` (-> texture_report) and ``constants`` (-> the maps not computed)."""
     from facegeo.texturing.backend import SKIN_CONSTANTS, TextureBackend
-    from facegeo.texturing.default_backend import DefaultBackend
+    from facegeo.texturing.default import DefaultBackend
 
     class Flat:  # no base class, nothing private: a grey albedo, nothing else
         name = "flat"

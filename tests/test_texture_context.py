@@ -64,7 +64,7 @@ def test_geometry_maps_in_context(context):
 def test_surface_operators_round_trip_and_seamless_fill(context):
     """Vertex values reach the texels exactly (barycentric rows sum to 1) and come back; the
     default backend's fill, built on them, gives both sides of every UV seam the same colour."""
-    from facegeo.texturing.default_backend import DefaultBackend
+    from facegeo.texturing.default import DefaultBackend
 
     model, ctx = context
     surf, S = ctx.surface, ctx.size

@@ -16,9 +16,12 @@ from scipy import ndimage
 from facegeo import Camera, fit_landmarks, load_model, project
 from facegeo.lighting import sh_basis
 from facegeo.skin_mask import skin_vertex_mask, vertex_regions
-from facegeo.texturing import default_backend
+from facegeo.texturing import image_filters
 from facegeo.texturing.context import build_context, layout_priors, surface_operators
-from facegeo.texturing.default_backend import DefaultBackend, value_noise
+from facegeo.texturing.default import DefaultBackend
+from facegeo.texturing.default import backend as backend_module
+from facegeo.texturing.default import delighting, fill, reliability
+from facegeo.texturing.default.noise import value_noise
 from facegeo.uv import rasterize_uv, render, unwrap
 
 
@@ -79,7 +82,7 @@ def test_euclidean_distance_is_scipys_edt():
     masks += [(xx - 350.3) ** 2 + (yy - 120.7) ** 2 > 90.0**2, np.abs(xx - 0.6 * yy - 40) > 0.7, np.ones((64, 64), bool)]
     masks.append(np.pad(np.zeros((1, 1), bool), ((0, 2999), (0, 2999)), constant_values=True))  # d² beyond float32's reach
     for mask in masks:
-        assert _bits_equal(default_backend._euclidean_distance(mask), ndimage.distance_transform_edt(mask))
+        assert _bits_equal(image_filters.euclidean_distance(mask), ndimage.distance_transform_edt(mask))
 
 
 def test_value_noise_is_the_per_corner_computation():
@@ -128,9 +131,11 @@ def test_default_backend_maps_are_those_of_the_reference_pieces(scene, monkeypat
         return backend.materials(backend.homogenise(backend.inpaint(t_inc, m_vis, ctx), ctx), ctx)
 
     fast = maps()
-    monkeypatch.setattr(default_backend, "_euclidean_distance", ndimage.distance_transform_edt)
-    monkeypatch.setattr(default_backend, "value_noise", _reference_value_noise)
-    monkeypatch.setattr(default_backend, "sh_basis", lambda n: sh_basis(torch.from_numpy(np.asarray(n))).numpy())
+    for module in (reliability, fill):  # the pieces where the stages look them up
+        monkeypatch.setattr(module, "euclidean_distance", ndimage.distance_transform_edt)
+    monkeypatch.setattr(fill, "value_noise", _reference_value_noise)
+    for module in (delighting, backend_module):
+        monkeypatch.setattr(module, "sh_basis", lambda n: sh_basis(torch.from_numpy(np.asarray(n))).numpy())
     monkeypatch.setattr(type(ctx), "median_texel_mm", property(lambda c: float(np.median(c.texel_size_mm[c.coverage]))))
     surface = ctx.surface
     monkeypatch.setattr(surface, "interpolation", _reference_surface_operators(model, raster))

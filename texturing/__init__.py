@@ -16,7 +16,7 @@ from facegeo.lazy_exports import lazy_exports
 _EXPORTS = {
     "TextureBackend": "facegeo.texturing.backend",
     "TextureContext": "facegeo.texturing.backend",
-    "DefaultBackend": "facegeo.texturing.default_backend",
+    "DefaultBackend": "facegeo.texturing.default.backend",
     "ShadingResult": "facegeo.texturing.shading",
     "shade_ggx": "facegeo.texturing.shading",
 }
@@ -25,7 +25,7 @@ __all__ = list(_EXPORTS)
 
 if TYPE_CHECKING:
     from facegeo.texturing.backend import TextureBackend, TextureContext
-    from facegeo.texturing.default_backend import DefaultBackend
+    from facegeo.texturing.default.backend import DefaultBackend
     from facegeo.texturing.shading import ShadingResult, shade_ggx
 
 

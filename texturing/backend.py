@@ -2,7 +2,7 @@
 
 A backend turns the incomplete, shaded photo texture ``T_inc`` in UV space into PBR maps in four
 steps: ``inpaint`` → ``homogenise`` → ``materials`` → ``upscale``. The default backend is
-weight-free (:mod:`facegeo.texturing.default_backend`); the diffusion backend is an adapter over
+weight-free (:mod:`facegeo.texturing.default`); the diffusion backend is an adapter over
 a DiT and plugs into the same protocol. :class:`TextureBackend` declares everything the pipeline
 (:func:`facegeo.pipeline.reconstruct_with_fit`) uses of a backend: the four stages, ``name``,
 ``report`` (copied into ``fit.json``'s ``texture_report``) and ``constants`` (the values of the

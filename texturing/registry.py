@@ -18,8 +18,8 @@ __all__ = ["BACKENDS"]
 
 
 def _default_backend() -> TextureBackend:
-    """:class:`facegeo.texturing.default_backend.DefaultBackend` with its default knobs."""
-    from facegeo.texturing.default_backend import DefaultBackend
+    """:class:`facegeo.texturing.default.DefaultBackend` with its default settings."""
+    from facegeo.texturing.default.backend import DefaultBackend
 
     return DefaultBackend()
 

@@ -33,12 +33,12 @@ import torch
 from facegeo.asset import MAP_NAMES
 from facegeo.errors import InputError
 from facegeo.texturing.backend import SKIN_CONSTANTS, TextureContext
-from facegeo.texturing.default_backend import pad_outside
 from facegeo.texturing.diffusion.components import PROMPT_FILE, Components, load_components, missing_base_files
 from facegeo.texturing.diffusion.data import unpack_rsd
 from facegeo.texturing.diffusion.model import MATERIAL_BRANCHES, TASKS, decode, encode, pack, unpack, vae_factor
 from facegeo.texturing.diffusion.sampling import DEFAULT_GUIDANCE, DEFAULT_STEPS, sample
 from facegeo.texturing.diffusion.sr import RRDBNet, load_realesrgan, upscale_tiled
+from facegeo.texturing.image_filters import pad_outside
 
 __all__ = ["DiffusionBackend", "LORA_FILE", "SR_FILE", "missing_weight_files"]
 

@@ -36,7 +36,7 @@ from facegeo.colour import linear_to_srgb, srgb_to_linear
 from facegeo.errors import InputError
 from facegeo.image_files import png_bytes, read_png, to_uint
 from facegeo.staged_output import StagedOutput
-from facegeo.texturing.default_backend import DefaultBackend
+from facegeo.texturing.default.materials import normal_from_height
 from facegeo.texturing.shading import shade_ggx
 from facegeo.uv import geometry_maps, rasterize_uv, render, unwrap
 
@@ -94,7 +94,7 @@ def procedural_pbr_set(size: int, rng: np.random.Generator) -> dict[str, np.ndar
     displacement = np.clip(0.02 * pores + 0.03 * _smooth_noise(rng, size, size / 32), -0.1, 0.1).astype(np.float32)
     mm_per_texel = 250.0 / size  # the bundled UV square spans about 25 cm of head surface
     ctx = SimpleNamespace(texel_size_mm=np.full((size, size, 2), mm_per_texel, np.float32))
-    normal = DefaultBackend._normal_from_height(displacement, ctx)
+    normal = normal_from_height(displacement, ctx)
     roughness = np.clip(0.5 + 0.08 * _smooth_noise(rng, size, size / 24) + 0.05 * pores, 0.1, 0.95)
     specular = np.clip(0.5 + 0.1 * _smooth_noise(rng, size, size / 24) - 0.05 * pores, 0.05, 1.0)
     return {
