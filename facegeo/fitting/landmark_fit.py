@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass
+from collections.abc import Callable
 from typing import TYPE_CHECKING, Any
 
 import cv2
@@ -37,7 +38,7 @@ from facegeo.morphable_model import MorphableModel
 if TYPE_CHECKING:
     import torch
 
-__all__ = ["fit_landmarks", "solve_landmarks", "LandmarkSolution", "LandmarkPrior", "estimate_noise", "assemble_fit",
+__all__ = ["fit_landmarks", "solve_landmarks", "LandmarkSolution", "LandmarkPrior", "estimate_noise", "assemble_fit", "damped_step",
            "CONVERGED_RELATIVE_DECREASE", "NOISE_TOLERANCE", "LANDMARK_FIT_THREADS", "rotation_step"]
 
 CONVERGED_RELATIVE_DECREASE = 1e-4
@@ -147,22 +148,36 @@ def _levenberg_marquardt(problem: LandmarkProblem, state: dict[str, np.ndarray],
             free[exp_cols] = ~(((d <= prior.lower[:n_exp] + eps) & (g_exp > 0)) | ((d >= prior.upper[:n_exp] - eps) & (g_exp < 0)))
         h, g = jtj[np.ix_(free, free)], grad[free]
         diag = np.maximum(np.diagonal(h), 1e-12)
-        for _attempt in range(8):
+
+        def attempt(mu: float) -> tuple[float, tuple[np.ndarray, ...]]:
             step = np.zeros(n)
-            step[free] = np.linalg.solve(h + np.diag(damping * diag), -g)
-            rot, trans, alpha, delta = unpack(step)
-            _, cost1 = cost(rot, trans, alpha, delta)
-            if np.isfinite(cost1) and cost1 < cost0:
-                state.update(rotation=rot, translation=trans, alpha=alpha, delta=delta)
-                damping = max(damping / 3.0, 1e-7)
-                accepted += 1
-                break
-            damping *= 4.0
-        else:
+            step[free] = np.linalg.solve(h + np.diag(mu * diag), -g)
+            candidate = unpack(step)
+            return cost(*candidate)[1], candidate
+
+        found, cost1, damping = damped_step(attempt, cost0, damping)
+        if found is None:
             break  # no decrease possible: converged
+        rot, trans, alpha, delta = found
+        state.update(rotation=rot, translation=trans, alpha=alpha, delta=delta)
+        accepted += 1
         if cost0 - cost1 < CONVERGED_RELATIVE_DECREASE * cost0:
             break
     return accepted
+
+
+def damped_step(attempt: Callable[[float], tuple[float, Any]], cost0: float, damping: float) -> tuple[Any, float, float]:
+    """Levenberg–Marquardt's search for a damping that lowers the cost: ``attempt(damping)``
+    returns (the cost, the candidate) of the step solved with that damping; up to 8 attempts,
+    the damping ×4 after each that does not lower ``cost0`` and ÷3 (at least 1e-7) after the one
+    that does. Returns (candidate, its cost, the damping for the next step), or (None, inf, the
+    raised damping) when none lowered the cost (converged)."""
+    for _attempt in range(8):
+        cost1, candidate = attempt(damping)
+        if np.isfinite(cost1) and cost1 < cost0:
+            return candidate, cost1, max(damping / 3.0, 1e-7)
+        damping *= 4.0
+    return None, float("inf"), damping
 
 
 def estimate_noise(problem: LandmarkProblem, state: dict[str, np.ndarray], prior: LandmarkPrior, noise: float) -> tuple[float, float]:

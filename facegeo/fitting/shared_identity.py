@@ -46,8 +46,9 @@ from threadpoolctl import threadpool_limits
 
 from facegeo.camera import Camera
 from facegeo.errors import InputError, check_finite
-from facegeo.fitting.landmark_fit import (CONVERGED_RELATIVE_DECREASE, LANDMARK_FIT_THREADS, NOISE_TOLERANCE, LandmarkSolution,
-                                          assemble_fit, estimate_noise, LandmarkPrior, rotation_step, solve_landmarks)
+from facegeo.fitting.landmark_fit import (CONVERGED_RELATIVE_DECREASE, LANDMARK_FIT_THREADS, NOISE_TOLERANCE, LandmarkPrior,
+                                          LandmarkSolution, assemble_fit, damped_step, estimate_noise, rotation_step,
+                                          solve_landmarks)
 from facegeo.fitting.dense_term import DEFAULT_DENSE, DenseSettings
 from facegeo.fitting.landmark_problem import LandmarkProblem, SurfacePoints
 from facegeo.fitting.photo_fit import finish_photo_fit, observe_photo
@@ -197,11 +198,12 @@ def _joint_levenberg_marquardt(problems: list[LandmarkProblem], states: list[dic
             g_a += a_part.T @ r
             blocks.append((h_kk[np.ix_(free, free)], (local.T @ a_part)[free], g_k[free], free))
         diag_a = np.maximum(np.diagonal(h_aa), 1e-12)
-        for _attempt in range(8):
-            schur, rhs = h_aa + np.diag(damping * diag_a), -g_a
+
+        def attempt(mu: float) -> tuple[float, tuple[np.ndarray, list[dict]]]:
+            schur, rhs = h_aa + np.diag(mu * diag_a), -g_a
             eliminated = []
             for h_kk, h_ka, g_k, _ in blocks:
-                solved = np.linalg.solve(h_kk + np.diag(damping * np.maximum(np.diagonal(h_kk), 1e-12)),
+                solved = np.linalg.solve(h_kk + np.diag(mu * np.maximum(np.diagonal(h_kk), 1e-12)),
                                          np.concatenate([h_ka, g_k[:, None]], axis=1))
                 x_a, x_g = solved[:, :-1], solved[:, -1]
                 schur -= h_ka.T @ x_a
@@ -219,16 +221,15 @@ def _joint_levenberg_marquardt(problems: list[LandmarkProblem], states: list[dic
                          "alpha": trial_alpha, "delta": prior.project(state["delta"] + step[6:])}
                 cost1 += view_cost(problem, trial, noise, trial_alpha)
                 trials.append(trial)
-            if np.isfinite(cost1) and cost1 < cost0:
-                alpha = trial_alpha
-                for state, trial in zip(states, trials):
-                    state.update(trial)
-                damping = max(damping / 3.0, 1e-7)
-                accepted += 1
-                break
-            damping *= 4.0
-        else:
+            return cost1, (trial_alpha, trials)
+
+        found, cost1, damping = damped_step(attempt, cost0, damping)
+        if found is None:
             break  # no decrease possible: converged
+        alpha, trials = found
+        for state, trial in zip(states, trials):
+            state.update(trial)
+        accepted += 1
         if cost0 - cost1 < CONVERGED_RELATIVE_DECREASE * cost0:
             break
     steps.append(accepted)
