@@ -4,7 +4,8 @@ The reference for the 68-point table is dlib's 68-point shape predictor on the b
 astronaut photo (public domain, NASA). Thresholds are the measured values with margin:
 mean 68-point distance to dlib 3.2 % of the inter-ocular distance on the photo (3.1-3.5 % on 13
 rotated / scaled / cropped / flipped versions), flip disagreement 1.1 px mean / 3.1 px max,
-rotation disagreement <= 1.2 px mean.
+rotation disagreement <= 1.2 px mean (face mesh v1). The default face mesh is v2 since issue 48; the
+thresholds hold for both (v2: 3.1 % mean to dlib, flip disagreement 0.60 px mean / 1.95 px max).
 """
 
 from __future__ import annotations
@@ -20,9 +21,11 @@ from PIL import Image
 from facegeo.assets import asset_path
 from facegeo.errors import InputError, ModelFileError
 from facegeo.landmarks.mediapipe_mesh import (
+    DEFAULT_MESH_MODEL,
     IBUG68_MIRROR,
     MEDIAPIPE_LIPS20,
     MEDIAPIPE_TO_IBUG68,
+    MESH_MODELS,
     MediaPipeFace,
     MediaPipeFaceMesh,
     ibug68_from_mesh,
@@ -201,13 +204,17 @@ def test_mesh_lies_in_the_box(astronaut_face):
     assert z[30] < z[36] - 10 and z[30] < z[45] - 10
 
 
-def test_ibug68_matches_dlib(astronaut, astronaut_face, dlib_tools):
-    reference = _dlib68(dlib_tools, astronaut, astronaut_face.box)
-    errors = _iod_error(astronaut_face.ibug68(), reference)
-    assert errors.mean() < 4.5  # measured 3.2 % IOD
-    assert errors[17:].mean() < 4.0  # measured 2.9 % (all but the jaw)
-    assert errors[:17].mean() < 6.5  # measured 4.3 % (jaw)
-    assert errors.max() < 12.0  # measured 7.8 % (jaw point 14)
+@pytest.mark.parametrize("mesh_model, worst", [("v1", 12.0), ("v2", 15.0)])
+def test_ibug68_matches_dlib(astronaut, dlib_tools, mesh_model, worst):
+    face = MediaPipeFaceMesh(mesh_model=mesh_model)(astronaut)[0]
+    reference = _dlib68(dlib_tools, astronaut, face.box)
+    errors = _iod_error(face.ibug68(), reference)
+    assert errors.mean() < 4.5  # measured 3.2 % IOD (v2 3.1)
+    assert errors[17:].mean() < 4.0  # measured 2.9 % (all but the jaw; v2 2.7)
+    assert errors[:17].mean() < 6.5  # measured 4.3 % (jaw; v2 4.3)
+    # measured 7.8 % (jaw point 14); v2 12.1 % (jaw point 1, the outline at cheekbone level, which
+    # v2 puts further out than v1 and dlib: the table was chosen on v1)
+    assert errors.max() < worst
 
 
 def test_flip_equivariance(mesher, astronaut, astronaut_face):
@@ -325,6 +332,122 @@ def test_wrong_model_raises_model_file_error(astronaut):
     with pytest.raises(ModelFileError) as info:
         MediaPipeFaceMesh(detector_path=mesh_model)(astronaut)
     assert info.value.field == "input tensors" and "(1, 128, 128, 3)" in info.value.expected
+
+
+# ------------------------------------------------------------- the Face Landmarker's mesh (v2)
+
+#: sha256 of the bundled v2 model (``face_landmarks_detector.tflite`` of the Face Landmarker
+#: bundle ``face_landmarker.task``; assets/mediapipe/README.md).
+V2_SHA256 = "c7d54204ce0448474c7f3fa9af494787c0965cbdd6f20fc72867e43046bd43d5"
+
+
+@pytest.fixture(scope="module")
+def v2_model_file() -> Path:
+    import hashlib
+
+    spec = MESH_MODELS["v2"]
+    try:
+        path = asset_path(spec.asset)
+    except FileNotFoundError:
+        pytest.fail(f"facegeo.assets/{spec.asset} is missing (assets/mediapipe/extract_mediapipe_models.py makes it)")
+    digest = hashlib.sha256(Path(path).read_bytes()).hexdigest()
+    assert digest == V2_SHA256, (f"{path}: sha256 {digest}, expected {V2_SHA256}: the file is corrupt or another "
+                                 "model (assets/mediapipe/extract_mediapipe_models.py makes it again)")
+    return Path(path)
+
+
+@pytest.fixture(scope="module")
+def v2_face(v2_model_file, astronaut) -> MediaPipeFace:
+    try:
+        faces = MediaPipeFaceMesh(mesh_model="v2")(astronaut)
+    except ModelFileError as exc:
+        pytest.fail(f"the v2 face-mesh model {v2_model_file} does not load: {exc}")
+    assert len(faces) == 1
+    return faces[0]
+
+
+@pytest.fixture(scope="module")
+def v1_face(astronaut) -> MediaPipeFace:
+    faces = MediaPipeFaceMesh(mesh_model="v1")(astronaut)
+    assert len(faces) == 1
+    return faces[0]
+
+
+def test_mesh_models_table():
+    assert DEFAULT_MESH_MODEL == "v1"  # v2 measured (benchmarks/bench_face_landmarker.py), not the default yet
+    assert MediaPipeFaceMesh().mesh_spec is MESH_MODELS[DEFAULT_MESH_MODEL]
+    assert MESH_MODELS["v1"].size == 192 and MESH_MODELS["v1"].n_points == 468
+    assert MESH_MODELS["v2"].size == 256 and MESH_MODELS["v2"].n_points == 478
+    with pytest.raises(ValueError, match="face-mesh model"):
+        MediaPipeFaceMesh(mesh_model="v3")
+
+
+def test_v2_mesh_lands_near_v1(v1_face, v2_face):
+    """The v2 model's first 468 points are the 468-point mesh: on the astronaut they lie within
+    a few px of v1's (measured median 0.8, 90th percentile 1.7, max 3.2 px at an inter-ocular
+    distance of 63 px)."""
+    face = v2_face
+    assert face.mesh.shape == (468, 3) and face.mesh.dtype == np.float32 and np.all(np.isfinite(face.mesh))
+    assert face.presence > 0.9
+    gap = np.linalg.norm(face.mesh[:, :2] - v1_face.mesh[:, :2], axis=1)
+    assert np.median(gap) < 1.5 and np.percentile(gap, 90) < 3.0 and gap.max() < 6.0, (
+        np.median(gap), np.percentile(gap, 90), gap.max())
+    # the same ROI convention: the tracking ROIs agree within a few px
+    np.testing.assert_allclose(face.roi[:3], v1_face.roi[:3], atol=5.0)
+    errors = _iod_error(face.ibug68(), v1_face.ibug68())
+    assert np.median(errors) < 3.0  # measured 1.3 % IOD
+    # z in pixels on the same scale as v1's
+    assert np.std(face.mesh[:, 2]) == pytest.approx(np.std(v1_face.mesh[:, 2]), rel=0.15)
+
+
+def test_v2_irises_lie_in_the_eyes(v2_face):
+    irises = v2_face.irises
+    assert irises is not None and irises.shape == (2, 5, 3) and irises.dtype == np.float32
+    mesh = v2_face.mesh
+    # subject's right eye: corners 33 (outer) and 133 (inner); left eye: 362 (inner) and 263 (outer)
+    for iris, (a, b) in zip(irises, ((33, 133), (362, 263))):
+        centre = iris[0, :2]
+        lo, hi = np.minimum(mesh[a, :2], mesh[b, :2]), np.maximum(mesh[a, :2], mesh[b, :2])
+        assert lo[0] < centre[0] < hi[0] and abs(centre[1] - (lo[1] + hi[1]) / 2) < 8.0
+        rim = np.linalg.norm(iris[1:, :2] - centre, axis=1)
+        assert np.all((rim > 2.0) & (rim < 10.0))  # iris radius about 5 px here
+
+
+def test_v1_gives_no_irises(v1_face):
+    assert v1_face.irises is None
+
+
+def test_v2_flip_equivariance(v2_face, astronaut):
+    from facegeo.landmarks.dense import face_mesh_mirror
+
+    flipped = MediaPipeFaceMesh(mesh_model="v2")(np.ascontiguousarray(astronaut[:, ::-1]))[0]
+    back = flipped.mesh[face_mesh_mirror()].copy()
+    back[:, 0] = astronaut.shape[1] - 1 - back[:, 0]
+    gap = np.linalg.norm(back[:, :2] - v2_face.mesh[:, :2], axis=1)
+    assert gap.mean() < 1.0 and gap.max() < 3.5  # measured 0.60 / 1.95 px (v1: 1.02 / 3.05)
+
+
+def test_v2_in_the_detectors(v2_model_file, astronaut):
+    from facegeo.landmarks.detectors import MediaPipeDetector
+
+    found = MediaPipeDetector(MediaPipeFaceMesh(mesh_model="v2")).detect(astronaut, "astronaut.png")
+    assert found.points.shape == (88, 2) and found.dense.shape == (468, 2)
+    assert found.dense_spread.shape == (468,) and np.all(np.isfinite(found.dense_spread))
+
+
+def test_v1_file_as_v2_raises_model_file_error(astronaut):
+    v1 = asset_path(MESH_MODELS["v1"].asset)
+    with pytest.raises(ModelFileError) as info:
+        MediaPipeFaceMesh(mesh_model="v2", mesh_path=v1)(astronaut)
+    assert info.value.source == str(v1) and info.value.field == "input tensors"
+    assert "(1, 256, 256, 3)" in info.value.expected
+
+
+def test_missing_v2_model_names_the_file(tmp_path, astronaut):
+    missing = tmp_path / "face_landmarks_detector.tflite"
+    with pytest.raises(ModelFileError) as info:
+        MediaPipeFaceMesh(mesh_model="v2", mesh_path=missing)(astronaut)
+    assert info.value.source == str(missing) and "face_landmarks_detector.tflite" in str(info.value)
 
 
 # ------------------------------------------------------------------------------------- slow

