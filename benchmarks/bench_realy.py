@@ -6,7 +6,9 @@ that the machine's load is shared alike:
 
 * times ``facegeo.eval.realy.evaluate`` with one worker and with ``--workers`` (default 2), and
   splits facegeo's time per subject into sparse factorisations, solves (triangular solves and
-  conjugate gradients), closest-point queries on the prediction, and the rest;
+  conjugate gradients), closest-point queries on the prediction, the re-runs of turned decisions
+  (the uncertainty) and the rest; a summary table gives per set the official and facegeo CPU
+  time, the part following decisions, both wall times and the speed-up with the workers;
 * with ``--baseline-eval DIR`` (an older ``eval/`` folder, e.g. ``git archive <commit> eval``
   unpacked), the same split for that code, run in a child process in which ``facegeo.eval`` is
   that folder (its factorisations, solves and queries timed by wrapping them);
@@ -473,6 +475,16 @@ def main(argv: list[str] | None = None) -> None:
         diff = f"{r['diff']:.1e}" if r["official"] else "n/a"
         print(f"| {n} subjects, subdivisions {r['sub']} | {r['vertices']} | {_stats(r['official'])} | {_stats(r['one'])} | "
               f"{_stats(r['many'])} | {one} | {many} | {diff} | {r['unc']:.1e} |")
+    print("\nSummary, per subject, min / median (CPU: 1 worker; of which following decisions: the fastest run's "
+          "re-runs of turned decisions; speed-up: official wall / facegeo wall, min / min):\n")
+    print(f"| synthetic set | official, CPU s | facegeo, CPU s | of which following decisions | official, wall s | "
+          f"facegeo, {args.workers} workers, wall s | speed-up, {args.workers} workers |")
+    print("|---|---:|---:|---:|---:|---:|---:|")
+    for r in rows:
+        follow = min(r["split"], key=lambda x: x["total"])["uncertainty"]
+        many = f"{min(r['official']) / min(r['many']):.1f}x" if r["official"] else "n/a"
+        print(f"| subdivisions {r['sub']} ({r['vertices']} vertices) | {_stats(r['official_cpu'])} | {_stats(r['one_cpu'])} | "
+              f"{follow:.2f} | {_stats(r['official'])} | {_stats(r['many'])} | {many} |")
     print("\nPer subject, 1 worker, fastest run (CPU s): factorisations | solves (of the run itself) | closest points"
           " | uncertainty (re-runs of turned decisions) | rest | total | outside the solver (closest points + rest)\n")
     print("| synthetic set | code | factorisations | solves | closest points | uncertainty | rest | total | outside the solver |")

@@ -67,8 +67,8 @@ class Settings:
       numbers to rounding);
     * ``follow_decisions``: False skips following the non-rigid ICP's decisions that round-off could
       turn (:func:`facegeo.eval.realy_error.region_error`): the same numbers, in about a third
-      less time, but their reported uncertainty counts the final closest points' ties only, a
-      lower bound.
+      (regions of 600-1,600 vertices) to a half (2,300-6,200) less time, but their reported
+      uncertainty counts the final closest points' ties only, a lower bound.
 
     ``solver`` picks the linear solver (:mod:`facegeo.eval.realy_solver`): ``"cholmod"``,
     ``"superlu"`` or ``"auto"`` (CHOLMOD when CVXOPT is installed). It does not loosen the

@@ -24,6 +24,9 @@ steps, in the official code as in any other implementation. Such a move can turn
 discrete decisions (a vertex's nearest target, whether it counts as matched, whether a stage
 stops) and the final closest points' tie decisions when they are that close to their
 thresholds; :class:`NonRigidICP` records those decisions and follows each the other way.
+Following one costs the solves from its step to the end, as many as the run's own; each re-run
+takes the run's nearest targets where they provably still hold instead of asking the tree
+again (:meth:`NonRigidICP._nearest`: the same numbers, bit for bit).
 
 Each least-squares step solves the normal equations ``A^T A X = A^T B`` (the official code
 factors ``A^T A`` with CHOLMOD at every step); here ``A^T A`` is assembled directly, block by
@@ -158,6 +161,26 @@ def _pattern(n: int, triangles: np.ndarray) -> _Pattern:
     )
 
 
+def _distances(points: np.ndarray, targets: np.ndarray) -> np.ndarray:
+    """(K,) float64 distances between (K, 3) ``points`` and (K, 3) ``targets``, bit for bit as
+    cKDTree computes them: ``sqrt((dx * dx + dy * dy) + dz * dz)`` (scipy/spatial/ckdtree,
+    ``sqeuclidean_distance_double``; a test checks it against its queries)."""
+    diff = points - targets
+    square = diff[:, 0] * diff[:, 0] + diff[:, 1] * diff[:, 1]
+    square += diff[:, 2] * diff[:, 2]
+    return np.sqrt(square)
+
+
+def _unmoved(cur: np.ndarray, at: np.ndarray, nearest: np.ndarray, second: np.ndarray) -> np.ndarray:
+    """(N,) bool: the (N, 3) points ``cur`` that have moved from ``at`` by less than half the gap
+    between their nearest and second-nearest target's distances (N,) at ``at``: the nearest
+    target there is then still strictly the nearest, with a margin (1e-9 relative) far above the
+    distances' rounding (1e-16)."""
+    moved = cur - at
+    shift = np.sqrt(np.einsum("ij,ij->i", moved, moved))
+    return (second - nearest) > 2.0 * shift * (1.0 + 1e-9) + 1e-9 * second
+
+
 @dataclass(frozen=True)
 class _State:
     """Where the non-rigid ICP's loop stands before a stopping test: stiffness stage, solves in
@@ -213,6 +236,8 @@ class NonRigidICP:
         self.near_decisions: list[Decision] = []  # of the last run with a deviation
         self._deviation = 0.0
         self._trace: dict[tuple[int, int], _State] = {}  # the last run's states, by (stage, step)
+        # the last run's two nearest targets, by (stage, step): (cur, nearest, its distance, the second's)
+        self._neighbours: dict[tuple[int, int], tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]] = {}
         self._stiffness_key: tuple | None = None
         self._stiffness_data = np.zeros(0)
 
@@ -239,18 +264,52 @@ class NonRigidICP:
             rhs += (w2[:, None, None] * d[:, :, None]) * target[:, None, :]
         return d, data, rhs[p.order].reshape(4 * self.n, 3)
 
-    def _step(self, cur, alpha, stiffness, stage0, kp_weight, x0, deviation: float = 0.0, flip: Decision | None = None):
-        """One solve. With ``deviation`` > 0 also the decisions a move of ``cur`` by up to
-        ``deviation`` could turn: [(kind, vertices, alternative targets)]; ``flip`` turns one."""
-        start = time.process_time()
-        dist, idx = self.tree.query(cur, 1)
-        near: list[tuple[str, np.ndarray, np.ndarray | None]] = []
+    def _nearest(self, cur: np.ndarray, key: tuple[int, int], deviation: float, stage0: bool,
+                 ) -> tuple[np.ndarray, np.ndarray, list[tuple[str, np.ndarray, np.ndarray | None]]]:
+        """Each vertex's nearest target: (N,) float64 distances and (N,) int64 indices, bit for bit
+        what cKDTree's 1-nearest query gives, and the ``"match"`` decisions a move of ``cur`` by up
+        to ``deviation`` could turn ([(kind, vertices, alternative targets)], with ``deviation`` > 0).
+
+        ``key``: the loop's (stage, step). A run with ``deviation`` > 0 asks the tree for the two
+        nearest targets and keeps them by ``key``; a re-run at the same ``key`` then
+        takes, for each vertex that has moved by less than half the gap between the run's two
+        distances, the run's nearest target without a query (no other target can have come nearer;
+        the distance computed as cKDTree does, :func:`_distances`); only the others are queried.
+        """
         if deviation > 0 and not stage0:  # the first stage matches nothing but keypoints
             two_d, two_i = self.tree.query(cur, 2)
+            # the nearest target is the first of the two, with the distance a 1-nearest query
+            # gives (the same computation), except where both are equally far: which of them a
+            # 1-nearest query returns is its own choice, so those points ask it
+            dist, idx = two_d[:, 0].copy(), two_i[:, 0].copy()
+            tie = two_d[:, 0] == two_d[:, 1]
+            if tie.any():
+                dist[tie], idx[tie] = self.tree.query(cur[tie], 1)
+            self._neighbours[key] = (cur, idx, dist, two_d[:, 1])
             other = np.where(two_i[:, 0] == idx, two_i[:, 1], two_i[:, 0])
             rival = ((two_d[:, 1] - two_d[:, 0]) <= 2 * deviation) & np.any(self.targets[other] != self.targets[idx], axis=1)
-            if rival.any():
-                near.append(("match", np.nonzero(rival)[0], other[rival]))
+            return dist, idx, [("match", np.nonzero(rival)[0], other[rival])] if rival.any() else []
+        reference = self._neighbours.get(key) if deviation == 0 else None
+        if reference is None:
+            dist, idx = self.tree.query(cur, 1)
+            return dist, idx, []
+        cur0, idx0, first, second = reference
+        kept = _unmoved(cur, cur0, first, second)
+        idx = idx0.copy()
+        dist = np.empty(self.n)
+        dist[kept] = _distances(cur[kept], self.targets[idx0[kept]])
+        if not kept.all():
+            asked = ~kept
+            dist[asked], idx[asked] = self.tree.query(cur[asked], 1)
+        return dist, idx, []
+
+    def _step(self, cur, alpha, stiffness, stage0, kp_weight, x0, key: tuple[int, int], deviation: float = 0.0,
+              flip: Decision | None = None):
+        """One solve at the loop's (stage, step) ``key``. With ``deviation`` > 0 also the decisions
+        a move of ``cur`` by up to ``deviation`` could turn: [(kind, vertices, alternative
+        targets)]; ``flip`` turns one."""
+        start = time.process_time()
+        dist, idx, near = self._nearest(cur, key, deviation, stage0)
         if flip is not None and flip.kind == "match":
             idx = np.array(idx)
             idx[flip.vertices] = flip.alternative
@@ -311,6 +370,7 @@ class NonRigidICP:
         self.near_decisions = []
         self._deviation = deviation
         self._trace = {}
+        self._neighbours = {}
         start = _State(0, 0, 0, self.vertices, np.zeros((4 * self.n, 3)), np.ones((4 * self.n, 3)), None)
         return self._loop(start, deviation, None)
 
@@ -368,7 +428,8 @@ class NonRigidICP:
                     break
                 x_prev = x
                 kp_weight = _KEYPOINT_WEIGHT if stage0 else _KEYPOINT_WEIGHT * np.exp(-0.9 * count) / 10.0
-                x, x_perm, cur, near = self._step(cur, alpha, stiffness, stage0, kp_weight, x_perm, deviation, flip)
+                x, x_perm, cur, near = self._step(cur, alpha, stiffness, stage0, kp_weight, x_perm, (stage, step),
+                                                  deviation, flip)
                 flip = None
                 self.near_decisions.extend(Decision(kind, here, v, alt) for kind, v, alt in near)
                 step += 1

@@ -110,7 +110,8 @@ class _Solver:
 
 
 class CholmodSolver(_Solver):
-    """CHOLMOD (through CVXOPT): symbolic analysis once, numeric factorisation and direct solve per system.
+    """CHOLMOD (through CVXOPT): one matrix object and one symbolic analysis per solver, a numeric
+    factorisation and a direct solve per system.
 
     ``indptr`` / ``indices``: the CSC pattern (both triangles, rows sorted in each column) of
     every system this solver gets, in its elimination order (the analysis keeps that order).
@@ -126,8 +127,12 @@ class CholmodSolver(_Solver):
 
         cols = np.repeat(np.arange(self.size), np.diff(indptr))
         self._lower = np.nonzero(indices >= cols)[0]  # CHOLMOD reads the lower triangle
-        self._rows = cvxopt.matrix(np.asarray(indices[self._lower], dtype=np.int64))
-        self._cols = cvxopt.matrix(cols[self._lower].astype(np.int64))
+        # the lower triangle as a CVXOPT matrix, built once (building it from the triplets sorts
+        # them, 3 ms for 23,000 unknowns); each system only replaces its values (``V``, which
+        # CVXOPT keeps in the same column-major order as the pattern's slots)
+        self._matrix = cvxopt.spmatrix(cvxopt.matrix(0.0, (len(self._lower), 1)),
+                                       cvxopt.matrix(np.asarray(indices[self._lower], dtype=np.int64)),
+                                       cvxopt.matrix(cols[self._lower].astype(np.int64)), (self.size, self.size))
         self._symbolic = None
 
     def solve(self, data: np.ndarray, rhs: np.ndarray, x0: np.ndarray | None) -> np.ndarray:
@@ -136,7 +141,8 @@ class CholmodSolver(_Solver):
         import cvxopt.cholmod
 
         start = time.process_time()
-        lower = cvxopt.spmatrix(cvxopt.matrix(data[self._lower]), self._rows, self._cols, (self.size, self.size))
+        lower = self._matrix
+        lower.V = cvxopt.matrix(data[self._lower])
         if self._symbolic is None:
             identity = cvxopt.matrix(np.arange(self.size, dtype=np.int64))
             self._symbolic = cvxopt.cholmod.symbolic(lower, p=identity)

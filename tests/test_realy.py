@@ -239,6 +239,107 @@ def test_a_stopping_test_at_its_threshold_is_followed_the_other_way():
     assert np.abs(other_way - stopped).max() > 1e-6
 
 
+def _grid_with_ties(n: int = 10) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """A bumpy grid (integer x, y) and targets above it with exact ties for every vertex: a pair
+    at x +- 0.25 (equally far, apart), a duplicate of one of them (equally far, the same point),
+    and a scatter of others."""
+    vertices, triangles = _bumpy_grid(n)
+    lift = np.array([0.0, 0.0, 0.5])
+    pairs = np.concatenate([vertices + lift + [0.25, 0.0, 0.0], vertices + lift - [0.25, 0.0, 0.0]])
+    scatter = vertices + lift + 0.3 * np.random.default_rng(5).normal(size=vertices.shape)
+    return vertices, triangles, np.concatenate([pairs, pairs[: n * n // 2], scatter])
+
+
+def test_nearest_targets_taken_without_a_query_are_the_querys_bit_for_bit():
+    """The run derives each vertex's nearest target from the two nearest; a re-run takes the
+    run's nearest target for vertices that cannot have a nearer one now: both give exactly what
+    cKDTree's 1-nearest query gives (distances and indices), ties included, and the distances
+    computed outside the tree are the tree's."""
+    from facegeo.eval.realy_error import NonRigidICP, _distances
+
+    vertices, triangles, targets = _grid_with_ties()
+    icp = NonRigidICP(vertices, triangles, targets)
+    rng = np.random.default_rng(2)
+    for cur in (vertices, vertices + 1e-3 * rng.normal(size=vertices.shape)):
+        dist, idx = icp.tree.query(cur, 1)
+        np.testing.assert_array_equal(_distances(cur, targets[idx]), dist)
+        icp._neighbours = {}
+        run_dist, run_idx, _ = icp._nearest(cur, (1, 0), 1e-6, False)  # the run's way (two nearest)
+        np.testing.assert_array_equal(run_dist, dist)
+        np.testing.assert_array_equal(run_idx, idx)
+        assert icp._neighbours[1, 0][1] is run_idx
+        for scale in (0.0, 1e-9, 1e-4, 1e-2, 0.3):  # a re-run's vertices, moved from the run's
+            moved = cur + scale * rng.normal(size=cur.shape)
+            dist, idx = icp.tree.query(moved, 1)
+            again_dist, again_idx, _ = icp._nearest(moved, (1, 0), 0.0, False)
+            np.testing.assert_array_equal(again_dist, dist)
+            np.testing.assert_array_equal(again_idx, idx)
+            np.testing.assert_array_equal(_distances(moved, targets[idx]), dist)
+
+
+def test_following_decisions_reuses_the_runs_nearest_targets_and_changes_no_bit():
+    """Every decision followed the cheap way (the run's nearest targets reused where they provably
+    hold) ends, bit for bit, where a re-run that asks the tree for every vertex at every step
+    ends, with most of the vertices not asked; watching the decisions changes the run itself in
+    no bit."""
+    from facegeo.eval.realy_error import NonRigidICP
+
+    vertices, triangles = _bumpy_grid(12)
+    targets = vertices + np.array([0.0, 0.0, 0.5]) + 0.4 * np.random.default_rng(3).normal(size=vertices.shape)
+    icp = NonRigidICP(vertices, triangles, targets)
+    plain = icp.run()
+    np.testing.assert_array_equal(icp.run(deviation=0.05), plain)  # wide: many decisions
+    assert {d.kind for d in icp.near_decisions} == {"match", "weight"} and len(icp.near_decisions) >= 10
+    asked = []
+    tree = icp.tree
+
+    class Counting:
+        def query(self, points, k=1):
+            asked.append(len(points))
+            return tree.query(points, k)
+
+    reused = icp._neighbours
+    steps = 0
+    for decision in icp.near_decisions:
+        icp.tree, solves = Counting(), icp.solves
+        cheap = icp.rerun(decision)
+        steps += icp.solves - solves
+        icp.tree, icp._neighbours = tree, {}  # no run to reuse: every vertex asks, every step
+        straight = icp.rerun(decision)
+        icp._neighbours = reused
+        assert (cheap is None) == (straight is None)
+        if cheap is not None:
+            np.testing.assert_array_equal(cheap, straight)
+    assert sum(asked) < 0.5 * steps * len(vertices)
+
+
+def test_cholmod_solver_keeps_its_matrix_and_changes_no_bit():
+    """The CHOLMOD solver keeps one CVXOPT matrix and replaces its values per system: a second
+    system solved that way is, bit for bit, the system solved by a fresh solver."""
+    if not cholmod_available():
+        pytest.skip("CVXOPT is not installed")
+    from facegeo.eval.realy_error import _pattern
+    from facegeo.eval.realy_solver import CholmodSolver
+
+    vertices, triangles = _bumpy_grid(6)
+    p = _pattern(len(vertices), triangles)
+    rng = np.random.default_rng(4)
+
+    def system():
+        d = np.column_stack([vertices + rng.normal(scale=0.1, size=vertices.shape), np.ones(len(vertices))])
+        data = np.bincount(p.lap_slot, weights=p.lap_value, minlength=p.size)
+        data[p.block_slot] += (d[:, :, None] * d[:, None, :]).reshape(len(vertices), 16)
+        return data, rng.normal(size=(4 * len(vertices), 3))
+
+    kept = CholmodSolver(p.indptr, p.indices)
+    first, second = system(), system()
+    kept.solve(*first, None)
+    again = kept.solve(*second, None)
+    np.testing.assert_array_equal(again, CholmodSolver(p.indptr, p.indices).solve(*second, None))
+    assert kept.analyses == 1 and kept.factorisations == 2
+    np.testing.assert_allclose(kept.matrix(second[0]) @ again, second[1], rtol=0, atol=1e-9)
+
+
 def test_uncertain_values_are_flagged_in_the_summary_and_written_to_the_json(tmp_path):
     values = {"1": {"nose": 1.0, "mouth": 2.0, "forehead": 3.0, "cheek": 4.0}}
     result = RealyResult(values, {"1": {r: format_value(v) for r, v in values["1"].items()}}, summarize(values),
