@@ -27,6 +27,11 @@ The file (one header row, one row per captured frame)::
 Bad input gets one :class:`facegeo.errors.InputError` naming the file, the row (the file's line
 number, the header is row 1) and the column. Weights outside [0, 1] are an error unless
 ``clamp=True``, which clamps them and records a note.
+
+:func:`live_link_csv_text` writes a take back in the same layout (the header in
+:data:`LIVE_LINK_COLUMNS` order with only the rotation groups the take has, ``Timecode`` as
+``HH:MM:SS:FF.fff`` at the take's ``fps``); ``read_live_link_csv(path, fps=take.fps)`` reads it
+into the same take (weights exactly, times to a thousandth of a frame, rotations exactly).
 """
 
 from __future__ import annotations
@@ -43,7 +48,7 @@ import numpy as np
 from facegeo.errors import InputError
 from facegeo.export.arkit import ARKIT_NAMES
 
-__all__ = ["ArkitTake", "read_live_link_csv", "LIVE_LINK_COLUMNS", "ROTATION_GROUPS", "DEFAULT_FPS"]
+__all__ = ["ArkitTake", "read_live_link_csv", "live_link_csv_text", "LIVE_LINK_COLUMNS", "ROTATION_GROUPS", "DEFAULT_FPS"]
 
 #: Live Link Face's default time code rate (frames per second of the ``Timecode`` frame field).
 DEFAULT_FPS = 60.0
@@ -205,3 +210,75 @@ def _number(source: Path, line: int, column: str, cell: str) -> float:
     if not math.isfinite(value):
         raise InputError(source, f"row {line}, column {column}", "a finite number", repr(cell))
     return value
+
+
+def live_link_csv_text(take: ArkitTake, timecode_start_s: float = 0.0) -> str:
+    """The CSV text of ``take`` in Live Link Face's layout (module docstring).
+
+    Args:
+        take: the take: ``times`` (N,) seconds, strictly increasing; ``weights`` (N, 52) in
+            :data:`ARKIT_NAMES` order, written at float32 precision (``%.9g``, which reads back
+            into the same float32); ``rotations`` group -> (N, 3) radians, written exactly
+            (shortest round-trip ``repr``); ``fps`` the time code rate of the ``Timecode`` frames.
+        timecode_start_s: the time code of ``times == 0`` in seconds from midnight (>= 0).
+    Returns:
+        The text: one header row (``Timecode``, ``BlendShapeCount``, the 52 shapes, then the
+        take's rotation groups in :data:`ROTATION_GROUPS` order), one row per frame, each line
+        ending in ``\\n``. ``Timecode`` is ``HH:MM:SS:FF.fff`` with the time rounded to a
+        thousandth of a frame; ``BlendShapeCount`` is 52 + 3 x the number of rotation groups (61
+        with all three). :func:`read_live_link_csv` with ``fps=take.fps`` reads it back: weights
+        equal, rotations equal, times to within half a thousandth of a frame (exactly, up to
+        float rounding, for times on the frame grid).
+    Raises:
+        ValueError: a malformed take (shapes, an unknown rotation group, non-finite values, times
+            that do not increase, a non-positive ``fps``) or a negative or non-finite
+            ``timecode_start_s`` (programming errors: a take read or built by facegeo is valid).
+    """
+    fps = float(take.fps)
+    if not (math.isfinite(fps) and fps > 0):
+        raise ValueError(f"take.fps must be a finite rate > 0, got {take.fps!r}")
+    if not (math.isfinite(timecode_start_s) and timecode_start_s >= 0):
+        raise ValueError(f"timecode_start_s must be finite and >= 0, got {timecode_start_s!r}")
+    times = np.asarray(take.times, dtype=np.float64)
+    weights = np.asarray(take.weights).astype(np.float32)
+    n = len(times)
+    if times.ndim != 1 or weights.shape != (n, len(_SHAPE_COLUMNS)):
+        raise ValueError(f"take.times must be (N,) and take.weights (N, {len(_SHAPE_COLUMNS)}), got {times.shape} and {weights.shape}")
+    if n and (not np.all(np.isfinite(times)) or np.any(np.diff(times) <= 0)):
+        raise ValueError("take.times must be finite and strictly increasing")
+    if not np.all(np.isfinite(weights)):
+        raise ValueError("take.weights must be finite")
+    unknown = set(take.rotations) - set(ROTATION_GROUPS)
+    if unknown:
+        raise ValueError(f"unknown rotation groups {sorted(unknown)}; expected some of {list(ROTATION_GROUPS)}")
+    groups = [g for g in ROTATION_GROUPS if g in take.rotations]
+    angles = []
+    for g in groups:
+        a = np.asarray(take.rotations[g], dtype=np.float64)
+        if a.shape != (n, 3) or not np.all(np.isfinite(a)):
+            raise ValueError(f"take.rotations[{g!r}] must be a finite (N, 3) = ({n}, 3) array, got shape {a.shape}")
+        angles.append(a)
+    header = ["Timecode", "BlendShapeCount", *_SHAPE_COLUMNS, *(c for g in groups for c in ROTATION_GROUPS[g])]
+    count = str(len(_SHAPE_COLUMNS) + 3 * len(groups))
+    lines = [",".join(header)]
+    for i in range(n):
+        cells = [_timecode(timecode_start_s + float(times[i]), fps), count]
+        cells.extend("%.9g" % w for w in weights[i].tolist())
+        for a in angles:
+            cells.extend(repr(v) for v in a[i].tolist())
+        lines.append(",".join(cells))
+    return "\n".join(lines) + "\n"
+
+
+def _timecode(t: float, fps: float) -> str:
+    """``HH:MM:SS:FF.fff`` of ``t`` seconds at ``fps`` frames per second (the frame field rounded
+    to a thousandth of a frame), the inverse of :func:`_seconds`."""
+    q = round(t * fps * 1000)  # thousandths of a frame
+    if fps == int(fps):
+        secs, rem = divmod(q, int(fps) * 1000)
+    else:
+        secs = int(q // (fps * 1000))
+        rem = min(max(q - round(secs * fps * 1000), 0), math.ceil(fps) * 1000 - 1)
+    minutes, seconds = divmod(int(secs), 60)
+    hours, minutes = divmod(minutes, 60)
+    return f"{hours:02d}:{minutes:02d}:{seconds:02d}:{rem // 1000:02d}.{rem % 1000:03d}"

@@ -9,7 +9,7 @@ from facegeo.cli import main
 from facegeo.errors import InputError
 from facegeo.export.animation import rotations, target_weights
 from facegeo.export.arkit import ARKIT_NAMES, arkit_name, target_naming
-from facegeo.export.live_link import LIVE_LINK_COLUMNS, read_live_link_csv
+from facegeo.export.live_link import LIVE_LINK_COLUMNS, ArkitTake, live_link_csv_text, read_live_link_csv
 from arkit_support import shaped_asset, write_take
 
 
@@ -60,6 +60,47 @@ def test_take_round_trip(tmp_path):
     np.testing.assert_allclose(read_live_link_csv(csv, fps=30).times, times30, atol=1e-9)
     write_take(csv, frames=4, rotations=False)
     assert read_live_link_csv(csv).rotations == {}
+
+
+def test_written_take_reads_back_the_same(tmp_path):
+    """live_link_csv_text: weights exact (float32), times to 1e-6 s, rotations exact; with and
+    without the rotation columns; the time code of one row spelled out."""
+    rng = np.random.default_rng(3)
+    n, fps = 50, 30.0
+    weights = rng.random((n, 52)).astype(np.float32)
+    weights[0, :2] = (0.0, 1.0)
+    angles = {g: rng.uniform(-3.0, 3.0, (n, 3)) for g in ("head", "left_eye", "right_eye")}
+    take = ArkitTake("<take>", fps, np.arange(n) / fps, weights, angles)
+    csv = tmp_path / "take.csv"
+    text = live_link_csv_text(take)
+    lines = text.splitlines()
+    assert lines[0] == ",".join(LIVE_LINK_COLUMNS) and len(lines) == n + 1
+    assert lines[1].startswith("00:00:00:00.000,61,0,1,")
+    csv.write_text(text)
+    back = read_live_link_csv(csv, fps=fps)
+    assert back.n_frames == n and back.weights.dtype == np.float32
+    assert np.array_equal(back.weights, weights)
+    np.testing.assert_allclose(back.times, take.times, rtol=0, atol=1e-6)
+    assert set(back.rotations) == set(angles)
+    for g, a in angles.items():
+        np.testing.assert_allclose(back.rotations[g], a, rtol=0, atol=1e-9)
+    # frame 61 at 30 fps (2 s + 1 frame), with an hour of time code before it
+    long = ArkitTake("<take>", fps, np.arange(62) / fps, rng.random((62, 52)).astype(np.float32))
+    rows = live_link_csv_text(long, timecode_start_s=3600 + 60).splitlines()
+    assert rows[62].startswith("01:01:02:01.000,52,")
+    assert rows[0] == ",".join(LIVE_LINK_COLUMNS[:54])
+    csv.write_text("\n".join(rows) + "\n")
+    back = read_live_link_csv(csv, fps=fps)
+    assert back.rotations == {} and np.array_equal(back.weights, long.weights)
+    np.testing.assert_allclose(back.times, long.times, rtol=0, atol=1e-6)
+    # the head alone: 55 values a row; a sub-frame time survives to a thousandth of a frame
+    head = ArkitTake("<take>", 60.0, np.array([0.0, 0.0101, 1.5]), weights[:3], {"head": angles["head"][:3]})
+    text = live_link_csv_text(head)
+    assert text.splitlines()[2].startswith("00:00:00:00.606,55,")
+    csv.write_text(text)
+    back = read_live_link_csv(csv, fps=60)
+    assert set(back.rotations) == {"head"}
+    np.testing.assert_allclose(back.times, head.times, rtol=0, atol=0.5e-3 / 60)
 
 
 def test_a_real_header_and_time_code(tmp_path):
