@@ -31,7 +31,7 @@ from facegeo.export.arkit import TargetNaming
 from facegeo.export.live_link import ArkitTake
 from facegeo.parts import EYEBALLS_PART, eyeball_centres
 
-__all__ = ["FaceRig", "face_rig", "target_weights", "rotations", "EYE_NAMES", "HEAD_NAME"]
+__all__ = ["FaceRig", "face_rig", "target_weights", "rotations", "head_angles", "EYE_NAMES", "HEAD_NAME"]
 
 #: The head joint / node.
 HEAD_NAME = "head"
@@ -80,6 +80,15 @@ def target_weights(take: ArkitTake, naming: TargetNaming) -> np.ndarray:
     """(N, T) float64: the file's target weights at each frame of the take."""
     model = take.weights.astype(np.float64) @ naming.model_from_arkit.T
     return naming.target_weights(model)
+
+
+def head_angles(rotation: np.ndarray) -> np.ndarray:
+    """(N, 3, 3) rotations in the model's axes (a fit's head rotation, model to camera) -> (N, 3)
+    float64 Live Link Face yaw, pitch, roll in radians: the inverse of :func:`rotations`."""
+    from scipy.spatial.transform import Rotation
+
+    a, b, c = Rotation.from_matrix(np.asarray(rotation, dtype=np.float64).reshape(-1, 3, 3)).as_euler("YXZ").T
+    return np.stack([-a, b, -c], axis=1)
 
 
 def rotations(angles: np.ndarray) -> np.ndarray:

@@ -21,13 +21,17 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from facegeo.errors import InputError
 
-__all__ = ["FitOptions", "ReconstructOptions", "JobRecord", "fit_into_folder", "reconstruct_into_folder",
-           "loaded_resources", "photo_camera", "FIT_FILES", "DISPLACEMENT_BAKE_RULE"]
+__all__ = ["FitOptions", "ReconstructOptions", "TrackOptions", "JobRecord", "fit_into_folder", "reconstruct_into_folder",
+           "track_into_folder", "loaded_resources", "photo_camera", "FIT_FILES", "TRACK_FILES", "DISPLACEMENT_BAKE_RULE"]
 
 #: The files ``fit_into_folder`` writes.
 FIT_FILES = ("fit.json", "mesh.obj", "overlay.png")
+#: The files ``track_into_folder`` writes.
+TRACK_FILES = ("take.csv", "track.json")
 
 #: When displacement is baked into the exported geometry (see :func:`reconstruct_into_folder`).
 DISPLACEMENT_BAKE_RULE = (
@@ -351,3 +355,91 @@ def _fit_and_skin(photo: Any, source: str, options: FitOptions) -> tuple[Any, An
     result = (predictor or fit)(photo, model=model, detector=options.landmarks,
                                 camera=photo_camera(photo, options.focal, options.principal_point))
     return result, skin, time.perf_counter() - start
+
+
+@dataclass(frozen=True)
+class TrackOptions:
+    """What tracking a video needs besides the video.
+
+    Attributes:
+        model, landmarks: as :class:`FitOptions`.
+        focal: the lens's focal length in pixels of the frames; None: unknown (one focal for the
+            clip, :mod:`facegeo.tracking`).
+        start_s, end_s: only the frames from ``start_s`` to before ``end_s`` (seconds; None: the
+            whole clip); every: every N-th of those frames.
+        keyframes: how many frames the identity is fitted to.
+    """
+
+    model: Path | None = None
+    landmarks: str = "hybrid"
+    focal: float | None = None
+    start_s: float | None = None
+    end_s: float | None = None
+    every: int = 1
+    keyframes: int = 5
+
+    def __post_init__(self) -> None:
+        from facegeo.landmarks import DETECTORS
+
+        if self.landmarks not in DETECTORS:
+            raise InputError(_SOURCE, "landmarks", f"one of {', '.join(DETECTORS)}", repr(self.landmarks))
+        if not (isinstance(self.keyframes, int) and self.keyframes >= 1):
+            raise InputError(_SOURCE, "keyframes", "an integer >= 1", repr(self.keyframes))
+
+
+def track_into_folder(video: str | Path, output: str | Path, options: TrackOptions | None = None,
+                      progress: Callable[[int, float], None] | None = None) -> dict[str, Any]:
+    """Track the face through a video (:mod:`facegeo.tracking`) and write into ``output``:
+
+    * ``take.csv``: a Live Link Face take (:func:`facegeo.export.live_link.live_link_csv_text`),
+      one row per tracked frame at the video's frame rate: the 52 ARKit weights of the frame's
+      expression (``tongueOut`` 0: the model has no such shape) and the head's yaw, pitch and roll;
+      a frame without a face repeats the nearest tracked frame's values (``track.json`` flags it);
+    * ``track.json``: the source, frame rate, camera, identity α, per frame whether a face was
+      found, its landmark RMS (px, % of the inter-ocular distance), pose, ICT weights and whether
+      it was a keyframe; the keyframes, timings and notes.
+
+    ``progress``: called with (frames observed, frames per second so far). Returns the
+    ``track.json`` record.
+
+    Raises:
+        facegeo.errors.FacegeoError: an unreadable video, bad options, no face in any frame, an
+            unwritable output, or another run writing into ``output``.
+    """
+    from facegeo.export.animation import head_angles
+    from facegeo.export.arkit import ARKIT_NAMES, target_naming
+    from facegeo.export.live_link import ArkitTake, live_link_csv_text
+    from facegeo.staged_output import StagedOutput, locked_output
+    from facegeo.tracking import track_frames
+    from facegeo.video import open_video
+
+    options = TrackOptions() if options is None else options
+    with locked_output(output):
+        start = time.perf_counter()
+        model, _ = loaded_resources(options.model, None, False, options.landmarks)
+        info, frames = open_video(video, options.start_s, options.end_s, options.every)
+        report = None if progress is None else (lambda n: progress(n, n / max(time.perf_counter() - start, 1e-9)))
+        track = track_frames(frames, model, options.landmarks, options.focal, options.keyframes, report, str(video))
+        found = [k for k, f in enumerate(track.frames) if f.found]
+        nearest = [found[int(np.argmin([abs(j - k) for j in found]))] for k in range(len(track.frames))]
+        naming = target_naming(model.expression_names, "arkit")
+        model_weights = np.stack([track.frames[j].delta for j in nearest]).astype(np.float64)
+        targets = np.clip(naming.target_weights(model_weights), 0.0, 1.0)
+        weights = np.zeros((len(track.frames), len(ARKIT_NAMES)), np.float32)
+        for t, name in enumerate(naming.names):
+            weights[:, ARKIT_NAMES.index(name)] = targets[:, t]
+        angles = head_angles(np.stack([track.frames[j].rotation for j in nearest]))
+        times = np.array([f.time_s for f in track.frames], np.float64)
+        take = ArkitTake(str(video), float(info.fps), times - times[0], weights, {"head": angles})
+        seconds = time.perf_counter() - start
+        record = {"source": str(video), "fps": info.fps, "frames_tracked": len(track.frames), "frames_with_face": len(found),
+                  "keyframes": track.keyframes, "camera": track.camera.as_dict(), "alpha": track.alpha.tolist(),
+                  "expression_names": list(model.expression_names),
+                  "timings_s": {**track.timings, "total": seconds},
+                  "frames_per_second": len(track.frames) / seconds,
+                  "notes": track.notes + [f"{n}: no shape in the model, written as 0" for n in naming.missing],
+                  "frames": [f.to_dict() for f in track.frames]}
+        with StagedOutput(output, replace=True) as stage:
+            stage.path("take.csv").write_text(live_link_csv_text(take, timecode_start_s=float(times[0])))
+            stage.path("track.json").write_text(json.dumps(record, indent=1))
+        return record

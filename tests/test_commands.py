@@ -85,7 +85,7 @@ def test_the_subcommands_are_those_of_the_command_modules():
     from importlib import import_module
 
     declared = [c.name for m in COMMAND_MODULES for c in import_module(f"facegeo.commands.{m}").COMMANDS]
-    assert list(_subparsers()) == declared and len(declared) == 10
+    assert list(_subparsers()) == declared and len(declared) == 11
 
 
 def test_building_the_parser_imports_nothing_heavy():

@@ -45,7 +45,7 @@ from facegeo.errors import FacegeoError
 __all__ = ["main", "build_parser", "Interrupted", "COMMAND_MODULES"]
 
 #: The command modules, in the order ``facegeo --help`` lists their subcommands.
-COMMAND_MODULES = ("fit", "reconstruct", "unwrap", "export", "animate", "realy", "regressor", "diffusion")
+COMMAND_MODULES = ("fit", "reconstruct", "track", "unwrap", "export", "animate", "realy", "regressor", "diffusion")
 
 
 class Interrupted(KeyboardInterrupt):

@@ -38,7 +38,7 @@ from facegeo.morphable_model import MorphableModel
 if TYPE_CHECKING:
     import torch
 
-__all__ = ["fit_landmarks", "solve_landmarks", "LandmarkSolution", "LandmarkPrior", "estimate_noise", "assemble_fit", "damped_step",
+__all__ = ["fit_landmarks", "solve_landmarks", "LandmarkSolution", "LandmarkPrior", "estimate_noise", "assemble_fit", "damped_step", "initial_pose",
            "CONVERGED_RELATIVE_DECREASE", "NOISE_TOLERANCE", "LANDMARK_FIT_THREADS", "rotation_step"]
 
 CONVERGED_RELATIVE_DECREASE = 1e-4
@@ -47,7 +47,7 @@ NOISE_TOLERANCE = 0.1
 
 
 # ---------------------------------------------------------------------------------- pose init
-def _initial_pose(model: MorphableModel, targets: np.ndarray, camera: Camera) -> tuple[np.ndarray, np.ndarray]:
+def initial_pose(model: MorphableModel, targets: np.ndarray, camera: Camera) -> tuple[np.ndarray, np.ndarray]:
     """(R (3,3), t (3,)) in OpenGL camera axes from solvePnP on the non-jaw iBUG points."""
     ids = INNER_FACE
     ok = np.isfinite(targets[ids]).all(axis=1)
@@ -280,7 +280,7 @@ def solve_landmarks(
         t0 = time.perf_counter()
         prior = LandmarkPrior(model, priors)
         if init is None:
-            rotation, translation = _initial_pose(model, targets, camera)
+            rotation, translation = initial_pose(model, targets, camera)
             alpha, delta = np.zeros(model.n_id), np.zeros(model.n_exp)
         else:
             rotation, translation, alpha, delta = init.rotation, init.translation, init.alpha, init.delta

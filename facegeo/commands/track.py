@@ -1,0 +1,77 @@
+"""``facegeo track VIDEO -o OUT``: the face through a video as a Live Link Face take, through
+:func:`facegeo.jobs.track_into_folder` (``take.csv``, ``track.json``)."""
+
+from __future__ import annotations
+
+import argparse
+import math
+import sys
+from pathlib import Path
+
+from facegeo.commands.arguments import COMMAND_LINE, Command, add_model_argument
+from facegeo.errors import InputError
+
+__all__ = ["COMMANDS"]
+
+
+def _arguments(parser: argparse.ArgumentParser) -> None:
+    from facegeo.commands.arguments import DETECTOR_NAMES
+
+    parser.add_argument("video", type=Path, metavar="VIDEO",
+                        help="a video (mp4, mov, avi, webm, mkv), an animated GIF or a folder of numbered frames")
+    parser.add_argument("-o", "--output", type=Path, required=True,
+                        help="output folder (created; an existing one must be empty or an earlier facegeo output)")
+    parser.add_argument("--start", type=float, default=None, metavar="S", help="first second to track (default: the start)")
+    parser.add_argument("--end", type=float, default=None, metavar="S", help="track up to this second (default: the end)")
+    parser.add_argument("--every", type=int, default=1, metavar="N", help="track every N-th frame (default 1: all)")
+    group = parser.add_argument_group("fitting")
+    add_model_argument(group)
+    group.add_argument("--landmarks", choices=DETECTOR_NAMES, default="hybrid", metavar="NAME",
+                       help="landmark detector, one of %(choices)s (default: hybrid)")
+    group.add_argument("--focal", type=float, default=None, metavar="PX",
+                       help="focal length in pixels of the frames; default: one focal for the clip, estimated from the face")
+    group.add_argument("--keyframes", type=int, default=5, metavar="K",
+                       help="frames spanning the head's turn that the identity is fitted to (default 5)")
+
+
+def _run(args: argparse.Namespace) -> None:
+    from facegeo.jobs import TrackOptions, track_into_folder
+
+    for name, value in (("--start", args.start), ("--end", args.end)):
+        if value is not None and not (math.isfinite(value) and value >= 0):
+            raise InputError(COMMAND_LINE, name, "a time in seconds >= 0", str(value))
+    if args.every < 1:
+        raise InputError(COMMAND_LINE, "--every", "an integer >= 1", str(args.every))
+    if args.keyframes < 1:
+        raise InputError(COMMAND_LINE, "--keyframes", "an integer >= 1", str(args.keyframes))
+    options = TrackOptions(model=args.model, landmarks=args.landmarks, focal=args.focal, start_s=args.start, end_s=args.end,
+                           every=args.every, keyframes=args.keyframes)
+    live = sys.stderr.isatty()
+
+    def progress(frames: int, rate: float) -> None:
+        if live:
+            print(f"\rtracking: {frames} frames, {rate:.1f} frames/s", end="", file=sys.stderr, flush=True)
+
+    record = track_into_folder(args.video, args.output, options, progress)
+    if live:
+        print(file=sys.stderr)
+    for note in record["notes"]:
+        print(f"note: {note}")
+    lost = record["frames_tracked"] - record["frames_with_face"]
+    print(f"tracked {args.video}: {record['frames_tracked']} frames ({lost} without a face), keyframes {record['keyframes']}, "
+          f"{record['frames_per_second']:.1f} frames/s")
+    print(f"wrote {args.output}/take.csv, track.json")
+
+
+COMMANDS = (
+    Command(
+        "track",
+        help="track a face through a video: a Live Link Face take (take.csv) and per-frame fits (track.json)",
+        description="Fit one identity to keyframes spanning the head's turn, then the pose and expression of every "
+        "frame; write take.csv (Live Link Face's layout: 52 ARKit weights and the head's rotation per frame, readable "
+        "by facegeo animate and Unreal) and track.json (per frame: face found, landmark RMS, pose, weights).",
+        arguments=_arguments,
+        run=_run,
+        output_folder=True,
+    ),
+)

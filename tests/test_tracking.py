@@ -1,0 +1,115 @@
+"""A face through a clip (facegeo.tracking, facegeo.jobs.track_into_folder, ``facegeo track``):
+frames made from the bundled photo turned in the image plane by known angles, one without a face."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from types import SimpleNamespace
+
+import cv2
+import numpy as np
+import pytest
+
+from facegeo.assets import asset_path
+from facegeo.export.animation import head_angles, rotations
+from facegeo.photo import load_photo
+
+PHOTO = asset_path("photos/astronaut.png")
+#: in-plane turns of the frames, degrees (counter-clockwise in the image)
+ROLLS = (-8.0, -4.0, 0.0, 4.0, 8.0, 4.0, 0.0)
+NO_FACE = 5  # this frame is noise
+
+
+def _frames() -> list[np.ndarray]:
+    image = load_photo(PHOTO).image
+    height, width = image.shape[:2]
+    out = []
+    for k, roll in enumerate(ROLLS):
+        turn = cv2.getRotationMatrix2D((width / 2.0, height / 3.0), roll, 1.0)
+        frame = cv2.warpAffine(image, turn, (width, height), borderMode=cv2.BORDER_REPLICATE)
+        if k == NO_FACE:
+            frame = np.random.default_rng(0).integers(0, 256, frame.shape, dtype=np.uint8)
+        out.append(frame)
+    return out
+
+
+def test_head_angles_invert_the_take_rotations():
+    angles = np.random.default_rng(1).uniform(-1.2, 1.2, (50, 3))
+    from scipy.spatial.transform import Rotation
+
+    assert np.abs(head_angles(Rotation.from_quat(rotations(angles)).as_matrix()) - angles).max() < 1e-12
+
+
+@pytest.fixture(scope="module")
+def tracked(model):
+    from facegeo.tracking import track_frames
+
+    frames = [SimpleNamespace(index=k, time_s=k / 10.0, image=f) for k, f in enumerate(_frames())]
+    return track_frames(frames, model, keyframes=3)
+
+
+def test_every_frame_is_tracked_and_the_one_without_a_face_is_flagged(tracked, model):
+    assert [f.index for f in tracked.frames] == list(range(len(ROLLS)))
+    assert [f.found for f in tracked.frames] == [k != NO_FACE for k in range(len(ROLLS))]
+    assert tracked.frames[NO_FACE].rotation is None and "no face" in tracked.frames[NO_FACE].note
+    assert len(tracked.keyframes) == 3 and NO_FACE not in tracked.keyframes
+    assert tracked.alpha.shape == (model.n_id,) and np.all(np.isfinite(tracked.alpha))
+    for frame in tracked.frames:
+        if frame.found:
+            assert np.all(np.isfinite(frame.delta)) and frame.landmark_rms_percent_iod < 6.0
+
+
+def test_the_head_roll_follows_the_turn_of_the_frame(tracked):
+    # a frame turned counter-clockwise by θ (as displayed) tilts the top of the head towards the
+    # image's left, the subject's right: Live Link Face's roll (a positive roll tilts the top
+    # towards the subject's left, facegeo.export.live_link) falls by θ; the yaw and pitch stay
+    found = [f for f in tracked.frames if f.found]
+    angles = np.degrees(head_angles(np.stack([f.rotation for f in found])))
+    turns = np.array([ROLLS[f.index] for f in found])
+    roll = angles[:, 2] - angles[list(turns).index(0.0), 2]
+    assert np.abs(roll + turns).max() < 1.5, (roll, turns)
+    # yaw and pitch move only as much as the face's shift across the image turns the line of
+    # sight (the turn is about a point above the face: up to ~40 px at f ≈ 740 px, about 3°)
+    assert np.ptp(angles[:, 0]) < 5.0 and np.ptp(angles[:, 1]) < 5.0
+
+
+def test_facegeo_track_writes_a_take_the_live_link_reader_reads(tmp_path):
+    from facegeo.export.live_link import read_live_link_csv
+
+    clip = tmp_path / "clip.avi"
+    frames = _frames()
+    height, width = frames[0].shape[:2]
+    writer = cv2.VideoWriter(str(clip), cv2.VideoWriter_fourcc(*"MJPG"), 10.0, (width, height))
+    for frame in frames:
+        writer.write(cv2.cvtColor(frame, cv2.COLOR_RGB2BGR))
+    writer.release()
+    out = tmp_path / "out"
+    done = subprocess.run([sys.executable, "-m", "facegeo.cli", "track", str(clip), "-o", str(out), "--keyframes", "3"],
+                          capture_output=True, text=True, timeout=600)
+    assert done.returncode == 0, done.stderr[-3000:]
+    assert f"tracked {clip}: {len(ROLLS)} frames (1 without a face)" in done.stdout
+    take = read_live_link_csv(out / "take.csv", fps=10.0)
+    assert take.n_frames == len(ROLLS) and np.allclose(take.times, np.arange(len(ROLLS)) / 10.0, atol=1e-6)
+    assert set(take.rotations) == {"head"}
+    record = json.loads((out / "track.json").read_text())
+    assert [f["found"] for f in record["frames"]] == [k != NO_FACE for k in range(len(ROLLS))]
+    assert record["frames_with_face"] == len(ROLLS) - 1 and record["fps"] == pytest.approx(10.0)
+    # the frame without a face repeats its nearest tracked neighbour's values (flagged in track.json)
+    np.testing.assert_array_equal(take.weights[NO_FACE], take.weights[NO_FACE - 1])
+    assert sorted(p.name for p in out.iterdir()) == [".facegeo-output.json", "take.csv", "track.json"]  # (the run's manifest)
+
+
+def test_a_video_without_any_face_is_one_line(tmp_path):
+    clip = tmp_path / "noise.avi"
+    writer = cv2.VideoWriter(str(clip), cv2.VideoWriter_fourcc(*"MJPG"), 10.0, (160, 120))
+    rng = np.random.default_rng(2)
+    for _ in range(3):
+        writer.write(rng.integers(0, 256, (120, 160, 3), dtype=np.uint8))
+    writer.release()
+    done = subprocess.run([sys.executable, "-m", "facegeo.cli", "track", str(clip), "-o", str(tmp_path / "out")],
+                          capture_output=True, text=True, timeout=300)
+    assert done.returncode == 2
+    assert done.stderr.strip().splitlines() == [f"facegeo: error: {clip}: face: expected a face in at least one frame, found none in 3 frames"]
+    assert not (tmp_path / "out").exists()
