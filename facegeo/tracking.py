@@ -39,7 +39,8 @@ from facegeo.fitting.shared_identity import LandmarkView, solve_shared_identity
 from facegeo.landmarks.detectors import get_detector
 from facegeo.morphable_model import MorphableModel
 
-__all__ = ["TrackedFrame", "Track", "track_frames", "TRACK_STAGE", "KEYFRAMES"]
+__all__ = ["TrackedFrame", "Track", "ObservedFrame", "ClipIdentity", "track_frames", "observe_frames", "clip_identity",
+           "track_observed", "TRACK_STAGE", "KEYFRAMES"]
 
 #: The per-frame solve: pose and expression, identity fixed (no identity columns), warm-started.
 TRACK_STAGE = LandmarkStage("track", 8, 0, True)
@@ -96,9 +97,34 @@ class Track:
         return [f.index for f in self.frames if f.keyframe]
 
 
+@dataclass(frozen=True)
+class ObservedFrame:
+    """A frame as observed (:func:`observe_frames`): ``index`` and ``time_s`` as the source's
+    frame, the ``observation`` without its pixels (None when no face was found) and ``note``, why."""
+
+    index: int
+    time_s: float
+    observation: PhotoObservation | None
+    note: str | None = None
+
+
+@dataclass(frozen=True)
+class ClipIdentity:
+    """What a clip's frames share (:func:`clip_identity`): the ``camera``, the identity ``alpha``
+    (n_id,) float64, the landmark ``noise`` (inter-ocular units, the keyframes' median), the
+    ``keyframes`` (positions in the observed list) and ``notes``."""
+
+    camera: Camera
+    alpha: np.ndarray
+    noise: float
+    keyframes: list[int]
+    notes: list[str]
+
+
 def track_frames(frames: Iterable[Any], model: MorphableModel, detector: str = "hybrid", focal: float | None = None,
                  keyframes: int = KEYFRAMES, progress: Callable[[int], None] | None = None, source: str = "<video>") -> Track:
-    """Track the face through ``frames`` (module docstring).
+    """Track the face through ``frames`` (module docstring): :func:`observe_frames`, then
+    :func:`clip_identity`, then :func:`track_observed`.
 
     Args:
         frames: :class:`facegeo.video.Frame`-like objects (``index``, ``time_s``, ``image`` (H, W,
@@ -115,9 +141,25 @@ def track_frames(frames: Iterable[Any], model: MorphableModel, detector: str = "
         InputError: no frames, frames of different sizes, or no frame with a face.
     """
     timings: dict[str, float] = {}
-    det = get_detector(detector)
     start = time.perf_counter()
-    seen: list[tuple[Any, PhotoObservation | None, str | None]] = []
+    observed, size = observe_frames(frames, model, detector, progress, source)
+    timings["observe"] = time.perf_counter() - start
+    start = time.perf_counter()
+    shared = clip_identity(model, observed, size, focal, keyframes, source)
+    timings["identity"] = time.perf_counter() - start
+    start = time.perf_counter()
+    tracked = track_observed(model, observed, shared)
+    timings["track"] = time.perf_counter() - start
+    return Track(shared.alpha.astype(np.float32), shared.camera, tracked, timings, shared.notes)
+
+
+def observe_frames(frames: Iterable[Any], model: MorphableModel, detector: str = "hybrid",
+                   progress: Callable[[int], None] | None = None, source: str = "<video>") -> tuple[list[ObservedFrame], tuple[int, int]]:
+    """Every frame observed as a photo fit observes a photo (module docstring, step 1), the
+    pixels dropped: ``(frames, (width, height))``. Raises :class:`InputError` (naming ``source``)
+    for no frames or frames of different sizes."""
+    det = get_detector(detector)
+    observed: list[ObservedFrame] = []
     size = None
     for frame in frames:
         height, width = frame.image.shape[:2]
@@ -127,54 +169,63 @@ def track_frames(frames: Iterable[Any], model: MorphableModel, detector: str = "
             raise InputError(source, f"frame {frame.index}: frame size", f"{size[0]}x{size[1]} px as the first frame", f"{width}x{height} px")
         try:
             observation = observe_photo(frame.image, model, None, det, None, DEFAULT_DENSE)
-            seen.append((frame, _light(observation), None))
+            observed.append(ObservedFrame(frame.index, frame.time_s, _light(observation)))
         except NoFaceError as error:
-            seen.append((frame, None, f"{error.field}: {error.found or error.expected}"))
+            observed.append(ObservedFrame(frame.index, frame.time_s, None, f"{error.field}: {error.found or error.expected}"))
         if progress is not None:
-            progress(len(seen))
-    timings["observe"] = time.perf_counter() - start
-    if not seen:
+            progress(len(observed))
+    if size is None:
         raise InputError(source, "frames", "at least one frame", "none in the range")
-    found = [k for k, (_, obs, _) in enumerate(seen) if obs is not None]
+    return observed, size
+
+
+def clip_identity(model: MorphableModel, observed: list[ObservedFrame], size: tuple[int, int], focal: float | None = None,
+                  keyframes: int = KEYFRAMES, source: str = "<video>") -> ClipIdentity:
+    """The clip's camera and identity (module docstring, steps 2 and 3). ``size``: (width,
+    height) px of the frames. Raises :class:`NoFaceError` when no frame has a face."""
+    found = [k for k, f in enumerate(observed) if f.observation is not None]
     if not found:
-        raise NoFaceError(source, "face", "a face in at least one frame", f"none in {len(seen)} frames")
+        raise NoFaceError(source, "face", "a face in at least one frame", f"none in {len(observed)} frames")
     width, height = size
-    camera = (Camera.unknown_focal(width, height) if focal is None else
-              Camera(float(focal), width / 2.0, height / 2.0, width, height))
     notes = []
     if focal is None:
-        camera = dataclasses.replace(camera, focal=float(np.median([seen[k][1].camera.focal for k in found])), focal_known=True)
+        median = float(np.median([observed[k].observation.camera.focal for k in found]))
+        camera = Camera(median, width / 2.0, height / 2.0, width, height)
         notes.append(f"focal length unknown: set to {camera.focal:.0f} px, the median over the frames of the focal that puts "
                      "the face 1.0 m from the camera (give --focal for a known lens)")
-
-    start = time.perf_counter()
-    chosen = _keyframes(model, [seen[k][1] for k in found], camera, keyframes)
-    key_ids = [found[j] for j in chosen]
-    views = [LandmarkView(seen[k][1].landmarks, camera, seen[k][1].weights, seen[k][1].surface_points, f"{source}, frame {seen[k][0].index}")
-             for k in key_ids]
+    else:
+        camera = Camera(float(focal), width / 2.0, height / 2.0, width, height)
+    chosen = [found[j] for j in _keyframes(model, [observed[k].observation for k in found], camera, keyframes)]
+    views = [LandmarkView(observed[k].observation.landmarks, camera, observed[k].observation.weights,
+                          observed[k].observation.surface_points, f"{source}, frame {observed[k].index}") for k in chosen]
     solutions = solve_shared_identity(model, views)
-    alpha = solutions[0].fit.alpha.astype(np.float64)
-    noise = float(np.median([s.noise for s in solutions]))
-    timings["identity"] = time.perf_counter() - start
+    return ClipIdentity(camera, solutions[0].fit.alpha.astype(np.float64), float(np.median([s.noise for s in solutions])),
+                        chosen, notes)
 
-    start = time.perf_counter()
-    priors = dataclasses.replace(DEFAULT_PRIORS, noise=noise, noise_rounds=0)
+
+def track_observed(model: MorphableModel, observed: list[ObservedFrame], shared: ClipIdentity,
+                   stage: LandmarkStage = TRACK_STAGE) -> list[TrackedFrame]:
+    """Every observed frame's pose and expression with the clip's identity fixed (module
+    docstring, step 4), ``stage`` the per-frame solve (its ``n_id`` must be 0: the identity stays)."""
+    if stage.n_id != 0:
+        raise InputError("<argument>", "stage", "a stage that leaves the identity out (n_id 0)", repr(stage.n_id))
+    priors = dataclasses.replace(DEFAULT_PRIORS, noise=shared.noise, noise_rounds=0)
     out: list[TrackedFrame] = []
     previous = None
-    for k, (frame, obs, why) in enumerate(seen):
+    for k, frame in enumerate(observed):
+        obs = frame.observation
         if obs is None:
-            out.append(TrackedFrame(frame.index, frame.time_s, False, note=why))
+            out.append(TrackedFrame(frame.index, frame.time_s, False, note=frame.note))
             previous = None
             continue
         if previous is None:
-            rotation, translation = initial_pose(model, obs.landmarks, camera)
-            previous = _Start(rotation, translation, alpha, np.zeros(model.n_exp))
-        fit = solve_landmarks(model, obs.landmarks, camera, obs.weights, (TRACK_STAGE,), priors, previous, obs.surface_points).fit
-        previous = _Start(fit.rotation, fit.translation, alpha, fit.delta)
+            rotation, translation = initial_pose(model, obs.landmarks, shared.camera)
+            previous = _Start(rotation, translation, shared.alpha, np.zeros(model.n_exp))
+        fit = solve_landmarks(model, obs.landmarks, shared.camera, obs.weights, (stage,), priors, previous, obs.surface_points).fit
+        previous = _Start(fit.rotation, fit.translation, shared.alpha, fit.delta)
         out.append(TrackedFrame(frame.index, frame.time_s, True, fit.rotation, fit.translation, fit.delta,
-                                float(fit.landmark_rms_px), float(fit.landmark_rms_percent_iod), k in key_ids))
-    timings["track"] = time.perf_counter() - start
-    return Track(alpha.astype(np.float32), camera, out, timings, notes)
+                                float(fit.landmark_rms_px), float(fit.landmark_rms_percent_iod), k in shared.keyframes))
+    return out
 
 
 @dataclass(frozen=True)
