@@ -15,8 +15,10 @@
    from the previous frame (or, after a frame without a face, from solvePnP), at the keyframes'
    median landmark noise.
 
-What is not done yet (issue 48): detection runs on every frame (no box from the previous
-frame's landmarks), no temporal smoothing, no gaze (eye rotations), no cut detection.
+After a frame with a face the next is searched around that face first (the same person, not
+another face that comes into the frame; the whole frame where it is lost). What is not done yet
+(issue 48): the detector still runs in that region on every frame, no temporal smoothing, no
+gaze (eye rotations), no cut detection by the identity.
 """
 
 from __future__ import annotations
@@ -33,6 +35,7 @@ from facegeo.camera import Camera, euler_from_rotation
 from facegeo.errors import InputError, NoFaceError
 from facegeo.fitting.dense_term import DEFAULT_DENSE
 from facegeo.fitting.landmark_fit import initial_pose, solve_landmarks
+from facegeo.fitting.landmark_problem import SurfacePoints
 from facegeo.fitting.photo_fit import PhotoObservation, observe_photo
 from facegeo.fitting.priors import DEFAULT_PRIORS, LandmarkStage
 from facegeo.fitting.shared_identity import LandmarkView, solve_shared_identity
@@ -40,7 +43,7 @@ from facegeo.landmarks.detectors import get_detector
 from facegeo.morphable_model import MorphableModel
 
 __all__ = ["TrackedFrame", "Track", "ObservedFrame", "ClipIdentity", "track_frames", "observe_frames", "clip_identity",
-           "track_observed", "TRACK_STAGE", "KEYFRAMES"]
+           "track_observed", "TRACK_STAGE", "KEYFRAMES", "FOLLOW_MARGIN"]
 
 #: The per-frame solve: pose and expression, identity fixed (no identity columns), warm-started.
 TRACK_STAGE = LandmarkStage("track", 8, 0, True)
@@ -156,27 +159,70 @@ def track_frames(frames: Iterable[Any], model: MorphableModel, detector: str = "
 def observe_frames(frames: Iterable[Any], model: MorphableModel, detector: str = "hybrid",
                    progress: Callable[[int], None] | None = None, source: str = "<video>") -> tuple[list[ObservedFrame], tuple[int, int]]:
     """Every frame observed as a photo fit observes a photo (module docstring, step 1), the
-    pixels dropped: ``(frames, (width, height))``. Raises :class:`InputError` (naming ``source``)
-    for no frames or frames of different sizes."""
+    pixels dropped: ``(frames, (width, height))``. The person stays the same from frame to frame:
+    after a frame with a face, the next is observed in the region around that face
+    (:data:`FOLLOW_MARGIN` × the landmarks' extent on each side), so that another face in the
+    frame is not taken for it; where no face is found there, the whole frame is searched. Raises
+    :class:`InputError` (naming ``source``) for no frames or frames of different sizes."""
     det = get_detector(detector)
     observed: list[ObservedFrame] = []
     size = None
+    region = None  # (x0, y0, x1, y1) px around the previous frame's face
     for frame in frames:
         height, width = frame.image.shape[:2]
         if size is None:
             size = (width, height)
         elif size != (width, height):
             raise InputError(source, f"frame {frame.index}: frame size", f"{size[0]}x{size[1]} px as the first frame", f"{width}x{height} px")
-        try:
-            observation = observe_photo(frame.image, model, None, det, None, DEFAULT_DENSE)
-            observed.append(ObservedFrame(frame.index, frame.time_s, _light(observation)))
-        except NoFaceError as error:
-            observed.append(ObservedFrame(frame.index, frame.time_s, None, f"{error.field}: {error.found or error.expected}"))
+        observation, why = None, None
+        for x0, y0, x1, y1 in ([region] if region is not None else []) + [(0, 0, width, height)]:
+            try:
+                observation = _shifted(observe_photo(np.ascontiguousarray(frame.image[y0:y1, x0:x1]), model, None, det, None,
+                                                     DEFAULT_DENSE), x0, y0)
+                break
+            except NoFaceError as error:
+                why = f"{error.field}: {error.found or error.expected}"
+        observed.append(ObservedFrame(frame.index, frame.time_s, observation, None if observation is not None else why))
+        region = None if observation is None else _region(observation.landmarks, width, height)
         if progress is not None:
             progress(len(observed))
     if size is None:
         raise InputError(source, "frames", "at least one frame", "none in the range")
     return observed, size
+
+
+#: The region a face is looked for in the next frame: the landmarks' bounding box grown by this
+#: many times its width and height on each side.
+FOLLOW_MARGIN = 1.0
+
+
+def _region(landmarks: np.ndarray, width: int, height: int) -> tuple[int, int, int, int] | None:
+    """(x0, y0, x1, y1) px of the region around ``landmarks`` (88, 2) px where the next frame's
+    face is looked for, inside the frame; None where it would be the whole frame anyway or too
+    small for a photo (:data:`facegeo.photo.MIN_SIDE`)."""
+    from facegeo.photo import MIN_SIDE
+
+    points = landmarks[np.isfinite(landmarks).all(axis=1)]
+    lo, hi = points.min(axis=0), points.max(axis=0)
+    grow = FOLLOW_MARGIN * (hi - lo)
+    x0, y0 = (int(max(0.0, np.floor(v))) for v in lo - grow)
+    x1, y1 = int(min(width, np.ceil(hi[0] + grow[0]))), int(min(height, np.ceil(hi[1] + grow[1])))
+    if min(x1 - x0, y1 - y0) < MIN_SIDE or (x0, y0, x1, y1) == (0, 0, width, height):
+        return None
+    return x0, y0, x1, y1
+
+
+def _shifted(observation: PhotoObservation, x0: int, y0: int) -> PhotoObservation:
+    """An observation made in a region whose top-left corner is (x0, y0) px of the frame, in the
+    frame's pixels, its pixels dropped (a clip's frames are not kept in memory)."""
+    offset = np.array([x0, y0], dtype=np.float64)
+    surface = observation.surface_points
+    if surface is not None:
+        surface = SurfacePoints(surface.targets + offset, surface.vertex_ids, surface.barycentric, surface.weights,
+                                surface.contour, surface.expressive)
+    empty = np.zeros((0, 0, 3), np.uint8)
+    return dataclasses.replace(observation, image=empty, pixels=empty, landmarks=observation.landmarks + offset,
+                               surface_points=surface)
 
 
 def clip_identity(model: MorphableModel, observed: list[ObservedFrame], size: tuple[int, int], focal: float | None = None,
@@ -236,11 +282,6 @@ class _Start:
     translation: np.ndarray
     alpha: np.ndarray
     delta: np.ndarray
-
-
-def _light(observation: PhotoObservation) -> PhotoObservation:
-    """The observation without its pixels (a clip's frames are not kept in memory)."""
-    return dataclasses.replace(observation, image=np.zeros((0, 0, 3), np.uint8), pixels=np.zeros((0, 0, 3), np.uint8))
 
 
 def _keyframes(model: MorphableModel, observations: list[PhotoObservation], camera: Camera, count: int) -> list[int]:

@@ -113,3 +113,23 @@ def test_a_video_without_any_face_is_one_line(tmp_path):
     assert done.returncode == 2
     assert done.stderr.strip().splitlines() == [f"facegeo: error: {clip}: face: expected a face in at least one frame, found none in 3 frames"]
     assert not (tmp_path / "out").exists()
+
+
+def test_the_same_person_is_followed_when_a_larger_face_comes_into_the_frame(model):
+    # the detector takes a frame's most prominent face; after the first frame the tracker looks
+    # for the face around the previous one first, so the larger face on the right is not taken
+    from facegeo.tracking import track_frames
+
+    face = load_photo(PHOTO).image
+    larger = cv2.resize(face[:, ::-1], None, fx=1.3, fy=1.3)
+    frames = []
+    for k in range(4):
+        canvas = np.full((larger.shape[0], face.shape[1] + larger.shape[1], 3), 90, np.uint8)
+        canvas[: face.shape[0], : face.shape[1]] = face
+        if k >= 1:
+            canvas[:, face.shape[1]:] = larger
+        frames.append(SimpleNamespace(index=k, time_s=k / 10.0, image=canvas))
+    tracked = track_frames(frames, model, keyframes=2)
+    assert all(f.found for f in tracked.frames)
+    # the face on the left stays left of the image's centre (camera x < 0) in every frame
+    assert all(f.translation[0] < 0 for f in tracked.frames), [f.translation for f in tracked.frames]
