@@ -45,6 +45,12 @@ The mask is built from what runs offline here, in four parts:
 7. **Holes on clear skin**: colour-occluded blobs that lie wholly inside the face oval, away
    from the eyes, brows, lips and frames, and smaller than :data:`MAX_HOLE` × the inter-ocular
    distance squared (shadowed wrinkles, a highlight, a blemish whose chroma strays) are skin.
+8. **Padding**: a crop padded out at the image's sides by repeating its last row or column
+   (:func:`padded_border`) shows nothing of the face there: where the face
+   (its oval dilated by 0.3 inter-ocular distances) reaches it, it is occluded, with the halo over
+   its join (a repeated line of the cheek is skin to every test above, and would be drawn into the
+   texture as streaks; a flat band of the photo's own, a wall or a sky, can look the same, and
+   away from the face it is left to the tests above).
 
 It also measures the photo's **white references**: the sclera (the brightest half of each eye's
 interior, its glints aside; of an eye whose colour disagrees with the other's, which has lid
@@ -81,7 +87,7 @@ from facegeo.robust_gaussian import robust_gaussian
 if TYPE_CHECKING:
     from facegeo.morphable_model import MorphableModel
 
-__all__ = ["SkinMask", "FaceRegions", "skin_mask", "skin_mask_image", "white_reference", "DARK_FRACTION", "HALO_FRACTION",
+__all__ = ["SkinMask", "FaceRegions", "skin_mask", "skin_mask_image", "padded_border", "PAD_TOLERANCE", "PAD_MIN_LINES", "PAD_TEXTURE", "white_reference", "DARK_FRACTION", "HALO_FRACTION",
            "LOCAL_DARK", "FRAME_WIDTH", "FRAME_DEPTH", "MAX_HOLE", "EYES_AGREE", "skin_vertex_mask", "vertex_regions", "REGION_NAMES",
            "RAMP_MM"]
 
@@ -122,6 +128,14 @@ MAX_HOLE = 0.15
 EYES_AGREE = 0.15
 #: Person probability below which a pixel outside the face oval is background.
 PERSON_THRESHOLD = 0.5
+#: A line (row or column) at the image's side is padding where 99 % of its pixels are within this
+#: many 8-bit levels (every channel) of the side's outermost line, and so are all lines between.
+PAD_TOLERANCE = 2
+#: Padding is a band of at least this many such lines (one repeated line can be a photo's own).
+PAD_MIN_LINES = 2
+#: A repeated line is padding only where at least this share of its neighbouring pixels differ by
+#: more than :data:`PAD_TOLERANCE` (the cropped photos' lines across a face: 0.25–0.65).
+PAD_TEXTURE = 0.1
 #: In a greyscale photo, pixels at the face oval's rim (within 0.1 inter-ocular distances either
 #: side) brighter than this × the sampled skin's median luminance are not skin (white collars,
 #: grey hair: its colour model lets them through).
@@ -260,6 +274,37 @@ def white_reference(linear: np.ndarray, regions: FaceRegions) -> tuple[np.ndarra
     return pixels.astype(np.float64).mean(axis=0), int(len(pixels))
 
 
+def padded_border(rgb: np.ndarray) -> np.ndarray:
+    """(H, W) bool: the bands at the sides of the (H, W, 3) uint8 photo that are a crop's padding
+    by repetition of its last row or column, at least :data:`PAD_MIN_LINES` lines wide (lines
+    equal to the side's outermost within :data:`PAD_TOLERANCE`; the last of them is the photo's
+    own), where that line is textured (:data:`PAD_TEXTURE`). A textured line repeated is what
+    draws streaks into the texture (the cheek's last column, skin to every colour test); a flat
+    one repeated draws none, and is as likely a flat band of the photo's own (a wall, a sky, a
+    collar of one colour), as is a constant padding, whose join the texture stage's fringe tests
+    take (:mod:`facegeo.texturing.default.occluders`)."""
+    H, W = rgb.shape[:2]
+    padding = np.zeros((H, W), bool)
+    image = rgb.astype(np.int16)
+    for flip, axis in ((False, 1), (True, 1), (False, 0), (True, 0)):  # left, right, top, bottom
+        lines = np.moveaxis(image, axis, 0)  # (lines, pixels, 3) from this side inwards
+        lines = lines[::-1] if flip else lines
+        outer = lines[0]
+        if float((np.abs(np.diff(outer, axis=0)).max(axis=-1) > PAD_TOLERANCE).mean()) < PAD_TEXTURE:
+            continue
+        run = 0
+        for line in lines[: len(lines) // 2]:
+            if np.quantile(np.abs(line - outer).max(axis=-1), 0.99) > PAD_TOLERANCE:
+                break
+            run += 1
+        band = run - 1  # the last line of the run is the photo's own
+        if band >= PAD_MIN_LINES:
+            n = H if axis == 0 else W
+            span = slice(n - band, n) if flip else slice(0, band)
+            padding[(span, slice(None)) if axis == 0 else (slice(None), span)] = True
+    return padding
+
+
 def _glasses_frames(lum: np.ndarray, regions: FaceRegions, oval: np.ndarray, iod: float, skin_lum: float) -> np.ndarray:
     """(H, W) bool: thin dark structures in the eyes' band (module docstring, part 6). The
     log-luminance is taken above a floor of 10 % of the skin's median luminance (``skin_lum``) so
@@ -385,6 +430,10 @@ def skin_mask(image: np.ndarray, landmarks: np.ndarray | None = None, *, regions
     if is_greyscale(rgb[sample].astype(np.float32) / 255.0):  # no chroma: the colour model cannot tell a white
         # collar, a black glove or a grey coat from skin; only the face oval's own surface is kept
         occluded |= ((lum > BRIGHT_FRACTION * skin_lum) & ~inner_oval) | (~near_oval & ~(lips | brows))
+    padding = padded_border(rgb)
+    if (padding & near_face).any():  # a crop's padding that the face reaches: no photo there (its join
+        # mixes in too: the halo)
+        occluded |= padding
     occluded = cv2.dilate(occluded.astype(np.uint8), _disc(HALO_FRACTION * iod)).astype(bool)
     occluded |= cv2.dilate((eyes | mouth).astype(np.uint8), _disc(0.02 * iod)).astype(bool)  # lashes, lip edge
     occluded = occluded.astype(np.float32)

@@ -52,7 +52,7 @@ from facegeo.texturing.backend import TextureContext
 from facegeo.texturing.default.clipping import clipped_ceiling
 from facegeo.texturing.default.directional_light import directional_shading
 from facegeo.texturing.default.highlights import highlights
-from facegeo.texturing.default.occluders import occluder_fringe
+from facegeo.texturing.default.occluders import grey_fringe, occluder_fringe
 from facegeo.texturing.default.reliability import inner_distance, reliability, shading_confidence
 from facegeo.texturing.default.settings import DefaultSettings
 from facegeo.texturing.default.sheen import environment_specular, sun_lobe, without_specular
@@ -134,6 +134,10 @@ def analyse(T_inc: np.ndarray, lin: np.ndarray, M_vis: np.ndarray, ctx: TextureC
     # without chroma a dark sideburn or hairline passes the photo's skin mask anywhere on the face
     fringe = occluder_fringe(lin, shading, w, inner, fit_mask, ctx, np.inf if greyscale else settings.fringe_mm,
                              settings) if n_fit >= 100 else None
+    if fringe is not None and greyscale:  # and its step in luminance from the skin beside it, at the
+        # edge of what is kept so far
+        kept_inner = inner_distance(w * (1.0 - fringe) > 0.5, ctx)
+        fringe = np.maximum(fringe, grey_fringe(lin, shading, w, kept_inner, fit_mask & (fringe < 0.5), ctx, settings))
     if fringe is not None:
         kept = kept * (1.0 - fringe)
     analysis = Analysis(shading, highlight.astype(np.float32), kept.astype(np.float32), specular, greyscale,

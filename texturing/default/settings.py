@@ -154,6 +154,14 @@ class DefaultSettings:
     fringe_mm: float = 4.0
     #: The probability of the χ² quantile (3 degrees of freedom) beyond which a colour is not skin's.
     fringe_significance: float = 0.999
+    #: σ (mm of surface) of the local level of the reliably seen skin that a greyscale photo's seen
+    #: texels near the unseen are judged against (:func:`~facegeo.texturing.default.occluders.grey_fringe`:
+    #: without chroma a hair fringe, a collar or a dark padding is told by its step in luminance from
+    #: the skin beside it, not from the whole face's spread).
+    fringe_local_mm: float = 8.0
+    #: Robust σ of that skin's own departures from its local level from which such a texel starts to
+    #: be the fringe's; wholly from the :attr:`fringe_significance` quantile (1 degree of freedom, 3.3 σ).
+    fringe_soft_sigmas: float = 2.0
     #: Texels of reliably seen skin the fringe's colour Gaussian is fitted to, at most (evenly spaced;
     #: a 3 × 3 covariance needs far fewer, and 65536 cost 36 ms).
     fringe_samples: int = 16384
