@@ -368,6 +368,8 @@ class TrackOptions:
         start_s, end_s: only the frames from ``start_s`` to before ``end_s`` (seconds; None: the
             whole clip); every: every N-th of those frames.
         keyframes: how many frames the identity is fitted to.
+        asset: also write the person's textured asset animated by the take
+            (:func:`track_into_folder`).
     """
 
     model: Path | None = None
@@ -377,6 +379,7 @@ class TrackOptions:
     end_s: float | None = None
     every: int = 1
     keyframes: int = 5
+    asset: bool = True
 
     def __post_init__(self) -> None:
         from facegeo.landmarks import DETECTORS
@@ -397,7 +400,9 @@ def track_into_folder(video: str | Path, output: str | Path, options: TrackOptio
       a frame without a face repeats the nearest tracked frame's values (``track.json`` flags it);
     * ``track.json``: the source, frame rate, camera, identity α, per frame whether a face was
       found, its landmark RMS (px, % of the inter-ocular distance), pose, ICT weights and whether
-      it was a keyframe; the keyframes, timings and notes.
+      it was a keyframe; the keyframes, timings and notes;
+    * with ``options.asset``: the person's textured asset (``asset/``), ``face.glb`` and
+      ``face.usdz`` animated by the take, and ``preview.png`` (:func:`_animated_asset`).
 
     ``progress``: called with (frames observed, frames per second so far). Returns the
     ``track.json`` record.
@@ -441,5 +446,57 @@ def track_into_folder(video: str | Path, output: str | Path, options: TrackOptio
                   "frames": [f.to_dict() for f in track.frames]}
         with StagedOutput(output, replace=True) as stage:
             stage.path("take.csv").write_text(live_link_csv_text(take, timecode_start_s=float(times[0])))
+            if options.asset:
+                begin = time.perf_counter()
+                record["asset"] = _animated_asset(video, options, model, track, take, stage)
+                record["timings_s"]["asset"] = time.perf_counter() - begin
+                record["timings_s"]["total"] = time.perf_counter() - start
             stage.path("track.json").write_text(json.dumps(record, indent=1))
         return record
+
+
+def _animated_asset(video: str | Path, options: TrackOptions, model: Any, track: Any, take: Any, stage: Any) -> dict[str, Any]:
+    """The person's textured asset, animated by the take (:func:`track_into_folder`): the
+    most frontal keyframe fitted again with the clip's identity and camera (its albedo and light,
+    the single-photo checks), the texture stages on it (the default backend), its asset folder in
+    ``asset/``, ``face.glb`` and ``face.usdz`` with the take's keys (one a frame) and
+    ``preview.png`` (the keyframe beside the asset from the front, three-quarter and profile).
+    Returns what ``track.json`` records of it."""
+    import dataclasses as dc
+
+    from facegeo.camera import euler_from_rotation
+    from facegeo.export.asset_io import write_asset_files
+    from facegeo.export.textures import TextureFiles
+    from facegeo.export.writers import export_asset
+    from facegeo.fitting.landmark_fit import solve_landmarks
+    from facegeo.fitting.photo_fit import finish_photo_fit, observe_photo
+    from facegeo.fitting.priors import DEFAULT_PRIORS
+    from facegeo.image_files import png_bytes
+    from facegeo.photo import Photo
+    from facegeo.pipeline import reconstruct_with_fit
+    from facegeo.texturing.preview import relit_preview
+    from facegeo.tracking import TRACK_STAGE, SolveStart
+    from facegeo.video import open_video
+
+    keys = [f for f in track.frames if f.keyframe]
+    frontal = min(keys, key=lambda f: abs(euler_from_rotation(f.rotation)[0]))
+    _, frames = open_video(video, frontal.time_s, None, 1)
+    frame = next(f for f in frames if f.index == frontal.index)
+    photo = Photo(frame.image, f"{video} (frame {frame.index})", 1.0, (frame.image.shape[1], frame.image.shape[0]))
+    begin = time.perf_counter()
+    seen = observe_photo(photo, model, None, options.landmarks, track.camera)
+    start = SolveStart(frontal.rotation, frontal.translation, track.alpha.astype(np.float64), frontal.delta)
+    priors = dc.replace(DEFAULT_PRIORS, noise_rounds=0)
+    solution = solve_landmarks(model, seen.landmarks, track.camera, seen.weights, (TRACK_STAGE,), priors, start, seen.surface_points)
+    fitted = finish_photo_fit(seen, solution, photometric=True)
+    asset, result = reconstruct_with_fit(photo, model, backend="default", detector=options.landmarks,
+                                         fitted=(fitted, time.perf_counter() - begin))
+    folder = stage.path("asset")
+    folder.mkdir()
+    texture_files = TextureFiles()
+    write_asset_files(asset, folder, texture_files=texture_files)
+    for fmt in ("glb", "usdz"):
+        export_asset(asset, stage.path(f"face.{fmt}"), format=fmt, blendshapes="arkit", animation=take, texture_files=texture_files)
+    stage.path("preview.png").write_bytes(png_bytes(relit_preview(photo.image, asset, result)))
+    return {"keyframe": frontal.index, "landmark_rms_px": float(result.landmark_rms_px), "notes": list(result.info.get("notes", [])),
+            "files": ["asset/", "face.glb", "face.usdz", "preview.png"]}

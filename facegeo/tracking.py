@@ -43,7 +43,7 @@ from facegeo.landmarks.detectors import get_detector
 from facegeo.morphable_model import MorphableModel
 
 __all__ = ["TrackedFrame", "Track", "ObservedFrame", "ClipIdentity", "track_frames", "observe_frames", "clip_identity",
-           "track_observed", "TRACK_STAGE", "KEYFRAMES", "FOLLOW_MARGIN"]
+           "track_observed", "SolveStart", "TRACK_STAGE", "KEYFRAMES", "FOLLOW_MARGIN"]
 
 #: The per-frame solve: pose and expression, identity fixed (no identity columns), warm-started.
 TRACK_STAGE = LandmarkStage("track", 8, 0, True)
@@ -266,17 +266,18 @@ def track_observed(model: MorphableModel, observed: list[ObservedFrame], shared:
             continue
         if previous is None:
             rotation, translation = initial_pose(model, obs.landmarks, shared.camera)
-            previous = _Start(rotation, translation, shared.alpha, np.zeros(model.n_exp))
+            previous = SolveStart(rotation, translation, shared.alpha, np.zeros(model.n_exp))
         fit = solve_landmarks(model, obs.landmarks, shared.camera, obs.weights, (stage,), priors, previous, obs.surface_points).fit
-        previous = _Start(fit.rotation, fit.translation, shared.alpha, fit.delta)
+        previous = SolveStart(fit.rotation, fit.translation, shared.alpha, fit.delta)
         out.append(TrackedFrame(frame.index, frame.time_s, True, fit.rotation, fit.translation, fit.delta,
                                 float(fit.landmark_rms_px), float(fit.landmark_rms_percent_iod), k in shared.keyframes))
     return out
 
 
 @dataclass(frozen=True)
-class _Start:
-    """Where a frame's solve starts (what :func:`solve_landmarks` reads of its ``init``)."""
+class SolveStart:
+    """Where a frame's solve starts (what :func:`solve_landmarks` reads of its ``init``):
+    rotation (3, 3), translation (3,) mm, alpha (n_id,) and delta (n_exp,)."""
 
     rotation: np.ndarray
     translation: np.ndarray

@@ -98,7 +98,14 @@ def test_facegeo_track_writes_a_take_the_live_link_reader_reads(tmp_path):
     assert record["frames_with_face"] == len(ROLLS) - 1 and record["fps"] == pytest.approx(10.0)
     # the frame without a face repeats its nearest tracked neighbour's values (flagged in track.json)
     np.testing.assert_array_equal(take.weights[NO_FACE], take.weights[NO_FACE - 1])
-    assert sorted(p.name for p in out.iterdir()) == [".facegeo-output.json", "take.csv", "track.json"]  # (the run's manifest)
+    assert {p.name for p in out.iterdir()} >= {"take.csv", "track.json", "asset", "face.glb", "face.usdz", "preview.png"}
+    # the asset is the person's, animated by the take: one key a tracked frame
+    import pygltflib
+
+    gltf = pygltflib.GLTF2().load(str(out / "face.glb"))
+    keys = gltf.accessors[gltf.animations[0].samplers[0].input]
+    assert keys.count == len(ROLLS) and keys.max[0] == pytest.approx((len(ROLLS) - 1) / 10.0, abs=1e-4)
+    assert record["asset"]["keyframe"] in record["keyframes"]
 
 
 def test_a_video_without_any_face_is_one_line(tmp_path):

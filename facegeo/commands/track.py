@@ -1,5 +1,6 @@
-"""``facegeo track VIDEO -o OUT``: the face through a video as a Live Link Face take, through
-:func:`facegeo.jobs.track_into_folder` (``take.csv``, ``track.json``)."""
+"""``facegeo track VIDEO -o OUT``: the face through a video as a Live Link Face take and the
+person's asset animated by it, through :func:`facegeo.jobs.track_into_folder` (``take.csv``,
+``track.json``, ``asset/``, ``face.glb``, ``face.usdz``, ``preview.png``)."""
 
 from __future__ import annotations
 
@@ -32,6 +33,8 @@ def _arguments(parser: argparse.ArgumentParser) -> None:
                        help="focal length in pixels of the frames; default: one focal for the clip, estimated from the face")
     group.add_argument("--keyframes", type=int, default=5, metavar="K",
                        help="frames spanning the head's turn that the identity is fitted to (default 5)")
+    parser.add_argument("--no-asset", action="store_true",
+                        help="write the take and track.json only (no textured asset, animated face.glb/face.usdz, preview)")
 
 
 def _run(args: argparse.Namespace) -> None:
@@ -45,7 +48,7 @@ def _run(args: argparse.Namespace) -> None:
     if args.keyframes < 1:
         raise InputError(COMMAND_LINE, "--keyframes", "an integer >= 1", str(args.keyframes))
     options = TrackOptions(model=args.model, landmarks=args.landmarks, focal=args.focal, start_s=args.start, end_s=args.end,
-                           every=args.every, keyframes=args.keyframes)
+                           every=args.every, keyframes=args.keyframes, asset=not args.no_asset)
     live = sys.stderr.isatty()
 
     def progress(frames: int, rate: float) -> None:
@@ -60,16 +63,18 @@ def _run(args: argparse.Namespace) -> None:
     lost = record["frames_tracked"] - record["frames_with_face"]
     print(f"tracked {args.video}: {record['frames_tracked']} frames ({lost} without a face), keyframes {record['keyframes']}, "
           f"{record['frames_per_second']:.1f} frames/s")
-    print(f"wrote {args.output}/take.csv, track.json")
+    extra = "" if args.no_asset else ", asset/, face.glb, face.usdz, preview.png"
+    print(f"wrote {args.output}/take.csv, track.json{extra}")
 
 
 COMMANDS = (
     Command(
         "track",
-        help="track a face through a video: a Live Link Face take (take.csv) and per-frame fits (track.json)",
+        help="track a face through a video: a Live Link Face take, per-frame fits and the person's animated asset",
         description="Fit one identity to keyframes spanning the head's turn, then the pose and expression of every "
         "frame; write take.csv (Live Link Face's layout: 52 ARKit weights and the head's rotation per frame, readable "
-        "by facegeo animate and Unreal) and track.json (per frame: face found, landmark RMS, pose, weights).",
+        "by facegeo animate and Unreal), track.json (per frame: face found, landmark RMS, pose, weights) and the "
+        "person's textured asset from the most frontal keyframe with face.glb and face.usdz animated by the take.",
         arguments=_arguments,
         run=_run,
         output_folder=True,

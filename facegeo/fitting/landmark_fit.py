@@ -297,7 +297,7 @@ def solve_landmarks(
         noise = priors.noise
         steps = {stage.name: _levenberg_marquardt(problem, state, stage, prior, noise) for stage in schedule[:-1]}
         history = [noise]
-        p_eff = float("nan")
+        p_eff: float | None = None  # not estimated: the noise was given (one stage, no noise rounds)
         last = schedule[-1]
         for round_ in range(priors.noise_rounds + 1):
             if round_ > 0 or len(schedule) > 1:  # the noise is estimated once some shape is fitted
