@@ -370,6 +370,8 @@ class TrackOptions:
         keyframes: how many frames the identity is fitted to.
         asset: also write the person's textured asset animated by the take
             (:func:`track_into_folder`).
+        smooth: take the frame-to-frame jitter out of the pose and the weights
+            (:func:`facegeo.tracking.smooth_track`).
     """
 
     model: Path | None = None
@@ -380,6 +382,7 @@ class TrackOptions:
     every: int = 1
     keyframes: int = 5
     asset: bool = True
+    smooth: bool = True
 
     def __post_init__(self) -> None:
         from facegeo.landmarks import DETECTORS
@@ -399,8 +402,9 @@ def track_into_folder(video: str | Path, output: str | Path, options: TrackOptio
       expression (``tongueOut`` 0: the model has no such shape) and the head's yaw, pitch and roll;
       a frame without a face repeats the nearest tracked frame's values (``track.json`` flags it);
     * ``track.json``: the source, frame rate, camera, identity α, per frame whether a face was
-      found, its landmark RMS (px, % of the inter-ocular distance), pose, ICT weights and whether
-      it was a keyframe; the keyframes, timings and notes;
+      found, its landmark RMS (px, % of the inter-ocular distance; of the frame's own fit), pose,
+      ICT weights (smoothed with ``options.smooth``, as in the take) and whether it was a
+      keyframe; the smoothing, keyframes, timings and notes;
     * with ``options.asset``: the person's textured asset (``asset/``), ``face.glb`` and
       ``face.usdz`` animated by the take, and ``preview.png`` (:func:`_animated_asset`).
 
@@ -415,7 +419,7 @@ def track_into_folder(video: str | Path, output: str | Path, options: TrackOptio
     from facegeo.export.arkit import ARKIT_NAMES, target_naming
     from facegeo.export.live_link import ArkitTake, live_link_csv_text
     from facegeo.staged_output import StagedOutput, locked_output
-    from facegeo.tracking import track_frames
+    from facegeo.tracking import POSE_WINDOW, WEIGHT_WINDOW, smooth_track, track_frames
     from facegeo.video import open_video
 
     options = TrackOptions() if options is None else options
@@ -425,6 +429,8 @@ def track_into_folder(video: str | Path, output: str | Path, options: TrackOptio
         info, frames = open_video(video, options.start_s, options.end_s, options.every)
         report = None if progress is None else (lambda n: progress(n, n / max(time.perf_counter() - start, 1e-9)))
         track = track_frames(frames, model, options.landmarks, options.focal, options.keyframes, report, str(video))
+        if options.smooth:
+            track.frames = smooth_track(track.frames, *model.expression_range)
         found = [k for k, f in enumerate(track.frames) if f.found]
         nearest = [found[int(np.argmin([abs(j - k) for j in found]))] for k in range(len(track.frames))]
         naming = target_naming(model.expression_names, "arkit")
@@ -442,6 +448,9 @@ def track_into_folder(video: str | Path, output: str | Path, options: TrackOptio
                   "expression_names": list(model.expression_names),
                   "timings_s": {**track.timings, "total": seconds},
                   "frames_per_second": len(track.frames) / seconds,
+                  "smoothing": ({"pose": f"running median of {POSE_WINDOW} frames", "weights":
+                                 f"Savitzky-Golay filter of {WEIGHT_WINDOW} frames, order 2", "lag_frames_if_live": (POSE_WINDOW - 1) // 2}
+                                if options.smooth else None),
                   "notes": track.notes + [f"{n}: no shape in the model, written as 0" for n in naming.missing],
                   "frames": [f.to_dict() for f in track.frames]}
         with StagedOutput(output, replace=True) as stage:

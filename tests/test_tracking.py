@@ -140,3 +140,35 @@ def test_the_same_person_is_followed_when_a_larger_face_comes_into_the_frame(mod
     assert all(f.found for f in tracked.frames)
     # the face on the left stays left of the image's centre (camera x < 0) in every frame
     assert all(f.translation[0] < 0 for f in tracked.frames), [f.translation for f in tracked.frames]
+
+
+def test_smoothing_takes_the_jitter_out_and_keeps_a_blink_and_a_turn():
+    from scipy.spatial.transform import Rotation
+
+    from facegeo.tracking import TrackedFrame, smooth_track
+
+    rng = np.random.default_rng(3)
+    n = 40
+    yaw = np.concatenate([np.zeros(15), np.linspace(0.0, 0.3, 10), np.full(15, 0.3)])  # still, a turn (rad), still
+    blink = np.zeros(n)
+    blink[30:33] = [0.7, 1.0, 0.7]  # a blink of three frames
+    frames = []
+    for k in range(n):
+        rotation = Rotation.from_euler("YXZ", [yaw[k] + rng.normal(0, 0.01), rng.normal(0, 0.01), 0.0]).as_matrix()
+        delta = np.clip(np.array([blink[k], 0.3 + rng.normal(0, 0.03)]), 0, 1).astype(np.float32)
+        frames.append(TrackedFrame(k, k / 30.0, k != 20, rotation.astype(np.float32) if k != 20 else None,
+                                   np.array([0.0, 0.0, -600.0 + rng.normal(0, 1.0)], np.float32) if k != 20 else None,
+                                   delta if k != 20 else None))
+    smoothed = smooth_track(frames, np.zeros(2), np.ones(2))
+    assert [f.found for f in smoothed] == [f.found for f in frames] and smoothed[20].rotation is None
+
+    def yaws(fs):
+        return np.array([Rotation.from_matrix(f.rotation).as_euler("YXZ")[0] for f in fs if f.found])
+
+    still = slice(0, 14)  # the first run's still stretch
+    assert np.abs(np.diff(yaws(smoothed)[still])).mean() < 0.5 * np.abs(np.diff(yaws(frames)[still])).mean()
+    weights = np.array([f.delta for f in smoothed if f.found])
+    raw = np.array([f.delta for f in frames if f.found])
+    assert np.abs(np.diff(weights[:14, 1])).mean() < 0.6 * np.abs(np.diff(raw[:14, 1])).mean()
+    assert weights[:, 0].max() > 0.9  # the blink keeps its peak
+    assert abs(yaws(smoothed)[-1] - 0.3) < 0.03 and abs(yaws(smoothed)[0]) < 0.03  # the turn ends where it ended (noise σ 0.01)

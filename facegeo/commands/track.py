@@ -33,6 +33,8 @@ def _arguments(parser: argparse.ArgumentParser) -> None:
                        help="focal length in pixels of the frames; default: one focal for the clip, estimated from the face")
     group.add_argument("--keyframes", type=int, default=5, metavar="K",
                        help="frames spanning the head's turn that the identity is fitted to (default 5)")
+    parser.add_argument("--no-smooth", action="store_true",
+                        help="write each frame's own fit (no smoothing of the pose and the weights over neighbouring frames)")
     parser.add_argument("--no-asset", action="store_true",
                         help="write the take and track.json only (no textured asset, animated face.glb/face.usdz, preview)")
 
@@ -48,7 +50,8 @@ def _run(args: argparse.Namespace) -> None:
     if args.keyframes < 1:
         raise InputError(COMMAND_LINE, "--keyframes", "an integer >= 1", str(args.keyframes))
     options = TrackOptions(model=args.model, landmarks=args.landmarks, focal=args.focal, start_s=args.start, end_s=args.end,
-                           every=args.every, keyframes=args.keyframes, asset=not args.no_asset)
+                           every=args.every, keyframes=args.keyframes, asset=not args.no_asset,
+                           smooth=not args.no_smooth)
     live = sys.stderr.isatty()
 
     def progress(frames: int, rate: float) -> None:
