@@ -16,9 +16,9 @@
    median landmark noise.
 
 After a frame with a face the next is searched around that face first (the same person, not
-another face that comes into the frame; the whole frame where it is lost). What is not done yet
-(issue 48): the detector still runs in that region on every frame, no temporal smoothing, no
-gaze (eye rotations), no cut detection by the identity.
+another face that comes into the frame; the whole frame where it is lost). :func:`smooth_track`
+takes the frame-to-frame jitter out afterwards. What is not done yet (issue 48): the detector
+still runs in that region on every frame, no gaze (eye rotations), no cut detection by the identity.
 """
 
 from __future__ import annotations
