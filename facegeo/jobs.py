@@ -25,8 +25,8 @@ import numpy as np
 
 from facegeo.errors import InputError
 
-__all__ = ["FitOptions", "ReconstructOptions", "TrackOptions", "JobRecord", "fit_into_folder", "reconstruct_into_folder",
-           "track_into_folder", "loaded_resources", "photo_camera", "FIT_FILES", "TRACK_FILES", "DISPLACEMENT_BAKE_RULE"]
+__all__ = ["FitOptions", "ReconstructOptions", "TrackOptions", "JobRecord", "fit_into_folder", "fit_one_person_into_folder",
+           "reconstruct_into_folder", "track_into_folder", "loaded_resources", "photo_camera", "FIT_FILES", "TRACK_FILES", "DISPLACEMENT_BAKE_RULE"]
 
 #: The files ``fit_into_folder`` writes.
 FIT_FILES = ("fit.json", "mesh.obj", "overlay.png")
@@ -218,6 +218,65 @@ def fit_into_folder(photo_path: str | Path, output: str | Path, options: FitOpti
         return JobRecord(photo=str(photo_path), output=str(output), landmark_rms_px=float(result.landmark_rms_px),
                          landmark_rms_percent_iod=float(result.landmark_rms_percent_iod),
                          timings=dict(result.timings), files=list(FIT_FILES), notes=list(result.info.get("notes", [])))
+
+
+def fit_one_person_into_folder(photo_paths: list[str | Path], output: str | Path, options: FitOptions | None = None) -> JobRecord:
+    """Fit several photos of one person jointly (:func:`facegeo.fitting.fit_photos`: one
+    identity α, pose, expression and camera per photo; a photo of someone else is left out with a
+    note) and write into ``output``: ``fit.json`` (the shared ``alpha``, ``photos``: per photo
+    its fit as ``fit_into_folder`` records it, without α; ``left_out``; timings; notes),
+    ``mesh.obj`` (posed in the first kept photo's camera) and ``overlay.png`` (each kept photo's
+    overlay, side by side at one height).
+
+    Raises:
+        facegeo.errors.FacegeoError: fewer than two photos, a regressor (not supported here), a bad
+            photo, no face, failed fit checks, an unwritable output, or another run into ``output``.
+    """
+    import cv2
+
+    from facegeo.fitting import fit_photos
+    from facegeo.image_files import png_bytes
+    from facegeo.mesh_io import obj_text
+    from facegeo.overlay import draw_overlay
+    from facegeo.photo import load_photo
+    from facegeo.staged_output import StagedOutput, locked_output
+
+    options = FitOptions() if options is None else options
+    if len(photo_paths) < 2:
+        raise InputError(_SOURCE, "one person", "two or more photos of the person", str(len(photo_paths)))
+    if options.regressor is not None:
+        raise InputError(_SOURCE, "regressor", "no regressor with several photos of one person (the joint fit)", str(options.regressor))
+    with locked_output(output):
+        start = time.perf_counter()
+        model, _ = loaded_resources(options.model, None, False, options.landmarks)
+        photos = [load_photo(p, max_side=options.max_side) for p in photo_paths]
+        cameras = [photo_camera(photo, options.focal, options.principal_point) for photo in photos]
+        fits = fit_photos(photos, model, options.landmarks, cameras, photometric=options.photometric)
+        seconds = time.perf_counter() - start
+        left_out = fits[0].info["shared_identity"].get("left_out", [])
+        notes = list(dict.fromkeys(n for f in fits for n in f.info.get("notes", [])))
+        records = []
+        for fit in fits:
+            record = fit.to_dict()
+            record.pop("alpha")
+            record["photo"] = fit.info["source"]
+            record["landmark_rms_percent_iod"] = fit.landmark_rms_percent_iod
+            records.append(record)
+        document = {"one_person": True, "model": model.name, "alpha": fits[0].alpha.tolist(), "photos": records,
+                    "left_out": left_out, "timings_s": {"total": seconds}, "notes": notes}
+        by_source = {photo.path: photo for photo in photos}
+        overlays = [draw_overlay(by_source[fit.info["source"]].image, fit, model) for fit in fits]
+        height = min(o.shape[0] for o in overlays)
+        strip = np.concatenate([cv2.resize(o, (round(o.shape[1] * height / o.shape[0]), height), interpolation=cv2.INTER_AREA)
+                                for o in overlays], axis=1)
+        with StagedOutput(output, replace=True) as stage:
+            stage.path("fit.json").write_text(json.dumps(document, indent=1))
+            stage.path("mesh.obj").write_text(obj_text(fits[0].vertices, model.triangles, model.uv, model.uv_triangles))
+            stage.path("overlay.png").write_bytes(png_bytes(strip))
+        rms = [float(f.landmark_rms_px) for f in fits]
+        return JobRecord(photo=", ".join(str(p) for p in photo_paths), output=str(output), landmark_rms_px=float(np.sqrt(np.mean(np.square(rms)))),
+                         landmark_rms_percent_iod=float(np.sqrt(np.mean([f.landmark_rms_percent_iod ** 2 for f in fits]))),
+                         timings={"total": seconds}, files=list(FIT_FILES), notes=notes)
 
 
 def reconstruct_into_folder(photo_path: str | Path, output: str | Path, options: ReconstructOptions | None = None,

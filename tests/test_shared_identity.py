@@ -15,6 +15,7 @@ from facegeo.errors import InputError
 from facegeo.fitting import fit, fit_photos
 from facegeo.fitting.landmark_fit import solve_landmarks
 from facegeo.fitting.shared_identity import LandmarkView, solve_shared_identity
+from facegeo.photo import load_photo
 
 CAMERA = Camera.for_image(512, 512)
 YAWS = (-40.0, -20.0, 0.0, 20.0, 40.0)
@@ -115,3 +116,61 @@ def test_two_photos_of_one_person_share_one_identity(model, tmp_path):
     assert fits[0].landmark_rms_px < 1.5 * single.landmark_rms_px  # the shared identity still follows each photo
     yaws = [euler_from_rotation(f.rotation)[0] for f in fits]
     assert abs(yaws[0] + yaws[1]) < 3.0  # the mirrored photo is the same face turned the other way
+
+
+def _grace_hopper():
+    matplotlib = pytest.importorskip("matplotlib")
+    from pathlib import Path
+
+    return Path(matplotlib.get_data_path()) / "sample_data" / "grace_hopper.jpg"
+
+
+def test_face_descriptors_tell_people_apart():
+    from facegeo.landmarks import detect_landmarks
+    from facegeo.landmarks.face_identity import SAME_PERSON_DISTANCE, face_descriptor, odd_ones_out
+
+    photos = [load_photo(asset_path("photos/astronaut.png")).image, load_photo(_grace_hopper()).image]
+    photos.insert(1, np.ascontiguousarray(photos[0][:, ::-1]))  # the same person, mirrored
+    descriptors = [face_descriptor(p, detect_landmarks(p)) for p in photos]
+    assert all(d.shape == (128,) and d.dtype == np.float32 for d in descriptors)
+    assert np.linalg.norm(descriptors[0] - descriptors[1]) < SAME_PERSON_DISTANCE
+    assert np.linalg.norm(descriptors[0] - descriptors[2]) > SAME_PERSON_DISTANCE
+    assert [k for k, _ in odd_ones_out(descriptors)] == [2]
+    assert odd_ones_out(descriptors[:1]) == []
+
+
+def test_a_photo_of_someone_else_is_named_and_left_out(model, tmp_path):
+    import cv2
+
+    photo = asset_path("photos/astronaut.png")
+    mirrored = tmp_path / "mirrored.png"
+    cv2.imwrite(str(mirrored), cv2.imread(str(photo))[:, ::-1])
+    fits = fit_photos([photo, _grace_hopper(), mirrored], model, photometric=False)
+    assert [f.info["source"] for f in fits] == [str(photo), str(mirrored)]
+    assert fits[0].info["shared_identity"]["left_out"] == [str(_grace_hopper())]
+    assert any(n.startswith(f"{_grace_hopper()}: another person") for n in fits[0].info["notes"])
+
+
+def test_facegeo_fit_one_person_writes_one_record(tmp_path):
+    import json
+    import subprocess
+    import sys
+
+    import cv2
+
+    photo = asset_path("photos/astronaut.png")
+    mirrored = tmp_path / "mirrored.png"
+    cv2.imwrite(str(mirrored), cv2.imread(str(photo))[:, ::-1])
+    out = tmp_path / "out"
+    done = subprocess.run([sys.executable, "-m", "facegeo.cli", "fit", "--one-person", str(photo), str(_grace_hopper()),
+                           str(mirrored), "-o", str(out), "--no-photometric"], capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0, done.stderr[-3000:]
+    assert f"note: {_grace_hopper()}: another person" in done.stdout
+    record = json.loads((out / "fit.json").read_text())
+    assert record["one_person"] and len(record["alpha"]) > 0 and record["left_out"] == [str(_grace_hopper())]
+    assert [p["photo"] for p in record["photos"]] == [str(photo), str(mirrored)] and "alpha" not in record["photos"][0]
+    assert {"fit.json", "mesh.obj", "overlay.png"} <= {p.name for p in out.iterdir()}
+    one = subprocess.run([sys.executable, "-m", "facegeo.cli", "fit", "--one-person", str(photo), "-o", str(tmp_path / "o2")],
+                         capture_output=True, text=True, timeout=300)
+    assert one.returncode == 2 and one.stderr.strip().splitlines() == [
+        f"facegeo: error: <command line>: --one-person: expected two or more photo files of the person, found {photo}"]

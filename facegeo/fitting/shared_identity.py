@@ -53,6 +53,7 @@ from facegeo.fitting.dense_term import DEFAULT_DENSE, DenseSettings
 from facegeo.fitting.landmark_problem import LandmarkProblem, SurfacePoints
 from facegeo.fitting.photo_fit import finish_photo_fit, observe_photo
 from facegeo.fitting.priors import DEFAULT_PRIORS, LANDMARK_SCHEDULE, FitPriors
+from facegeo.landmarks.face_identity import SAME_PERSON_DISTANCE
 from facegeo.model_files import load_model
 from facegeo.morphable_model import MorphableModel
 
@@ -249,7 +250,10 @@ def fit_photos(
 ) -> list[Fit]:
     """Fit several photos of one person: one identity from all of them, pose, expression and
     camera per photo (:func:`solve_shared_identity`), then each photo's albedo and light and the
-    single-photo checks (:func:`~facegeo.fitting.photo_fit.finish_photo_fit`).
+    single-photo checks (:func:`~facegeo.fitting.photo_fit.finish_photo_fit`). A photo of
+    someone else (dlib's face descriptor farther than ``SAME_PERSON_DISTANCE`` from the main
+    person's: :func:`facegeo.landmarks.face_identity.odd_ones_out`) is left out, and every fit's
+    notes name it.
 
     Args:
         images: the photos ((H, W, 3) uint8 RGB arrays, paths or :class:`Photo`), each with its
@@ -260,7 +264,8 @@ def fit_photos(
             estimated per photo as :func:`facegeo.fit` does).
         photometric, priors, dense: as :func:`facegeo.fit`.
     Returns:
-        One :class:`Fit` per photo, in order; all share ``alpha``.
+        One :class:`Fit` per photo of the main person, in order; all share ``alpha``;
+        ``info["shared_identity"]["left_out"]`` lists the photos left out.
     Raises:
         InputError: no photos, a camera count that does not match, or a photo :func:`facegeo.fit`
             would refuse (naming that photo).
@@ -269,9 +274,19 @@ def fit_photos(
         raise InputError("<photos>", "photos", "at least one photo", "none")
     if cameras is not None and len(cameras) != len(images):
         raise InputError("<photos>", "cameras", f"one per photo ({len(images)})", str(len(cameras)))
+    from facegeo.landmarks.face_identity import face_descriptor, odd_ones_out
+
     model = load_model() if model is None else model
     seen = [observe_photo(image, model, None, detector, None if cameras is None else cameras[k], dense)
             for k, image in enumerate(images)]
+    odd = odd_ones_out([face_descriptor(s.pixels, s.landmarks) for s in seen]) if len(seen) > 1 else []
+    left_out = [f"{seen[k].source}: another person (face descriptor {distance:.2f} from the others', more than "
+                f"{SAME_PERSON_DISTANCE:g}): left out" for k, distance in odd]
+    kept = [s for k, s in enumerate(seen) if k not in {k for k, _ in odd}]
     solutions = solve_shared_identity(model, [LandmarkView(s.landmarks, s.camera, s.weights, s.surface_points, s.source)
-                                              for s in seen], priors)
-    return [finish_photo_fit(s, solution, photometric) for s, solution in zip(seen, solutions)]
+                                              for s in kept], priors)
+    fits = [finish_photo_fit(s, solution, photometric) for s, solution in zip(kept, solutions)]
+    for fit in fits:
+        fit.info.setdefault("shared_identity", {})["left_out"] = [seen[k].source for k, _ in odd]
+        fit.info["notes"] = list(fit.info.get("notes", [])) + left_out
+    return fits
