@@ -4,7 +4,9 @@ The landmark fit cannot tell two people apart (their landmark-fitted identities 
 much as one face's bias between photos: RESULTS.md, "One identity from several views"); a network
 trained for it can. :func:`face_descriptor` gives dlib's ResNet descriptor of a face (128 numbers,
 the ``dlib_face_recognition_resnet_model_v1.dat`` that the ``face-recognition-models`` package
-ships beside the 68-point predictor facegeo already uses; about 80 ms a face on one core), aligned
+ships beside the 68-point predictor facegeo already uses; Davis King released dlib's model files
+into the public domain (github.com/davisking/dlib-models, README), this network trained on face
+datasets under Creative Commons licences; about 80 ms a face on one core), aligned
 by the face's 68 iBUG points; two faces whose descriptors lie within :data:`SAME_PERSON_DISTANCE`
 are the same person (dlib's own threshold; on the sample photos the two of Barack Obama are 0.38
 apart, every pair of different people 0.74-0.94). :func:`odd_ones_out` names the photos of a set
