@@ -17,8 +17,9 @@
 
 After a frame with a face the next is searched around that face first (the same person, not
 another face that comes into the frame; the whole frame where it is lost). :func:`smooth_track`
-takes the frame-to-frame jitter out afterwards. What is not done yet (issue 48): the detector
-still runs in that region on every frame, no gaze (eye rotations), no cut detection by the identity.
+takes the frame-to-frame jitter out afterwards; a cut to another person is told by the face
+descriptor (:func:`observe_frames`). What is not done yet (issue 48): the detector still runs in
+that region on every frame, no gaze (eye rotations).
 """
 
 from __future__ import annotations
@@ -44,7 +45,7 @@ from facegeo.morphable_model import MorphableModel
 
 __all__ = ["TrackedFrame", "Track", "ObservedFrame", "ClipIdentity", "track_frames", "observe_frames", "clip_identity",
            "track_observed", "smooth_track", "SolveStart", "TRACK_STAGE", "KEYFRAMES", "FOLLOW_MARGIN", "POSE_WINDOW",
-           "WEIGHT_WINDOW"]
+           "WEIGHT_WINDOW", "IDENTITY_CHECK_EVERY"]
 
 #: The per-frame solve: pose and expression, identity fixed (no identity columns), warm-started.
 TRACK_STAGE = LandmarkStage("track", 8, 0, True)
@@ -165,28 +166,53 @@ def observe_frames(frames: Iterable[Any], model: MorphableModel, detector: str =
                    progress: Callable[[int], None] | None = None, source: str = "<video>") -> tuple[list[ObservedFrame], tuple[int, int]]:
     """Every frame observed as a photo fit observes a photo (module docstring, step 1), the
     pixels dropped: ``(frames, (width, height))``. The person stays the same from frame to frame:
-    after a frame with a face, the next is observed in the region around that face
-    (:data:`FOLLOW_MARGIN` × the landmarks' extent on each side), so that another face in the
-    frame is not taken for it; where no face is found there, the whole frame is searched. Raises
-    :class:`InputError` (naming ``source``) for no frames or frames of different sizes."""
+
+    * after a frame with a face, the next is observed in the region around that face
+      (:data:`FOLLOW_MARGIN` × the landmarks' extent on each side), so that another face in the
+      frame is not taken for it; where no face is found there, the whole frame is searched;
+    * the clip's person is the first face found; a face found by searching the whole frame, and
+      a face that jumped from the previous frame's (:func:`_jumped`: a cut), and every
+      :data:`IDENTITY_CHECK_EVERY`-th followed one, is compared
+      with it by its face descriptor (:mod:`facegeo.landmarks.face_identity`); another person's
+      face is not observed (the frame is flagged as showing another person, and the next frame
+      searched whole again).
+
+    Raises :class:`InputError` (naming ``source``) for no frames or frames of different sizes."""
+    from facegeo.landmarks.face_identity import SAME_PERSON_DISTANCE, face_descriptor
+
     det = get_detector(detector)
     observed: list[ObservedFrame] = []
     size = None
     region = None  # (x0, y0, x1, y1) px around the previous frame's face
+    person = None  # the clip's person's face descriptor
+    previous = None  # the previous frame's landmarks (None: no face there)
+    followed = 0  # frames followed in a region since the last identity check
     for frame in frames:
         height, width = frame.image.shape[:2]
         if size is None:
             size = (width, height)
         elif size != (width, height):
             raise InputError(source, f"frame {frame.index}: frame size", f"{size[0]}x{size[1]} px as the first frame", f"{width}x{height} px")
-        observation, why = None, None
+        observation, why, searched_whole = None, None, False
         for x0, y0, x1, y1 in ([region] if region is not None else []) + [(0, 0, width, height)]:
             try:
                 observation = _shifted(observe_photo(np.ascontiguousarray(frame.image[y0:y1, x0:x1]), model, None, det, None,
                                                      DEFAULT_DENSE), x0, y0)
+                searched_whole = (x0, y0, x1, y1) == (0, 0, width, height)
                 break
             except NoFaceError as error:
                 why = f"{error.field}: {error.found or error.expected}"
+        if observation is not None and (person is None or searched_whole or followed >= IDENTITY_CHECK_EVERY
+                                        or _jumped(previous, observation.landmarks)):
+            descriptor = face_descriptor(frame.image, observation.landmarks)
+            followed = 0
+            if person is None:
+                person = descriptor
+            elif (distance := float(np.linalg.norm(descriptor - person))) > SAME_PERSON_DISTANCE:
+                observation, why = None, (f"another person (face descriptor {distance:.2f} from the clip's person's, more than "
+                                          f"{SAME_PERSON_DISTANCE:g})")
+        followed += 1
+        previous = None if observation is None else observation.landmarks
         observed.append(ObservedFrame(frame.index, frame.time_s, observation, None if observation is not None else why))
         region = None if observation is None else _region(observation.landmarks, width, height)
         if progress is not None:
@@ -194,6 +220,24 @@ def observe_frames(frames: Iterable[Any], model: MorphableModel, detector: str =
     if size is None:
         raise InputError(source, "frames", "at least one frame", "none in the range")
     return observed, size
+
+
+#: A followed face is compared with the clip's person every this many frames (a cut to another
+#: person in the same place); a face found by searching the whole frame always is.
+IDENTITY_CHECK_EVERY = 15
+
+
+def _jumped(previous: np.ndarray | None, landmarks: np.ndarray) -> bool:
+    """Whether the face moved between two frames more than a face moves in 1/30 s: its landmarks'
+    centre by over a quarter of the inter-ocular distance, or that distance by over a fifth (a
+    cut). False without a previous face."""
+    if previous is None:
+        return False
+    from facegeo.landmarks.scheme import inter_ocular_distance
+
+    before, now = inter_ocular_distance(previous), inter_ocular_distance(landmarks)
+    shift = float(np.linalg.norm(np.nanmean(landmarks, axis=0) - np.nanmean(previous, axis=0)))
+    return not (before > 0 and 0.8 < now / before < 1.25 and shift < 0.25 * before)
 
 
 #: The region a face is looked for in the next frame: the landmarks' bounding box grown by this

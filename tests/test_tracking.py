@@ -172,3 +172,21 @@ def test_smoothing_takes_the_jitter_out_and_keeps_a_blink_and_a_turn():
     assert np.abs(np.diff(weights[:14, 1])).mean() < 0.6 * np.abs(np.diff(raw[:14, 1])).mean()
     assert weights[:, 0].max() > 0.9  # the blink keeps its peak
     assert abs(yaws(smoothed)[-1] - 0.3) < 0.03 and abs(yaws(smoothed)[0]) < 0.03  # the turn ends where it ended (noise σ 0.01)
+
+
+def test_a_cut_to_another_person_is_flagged(model):
+    # a clip of the astronaut that cuts to Grace Hopper (same frame size) and back: the other
+    # person's frames are flagged, not fitted with the clip's identity
+    matplotlib = pytest.importorskip("matplotlib")
+    from pathlib import Path
+
+    from facegeo.tracking import track_frames
+
+    face = load_photo(PHOTO).image
+    other = cv2.resize(load_photo(Path(matplotlib.get_data_path()) / "sample_data" / "grace_hopper.jpg").image,
+                       (face.shape[1], face.shape[0]))
+    images = [face, face, other, other, face]
+    frames = [SimpleNamespace(index=k, time_s=k / 10.0, image=im) for k, im in enumerate(images)]
+    tracked = track_frames(frames, model, keyframes=2)
+    assert [f.found for f in tracked.frames] == [True, True, False, False, True]
+    assert tracked.frames[2].note.startswith("another person (face descriptor")
