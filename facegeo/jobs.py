@@ -525,14 +525,14 @@ def track_into_folder(video: str | Path, output: str | Path, options: TrackOptio
 
 def _animated_asset(video: str | Path, options: TrackOptions, model: Any, track: Any, take: Any, stage: Any) -> dict[str, Any]:
     """The person's textured asset, animated by the take (:func:`track_into_folder`): the
-    most frontal keyframe fitted again with the clip's identity and camera (its albedo and light,
+    most frontal keyframe whose face lies wholly inside the frame (else the most frontal) fitted again with the clip's identity and camera (its albedo and light,
     the single-photo checks), the texture stages on it (the default backend), its asset folder in
     ``asset/``, ``face.glb`` and ``face.usdz`` with the take's keys (one a frame) and
     ``preview.png`` (the keyframe beside the asset from the front, three-quarter and profile).
     Returns what ``track.json`` records of it."""
     import dataclasses as dc
 
-    from facegeo.camera import euler_from_rotation
+    from facegeo.camera import euler_from_rotation, project
     from facegeo.export.asset_io import write_asset_files
     from facegeo.export.textures import TextureFiles
     from facegeo.export.writers import export_asset
@@ -547,7 +547,13 @@ def _animated_asset(video: str | Path, options: TrackOptions, model: Any, track:
     from facegeo.video import open_video
 
     keys = [f for f in track.frames if f.keyframe]
-    frontal = min(keys, key=lambda f: abs(euler_from_rotation(f.rotation)[0]))
+
+    def inside(f: Any) -> bool:  # the face's 68 points within the frame (a face cut by the border loses texture)
+        shape = model.shape_numpy(track.alpha, f.delta)[model.landmark_indices[:68]]
+        uv = project(shape.astype(np.float64), np.asarray(f.rotation, np.float64), np.asarray(f.translation, np.float64), track.camera)
+        return bool(np.all((uv >= 0) & (uv <= [track.camera.width, track.camera.height])))
+
+    frontal = min(keys, key=lambda f: (not inside(f), abs(euler_from_rotation(f.rotation)[0])))
     _, frames = open_video(video, frontal.time_s, None, 1)
     frame = next(f for f in frames if f.index == frontal.index)
     photo = Photo(frame.image, f"{video} (frame {frame.index})", 1.0, (frame.image.shape[1], frame.image.shape[0]))
