@@ -88,8 +88,7 @@ def bench_scan(scan_name: str, model: MorphableModel, views: list[str], precisio
             times = []
             for _ in range(repeat):
                 t0 = time.perf_counter()
-                solutions = solve_shared_identity(model, [LandmarkView(s.landmarks, s.camera, s.weights, s.surface_points, s.source)
-                                                          for s in seen], DEFAULT_PRIORS, iterations=its,
+                solutions = solve_shared_identity(model, [LandmarkView.of(s) for s in seen], DEFAULT_PRIORS, iterations=its,
                                                   identity_precision=precision or None)
                 times.append(time.perf_counter() - t0)
             joint = solutions[first].fit

@@ -291,8 +291,8 @@ def clip_identity(model: MorphableModel, observed: list[ObservedFrame], size: tu
     else:
         camera = Camera(float(focal), width / 2.0, height / 2.0, width, height)
     chosen = [found[j] for j in _keyframes(model, [observed[k].observation for k in found], camera, keyframes)]
-    views = [LandmarkView(observed[k].observation.landmarks, camera, observed[k].observation.weights,
-                          observed[k].observation.surface_points, f"{source}, frame {observed[k].index}") for k in chosen]
+    views = [dataclasses.replace(LandmarkView.of(observed[k].observation, f"{source}, frame {observed[k].index}"), camera=camera)
+             for k in chosen]
     solutions = solve_shared_identity(model, views)
     return ClipIdentity(camera, solutions[0].fit.alpha.astype(np.float64), float(np.median([s.noise for s in solutions])),
                         chosen, notes)

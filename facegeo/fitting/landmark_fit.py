@@ -38,10 +38,12 @@ from facegeo.morphable_model import MorphableModel
 if TYPE_CHECKING:
     import torch
 
-__all__ = ["fit_landmarks", "solve_landmarks", "LandmarkSolution", "LandmarkPrior", "estimate_noise", "assemble_fit", "damped_step", "initial_pose",
-           "CONVERGED_RELATIVE_DECREASE", "NOISE_TOLERANCE", "LANDMARK_FIT_THREADS", "rotation_step"]
+__all__ = ["fit_landmarks", "solve_landmarks", "LandmarkSolution", "LandmarkPrior", "estimate_noise", "assemble_fit", "damped_step",
+           "initial_pose", "T_UNIT_MM", "CONVERGED_RELATIVE_DECREASE", "NOISE_TOLERANCE", "LANDMARK_FIT_THREADS", "rotation_step"]
 
 CONVERGED_RELATIVE_DECREASE = 1e-4
+#: mm per unit of the translation parameter of a Levenberg–Marquardt step (keeps the system well scaled).
+T_UNIT_MM = 10.0
 #: The noise re-estimation stops once σ changes by less than this (relative, in log).
 NOISE_TOLERANCE = 0.1
 
@@ -112,13 +114,12 @@ def _levenberg_marquardt(problem: LandmarkProblem, state: dict[str, np.ndarray],
     model = problem.model
     n_id = model.n_id if stage.n_id is None else min(stage.n_id, model.n_id)
     n_exp = model.n_exp if stage.expression else 0
-    t_unit = 10.0  # mm per unit of the translation parameter (keeps the system well scaled)
     id_cols, exp_cols = slice(6, 6 + n_id), slice(6 + n_id, 6 + n_id + n_exp)
     inv_var = prior.exp_scale**-2
 
     def unpack(x: np.ndarray) -> tuple[np.ndarray, ...]:
         rot = state["rotation"] @ rotation_step(x[:3])
-        trans = state["translation"] + t_unit * x[3:6]
+        trans = state["translation"] + T_UNIT_MM * x[3:6]
         alpha = state["alpha"].copy()
         alpha[:n_id] += x[id_cols]
         delta = state["delta"].copy()
@@ -135,7 +136,7 @@ def _levenberg_marquardt(problem: LandmarkProblem, state: dict[str, np.ndarray],
     for _ in range(stage.iterations):
         problem.slide(state["rotation"], state["translation"], state["alpha"], state["delta"])
         r0, cost0 = cost(state["rotation"], state["translation"], state["alpha"], state["delta"])
-        jac = problem.jacobian(state["rotation"], state["translation"], state["alpha"], state["delta"], n_id, n_exp, t_unit) / noise
+        jac = problem.jacobian(state["rotation"], state["translation"], state["alpha"], state["delta"], n_id, n_exp, T_UNIT_MM) / noise
         # normal equations of the landmark residuals plus the (diagonal) priors; grad is half ∇E
         jtj = jac.T @ jac
         jtj[np.diag_indices(n)] += prior_precision
@@ -185,7 +186,7 @@ def estimate_noise(problem: LandmarkProblem, state: dict[str, np.ndarray], prior
     model = problem.model
     problem.slide(state["rotation"], state["translation"], state["alpha"], state["delta"])
     r = problem.residuals(state["rotation"], state["translation"], state["alpha"], state["delta"])
-    jac = problem.jacobian(state["rotation"], state["translation"], state["alpha"], state["delta"], model.n_id, model.n_exp, 10.0)
+    jac = problem.jacobian(state["rotation"], state["translation"], state["alpha"], state["delta"], model.n_id, model.n_exp, T_UNIT_MM)
     d = state["delta"]
     free = np.ones(jac.shape[1], dtype=bool)
     free[6 + model.n_id :] = (d > prior.lower + 1e-9) & (d < prior.upper - 1e-9)

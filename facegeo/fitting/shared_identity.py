@@ -46,12 +46,12 @@ from threadpoolctl import threadpool_limits
 
 from facegeo.camera import Camera
 from facegeo.errors import InputError, check_finite
-from facegeo.fitting.landmark_fit import (CONVERGED_RELATIVE_DECREASE, LANDMARK_FIT_THREADS, NOISE_TOLERANCE, LandmarkPrior,
-                                          LandmarkSolution, assemble_fit, damped_step, estimate_noise, rotation_step,
-                                          solve_landmarks)
+from facegeo.fitting.landmark_fit import (CONVERGED_RELATIVE_DECREASE, LANDMARK_FIT_THREADS, NOISE_TOLERANCE, T_UNIT_MM,
+                                          LandmarkPrior, LandmarkSolution, assemble_fit, damped_step, estimate_noise,
+                                          rotation_step, solve_landmarks)
 from facegeo.fitting.dense_term import DEFAULT_DENSE, DenseSettings
 from facegeo.fitting.landmark_problem import LandmarkProblem, SurfacePoints
-from facegeo.fitting.photo_fit import finish_photo_fit, observe_photo
+from facegeo.fitting.photo_fit import PhotoObservation, finish_photo_fit, observe_photo
 from facegeo.fitting.priors import DEFAULT_PRIORS, LANDMARK_SCHEDULE, FitPriors
 from facegeo.landmarks.face_identity import SAME_PERSON_DISTANCE
 from facegeo.model_files import load_model
@@ -62,10 +62,7 @@ if TYPE_CHECKING:
     from facegeo.landmarks.detectors import LandmarkDetector
     from facegeo.photo import Photo
 
-__all__ = ["LandmarkView", "solve_shared_identity", "fit_photos", "T_UNIT_MM"]
-
-#: mm per unit of the translation parameter (as the single-view fit: keeps the system well scaled).
-T_UNIT_MM = 10.0
+__all__ = ["LandmarkView", "solve_shared_identity", "fit_photos"]
 
 
 @dataclass(frozen=True)
@@ -79,6 +76,12 @@ class LandmarkView:
     weights: np.ndarray | None = None
     surface_points: SurfacePoints | None = None
     source: str = "<view>"
+
+    @classmethod
+    def of(cls, seen: PhotoObservation, source: str | None = None) -> LandmarkView:
+        """The view of an observed photo (:func:`~facegeo.fitting.photo_fit.observe_photo`): its
+        landmarks, camera, weights and dense points; ``source`` (default: the photo's) for errors."""
+        return cls(seen.landmarks, seen.camera, seen.weights, seen.surface_points, seen.source if source is None else source)
 
 
 def solve_shared_identity(model: MorphableModel, views: Sequence[LandmarkView], priors: FitPriors = DEFAULT_PRIORS,
@@ -282,9 +285,9 @@ def fit_photos(
     odd = odd_ones_out([face_descriptor(s.pixels, s.landmarks) for s in seen]) if len(seen) > 1 else []
     left_out = [f"{seen[k].source}: another person (face descriptor {distance:.2f} from the others', more than "
                 f"{SAME_PERSON_DISTANCE:g}): left out" for k, distance in odd]
-    kept = [s for k, s in enumerate(seen) if k not in {k for k, _ in odd}]
-    solutions = solve_shared_identity(model, [LandmarkView(s.landmarks, s.camera, s.weights, s.surface_points, s.source)
-                                              for s in kept], priors)
+    others = {k for k, _ in odd}
+    kept = [s for k, s in enumerate(seen) if k not in others]
+    solutions = solve_shared_identity(model, [LandmarkView.of(s) for s in kept], priors)
     fits = [finish_photo_fit(s, solution, photometric) for s, solution in zip(kept, solutions)]
     for fit in fits:
         fit.info.setdefault("shared_identity", {})["left_out"] = [seen[k].source for k, _ in odd]
