@@ -26,12 +26,10 @@ import numpy as np
 from facegeo.errors import InputError
 
 __all__ = ["FitOptions", "ReconstructOptions", "TrackOptions", "JobRecord", "fit_into_folder", "fit_one_person_into_folder",
-           "reconstruct_into_folder", "track_into_folder", "loaded_resources", "photo_camera", "FIT_FILES", "TRACK_FILES", "DISPLACEMENT_BAKE_RULE"]
+           "reconstruct_into_folder", "track_into_folder", "loaded_resources", "photo_camera", "FIT_FILES", "DISPLACEMENT_BAKE_RULE"]
 
 #: The files ``fit_into_folder`` writes.
 FIT_FILES = ("fit.json", "mesh.obj", "overlay.png")
-#: The files ``track_into_folder`` writes.
-TRACK_FILES = ("take.csv", "track.json")
 
 #: When displacement is baked into the exported geometry (see :func:`reconstruct_into_folder`).
 DISPLACEMENT_BAKE_RULE = (
@@ -490,8 +488,12 @@ def track_into_folder(video: str | Path, output: str | Path, options: TrackOptio
         track = track_frames(frames, model, options.landmarks, options.focal, options.keyframes, report, str(video))
         if options.smooth:
             track.frames = smooth_track(track.frames, *model.expression_range)
-        found = [k for k, f in enumerate(track.frames) if f.found]
-        nearest = [found[int(np.argmin([abs(j - k) for j in found]))] for k in range(len(track.frames))]
+        found = np.flatnonzero([f.found for f in track.frames])
+        # each frame's nearest frame with a face (itself where it has one; the earlier on a tie)
+        after = np.minimum(np.searchsorted(found, np.arange(len(track.frames))), len(found) - 1)
+        before = np.maximum(after - 1, 0)
+        nearest = np.where(np.arange(len(track.frames)) - found[before] <= found[after] - np.arange(len(track.frames)),
+                           found[before], found[after])
         naming = target_naming(model.expression_names, "arkit")
         model_weights = np.stack([track.frames[j].delta for j in nearest]).astype(np.float64)
         targets = np.clip(naming.target_weights(model_weights), 0.0, 1.0)
@@ -530,20 +532,16 @@ def _animated_asset(video: str | Path, options: TrackOptions, model: Any, track:
     ``asset/``, ``face.glb`` and ``face.usdz`` with the take's keys (one a frame) and
     ``preview.png`` (the keyframe beside the asset from the front, three-quarter and profile).
     Returns what ``track.json`` records of it."""
-    import dataclasses as dc
-
     from facegeo.camera import euler_from_rotation, project
     from facegeo.export.asset_io import write_asset_files
     from facegeo.export.textures import TextureFiles
     from facegeo.export.writers import export_asset
-    from facegeo.fitting.landmark_fit import solve_landmarks
     from facegeo.fitting.photo_fit import finish_photo_fit, observe_photo
-    from facegeo.fitting.priors import DEFAULT_PRIORS
     from facegeo.image_files import png_bytes
     from facegeo.photo import Photo
     from facegeo.pipeline import reconstruct_with_fit
     from facegeo.texturing.preview import relit_preview
-    from facegeo.tracking import TRACK_STAGE, SolveStart
+    from facegeo.tracking import SolveStart, solve_frame
     from facegeo.video import open_video
 
     keys = [f for f in track.frames if f.keyframe]
@@ -559,9 +557,9 @@ def _animated_asset(video: str | Path, options: TrackOptions, model: Any, track:
     photo = Photo(frame.image, f"{video} (frame {frame.index})", 1.0, (frame.image.shape[1], frame.image.shape[0]))
     begin = time.perf_counter()
     seen = observe_photo(photo, model, None, options.landmarks, track.camera)
-    start = SolveStart(frontal.rotation, frontal.translation, track.alpha.astype(np.float64), frontal.delta)
-    priors = dc.replace(DEFAULT_PRIORS, noise_rounds=0)
-    solution = solve_landmarks(model, seen.landmarks, track.camera, seen.weights, (TRACK_STAGE,), priors, start, seen.surface_points)
+    alpha = track.alpha.astype(np.float64)
+    solution = solve_frame(model, seen, track.camera, alpha, track.noise,
+                           SolveStart(frontal.rotation, frontal.translation, alpha, frontal.delta))
     fitted = finish_photo_fit(seen, solution, photometric=True)
     asset, result = reconstruct_with_fit(photo, model, backend="default", detector=options.landmarks,
                                          fitted=(fitted, time.perf_counter() - begin))

@@ -35,16 +35,17 @@ import numpy as np
 from facegeo.camera import Camera, euler_from_rotation
 from facegeo.errors import InputError, NoFaceError
 from facegeo.fitting.dense_term import DEFAULT_DENSE
-from facegeo.fitting.landmark_fit import initial_pose, solve_landmarks
+from facegeo.fitting.landmark_fit import LandmarkSolution, initial_pose, solve_landmarks
 from facegeo.fitting.landmark_problem import SurfacePoints
 from facegeo.fitting.photo_fit import PhotoObservation, observe_photo
 from facegeo.fitting.priors import DEFAULT_PRIORS, LandmarkStage
 from facegeo.fitting.shared_identity import LandmarkView, solve_shared_identity
 from facegeo.landmarks.detectors import get_detector
+from facegeo.landmarks.scheme import inter_ocular_distance
 from facegeo.morphable_model import MorphableModel
 
 __all__ = ["TrackedFrame", "Track", "ObservedFrame", "ClipIdentity", "track_frames", "observe_frames", "clip_identity",
-           "track_observed", "smooth_track", "SolveStart", "TRACK_STAGE", "KEYFRAMES", "FOLLOW_MARGIN", "POSE_WINDOW",
+           "track_observed", "solve_frame", "smooth_track", "SolveStart", "TRACK_STAGE", "KEYFRAMES", "FOLLOW_MARGIN", "POSE_WINDOW",
            "WEIGHT_WINDOW", "IDENTITY_CHECK_EVERY"]
 
 #: The per-frame solve: pose and expression, identity fixed (no identity columns), warm-started.
@@ -92,10 +93,12 @@ class TrackedFrame:
 @dataclass
 class Track:
     """A tracked clip: the identity ``alpha`` (n_id,) float32 shared by every frame, the clip's
-    ``camera``, the ``frames`` in order, ``timings`` (s by stage) and ``notes``."""
+    ``camera`` and landmark ``noise`` (inter-ocular units, :class:`ClipIdentity`), the ``frames``
+    in order, ``timings`` (s by stage) and ``notes``."""
 
     alpha: np.ndarray
     camera: Camera
+    noise: float
     frames: list[TrackedFrame]
     timings: dict[str, float] = field(default_factory=dict)
     notes: list[str] = field(default_factory=list)
@@ -159,7 +162,7 @@ def track_frames(frames: Iterable[Any], model: MorphableModel, detector: str = "
     start = time.perf_counter()
     tracked = track_observed(model, observed, shared)
     timings["track"] = time.perf_counter() - start
-    return Track(shared.alpha.astype(np.float32), shared.camera, tracked, timings, shared.notes)
+    return Track(shared.alpha.astype(np.float32), shared.camera, shared.noise, tracked, timings, shared.notes)
 
 
 def observe_frames(frames: Iterable[Any], model: MorphableModel, detector: str = "hybrid",
@@ -233,8 +236,6 @@ def _jumped(previous: np.ndarray | None, landmarks: np.ndarray) -> bool:
     cut). False without a previous face."""
     if previous is None:
         return False
-    from facegeo.landmarks.scheme import inter_ocular_distance
-
     before, now = inter_ocular_distance(previous), inter_ocular_distance(landmarks)
     shift = float(np.linalg.norm(np.nanmean(landmarks, axis=0) - np.nanmean(previous, axis=0)))
     return not (before > 0 and 0.8 < now / before < 1.25 and shift < 0.25 * before)
@@ -304,7 +305,6 @@ def track_observed(model: MorphableModel, observed: list[ObservedFrame], shared:
     docstring, step 4), ``stage`` the per-frame solve (its ``n_id`` must be 0: the identity stays)."""
     if stage.n_id != 0:
         raise InputError("<argument>", "stage", "a stage that leaves the identity out (n_id 0)", repr(stage.n_id))
-    priors = dataclasses.replace(DEFAULT_PRIORS, noise=shared.noise, noise_rounds=0)
     out: list[TrackedFrame] = []
     previous = None
     for k, frame in enumerate(observed):
@@ -313,14 +313,24 @@ def track_observed(model: MorphableModel, observed: list[ObservedFrame], shared:
             out.append(TrackedFrame(frame.index, frame.time_s, False, note=frame.note))
             previous = None
             continue
-        if previous is None:
-            rotation, translation = initial_pose(model, obs.landmarks, shared.camera)
-            previous = SolveStart(rotation, translation, shared.alpha, np.zeros(model.n_exp))
-        fit = solve_landmarks(model, obs.landmarks, shared.camera, obs.weights, (stage,), priors, previous, obs.surface_points).fit
+        fit = solve_frame(model, obs, shared.camera, shared.alpha, shared.noise, previous, stage).fit
         previous = SolveStart(fit.rotation, fit.translation, shared.alpha, fit.delta)
         out.append(TrackedFrame(frame.index, frame.time_s, True, fit.rotation, fit.translation, fit.delta,
                                 float(fit.landmark_rms_px), float(fit.landmark_rms_percent_iod), k in shared.keyframes))
     return out
+
+
+def solve_frame(model: MorphableModel, seen: PhotoObservation, camera: Camera, alpha: np.ndarray, noise: float,
+                start: SolveStart | None = None, stage: LandmarkStage = TRACK_STAGE) -> LandmarkSolution:
+    """One frame's pose and expression with the clip's identity ``alpha`` (n_id,) fixed, in the
+    clip's ``camera``, at its landmark ``noise`` (inter-ocular units, no re-estimation), from
+    ``start`` (None: solvePnP on the mean shape, δ = 0): the per-frame solve of
+    :func:`track_observed`, and of a keyframe fitted again for the clip's asset."""
+    if start is None:
+        rotation, translation = initial_pose(model, seen.landmarks, camera)
+        start = SolveStart(rotation, translation, np.asarray(alpha, np.float64), np.zeros(model.n_exp))
+    priors = dataclasses.replace(DEFAULT_PRIORS, noise=noise, noise_rounds=0)
+    return solve_landmarks(model, seen.landmarks, camera, seen.weights, (stage,), priors, start, seen.surface_points)
 
 
 @dataclass(frozen=True)
@@ -386,7 +396,7 @@ def smooth_track(frames: list[TrackedFrame], lower: np.ndarray, upper: np.ndarra
             rotations = (reference * Rotation.from_rotvec(vectors)).as_matrix().astype(np.float32)
             translations = median_filter(np.stack([np.asarray(f.translation, np.float64) for f in run]), size=(POSE_WINDOW, 1),
                                          mode="nearest").astype(np.float32)
-            for j, f in enumerate(run):
+            for j in range(len(run)):
                 out[k + j] = dataclasses.replace(out[k + j], rotation=rotations[j], translation=translations[j])
         if len(run) >= WEIGHT_WINDOW:
             weights = savgol_filter(np.stack([np.asarray(f.delta, np.float64) for f in run]), WEIGHT_WINDOW, 2, axis=0, mode="interp")
