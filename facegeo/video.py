@@ -177,16 +177,13 @@ def _empty_range(source: str, start: float, end: float, fps: float, count: int |
     return InputError(source, "--start/--end", f"a range holding at least one frame (frames every {1 / fps:g} s)", f"none in {span}")
 
 
-def _frames(first: Frame, rest: Iterator[tuple[int, np.ndarray]], fps: float, stop: int | None, every: int,
-            close: Callable[[], None]) -> Iterator[Frame]:
-    """The kept frames: ``first``, then every ``every``-th index of ``rest`` before ``stop``."""
+def _frames(first: Frame, rest: Iterator[tuple[int, np.ndarray]], fps: float, close: Callable[[], None]) -> Iterator[Frame]:
+    """The kept frames: ``first``, then ``rest``'s (each source's ``rest`` yields only the kept
+    indices, every ``every``-th before the range's end), the source closed at the end."""
     try:
         yield first
         for index, image in rest:
-            if stop is not None and index >= stop:
-                return
-            if (index - first.index) % every == 0:
-                yield Frame(index, index / fps, image)
+            yield Frame(index, index / fps, image)
     finally:
         close()
 
@@ -260,7 +257,7 @@ def _open_capture(source: str, p: Path, start: float, end: float, every: int,
                 return
             yield index, _rgb(cv2, bgr)
 
-    return info, _frames(Frame(first, first / fps, image), rest(), fps, stop, every, cap.release)
+    return info, _frames(Frame(first, first / fps, image), rest(), fps, cap.release)
 
 
 def _seek_and_read(cap: Any, first: int) -> np.ndarray | None:
@@ -349,7 +346,7 @@ def _open_gif(source: str, p: Path, start: float, end: float, every: int,
             except Exception:  # a corrupt frame mid-way: the clip ends there
                 return
 
-    return info, _frames(Frame(first, first / fps, image), rest(), fps, stop, every, im.close)
+    return info, _frames(Frame(first, first / fps, image), rest(), fps, im.close)
 
 
 def _gif_frame(im: Any, index: int, source: str) -> np.ndarray:
@@ -401,4 +398,4 @@ def _open_folder(source: str, p: Path, start: float, end: float, every: int,
                                  f"({files[first].name})", f"{frame.shape[1]}x{frame.shape[0]} px")
             yield index, frame
 
-    return info, _frames(Frame(first, first / fps, image), rest(), fps, stop, every, lambda: None)
+    return info, _frames(Frame(first, first / fps, image), rest(), fps, lambda: None)

@@ -128,15 +128,17 @@ def check_arguments(args: argparse.Namespace) -> None:
         raise InputError(COMMAND_LINE, "--refine", "--regressor CKPT with it", "no --regressor")
     if getattr(args, "weights", None) is not None and getattr(args, "backend", "diffusion") != "diffusion":
         raise InputError(COMMAND_LINE, "--weights", "--backend diffusion", f"--backend {args.backend}")
-    if isinstance(getattr(args, "photo", None), list) and not wants_batch(args):
+    one_person = getattr(args, "one_person", False)  # several photos into one folder, not a batch
+    if isinstance(getattr(args, "photo", None), list) and not wants_batch(args) and not one_person:
         args.photo = args.photo[0]  # one photo, no batch option: the single-photo command
-    if getattr(args, "output_folder", False) and not wants_batch(args):  # a batch checks its OUT itself
+    if getattr(args, "output_folder", False) and (one_person or not wants_batch(args)):  # a batch checks its OUT itself
         check_output_location(args.output, folder=True, replace=True)
         out = Path(args.output).resolve()
         for name, value in vars(args).items():  # facegeo replaces files in OUT: it must not hold an input
-            if name != "output" and isinstance(value, Path) and value.exists() and out in value.resolve().parents:
-                raise InputError(COMMAND_LINE, "-o", "an output folder that does not hold the inputs (facegeo replaces files in it)",
-                                 f"{args.output}, which holds {value}")
+            for path in value if isinstance(value, list) else [value]:
+                if name != "output" and isinstance(path, Path) and path.exists() and out in path.resolve().parents:
+                    raise InputError(COMMAND_LINE, "-o", "an output folder that does not hold the inputs (facegeo replaces files in it)",
+                                     f"{args.output}, which holds {path}")
 
 
 def add_photo_arguments(parser: argparse.ArgumentParser, many: bool = False) -> None:

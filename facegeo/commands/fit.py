@@ -5,11 +5,14 @@ from __future__ import annotations
 
 import argparse
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING
 
 from facegeo.commands.arguments import (Command, add_batch_arguments, add_fit_arguments, add_photo_arguments,
                                        add_regressor_arguments, wants_batch)
 from facegeo.commands.batch import run_batch
+
+if TYPE_CHECKING:
+    from facegeo.jobs import FitOptions
 
 __all__ = ["COMMANDS"]
 
@@ -47,17 +50,16 @@ def _run(args: argparse.Namespace) -> int | None:
     return None
 
 
-def _run_one_person(args: argparse.Namespace, options: Any) -> None:
-    """``fit --one-person A B ... -o OUT``: the photos as given (no folders or manifests)."""
+def _run_one_person(args: argparse.Namespace, options: FitOptions) -> None:
+    """``fit --one-person A B ... -o OUT``: the photos as given (no folders or manifests; ``-o``
+    checked with the other commands' by ``check_arguments``)."""
     from facegeo.commands.arguments import COMMAND_LINE
     from facegeo.errors import InputError
     from facegeo.jobs import fit_one_person_into_folder
-    from facegeo.staged_output import check_output_location
 
-    photos = args.photo if isinstance(args.photo, list) else [args.photo]
+    photos = args.photo
     if len(photos) < 2 or any(Path(p).is_dir() for p in photos):
         raise InputError(COMMAND_LINE, "--one-person", "two or more photo files of the person", " ".join(map(str, photos)))
-    check_output_location(args.output, folder=True, replace=True)
     record = fit_one_person_into_folder(photos, args.output, options)
     for note in record.notes:
         print(f"note: {note}")

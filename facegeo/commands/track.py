@@ -5,7 +5,6 @@ person's asset animated by it, through :func:`facegeo.jobs.track_into_folder` (`
 from __future__ import annotations
 
 import argparse
-import math
 import sys
 from pathlib import Path
 
@@ -42,12 +41,7 @@ def _arguments(parser: argparse.ArgumentParser) -> None:
 def _run(args: argparse.Namespace) -> None:
     from facegeo.jobs import TrackOptions, track_into_folder
 
-    for name, value in (("--start", args.start), ("--end", args.end)):
-        if value is not None and not (math.isfinite(value) and value >= 0):
-            raise InputError(COMMAND_LINE, name, "a time in seconds >= 0", str(value))
-    if args.every < 1:
-        raise InputError(COMMAND_LINE, "--every", "an integer >= 1", str(args.every))
-    if args.keyframes < 1:
+    if args.keyframes < 1:  # (--start, --end and --every are checked by facegeo.video.open_video, naming the video)
         raise InputError(COMMAND_LINE, "--keyframes", "an integer >= 1", str(args.keyframes))
     options = TrackOptions(model=args.model, landmarks=args.landmarks, focal=args.focal, start_s=args.start, end_s=args.end,
                            every=args.every, keyframes=args.keyframes, asset=not args.no_asset,
