@@ -43,7 +43,7 @@ def occluder_fringe(lin: np.ndarray, shading: np.ndarray, w: np.ndarray, inner: 
     near = np.flatnonzero(((w > 0) & skin_texels(ctx) & (inner < reach)).ravel())
     outlier = np.zeros(w.shape, np.float32)
     outlier.reshape(-1)[near] = mahalanobis_squared(log_delit(near), mean, cov) > chi2_quantile(settings.fringe_significance, 3)
-    return np.clip(gaussian_blur(outlier, max(1.0, ctx.size / 512.0)) * 2.0, 0.0, 1.0).astype(np.float32)
+    return _feathered(outlier, ctx)
 
 
 def grey_fringe(lin: np.ndarray, shading: np.ndarray, w: np.ndarray, inner: np.ndarray, fit_mask: np.ndarray,
@@ -76,4 +76,10 @@ def grey_fringe(lin: np.ndarray, shading: np.ndarray, w: np.ndarray, inner: np.n
     # skin does not end on a darker ramp that the fill's blend by reliability turns into a line
     lo, hi = settings.fringe_soft_sigmas, float(np.sqrt(chi2_quantile(settings.fringe_significance, 1)))
     outlier = np.where(near, smoothstep((np.abs(departure) / spread - lo) / max(hi - lo, 1e-6)), 0.0).astype(np.float32)
+    return _feathered(outlier, ctx)
+
+
+def _feathered(outlier: np.ndarray, ctx: TextureContext) -> np.ndarray:
+    """(S, S) float32 in [0, 1]: ``outlier`` (S, S) spread over S/512 texels (σ, at least one)
+    and doubled, so that a fringe's whole width is taken, not its core."""
     return np.clip(gaussian_blur(outlier, max(1.0, ctx.size / 512.0)) * 2.0, 0.0, 1.0).astype(np.float32)
