@@ -53,7 +53,7 @@ from facegeo.fitting.dense_term import DEFAULT_DENSE, DenseSettings
 from facegeo.fitting.landmark_problem import LandmarkProblem, SurfacePoints
 from facegeo.fitting.photo_fit import PhotoObservation, finish_photo_fit, observe_photo
 from facegeo.fitting.priors import DEFAULT_PRIORS, LANDMARK_SCHEDULE, FitPriors
-from facegeo.landmarks.face_identity import SAME_PERSON_DISTANCE
+from facegeo.landmarks.face_identity import SAME_PERSON_DISTANCE, face_descriptor, odd_ones_out
 from facegeo.model_files import load_model
 from facegeo.morphable_model import MorphableModel
 
@@ -277,8 +277,6 @@ def fit_photos(
         raise InputError("<photos>", "photos", "at least one photo", "none")
     if cameras is not None and len(cameras) != len(images):
         raise InputError("<photos>", "cameras", f"one per photo ({len(images)})", str(len(cameras)))
-    from facegeo.landmarks.face_identity import face_descriptor, odd_ones_out
-
     model = load_model() if model is None else model
     seen = [observe_photo(image, model, None, detector, None if cameras is None else cameras[k], dense)
             for k, image in enumerate(images)]
