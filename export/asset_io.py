@@ -47,7 +47,7 @@ from facegeo.image_files import read_png_file
 from facegeo.mesh_io import obj_text, read_obj
 from facegeo.staged_output import StagedOutput
 
-__all__ = ["save_asset", "write_asset_files", "load_asset", "ASSET_FILE", "ASSET_FORMAT", "ASSET_VERSION"]
+__all__ = ["save_asset", "write_asset_files", "write_asset_geometry", "load_asset", "ASSET_FILE", "ASSET_FORMAT", "ASSET_VERSION"]
 
 ASSET_FILE = "asset.json"
 ASSET_FORMAT = "facegeo-asset"
@@ -66,16 +66,19 @@ def save_asset(asset: Asset, folder: str | os.PathLike[str], *, linear_bits: int
 
 
 def write_asset_files(asset: Asset, folder: str | os.PathLike[str], *, linear_bits: int = 16,
-                      texture_files: TextureFiles | None = None) -> dict[str, Any]:
+                      texture_files: TextureFiles | None = None, geometry_record: dict[str, Any] | None = None) -> dict[str, Any]:
     """Write the asset's files into an existing ``folder`` (not atomic: for use inside a
     :class:`~facegeo.staged_output.StagedOutput`). ``texture_files``: the maps' PNG files shared
-    with the scenes written beside the folder (default: made here). Returns the ``asset.json``
-    content."""
+    with the scenes written beside the folder (default: made here). ``geometry_record``: what
+    :func:`write_asset_geometry` returned for this asset's geometry in this folder (those files
+    are then not written again). Returns the ``asset.json`` content."""
     if not isinstance(asset, Asset):
         raise InputError("<asset>", "asset", "a facegeo.asset.Asset", type(asset).__name__)
     asset.validate()  # again: the maps may have been changed since construction
     out = Path(folder)
     files = TextureFiles() if texture_files is None else texture_files
+    if geometry_record is None:
+        geometry_record = write_asset_geometry(asset, out, linear_bits=linear_bits, texture_files=files)
     doc: dict[str, Any] = {
         "format": ASSET_FORMAT,
         "version": ASSET_VERSION,
@@ -83,21 +86,11 @@ def write_asset_files(asset: Asset, folder: str | os.PathLike[str], *, linear_bi
         "units": "mm",
         "up_axis": "Y",
         "uv_origin": "bottom-left",
-        **_write_surface(asset, out, "", linear_bits, files),
+        "mesh": _MESH_FILE,
+        "maps": _write_maps(asset, out, "", linear_bits, files),
+        "constants": _constants(asset),
+        **geometry_record,
     }
-    if asset.face_triangles is not None:
-        doc["face_triangles"] = _ranges(asset.face_triangles)
-    if asset.parts:
-        (out / _PARTS_DIR).mkdir(exist_ok=True)
-        doc["parts"] = [{"name": part.name, **_write_surface(part, out, f"{_PARTS_DIR}/{part.name}_", linear_bits, files)}
-                        for part in asset.parts]
-    shaped = [("", asset.blendshapes)] + [(part.name, part.blendshapes) for part in asset.parts]
-    shaped = [(surface, shapes) for surface, shapes in shaped if shapes is not None]
-    if shaped:
-        first = shaped[0][1]
-        doc["blendshapes"] = {"file": _BLENDSHAPES_FILE, "names": list(first.names),
-                              "weights": [float(w) for w in first.weights], "surfaces": [surface for surface, _ in shaped]}
-        _write_blendshapes(out / _BLENDSHAPES_FILE, shaped)
     doc["metadata"] = asset.metadata
     try:
         text = json.dumps(doc, indent=1, allow_nan=False)
@@ -107,9 +100,35 @@ def write_asset_files(asset: Asset, folder: str | os.PathLike[str], *, linear_bi
     return doc
 
 
-def _write_surface(asset: Asset, out: Path, prefix: str, linear_bits: int, files: TextureFiles) -> dict[str, Any]:
-    """Write one surface's mesh and maps as ``<prefix>mesh.obj``, ``<prefix><map>.png``; returns
-    its ``mesh``, ``maps`` and ``constants`` records."""
+def write_asset_geometry(asset: Asset, folder: str | os.PathLike[str], *, linear_bits: int = 16,
+                         texture_files: TextureFiles | None = None) -> dict[str, Any]:
+    """Write what of the asset folder does not depend on the skin's maps, constants or metadata
+    into an existing ``folder``: ``mesh.obj``, the parts (meshes and maps) and
+    ``blendshapes.npz`` (``facegeo reconstruct`` writes them while the texture stages run).
+    Returns their ``asset.json`` records (``face_triangles``, ``parts``, ``blendshapes``) for
+    :func:`write_asset_files`."""
+    out = Path(folder)
+    files = TextureFiles() if texture_files is None else texture_files
+    (out / _MESH_FILE).write_text(obj_text(asset.vertices, asset.triangles, asset.uv, asset.uv_triangles))
+    record: dict[str, Any] = {}
+    if asset.face_triangles is not None:
+        record["face_triangles"] = _ranges(asset.face_triangles)
+    if asset.parts:
+        (out / _PARTS_DIR).mkdir(exist_ok=True)
+        record["parts"] = [{"name": part.name, **_write_surface(part, out, f"{_PARTS_DIR}/{part.name}_", linear_bits, files)}
+                           for part in asset.parts]
+    shaped = [("", asset.blendshapes)] + [(part.name, part.blendshapes) for part in asset.parts]
+    shaped = [(surface, shapes) for surface, shapes in shaped if shapes is not None]
+    if shaped:
+        first = shaped[0][1]
+        record["blendshapes"] = {"file": _BLENDSHAPES_FILE, "names": list(first.names),
+                                 "weights": [float(w) for w in first.weights], "surfaces": [surface for surface, _ in shaped]}
+        _write_blendshapes(out / _BLENDSHAPES_FILE, shaped)
+    return record
+
+
+def _write_maps(asset: Asset, out: Path, prefix: str, linear_bits: int, files: TextureFiles) -> dict[str, Any]:
+    """Write one surface's maps as ``<prefix><map>.png``; returns their records."""
     maps: dict[str, Any] = {}
     for name in MAP_NAMES:
         if name not in asset.maps:
@@ -119,10 +138,20 @@ def _write_surface(asset: Asset, out: Path, prefix: str, linear_bits: int, files
         file = f"{prefix}{name}.png"
         (out / file).write_bytes(data)
         maps[name] = {"file": file, **encoding, "shape": list(asset.maps[name].shape)}
+    return maps
+
+
+def _constants(asset: Asset) -> dict[str, Any]:
+    return {k: (list(map(float, v)) if np.ndim(v) else float(v)) for k, v in asset.constants.items()}
+
+
+def _write_surface(asset: Asset, out: Path, prefix: str, linear_bits: int, files: TextureFiles) -> dict[str, Any]:
+    """Write one part's mesh and maps as ``<prefix>mesh.obj``, ``<prefix><map>.png``; returns
+    its ``mesh``, ``maps`` and ``constants`` records."""
+    maps = _write_maps(asset, out, prefix, linear_bits, files)
     mesh = f"{prefix}{_MESH_FILE}"
     (out / mesh).write_text(obj_text(asset.vertices, asset.triangles, asset.uv, asset.uv_triangles))
-    constants = {k: (list(map(float, v)) if np.ndim(v) else float(v)) for k, v in asset.constants.items()}
-    return {"mesh": mesh, "maps": maps, "constants": constants}
+    return {"mesh": mesh, "maps": maps, "constants": _constants(asset)}
 
 
 def _write_blendshapes(path: Path, shaped: list[tuple[str, Blendshapes]]) -> None:

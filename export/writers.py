@@ -16,7 +16,7 @@ from facegeo.errors import InputError
 
 if TYPE_CHECKING:
     from facegeo.export.live_link import ArkitTake
-    from facegeo.export.scene import SceneContents
+    from facegeo.export.scene import SceneContents, SceneGeometry
     from facegeo.export.textures import TextureFiles
 
 __all__ = ["export_asset", "export_scenes", "scene_writers", "FORMATS", "DEFAULT_FORMATS"]
@@ -107,12 +107,15 @@ def scene_writers(
     blendshapes: str | None = "arkit",
     animation: ArkitTake | None = None,
     texture_files: TextureFiles | None = None,
+    geometries: list[SceneGeometry] | None = None,
 ) -> list[Callable[[], Path]]:
     """The work of :func:`export_scenes` (same arguments) as one task per output, each writing
     its file and returning its path, to run on several threads
     (:func:`facegeo.concurrency.run_concurrently`): every output is checked here, before any task
     runs; the first task that needs the shared surfaces computes them while any other that needs
-    them waits, and the texture files are shared through ``texture_files`` (thread-safe)."""
+    them waits, and the texture files are shared through ``texture_files`` (thread-safe).
+    ``geometries``: the asset's :func:`facegeo.export.scene.scene_geometries` with these options,
+    if already made (the surfaces then only add the materials)."""
     from facegeo.export.scene import scene_surfaces
     from facegeo.export.textures import TextureFiles
 
@@ -132,7 +135,8 @@ def scene_writers(
     def surfaces() -> list[tuple[str, SceneContents]]:
         with lock:
             if not computed:
-                computed.append(scene_surfaces(asset, level=level, maps=maps, uv_interpolation=uv_interpolation, blendshapes=blendshapes))
+                computed.append(scene_surfaces(asset, level=level, maps=maps, uv_interpolation=uv_interpolation, blendshapes=blendshapes,
+                                                   geometries=geometries))
             return computed[0]
 
     def writer(target: Path, fmt: str) -> Callable[[], Path]:

@@ -20,6 +20,10 @@ not survive a fork either: it is stopped (one thread) while forking and the call
 back. The child runs its OpenCV and BLAS pools on one thread (the caller keeps the other core),
 takes the default action on SIGINT and SIGTERM (it ends without a word; the caller reports the
 interruption), and must write no file; a caller that fails first kills it.
+A call forked with ``inbox=True`` also receives what the caller sends it later
+(:meth:`PendingCall.send`, :func:`facegeo.jobs.reconstruct_into_folder`'s export: it starts on
+the fit's geometry and receives the maps when the texture stages end): the function gets one more
+argument, ``receive``, that waits for the next object sent.
 os.fork by hand rather than a ProcessPoolExecutor: the executor's idle worker prints a traceback
 on Ctrl-C, and Python 3.11's executor cannot end a worker that is still working.
 """
@@ -30,7 +34,9 @@ import multiprocessing
 import os
 import pickle
 import signal
+import struct
 import sys
+import threading
 import traceback
 from collections.abc import Callable
 from typing import Any
@@ -60,9 +66,45 @@ class PendingCall:
     """A call under way in a forked child (:func:`fork_call`): collect it once with
     :meth:`result`, or :meth:`abandon` it."""
 
-    def __init__(self, pid: int, pipe: int):
-        self._pid, self._pipe = pid, pipe
+    def __init__(self, pid: int, pipe: int, inbox: int | None = None):
+        self._pid, self._pipe, self._inbox = pid, pipe, inbox
         self._reaped = False  # the child's exit status collected: its pid may belong to another process now
+        self._sending: list[threading.Thread] = []
+
+    def send(self, value: Any) -> None:
+        """Send ``value`` (it must pickle) to the child's ``receive`` (a call forked with
+        ``inbox=True``), on a thread of its own, so that this process goes on while the child
+        reads; a child that has ended meanwhile is reported by :meth:`result`, not here."""
+        if self._inbox is None:
+            raise RuntimeError("send: the call was forked without an inbox")
+        payload = pickle.dumps(value, protocol=pickle.HIGHEST_PROTOCOL)
+        inbox = self._inbox
+
+        def write() -> None:
+            try:
+                os.write(inbox, struct.pack("<Q", len(payload)))
+                view = memoryview(payload)
+                while view:
+                    view = view[os.write(inbox, view):]
+            except OSError:  # the child is gone (EPIPE): result() says how
+                pass
+
+        # one sender at a time, in order
+        previous = self._sending[-1] if self._sending else None
+        thread = threading.Thread(target=lambda: (previous.join() if previous else None, write()), daemon=True,
+                                  name="facegeo-send")
+        self._sending.append(thread)
+        thread.start()
+
+    def _close_inbox(self) -> None:
+        for thread in self._sending:
+            thread.join()
+        if self._inbox is not None:
+            try:
+                os.close(self._inbox)
+            except OSError:
+                pass
+            self._inbox = None
 
     def result(self) -> Any:
         """Wait for the child: the function's answer, or its exception raised here
@@ -70,11 +112,13 @@ class PendingCall:
         SIGTERM ended it: an interruption meant for the caller too, even where the caller's own
         handler missed it)."""
         chunks = []
+        self._close_inbox()  # after what was sent: a child that waits for more gets EOFError
         with os.fdopen(self._pipe, "rb") as pipe:
             while chunk := pipe.read(1 << 20):
                 chunks.append(chunk)
         _, status = os.waitpid(self._pid, 0)
         self._reaped = True
+        self._close_inbox()
         if not chunks:
             if os.WIFSIGNALED(status) and os.WTERMSIG(status) in (signal.SIGINT, signal.SIGTERM):
                 raise KeyboardInterrupt(f"the forked process ended {_ended(status)}")  # the user's interruption reached it
@@ -96,10 +140,32 @@ class PendingCall:
             pass
         os.waitpid(self._pid, 0)
         self._reaped = True
+        self._close_inbox()
         try:
             os.close(self._pipe)
         except OSError:  # result() had closed it
             pass
+
+
+def _receiver(inbox: int) -> Callable[[], Any]:
+    """The child's ``receive``: the next object sent through the pipe ``inbox`` (length-framed
+    pickles, :meth:`PendingCall.send`); EOFError once the caller has closed it."""
+
+    def read(size: int) -> bytes:
+        chunks, left = [], size
+        while left:
+            chunk = os.read(inbox, min(left, 1 << 22))
+            if not chunk:
+                raise EOFError("the caller sent nothing more")
+            chunks.append(chunk)
+            left -= len(chunk)
+        return b"".join(chunks)
+
+    def receive() -> Any:
+        (size,) = struct.unpack("<Q", read(8))
+        return pickle.loads(read(size))
+
+    return receive
 
 
 def _ended(status: int) -> str:
@@ -108,9 +174,11 @@ def _ended(status: int) -> str:
     return f"with exit status {os.WEXITSTATUS(status)}"
 
 
-def fork_call(function: Callable[..., Any], *args: Any) -> PendingCall:
+def fork_call(function: Callable[..., Any], *args: Any, inbox: bool = False) -> PendingCall:
     """Fork a child that runs ``function(*args)`` (check :func:`can_fork` first); the answer and
-    any exception must pickle."""
+    any exception must pickle. ``inbox``: call ``function(*args, receive)`` instead, where
+    ``receive()`` returns the next object the caller sends (:meth:`PendingCall.send`) and raises
+    EOFError once the caller can send no more."""
     # OpenCV's pthreads pool does not survive a fork: a child whose parent's pool threads were
     # waiting hangs for ever in its first parallel call or cv2.setNumThreads (a photo downscaled
     # by cv2.resize was enough). With one thread the pool is stopped, so the child inherits none
@@ -120,11 +188,13 @@ def fork_call(function: Callable[..., Any], *args: Any) -> PendingCall:
     if cv2 is not None:
         cv2.setNumThreads(1)
     read_end, write_end = os.pipe()
+    inbox_read, inbox_write = os.pipe() if inbox else (None, None)
     try:
         pid = os.fork()
     except BaseException:
-        for end in (read_end, write_end):
-            os.close(end)
+        for end in (read_end, write_end, inbox_read, inbox_write):
+            if end is not None:
+                os.close(end)
         pid = -1
         raise
     finally:
@@ -132,10 +202,15 @@ def fork_call(function: Callable[..., Any], *args: Any) -> PendingCall:
             cv2.setNumThreads(cv2_threads)
     if pid:
         os.close(write_end)
-        return PendingCall(pid, read_end)
+        if inbox_read is not None:
+            os.close(inbox_read)
+        return PendingCall(pid, read_end, inbox_write)
     code = 1
     try:  # the child: never returns into the caller's code
         os.close(read_end)
+        if inbox_write is not None:
+            os.close(inbox_write)
+            args = (*args, _receiver(inbox_read))
         for signum in (signal.SIGINT, signal.SIGTERM):
             signal.signal(signum, signal.SIG_DFL)
         from facegeo.concurrency import native_threads
@@ -147,6 +222,8 @@ def fork_call(function: Callable[..., Any], *args: Any) -> PendingCall:
             if not isinstance(error, FacegeoError):
                 error = RuntimeError(f"{getattr(function, '__name__', 'the call')} failed in a forked process:\n{traceback.format_exc()}")
             payload = pickle.dumps(("error", error))
+        if inbox_read is not None:  # a caller still sending gets EPIPE instead of waiting for a reader
+            os.close(inbox_read)
         with os.fdopen(write_end, "wb") as pipe:
             pipe.write(payload)
         code = 0

@@ -278,7 +278,7 @@ def fit_one_person_into_folder(photo_paths: list[str | Path], output: str | Path
 
 
 def reconstruct_into_folder(photo_path: str | Path, output: str | Path, options: ReconstructOptions | None = None,
-                            progress: Callable[[str], None] | None = None, fork_fit: bool = False) -> JobRecord:
+                            progress: Callable[[str], None] | None = None, fork: bool = False) -> JobRecord:
     """The whole pipeline on one photo, into ``output``: ``fit.json`` (the fit, stage timings, the
     texture report, the parts), the asset files (``asset.json`` + map PNGs, re-exportable with
     ``facegeo export``), ``skin_mask.png`` when MediaPipe's mesh found the face, one scene per
@@ -286,21 +286,21 @@ def reconstruct_into_folder(photo_path: str | Path, output: str | Path, options:
     photo beside the asset from the front, three-quarter and profile, textured and as clay).
     Displacement: :data:`DISPLACEMENT_BAKE_RULE`.
 
-    The export and preview stages write their files side by side on
-    :data:`facegeo.concurrency.EXPORT_WORKERS` threads (:func:`facegeo.concurrency.run_concurrently`:
-    the scenes, the asset folder, the preview, the skin mask; each map's PNG made once for all of
-    them, :class:`facegeo.export.textures.TextureFiles`); the record's ``export`` time ends when
-    the last export file is written, ``preview`` is the preview's own time, and the two overlap.
+    The export (:class:`facegeo.export_job.ExportJob`) begins on the fit's geometry and ends on
+    the maps, each map's PNG made once for the scenes and the asset folder; the preview and the
+    skin mask are made beside its end. The record's ``export`` time runs from the maps' hand-over
+    to the last export file written, ``preview`` is the preview's own time, and the two overlap.
 
     Args:
         options: default ``ReconstructOptions()``.
         progress: called with each stage's name as it starts (the pipeline's ``STAGES``, then
             ``export`` and ``preview``, which start together).
-        fork_fit: compute the skin mask and the fit in a forked child while this process imports
-            the texture stages and makes the model's UV raster and layout priors
-            (:mod:`facegeo.forked_call`; the single-photo command's choice),
-            where that helps (:func:`facegeo.forked_call.can_fork`, the default backend, no
-            regressor); the results are the same either way.
+        fork: where that helps (:func:`facegeo.forked_call.can_fork`, the default backend, no
+            regressor; the single-photo command's choice), compute the skin mask and the fit in
+            a forked child while this process imports the texture stages and makes the model's
+            UV raster and layout priors, and write the export in another, begun on the fit's
+            geometry while the texture stages run (:mod:`facegeo.forked_call`); the results are
+            the same either way.
     Raises:
         facegeo.errors.FacegeoError: bad photo or options, no face, failed fit checks, missing
             weights, an unwritable output, or another run writing into ``output``.
@@ -316,13 +316,10 @@ def reconstruct_into_folder(photo_path: str | Path, output: str | Path, options:
         backend = BACKENDS[options.backend](options.weights) if options.backend == "diffusion" else options.backend  # weights checked first
         model, predictor = loaded_resources(options.model, options.regressor, options.refine, options.landmarks)
         photo = load_photo(photo_path, max_side=options.max_side)
-        pending = (fork_call(_fit_and_skin, photo, str(photo_path), options)
-                   if fork_fit and backend == "default" and predictor is None and can_fork() else None)
+        forking = fork and backend == "default" and predictor is None and can_fork()
+        pending = fork_call(_fit_and_skin, photo, str(photo_path), options) if forking else None
         try:  # while the child fits: the texture stages' imports, the UV raster and the layout priors
-            from facegeo.concurrency import EXPORT_WORKERS, run_concurrently
-            from facegeo.export.asset_io import write_asset_files
-            from facegeo.export.textures import TextureFiles
-            from facegeo.export.writers import scene_writers
+            from facegeo.export_job import ExportJob, ExportPlan
             from facegeo.image_files import png_bytes
             from facegeo.pipeline import reconstruct_with_fit
             from facegeo.skin_mask import skin_mask_image
@@ -343,43 +340,36 @@ def reconstruct_into_folder(photo_path: str | Path, output: str | Path, options:
             if pending is not None:
                 pending.abandon()
             raise
-        asset, result = reconstruct_with_fit(photo, model, backend=backend, size=options.size, upscale=options.upscale,
-                                             maps=options.maps, detector=options.landmarks, skin=skin, progress=progress,
-                                             fitted=(fitted, fit_seconds))
-        timings = dict(asset.metadata["timings_s"])  # asset.json's stage timings, and fit.json's after export
-        files: list[str] = []
         with StagedOutput(output, replace=True) as stage:
-            if progress is not None:
-                progress("export")
+            jobs: list[ExportJob] = []
+            plan = ExportPlan(folder=stage.staging_dir, formats=tuple(options.formats), parts=options.parts, level=options.subdiv,
+                              bake_displacement=options.subdiv > 0 and "displacement" in options.maps,  # DISPLACEMENT_BAKE_RULE
+                              blendshapes=options.blendshape_names if options.blendshapes else None)
+            try:  # the export begins on the fit's geometry, in a child where forking helps, while the texture stages run here
+                asset, result = reconstruct_with_fit(
+                    photo, model, backend=backend, size=options.size, upscale=options.upscale, maps=options.maps,
+                    detector=options.landmarks, skin=skin, progress=progress, fitted=(fitted, fit_seconds),
+                    geometry_ready=lambda geometry: jobs.append(ExportJob(geometry, plan, fork=forking)))
+                timings = dict(asset.metadata["timings_s"])  # asset.json's stage timings, and fit.json's after export
+                if progress is not None:
+                    progress("export")
+                    if options.preview:
+                        progress("preview")
+                beside: list[tuple[str, Callable[[], Any]]] = []
                 if options.preview:
-                    progress("preview")
-            t = time.perf_counter()
-            spans: dict[str, tuple[float, float]] = {}
-
-            def timed(name: str, work: Callable[[], Any]) -> Callable[[], None]:
-                def task() -> None:
-                    begin = time.perf_counter()
-                    work()
-                    spans[name] = (begin, time.perf_counter())
-                return task
-
-            texture_files = TextureFiles()  # each map's PNG made once for the asset folder and the scenes
-            carried = [m for m in asset.maps if m != "displacement" or options.subdiv > 0]  # DISPLACEMENT_BAKE_RULE
-            scenes = scene_writers(asset.select(options.parts), [(stage.path(f"face.{fmt}"), fmt) for fmt in options.formats],
-                                   level=options.subdiv, maps=carried, blendshapes=options.blendshape_names if options.blendshapes else None,
-                                   texture_files=texture_files)
-            # the order measured best (RESULTS.md, "Issue 29: export"): the first scene (it computes the
-            # surfaces the others share) beside the asset folder, then the other scenes, the preview
-            tasks = [timed(f"scene {k}", write) for k, write in enumerate(scenes)]
-            tasks.insert(1, timed("asset", lambda: write_asset_files(asset, stage.staging_dir, texture_files=texture_files)))
-            if options.preview:
-                preview = stage.path("preview.png")
-                tasks.append(timed("preview", lambda: preview.write_bytes(png_bytes(relit_preview(photo.image, asset, result)))))
-            if skin is not None:
-                mask = stage.path("skin_mask.png")
-                tasks.append(timed("skin mask", lambda: mask.write_bytes(png_bytes(skin_mask_image(skin)))))
-            run_concurrently(tasks, EXPORT_WORKERS)
-            timings["export"] = max(end for name, (_, end) in spans.items() if name != "preview") - t
+                    preview = stage.path("preview.png")
+                    beside.append(("preview", lambda: preview.write_bytes(png_bytes(relit_preview(photo.image, asset, result)))))
+                if skin is not None:
+                    mask = stage.path("skin_mask.png")
+                    beside.append(("skin mask", lambda: mask.write_bytes(png_bytes(skin_mask_image(skin)))))
+                t = time.perf_counter()
+                spans = jobs[0].complete(asset, beside)
+            except BaseException:
+                for job in jobs:
+                    job.abandon()
+                raise
+            result.info.setdefault("notes", []).extend(jobs[0].notes)
+            timings["export"] = max(end for name, (_, end) in spans.items() if name not in ("preview", "skin mask")) - t
             if options.preview:
                 timings["preview"] = spans["preview"][1] - spans["preview"][0]
             timings["total"] = time.perf_counter() - start

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable, Iterable
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -34,8 +35,10 @@ from facegeo.uv import geometry_maps, rasterize_uv, unwrap
 
 __all__ = ["reconstruct", "reconstruct_with_fit", "BACKENDS", "STAGES"]
 
-#: The stages, in order, as reported to a progress callback and in ``metadata["timings_s"]``.
-STAGES = ("fit", "unwrap", "inpaint", "homogenise", "materials", "upscale", "parts")
+#: The stages, in order, as reported to a progress callback and in ``metadata["timings_s"]``
+#: (the parts need only the fit: with them the asset's geometry is complete before the texture
+#: stages, :func:`reconstruct_with_fit`'s ``geometry_ready``).
+STAGES = ("fit", "parts", "unwrap", "inpaint", "homogenise", "materials", "upscale")
 
 def reconstruct(image: np.ndarray | str | Path | Photo, model: MorphableModel | None = None, **options) -> Asset:
     """Reconstruct a textured face from one photo: :func:`reconstruct_with_fit` without the fit
@@ -60,6 +63,7 @@ def reconstruct_with_fit(
     parts: bool = True,
     fitter: Fitter = fit,
     fitted: tuple[Fit, float] | None = None,
+    geometry_ready: Callable[[Asset], None] | None = None,
 ) -> tuple[Asset, Fit]:
     """Reconstruct a textured face from one photo.
 
@@ -89,6 +93,9 @@ def reconstruct_with_fit(
         fitted: ``(fit, seconds)``: a fit of this photo already made (e.g. in a forked child,
             :func:`facegeo.jobs.reconstruct_into_folder`) and the seconds it took, reported as the
             ``fit`` stage's time; ``fitter`` is then not called.
+        geometry_ready: called, before the texture stages, with the asset without its maps,
+            constants and metadata (its geometry, parts and blendshapes: as in the asset
+            returned), e.g. to start writing the files that need no maps.
     Returns:
         ``(asset, fit)``: the asset in model space (upright, mm) with its maps, and the fit.
     """
@@ -120,6 +127,30 @@ def reconstruct_with_fit(
         timings["fit"] = time.perf_counter() - t
     else:
         result, timings["fit"] = fitted
+
+    t = stage("parts")
+    part_list, parts_report = [], {}
+    model_parts = load_parts(model) if parts else ()
+    if model_parts:
+        iris, parts_report = iris_colour(pixels, result.landmarks)
+        if iris is None:
+            result.info.setdefault("notes", []).append(parts_report["note"])
+        parts_report["iris_srgb_used"] = list(iris or DEFAULT_IRIS_SRGB)
+        part_list = part_assets(model_parts, model, result.alpha, result.delta, iris or DEFAULT_IRIS_SRGB)
+        parts_report["names"] = [p.name for p in part_list]
+    timings["parts"] = time.perf_counter() - t
+    geometry = Asset(
+        vertices=result.shape_vertices,
+        triangles=model.triangles,
+        uv=model.uv,
+        uv_triangles=model.uv_triangles,
+        name="face",
+        parts=part_list,
+        face_triangles=np.all(model.face_mask[model.triangles], axis=1),
+        blendshapes=model_blendshapes(model, result.delta),
+    )
+    if geometry_ready is not None:
+        geometry_ready(geometry)
 
     t = stage("unwrap")
     if skin is None:
@@ -158,30 +189,11 @@ def reconstruct_with_fit(
                 out[name] = np.clip(out[name], 0.0, 1.0)
     timings["upscale"] = time.perf_counter() - t
 
-    t = stage("parts")
-    part_list, parts_report = [], {}
-    model_parts = load_parts(model) if parts else ()
-    if model_parts:
-        iris, parts_report = iris_colour(pixels, result.landmarks)
-        if iris is None:
-            result.info.setdefault("notes", []).append(parts_report["note"])
-        parts_report["iris_srgb_used"] = list(iris or DEFAULT_IRIS_SRGB)
-        part_list = part_assets(model_parts, model, result.alpha, result.delta, iris or DEFAULT_IRIS_SRGB)
-        parts_report["names"] = [p.name for p in part_list]
-    timings["parts"] = time.perf_counter() - t
-
     constants = {name: value for name, value in backend.constants.items() if name not in out}
-    asset = Asset(
-        vertices=result.shape_vertices,
-        triangles=model.triangles,
-        uv=model.uv,
-        uv_triangles=model.uv_triangles,
+    asset = replace(
+        geometry,
         maps=out,
         constants=constants,
-        name="face",
-        parts=part_list,
-        face_triangles=np.all(model.face_mask[model.triangles], axis=1),
-        blendshapes=model_blendshapes(model, result.delta),
         metadata={
             "parts": parts_report,
             "model": model.name,

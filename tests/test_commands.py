@@ -61,7 +61,7 @@ def test_an_unknown_detector_is_one_usage_line(capsys):
 def test_reconstruct_passes_focal_to_the_job(tmp_path, monkeypatch, capsys):
     seen = {}
 
-    def job(photo, output, options, progress=None, fork_fit=False):
+    def job(photo, output, options, progress=None, fork=False):
         seen["options"] = options
         return JobRecord(str(photo), str(output), 1.0, 2.0, {"total": 0.0}, [], maps=["albedo"], map_size=64)
 
@@ -135,7 +135,7 @@ def test_a_reconstruction_imports_no_torch(tmp_path):
     """The whole ``facegeo reconstruct`` job (forked fit, preview) on the bundled photo at 256
     texels, in a fresh process."""
     code = (f"import sys; from facegeo.jobs import ReconstructOptions, reconstruct_into_folder; "
-            f"reconstruct_into_folder({PHOTO!r}, {str(tmp_path / 'out')!r}, ReconstructOptions(size=256), fork_fit=True); "
+            f"reconstruct_into_folder({PHOTO!r}, {str(tmp_path / 'out')!r}, ReconstructOptions(size=256), fork=True); "
             f"print([m for m in {HEAVY_FOR_A_RECONSTRUCTION!r} if m in sys.modules])")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
     assert out.strip() == "[]"

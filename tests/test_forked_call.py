@@ -221,3 +221,50 @@ def test_a_killed_forked_fit_is_fitted_again_in_the_main_process(tmp_path):
     assert proc.returncode == 0, err[-3000:]
     assert "note: the forked fit ended by signal SIGKILL without an answer; fitted again in the main process" in said
     assert {"fit.json", "asset.json", "face.glb", "face.usdz", "preview.png"} <= {p.name for p in out.iterdir()}
+
+
+INBOX = """
+import numpy as np
+from facegeo.forked_call import fork_call
+def work(x, receive):
+    first, second = receive(), receive()
+    try:
+        receive()
+    except EOFError:
+        return x + float(first.sum()), second, "no more"
+pending = fork_call(work, 1.0, inbox=True)
+pending.send(np.ones((1000, 1000, 3), np.float32))  # larger than a pipe's buffer
+pending.send("second")
+print(pending.result())
+def fails_first(receive):
+    raise ValueError("x" * 300000)  # an answer larger than a pipe's buffer, before reading anything
+pending = fork_call(fails_first, inbox=True)
+pending.send(np.ones((2000, 2000, 3), np.float32))
+try:
+    pending.result()
+except RuntimeError as error:
+    print("ValueError" in str(error))
+"""
+
+
+def test_what_the_caller_sends_reaches_the_child_in_order_and_a_child_that_fails_first_does_not_block_it():
+    assert _python(INBOX, timeout=60).splitlines() == ["(3000001.0, 'second', 'no more')", "True"]
+
+
+@pytest.mark.skipif(not Path("/proc/self/stat").exists(), reason="needs /proc")
+def test_ctrl_c_while_the_export_child_works_ends_all_with_one_line_and_no_files(tmp_path):
+    out = tmp_path / "out"
+    proc = subprocess.Popen([sys.executable, "-m", "facegeo.cli", "reconstruct", PHOTO, "-o", str(out)],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True)
+    seen: set[int] = set()
+    deadline = time.monotonic() + 120
+    while len(seen) < 2 and proc.poll() is None and time.monotonic() < deadline:  # the fit's child, then the export's
+        seen.update(_children(proc.pid))
+        time.sleep(0.01)
+    assert len(seen) == 2, "no forked export seen"
+    os.killpg(proc.pid, signal.SIGINT)
+    _, err = proc.communicate(timeout=120)
+    assert proc.returncode == 130
+    assert err.strip().splitlines() == ["facegeo: interrupted (SIGINT); no output written"]
+    assert not any(Path(f"/proc/{pid}").exists() for pid in seen)
+    assert not out.exists() and list(tmp_path.iterdir()) == []

@@ -84,7 +84,7 @@ def _run(args: argparse.Namespace) -> int | None:
         bars[0].set_postfix_str(stage)
         bars[0].update(1)
 
-    record = reconstruct_into_folder(args.photo, args.output, options, progress=progress, fork_fit=True)
+    record = reconstruct_into_folder(args.photo, args.output, options, progress=progress, fork=True)
     for bar in bars:
         bar.close()
     for note in record.notes:
