@@ -38,9 +38,10 @@ from pathlib import Path
 
 import numpy as np
 
+from facegeo.cache_dir import cache_dir as default_cache_dir
 from facegeo.errors import ModelFileError
 
-__all__ = ["ShapePredictor", "convert_predictor", "cached_predictor", "predictor_cache_dir", "CACHE_FORMAT"]
+__all__ = ["ShapePredictor", "convert_predictor", "cached_predictor", "CACHE_FORMAT"]
 
 #: Bumped when the cached arrays' layout changes, so an old cache is never read as a new one.
 CACHE_FORMAT = 1
@@ -289,12 +290,6 @@ def convert_predictor(path: str | Path) -> ShapePredictor:
 
 
 # ------------------------------------------------------------------------------------------ cache
-def predictor_cache_dir() -> Path:
-    """Where converted predictors are kept: ``$XDG_CACHE_HOME/facegeo`` or ``~/.cache/facegeo``."""
-    root = os.environ.get("XDG_CACHE_HOME", "").strip()
-    return (Path(root).expanduser() if root else Path.home() / ".cache") / "facegeo"
-
-
 def _stamp(path: Path) -> str:
     """A name for one install of the file ``path``: its path, size and modification time, hashed."""
     stat = path.stat()
@@ -354,7 +349,7 @@ def cached_predictor(path: str | Path, cache_dir: str | Path | None = None) -> S
     converted and stored there first when missing (:func:`convert_predictor`, ~2 s).
 
     The cache entry is a folder of ``.npy`` files under ``cache_dir`` (default
-    :func:`predictor_cache_dir`) keyed by the file's name and a digest of its content
+    :func:`facegeo.cache_dir.cache_dir`) keyed by the file's name and a digest of its content
     (:func:`_content_digest`), so reinstalling the same file reuses it; it is written to a temporary
     folder and renamed into place, so a reader never sees half of one, and then the file name's
     folders that no current key names (the earlier layout's, one per install) are removed. An
@@ -363,7 +358,7 @@ def cached_predictor(path: str | Path, cache_dir: str | Path | None = None) -> S
     source = Path(path)
     if not source.is_file():
         raise ModelFileError(source, "dlib shape predictor", "an existing .dat file", "no such file")
-    root = Path(cache_dir) if cache_dir is not None else predictor_cache_dir()
+    root = Path(cache_dir) if cache_dir is not None else default_cache_dir()
     digest, remembered = _content_digest(source, root)
     folder = root / f"dlib-predictor-v{CACHE_FORMAT}-{source.stem}-{digest}"
     if folder.is_dir() and (found := _load_cached(folder)) is not None:

@@ -15,7 +15,8 @@ inside or padded texels while 2^(k+1) ≤ n (k ≤ 2 for the default 8 at S = 10
 fills the whole square.
 
 :func:`rasterize_uv` caches its result per layout (a digest of the UV coordinates and UV
-triangles), size and padding, so the cost is paid once per layout.
+triangles), size and padding: in the process, and on disk (:mod:`facegeo.layout_cache`, with the
+dense views :data:`DISK_VIEWS`), so the cost is paid once per layout and code version.
 """
 
 from __future__ import annotations
@@ -23,12 +24,15 @@ from __future__ import annotations
 import hashlib
 import threading
 from collections import OrderedDict
+from collections.abc import Mapping
 from functools import cached_property
+from pathlib import Path
 
 import cv2
 import numpy as np
 
 from facegeo.errors import InputError
+from facegeo.layout_cache import entry_folder, load_entry, store_entry
 from facegeo.uv._triangles import triangle_fragments
 from facegeo.uv.texels import uv_to_texel
 
@@ -39,6 +43,12 @@ MAX_SIZE = 16384
 #: Rasters kept in the cache (least recently used dropped first), and the byte budget.
 CACHE_ENTRIES = 6
 CACHE_BYTES = 2 << 30
+#: The dense views kept in the disk cache with the per-texel arrays: those the pipeline reads
+#: (``triangle`` and ``barycentric``, 16 MB more at S = 1024, are built on first access).
+DISK_VIEWS = ("inside", "mask")
+
+#: The per-texel arrays of a :class:`UVRaster`, in its constructor's order.
+_COMPACT = ("texels", "texel_triangle", "texel_barycentric", "texel_inside")
 
 _CACHE: OrderedDict[tuple[str, int, int], "UVRaster"] = OrderedDict()
 _CACHE_LOCK = threading.Lock()
@@ -53,8 +63,8 @@ class UVRaster:
     """Which triangle covers each texel of an S × S UV map, with barycentric coordinates.
 
     The data are stored compactly for the N texels that have a triangle (inside or padded); the
-    dense (S, S) views are built on first access. All arrays are read-only (rasters are shared
-    through the cache).
+    dense (S, S) views are built on first access (or come with the raster: ``views``). All arrays
+    are read-only (rasters are shared through the cache).
 
     Attributes:
         size: S.
@@ -67,10 +77,14 @@ class UVRaster:
             closest point of the triangle).
         texel_inside: (N,) bool, True where the texel centre is inside the triangle.
         key: the cache key (layout digest).
+
+    ``views``: dense views already made (name of the property -> its array, e.g. ``inside``
+    loaded from the disk cache), used instead of building them.
     """
 
     def __init__(self, size: int, padding: int, n_triangles: int, texels: np.ndarray, texel_triangle: np.ndarray,
-                 texel_barycentric: np.ndarray, texel_inside: np.ndarray, key: str = ""):
+                 texel_barycentric: np.ndarray, texel_inside: np.ndarray, key: str = "",
+                 views: Mapping[str, np.ndarray] | None = None):
         self.size = int(size)
         self.padding = int(padding)
         self.n_triangles = int(n_triangles)
@@ -79,6 +93,10 @@ class UVRaster:
         self.texel_barycentric = _frozen(texel_barycentric.astype(np.float32, copy=False))
         self.texel_inside = _frozen(texel_inside.astype(bool, copy=False))
         self.key = key
+        for name, view in (views or {}).items():
+            if not isinstance(getattr(type(self), name, None), cached_property):
+                raise ValueError(f"{name!r} is not a dense view of a UVRaster")
+            self.__dict__[name] = _frozen(view)  # where cached_property keeps the value it built
 
     def __repr__(self) -> str:
         n_in = int(self.texel_inside.sum())
@@ -140,7 +158,7 @@ class UVRaster:
     @property
     def nbytes(self) -> int:
         """Bytes held by the compact arrays."""
-        return sum(a.nbytes for a in (self.texels, self.texel_triangle, self.texel_barycentric, self.texel_inside))
+        return sum(getattr(self, name).nbytes for name in _COMPACT)
 
 
 def rasterize_uv(model_or_uv, uv_triangles: np.ndarray | None = None, size: int = 1024,
@@ -155,10 +173,13 @@ def rasterize_uv(model_or_uv, uv_triangles: np.ndarray | None = None, size: int 
         size: S, the map side in texels (1 ≤ S ≤ 16384).
         padding: seam padding in texels (default :func:`default_padding`: S/128, at least 2);
             0 for none; ≥ S fills the whole map.
-        cache: reuse (and store) the result for this layout, size and padding.
+        cache: reuse (and store) the result for this layout, size and padding: kept in the
+            process and in the disk cache (:mod:`facegeo.layout_cache`), whose arrays are
+            memory-mapped.
     Returns:
         A read-only :class:`UVRaster`. Rasterising the bundled ICT-FaceKit layout at S = 1024
-        takes about 0.1 s; a cached call returns at once.
+        takes about 0.25 s; loading it from the disk cache a few milliseconds, and a call cached
+        in the process returns at once.
     Raises:
         InputError: malformed UV coordinates or triangles, or a bad size.
     """
@@ -178,20 +199,25 @@ def rasterize_uv(model_or_uv, uv_triangles: np.ndarray | None = None, size: int 
         raise InputError("<argument>", "padding", "a number of texels ≥ 0", str(padding))
     padding = min(padding, size)
     digest = _layout_digest(uv, tris)
+    if not cache:
+        return _rasterize(uv, tris, size, padding, digest)
     key = (digest, size, padding)
-    if cache:
-        with _CACHE_LOCK:
-            hit = _CACHE.get(key)
-            if hit is not None:
-                _CACHE.move_to_end(key)
-                return hit
-    raster = _rasterize(uv, tris, size, padding, digest)
-    if cache:
-        with _CACHE_LOCK:
-            _CACHE[key] = raster
+    with _CACHE_LOCK:
+        hit = _CACHE.get(key)
+        if hit is not None:
             _CACHE.move_to_end(key)
-            while len(_CACHE) > 1 and (len(_CACHE) > CACHE_ENTRIES or sum(r.nbytes for r in _CACHE.values()) > CACHE_BYTES):
-                _CACHE.popitem(last=False)
+            return hit
+    folder = entry_folder(f"raster-{digest}-{size}-{padding}")
+    raster = _load_raster(folder, digest, size, padding)
+    if raster is None:
+        raster = _rasterize(uv, tris, size, padding, digest)
+        store_entry(folder, {name: getattr(raster, name) for name in (*_COMPACT, *DISK_VIEWS)},
+                    {"n_triangles": raster.n_triangles})
+    with _CACHE_LOCK:
+        _CACHE[key] = raster
+        _CACHE.move_to_end(key)
+        while len(_CACHE) > 1 and (len(_CACHE) > CACHE_ENTRIES or sum(r.nbytes for r in _CACHE.values()) > CACHE_BYTES):
+            _CACHE.popitem(last=False)
     return raster
 
 
@@ -214,6 +240,20 @@ def _check_layout(uv: np.ndarray, tris: np.ndarray) -> tuple[np.ndarray, np.ndar
     if tris.size and (tris.min() < 0 or tris.max() >= uv.shape[0]):
         raise InputError("<array>", "uv_triangles", f"indices in [0, {uv.shape[0]})", f"range [{tris.min()}, {tris.max()}]")
     return uv.astype(np.float64), tris.astype(np.int64)
+
+
+def _load_raster(folder: Path, digest: str, size: int, padding: int) -> UVRaster | None:
+    """The raster stored in the disk-cache entry ``folder`` (arrays memory-mapped), or None where
+    there is no usable one."""
+    found = load_entry(folder)
+    if found is None:
+        return None
+    arrays, meta = found
+    try:
+        return UVRaster(size, padding, meta["n_triangles"], *(arrays[name] for name in _COMPACT), key=digest,
+                        views={name: arrays[name] for name in DISK_VIEWS})
+    except (KeyError, TypeError, ValueError):
+        return None
 
 
 def _layout_digest(uv: np.ndarray, tris: np.ndarray) -> str:
