@@ -176,8 +176,16 @@ def test_a_second_backend_needs_only_the_protocol(small_asset):
 @pytest.fixture
 def fitted_job(monkeypatch, small_asset):
     """reconstruct_into_folder with the pipeline's result given (the module's small asset)."""
+    from dataclasses import replace
+
     _, _, asset, fit = small_asset
-    monkeypatch.setattr("facegeo.pipeline.reconstruct_with_fit", lambda *args, **kwargs: (asset, fit))
+
+    def reconstructed(*args, geometry_ready=None, **kwargs):
+        if geometry_ready is not None:  # as the pipeline does before its texture stages
+            geometry_ready(replace(asset, maps={}, constants={}, metadata={}))
+        return asset, fit
+
+    monkeypatch.setattr("facegeo.pipeline.reconstruct_with_fit", reconstructed)
 
 
 def _written(folder) -> dict[str, bytes]:
@@ -249,6 +257,7 @@ def test_a_signal_during_the_export_leaves_nothing(tmp_path, capsys, monkeypatch
         return doc
 
     monkeypatch.setattr(asset_io, "write_asset_files", write_then_signal)
+    monkeypatch.setattr("facegeo.forked_call.can_fork", lambda: False)  # the export's threads in this process (the forked export: test_forked_call)
     code = main(["reconstruct", str(PHOTO), "-o", str(tmp_path / "out")])
     _, err = capsys.readouterr()
     assert code == 128 + getattr(signal, signum) and "interrupted" in err and err.count("\n") == 1
