@@ -1,16 +1,17 @@
 """The on-disk cache of what depends only on a UV layout, a model and a map size: the UV raster
-(:func:`facegeo.uv.rasterize_uv`) and the layout priors (:func:`facegeo.texturing.context.layout_priors`).
+(:func:`facegeo.uv.rasterize_uv`) and the layout priors (:func:`facegeo.texturing.context.layout_priors`),
+and the default model's arrays as loaded (:func:`facegeo.model_files.load_model`).
 
-Computing both for the bundled model at S = 1024 takes ~0.7 s; loading them from here takes
-milliseconds, since the arrays are memory-mapped read-only (``np.load(..., mmap_mode="r")``),
+Computing the first two for the bundled model at S = 1024 takes ~0.7 s, reading the model ~0.1 s;
+loading them from here takes milliseconds, since the arrays are memory-mapped read-only (``np.load(..., mmap_mode="r")``),
 which forked children share page for page. The folder is ``$FACEGEO_LAYOUT_CACHE`` where that is
 set, else ``layout/`` under :func:`facegeo.cache_dir.cache_dir`::
 
     layout/<code version>/<entry>/manifest.json    {"arrays": {name: {"dtype", "shape"}}, "meta": {...}}
     layout/<code version>/<entry>/<name>.npy       one C-ordered array per name
 
-The entry's name is its key (the layout's, the model's digest, the size and padding; chosen by
-the caller); the code version (:func:`code_version`) is a digest of the source of
+The entry's name is its key (the layout's, the model's digest, the size and padding; the model file's
+path, modification time and size; chosen by the caller); the code version (:func:`code_version`) is a digest of the source of
 :data:`CODE_MODULES`, which compute the arrays, and of the versions of NumPy, SciPy and OpenCV,
 so an edited algorithm or an upgrade never reads an entry made by other code. Storing an entry
 removes the folders of other code versions (a process still mapping one keeps its files until it
@@ -49,7 +50,8 @@ __all__ = ["CODE_MODULES", "LAYOUT_CACHE_ENV", "code_version", "entry_folder", "
 LAYOUT_CACHE_ENV = "FACEGEO_LAYOUT_CACHE"
 #: The modules whose code computes or stores the cached arrays: the rasteriser and its texel
 #: geometry, the layout priors (mirror map, surface operators), the region and skin masks and the
-#: iBUG indices they use, the sRGB encoding of the mean texture, and this module (the format).
+#: iBUG indices they use, the sRGB encoding of the mean texture, the model's reading and
+#: validation, and this module (the format).
 CODE_MODULES = (
     "facegeo.uv.raster",
     "facegeo.uv._triangles",
@@ -58,6 +60,8 @@ CODE_MODULES = (
     "facegeo.skin_mask",
     "facegeo.landmarks.scheme",
     "facegeo.colour",
+    "facegeo.model_files",
+    "facegeo.morphable_model",
     "facegeo.layout_cache",
 )
 _MANIFEST = "manifest.json"

@@ -178,3 +178,27 @@ def test_a_manifest_names_every_array_with_its_dtype_and_shape(model, cache):
     manifest = json.loads((entry_folder(f"raster-{raster.key}-{SIZE}-2") / "manifest.json").read_text())
     assert manifest["arrays"]["inside"] == {"dtype": "|b1", "shape": [SIZE, SIZE]}
     assert manifest["meta"] == {"n_triangles": raster.n_triangles}
+
+
+def test_the_default_model_is_stored_once_and_loaded_as_read(cache, monkeypatch):
+    from facegeo import model_files
+    from facegeo.model_files import _MODEL_ARRAYS, _default_path, _load, load_model
+
+    monkeypatch.setattr(model_files, "_default_cache", {})
+    stored = load_model()  # read from the file, then stored
+    [entry] = [p for p in (cache / code_version()).iterdir() if p.name.startswith("model-")]
+    monkeypatch.setattr(model_files, "_default_cache", {})
+    loaded = load_model()  # as a new process: from the cache, memory-mapped
+    read = _load(_default_path(), albedo_path=None, units="auto")
+    for model in (stored, loaded):
+        for name in _MODEL_ARRAYS:
+            a, b = getattr(model, name), getattr(read, name)
+            assert a.dtype == b.dtype and np.array_equal(a, b), name
+        assert (model.name, model.expression_kind, model.expression_names, model.source) == (
+            read.name, read.expression_kind, read.expression_names, read.source)
+    assert not loaded.id_basis.flags.writeable  # shared, as the in-process default always was ("do not modify it")
+    # a damaged entry is read from the file again and replaced
+    (entry / "id_basis.npy").write_bytes(b"\x93NUMPY damaged")
+    monkeypatch.setattr(model_files, "_default_cache", {})
+    again = load_model()
+    assert np.array_equal(again.id_basis, read.id_basis) and load_entry(entry) is not None
