@@ -4,8 +4,13 @@
     python benchmarks/bench_end_to_end.py --baseline /tmp/facegeo-base [--repeats 3] [--no-batch]
 
 Each command runs in a fresh process (interpreter start, imports, model loading, writing
-included) with the same interpreter and the same installed packages; ``PYTHONPATH`` picks the
-checkout, so the two versions differ only in facegeo's own code. The two versions alternate
+included) with the same interpreter and the same installed packages. Each version is first
+installed as a user gets it (``pip install --no-deps --target``: a wheel's layout, with
+``facegeo.texturing``, ``.export``, ``.eval`` and ``.assets`` inside ``facegeo/``) into a folder
+of its own, which ``PYTHONPATH`` puts first, so the two versions differ only in facegeo's own
+code: a checkout on ``PYTHONPATH`` beside this environment's editable install would take those
+four packages from the editable install's checkout. Byte-code is written on the first run (as
+an installed package has it), whatever ``PYTHONDONTWRITEBYTECODE`` says here. The two versions alternate
 (this checkout, then the baseline, ``--repeats`` times, after one warm-up run of each that fills
 the page cache), and the table gives min and median wall time, the CPU time of the process
 (user + system, from ``getrusage`` of the children), their ratio (how much of the second core
@@ -58,20 +63,30 @@ def batch_photos(folder: Path) -> list[Path]:
     return out
 
 
-def run_once(checkout: Path, args: list[str], output: Path) -> tuple[float, float, dict]:
+def install(checkout: Path, target: Path) -> Path:
+    """``checkout`` installed into ``target`` as a wheel lays it out (no dependencies: this
+    environment's are used); returns ``target``."""
+    subprocess.run([sys.executable, "-m", "pip", "install", "--quiet", "--no-deps", "--no-build-isolation", "--target", str(target),
+                    str(checkout)], check=True, capture_output=True, text=True)
+    return target
+
+
+def run_once(site: Path, args: list[str], output: Path) -> tuple[float, float, dict]:
     """(wall s, CPU s, fit.json timings or {}) of ``python -m facegeo.cli ARGS -o OUTPUT`` run
-    from ``checkout`` with ``PYTHONPATH=checkout``. A batch may exit with 3 (photos the fit
-    refuses, e.g. the small turned cameraman: both versions refuse it); any other failure stops."""
+    with ``PYTHONPATH=site`` (an :func:`install`) from the output's folder. A batch may exit with
+    3 (photos the fit refuses, e.g. the small turned cameraman: both versions refuse it); any
+    other failure stops."""
     shutil.rmtree(output, ignore_errors=True)
-    env = {**os.environ, "PYTHONPATH": str(checkout)}
+    env = {key: value for key, value in os.environ.items() if key != "PYTHONDONTWRITEBYTECODE"}
+    env["PYTHONPATH"] = str(site)
     before = resource.getrusage(resource.RUSAGE_CHILDREN)
     t0 = time.perf_counter()
-    done = subprocess.run([sys.executable, "-m", "facegeo.cli", *args, "-o", str(output)], cwd=checkout, env=env,
+    done = subprocess.run([sys.executable, "-m", "facegeo.cli", *args, "-o", str(output)], cwd=output.parent, env=env,
                           capture_output=True, text=True)
     wall = time.perf_counter() - t0
     after = resource.getrusage(resource.RUSAGE_CHILDREN)
     if done.returncode not in ((0, 3) if len(args) > 2 else (0,)):
-        raise SystemExit(f"{checkout}: facegeo {' '.join(args)} failed ({done.returncode}):\n{done.stderr[-2000:]}")
+        raise SystemExit(f"{site}: facegeo {' '.join(args)} failed ({done.returncode}):\n{done.stderr[-2000:]}")
     cpu = (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
     report = output / "fit.json"
     timings = json.loads(report.read_text()).get("timings_s", {}) if report.is_file() else {}
@@ -84,9 +99,10 @@ def main() -> None:
     parser.add_argument("--repeats", type=int, default=3)
     parser.add_argument("--no-batch", action="store_true", help="skip the ten-photo batch")
     args = parser.parse_args()
-    versions = {"this checkout": HERE, "baseline": args.baseline.resolve()}
+    checkouts = {"this checkout": HERE, "baseline": args.baseline.resolve()}
     with tempfile.TemporaryDirectory() as tmp:
         tmp_path = Path(tmp)
+        versions = {name: install(checkout, tmp_path / f"site-{k}") for k, (name, checkout) in enumerate(checkouts.items())}
         jobs = {"fit, bundled photo": ["fit", str(PHOTO)], "reconstruct, bundled photo": ["reconstruct", str(PHOTO)]}
         if not args.no_batch:
             jobs["reconstruct, batch of 10"] = ["reconstruct", *map(str, batch_photos(tmp_path / "photos"))]
@@ -107,7 +123,7 @@ def main() -> None:
                 rows.append((job, name, min(walls), statistics.median(walls), statistics.median(cpus)))
             base, this = rows[-1], rows[-2]
             rows.append((job, "ratio", this[2] / base[2], this[3] / base[3], this[4] / base[4]))
-    print(f"repeats {args.repeats}, baseline {versions['baseline']}")
+    print(f"repeats {args.repeats}, baseline {checkouts['baseline']}")
     print("| command | version | wall min s | wall median s | CPU median s | CPU / wall |")
     print("|---|---|---|---|---|---|")
     for job, name, wmin, wmed, cpu in rows:

@@ -296,9 +296,9 @@ def reconstruct_into_folder(photo_path: str | Path, output: str | Path, options:
         progress: called with each stage's name as it starts (the pipeline's ``STAGES``, then
             ``export`` and ``preview``, which start together).
         fork: where that helps (:func:`facegeo.forked_call.can_fork`, the default backend, no
-            regressor; the single-photo command's choice), compute the skin mask and the fit in
-            a forked child while this process imports the texture stages and makes the model's
-            UV raster and layout priors, and write the export in another, begun on the fit's
+            regressor; the single-photo command's choice), fit in a forked child while this
+            process makes the skin mask, imports the texture stages and loads the model's UV
+            raster and layout priors, and write the export in another, begun on the fit's
             geometry while the texture stages run (:mod:`facegeo.forked_call`); the results are
             the same either way.
     Raises:
@@ -317,24 +317,24 @@ def reconstruct_into_folder(photo_path: str | Path, output: str | Path, options:
         model, predictor = loaded_resources(options.model, options.regressor, options.refine, options.landmarks)
         photo = load_photo(photo_path, max_side=options.max_side)
         forking = fork and backend == "default" and predictor is None and can_fork()
-        pending = fork_call(_fit_and_skin, photo, str(photo_path), options) if forking else None
-        try:  # while the child fits: the texture stages' imports, the UV raster and the layout priors
+        pending = fork_call(_fitted, photo, str(photo_path), options) if forking else None
+        try:  # while the child fits: the skin mask, the texture stages' imports, the UV raster and the layout priors
             from facegeo.export_job import ExportJob, ExportPlan
             from facegeo.image_files import png_bytes
             from facegeo.pipeline import reconstruct_with_fit
             from facegeo.skin_mask import skin_mask_image
+            from facegeo.texturing.context import layout_priors
+            from facegeo.uv import rasterize_uv
             if options.preview:
                 from facegeo.texturing.preview import relit_preview
 
-            if pending is not None:  # both depend on the model alone and are cached per process: the pipeline finds them
-                from facegeo.texturing.context import layout_priors
-                from facegeo.uv import rasterize_uv
-
+            skin = _photo_skin(photo, str(photo_path))
+            if pending is not None:  # both depend on the model alone and are cached: the pipeline finds them
                 layout_priors(model, rasterize_uv(model, size=options.size))
             try:
-                fitted, skin, fit_seconds = pending.result() if pending is not None else _fit_and_skin(photo, str(photo_path), options)
+                fitted, fit_seconds = pending.result() if pending is not None else _fitted(photo, str(photo_path), options)
             except ChildLost as lost:  # the child was killed (e.g. out of memory): the same fit, here
-                fitted, skin, fit_seconds = _fit_and_skin(photo, str(photo_path), options)
+                fitted, fit_seconds = _fitted(photo, str(photo_path), options)
                 fitted.info.setdefault("notes", []).append(f"the forked fit ended {lost.how} without an answer; fitted again in the main process")
         except BaseException:
             if pending is not None:
@@ -385,23 +385,29 @@ def reconstruct_into_folder(photo_path: str | Path, output: str | Path, options:
                          maps=list(asset.maps), map_size=int(next(iter(asset.maps.values())).shape[0]))
 
 
-def _fit_and_skin(photo: Any, source: str, options: FitOptions) -> tuple[Any, Any, float]:
-    """The first half of a reconstruction: ``(fit, the photo's SkinMask or None when MediaPipe
-    finds no face, seconds of the fit alone)`` (in a forked child where
-    :func:`reconstruct_into_folder` can overlap it with the texture stages' model-only work)."""
-    from facegeo.errors import NoFaceError
+def _fitted(photo: Any, source: str, options: FitOptions) -> tuple[Any, float]:
+    """The fit of a reconstruction and its seconds (in a forked child where
+    :func:`reconstruct_into_folder` can overlap it with the skin mask and the texture stages'
+    model-only work)."""
     from facegeo.fitting import fit
-    from facegeo.skin_mask import skin_mask
 
     model, predictor = loaded_resources(options.model, options.regressor, options.refine, options.landmarks)
-    try:  # the skin mask needs MediaPipe's mesh; without it the pipeline builds one from the fit's landmarks
-        skin = skin_mask(photo.image, source=source)
-    except NoFaceError:
-        skin = None
     start = time.perf_counter()
     result = (predictor or fit)(photo, model=model, detector=options.landmarks,
                                 camera=photo_camera(photo, options.focal, options.principal_point))
-    return result, skin, time.perf_counter() - start
+    return result, time.perf_counter() - start
+
+
+def _photo_skin(photo: Any, source: str) -> Any:
+    """The photo's :class:`facegeo.skin_mask.SkinMask`, or None when MediaPipe finds no face
+    (the pipeline then builds one from the fit's landmarks)."""
+    from facegeo.errors import NoFaceError
+    from facegeo.skin_mask import skin_mask
+
+    try:
+        return skin_mask(photo.image, source=source)
+    except NoFaceError:
+        return None
 
 
 @dataclass(frozen=True)

@@ -93,7 +93,8 @@ def reconstruct_with_fit(
         fitted: ``(fit, seconds)``: a fit of this photo already made (e.g. in a forked child,
             :func:`facegeo.jobs.reconstruct_into_folder`) and the seconds it took, reported as the
             ``fit`` stage's time; ``fitter`` is then not called.
-        geometry_ready: called, before the texture stages, with the asset without its maps,
+        geometry_ready: called before the unwrap and the texture stages, with the asset without
+            its maps,
             constants and metadata (its geometry, parts and blendshapes: as in the asset
             returned), e.g. to start writing the files that need no maps.
     Returns:

@@ -1,5 +1,5 @@
-"""A call in a forked child (facegeo.forked_call), as reconstruct uses it for the skin mask and the
-fit: the same answer as in this process, its errors raised in the caller, Ctrl-C ending both, and
+"""A call in a forked child (facegeo.forked_call), as reconstruct uses it for the fit and the
+export: the same answer as in this process, its errors raised in the caller, Ctrl-C ending both, and
 used only where it helps. The forks run in fresh interpreters (this test process has torch
 imported, where :func:`can_fork` is False by design)."""
 
@@ -23,20 +23,17 @@ SAME_ANSWER = f"""
 import sys
 import numpy as np
 from facegeo.forked_call import can_fork, fork_call
-from facegeo.jobs import FitOptions, _fit_and_skin
+from facegeo.jobs import FitOptions, _fitted
 from facegeo.photo import load_photo
 
 assert can_fork()
 photo = load_photo({PHOTO!r})
-forked, skin_forked, seconds = fork_call(_fit_and_skin, photo, "astronaut", FitOptions()).result()
+forked, seconds = fork_call(_fitted, photo, "astronaut", FitOptions()).result()
 assert "torch" not in sys.modules and seconds > 0
-inline, skin_inline, _ = _fit_and_skin(photo, "astronaut", FitOptions())
+inline, _ = _fitted(photo, "astronaut", FitOptions())
 for name in ("alpha", "delta", "beta", "gamma", "rotation", "translation", "vertices", "landmarks", "landmarks_fitted"):
     assert np.array_equal(getattr(forked, name), getattr(inline, name)), name
 assert forked.info == inline.info and forked.camera == inline.camera
-for name in ("occlusion", "skin_probability", "white_reference"):
-    a, b = getattr(skin_forked, name), getattr(skin_inline, name)
-    assert (a is None and b is None) or np.array_equal(a, b), name
 print("same")
 """
 
@@ -44,13 +41,13 @@ NO_FACE = """
 import numpy as np
 from facegeo.errors import NoFaceError
 from facegeo.forked_call import fork_call
-from facegeo.jobs import FitOptions, _fit_and_skin
+from facegeo.jobs import FitOptions, _fitted
 from facegeo.photo import load_photo
 import cv2, tempfile, pathlib
 path = pathlib.Path(tempfile.mkdtemp()) / "grey.png"
 cv2.imwrite(str(path), np.full((240, 320, 3), 128, np.uint8))
 try:
-    fork_call(_fit_and_skin, load_photo(path), str(path), FitOptions()).result()
+    fork_call(_fitted, load_photo(path), str(path), FitOptions()).result()
 except NoFaceError as error:
     print(type(error).__name__, str(path) in str(error))
 """
