@@ -232,38 +232,19 @@ def fit_one_person_into_folder(photo_paths: list[str | Path], output: str | Path
     """
     import cv2
 
-    from facegeo.fitting import fit_photos
     from facegeo.image_files import png_bytes
     from facegeo.mesh_io import obj_text
     from facegeo.overlay import draw_overlay
-    from facegeo.photo import load_photo
     from facegeo.staged_output import StagedOutput, locked_output
 
     options = FitOptions() if options is None else options
-    if len(photo_paths) < 2:
-        raise InputError(_SOURCE, "one person", "two or more photos of the person", str(len(photo_paths)))
-    if options.regressor is not None:
-        raise InputError(_SOURCE, "regressor", "no regressor with several photos of one person (the joint fit)", str(options.regressor))
     with locked_output(output):
         start = time.perf_counter()
-        model, _ = loaded_resources(options.model, None, False, options.landmarks)
-        photos = [load_photo(p, max_side=options.max_side) for p in photo_paths]
-        cameras = [photo_camera(photo, options.focal, options.principal_point) for photo in photos]
-        fits = fit_photos(photos, model, options.landmarks, cameras, photometric=options.photometric)
+        model, photos, fits = _one_person_fits(photo_paths, options)
         seconds = time.perf_counter() - start
-        left_out = fits[0].info["shared_identity"].get("left_out", [])
-        notes = list(dict.fromkeys(n for f in fits for n in f.info.get("notes", [])))
-        records = []
-        for fit in fits:
-            record = fit.to_dict()
-            record.pop("alpha")
-            record["photo"] = fit.info["source"]
-            record["landmark_rms_percent_iod"] = fit.landmark_rms_percent_iod
-            records.append(record)
-        document = {"one_person": True, "model": model.name, "alpha": fits[0].alpha.tolist(), "photos": records,
-                    "left_out": left_out, "timings_s": {"total": seconds}, "notes": notes}
-        by_source = {photo.path: photo for photo in photos}
-        overlays = [draw_overlay(by_source[fit.info["source"]].image, fit, model) for fit in fits]
+        document = _one_person_document(fits, model, {"total": seconds})
+        notes = document["notes"]
+        overlays = [draw_overlay(photo.image, fit, model) for photo, fit in zip(photos, fits)]
         height = min(o.shape[0] for o in overlays)
         strip = np.concatenate([cv2.resize(o, (round(o.shape[1] * height / o.shape[0]), height), interpolation=cv2.INTER_AREA)
                                 for o in overlays], axis=1)
@@ -275,6 +256,115 @@ def fit_one_person_into_folder(photo_paths: list[str | Path], output: str | Path
         return JobRecord(photo=", ".join(str(p) for p in photo_paths), output=str(output), landmark_rms_px=float(np.sqrt(np.mean(np.square(rms)))),
                          landmark_rms_percent_iod=float(np.sqrt(np.mean([f.landmark_rms_percent_iod ** 2 for f in fits]))),
                          timings={"total": seconds}, files=list(FIT_FILES), notes=notes)
+
+
+def _one_person_fits(photo_paths: list[str | Path], options: FitOptions) -> tuple[Any, list[Any], list[Any]]:
+    """``(model, photos, fits)`` of the joint fit of several photos of one person
+    (:func:`facegeo.fitting.fit_photos`), each photo with its own camera; the photos are those
+    of the kept fits, in order. Refuses fewer than two photos and a regressor."""
+    from facegeo.fitting import fit_photos
+    from facegeo.photo import load_photo
+
+    if len(photo_paths) < 2:
+        raise InputError(_SOURCE, "one person", "two or more photos of the person", str(len(photo_paths)))
+    if options.regressor is not None:
+        raise InputError(_SOURCE, "regressor", "no regressor with several photos of one person (the joint fit)", str(options.regressor))
+    model, _ = loaded_resources(options.model, None, False, options.landmarks)
+    photos = [load_photo(p, max_side=options.max_side) for p in photo_paths]
+    cameras = [photo_camera(photo, options.focal, options.principal_point) for photo in photos]
+    fits = fit_photos(photos, model, options.landmarks, cameras, photometric=options.photometric)
+    by_source = {photo.path: photo for photo in photos}
+    return model, [by_source[fit.info["source"]] for fit in fits], fits
+
+
+def _one_person_document(fits: list[Any], model: Any, timings: dict[str, float]) -> dict[str, Any]:
+    """The ``fit.json`` of a joint fit: the shared ``alpha``, ``photos`` (per photo its fit as
+    :func:`fit_into_folder` records it, without α), ``left_out``, ``timings_s``, ``notes``."""
+    records = []
+    for fit in fits:
+        record = fit.to_dict()
+        record.pop("alpha")
+        record["photo"] = fit.info["source"]
+        record["landmark_rms_percent_iod"] = fit.landmark_rms_percent_iod
+        records.append(record)
+    return {"one_person": True, "model": model.name, "alpha": fits[0].alpha.tolist(), "photos": records,
+            "left_out": fits[0].info["shared_identity"].get("left_out", []), "timings_s": timings,
+            "notes": list(dict.fromkeys(n for f in fits for n in f.info.get("notes", [])))}
+
+
+def reconstruct_one_person_into_folder(photo_paths: list[str | Path], output: str | Path, options: ReconstructOptions | None = None,
+                                       progress: Callable[[str], None] | None = None, fork: bool = False) -> JobRecord:
+    """Several photos of one person into one textured face in ``output``: the joint fit (one
+    identity, a pose, expression and camera per photo; a photo of someone else left out with a
+    note), each photo textured on its own and the albedos fused, each texel from the photos that
+    see it best (:func:`facegeo.pipeline.reconstruct_views`; the reference is the most frontal
+    photo, whose expression, parts and light analysis the asset takes), then the files of
+    :func:`reconstruct_into_folder`: ``fit.json`` (the joint fit's record as
+    :func:`fit_one_person_into_folder` writes it, with the stage timings, the reference, the
+    fusion and texture reports and the parts), the asset folder, the scenes and ``preview.png``
+    (the reference photo beside the asset).
+
+    Args:
+        fork: texture the photos in forked children beside each other where that helps
+            (:func:`facegeo.pipeline.reconstruct_views`); the results are the same either way.
+    Raises:
+        facegeo.errors.FacegeoError: fewer than two photos, a regressor or the diffusion backend
+            (not supported here), a bad photo, no face, failed fit checks, an unwritable output,
+            or another run writing into ``output``.
+    """
+    from facegeo.export_job import ExportJob, ExportPlan
+    from facegeo.forked_call import can_fork
+    from facegeo.image_files import png_bytes
+    from facegeo.pipeline import reconstruct_views
+    from facegeo.staged_output import StagedOutput, locked_output
+    from facegeo.texturing.preview import relit_preview
+
+    options = ReconstructOptions() if options is None else options
+    if options.backend != "default":
+        raise InputError(_SOURCE, "backend", "the default backend with several photos of one person", options.backend)
+    if options.upscale != 1:
+        raise InputError(_SOURCE, "upscale", "1 with several photos of one person", str(options.upscale))
+    with locked_output(output):
+        start = time.perf_counter()
+        if progress is not None:
+            progress("fit")
+        model, photos, fits = _one_person_fits(photo_paths, options)
+        timings = {"fit": time.perf_counter() - start}
+        with StagedOutput(output, replace=True) as stage:
+            jobs: list[ExportJob] = []
+            plan = ExportPlan(folder=stage.staging_dir, formats=tuple(options.formats), parts=options.parts, level=options.subdiv,
+                              bake_displacement=options.subdiv > 0 and "displacement" in options.maps,  # DISPLACEMENT_BAKE_RULE
+                              blendshapes=options.blendshape_names if options.blendshapes else None)
+            try:  # the export begins on the reference's geometry, in a child where forking helps, while the photos are textured
+                asset, reference, _ = reconstruct_views(
+                    photos, fits, model, size=options.size, maps=options.maps, progress=progress, fork=fork,
+                    geometry_ready=lambda geometry: jobs.append(ExportJob(geometry, plan, fork=fork and can_fork())))
+                timings.update(asset.metadata["timings_s"])
+                if progress is not None:
+                    progress("export")
+                beside = []
+                if options.preview:
+                    preview = stage.path("preview.png")
+                    beside.append(("preview", lambda: preview.write_bytes(png_bytes(relit_preview(photos[reference].image, asset,
+                                                                                                  fits[reference])))))
+                timings.update(_completed_export(jobs[0], asset, beside))
+            except BaseException:
+                for job in jobs:
+                    job.abandon()
+                raise
+            timings["total"] = time.perf_counter() - start
+            document = _one_person_document(fits, model, {"stages": timings})
+            document["notes"] = list(dict.fromkeys([*document["notes"], *asset.metadata["fusion"]["notes"], *jobs[0].notes]))
+            document.update({"reference": fits[reference].info["source"], "fusion": asset.metadata["fusion"],
+                             "texture_report": asset.metadata["texture_report"], "parts": asset.metadata["parts"]})
+            stage.path("fit.json").write_text(json.dumps(document, indent=1))
+            files = sorted(p.name for p in stage.staging_dir.iterdir())
+        rms = [float(f.landmark_rms_px) for f in fits]
+        return JobRecord(photo=", ".join(str(f.info["source"]) for f in fits), output=str(output),  # the photos kept
+                         landmark_rms_px=float(np.sqrt(np.mean(np.square(rms)))),
+                         landmark_rms_percent_iod=float(np.sqrt(np.mean([f.landmark_rms_percent_iod ** 2 for f in fits]))),
+                         timings=timings, files=files, notes=document["notes"],
+                         maps=list(asset.maps), map_size=int(next(iter(asset.maps.values())).shape[0]))
 
 
 def reconstruct_into_folder(photo_path: str | Path, output: str | Path, options: ReconstructOptions | None = None,
@@ -362,16 +452,12 @@ def reconstruct_into_folder(photo_path: str | Path, output: str | Path, options:
                 if skin is not None:
                     mask = stage.path("skin_mask.png")
                     beside.append(("skin mask", lambda: mask.write_bytes(png_bytes(skin_mask_image(skin)))))
-                t = time.perf_counter()
-                spans = jobs[0].complete(asset, beside)
+                timings.update(_completed_export(jobs[0], asset, beside))
             except BaseException:
                 for job in jobs:
                     job.abandon()
                 raise
             result.info.setdefault("notes", []).extend(jobs[0].notes)
-            timings["export"] = max(end for name, (_, end) in spans.items() if name not in ("preview", "skin mask")) - t
-            if options.preview:
-                timings["preview"] = spans["preview"][1] - spans["preview"][0]
             timings["total"] = time.perf_counter() - start
             record = result.to_dict()
             record["timings_s"] = {**record["timings_s"], "stages": timings}
@@ -383,6 +469,19 @@ def reconstruct_into_folder(photo_path: str | Path, output: str | Path, options:
                          landmark_rms_percent_iod=float(result.landmark_rms_percent_iod),
                          timings=timings, files=files, notes=list(result.info.get("notes", [])),
                          maps=list(asset.maps), map_size=int(next(iter(asset.maps.values())).shape[0]))
+
+
+def _completed_export(job: Any, asset: Any, beside: list[tuple[str, Callable[[], Any]]]) -> dict[str, float]:
+    """Complete the :class:`facegeo.export_job.ExportJob` ``job`` with ``asset``, the ``beside``
+    tasks (the preview, the skin mask) made meanwhile here; returns the ``export`` time (from
+    the maps' hand-over to the last export file written) and the ``preview``'s own, when made."""
+    start = time.perf_counter()
+    spans = job.complete(asset, beside)
+    own = {name for name, _ in beside}
+    timings = {"export": max(end for name, (_, end) in spans.items() if name not in own) - start}
+    if "preview" in spans:
+        timings["preview"] = spans["preview"][1] - spans["preview"][0]
+    return timings
 
 
 def _fitted(photo: Any, source: str, options: FitOptions) -> tuple[Any, float]:

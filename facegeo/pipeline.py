@@ -33,12 +33,16 @@ from facegeo.texturing.context import build_context
 from facegeo.texturing.registry import BACKENDS
 from facegeo.uv import geometry_maps, rasterize_uv, unwrap
 
-__all__ = ["reconstruct", "reconstruct_with_fit", "BACKENDS", "STAGES"]
+__all__ = ["reconstruct", "reconstruct_with_fit", "reconstruct_views", "BACKENDS", "STAGES", "VIEW_STAGES"]
 
 #: The stages, in order, as reported to a progress callback and in ``metadata["timings_s"]``
 #: (the parts need only the fit: with them the asset's geometry is complete before the texture
 #: stages, :func:`reconstruct_with_fit`'s ``geometry_ready``).
 STAGES = ("fit", "parts", "unwrap", "inpaint", "homogenise", "materials", "upscale")
+
+#: The stages of :func:`reconstruct_views`, in order.
+VIEW_STAGES = ("parts", "views", "fuse", "materials")
+
 
 def reconstruct(image: np.ndarray | str | Path | Photo, model: MorphableModel | None = None, **options) -> Asset:
     """Reconstruct a textured face from one photo: :func:`reconstruct_with_fit` without the fit
@@ -117,43 +121,20 @@ def reconstruct_with_fit(
     model = load_model() if model is None else model
     timings: dict[str, float] = {}
 
-    def stage(name: str) -> float:
-        if progress is not None:
-            progress(name)
-        return time.perf_counter()
-
-    t = stage("fit")
+    t = _starting(progress, "fit")
     if fitted is None:
         result = fitter(photo, model=model, landmarks=landmarks, detector=detector, camera=camera)
         timings["fit"] = time.perf_counter() - t
     else:
         result, timings["fit"] = fitted
 
-    t = stage("parts")
-    part_list, parts_report = [], {}
-    model_parts = load_parts(model) if parts else ()
-    if model_parts:
-        iris, parts_report = iris_colour(pixels, result.landmarks)
-        if iris is None:
-            result.info.setdefault("notes", []).append(parts_report["note"])
-        parts_report["iris_srgb_used"] = list(iris or DEFAULT_IRIS_SRGB)
-        part_list = part_assets(model_parts, model, result.alpha, result.delta, iris or DEFAULT_IRIS_SRGB)
-        parts_report["names"] = [p.name for p in part_list]
+    t = _starting(progress, "parts")
+    geometry, parts_report = _geometry(pixels, result, model, parts)
     timings["parts"] = time.perf_counter() - t
-    geometry = Asset(
-        vertices=result.shape_vertices,
-        triangles=model.triangles,
-        uv=model.uv,
-        uv_triangles=model.uv_triangles,
-        name="face",
-        parts=part_list,
-        face_triangles=np.all(model.face_mask[model.triangles], axis=1),
-        blendshapes=model_blendshapes(model, result.delta),
-    )
     if geometry_ready is not None:
         geometry_ready(geometry)
 
-    t = stage("unwrap")
+    t = _starting(progress, "unwrap")
     if skin is None:
         skin = skin_mask(pixels, result.landmarks)
     raster = rasterize_uv(model, size=size)
@@ -166,20 +147,20 @@ def reconstruct_with_fit(
     ], workers=usable_threads())
     timings["unwrap"] = time.perf_counter() - t
 
-    t = stage("inpaint")
+    t = _starting(progress, "inpaint")
     t_full = backend.inpaint(t_inc, m_vis, ctx)
     timings["inpaint"] = time.perf_counter() - t
 
-    t = stage("homogenise")
+    t = _starting(progress, "homogenise")
     t_hom = backend.homogenise(t_full, ctx)
     timings["homogenise"] = time.perf_counter() - t
     result.info.setdefault("notes", []).extend(backend.report.get("notes", []))  # e.g. chroma invented
 
-    t = stage("materials")
+    t = _starting(progress, "materials")
     out = backend.materials(t_hom, ctx, maps=wanted)
     timings["materials"] = time.perf_counter() - t
 
-    t = stage("upscale")
+    t = _starting(progress, "upscale")
     if upscale > 1:
         out = {name: backend.upscale(m, upscale) for name, m in out.items()}
         if "normal" in out:  # interpolated unit vectors are shorter than 1
@@ -190,11 +171,26 @@ def reconstruct_with_fit(
                 out[name] = np.clip(out[name], 0.0, 1.0)
     timings["upscale"] = time.perf_counter() - t
 
-    constants = {name: value for name, value in backend.constants.items() if name not in out}
-    asset = replace(
+    asset = _textured(geometry, out, backend, model, result, skin, parts_report, size, upscale, timings)
+    return asset, result
+
+
+def _starting(progress: Callable[[str], None] | None, name: str) -> float:
+    """Tell ``progress`` (when given) that the stage ``name`` starts; the clock's time (s)."""
+    if progress is not None:
+        progress(name)
+    return time.perf_counter()
+
+
+def _textured(geometry: Asset, maps: dict[str, np.ndarray], backend: TextureBackend, model: MorphableModel, fit_result: Fit,
+              skin: SkinMask, parts_report: dict, size: int, upscale: int, timings: dict[str, float], **extra: object) -> Asset:
+    """``geometry`` (:func:`_geometry`) with its ``maps``, the backend's constants for the maps
+    not made, and the metadata: the parts' report, the model, backend, size, upscale, stage
+    timings, texture report, skin mask summary, landmark RMS and fit record, then ``extra``."""
+    return replace(
         geometry,
-        maps=out,
-        constants=constants,
+        maps=maps,
+        constants={name: value for name, value in backend.constants.items() if name not in maps},
         metadata={
             "parts": parts_report,
             "model": model.name,
@@ -202,10 +198,212 @@ def reconstruct_with_fit(
             "size": size,
             "upscale": upscale,
             "timings_s": timings,
+            **extra,
             "texture_report": backend.report,
             "skin_mask": skin.summary(),
-            "landmark_rms_px": result.landmark_rms_px,
-            "fit": {k: v for k, v in result.to_dict().items() if k not in ("landmarks_px", "landmarks_fitted_px")},
+            "landmark_rms_px": fit_result.landmark_rms_px,
+            "fit": {k: v for k, v in fit_result.to_dict().items() if k not in ("landmarks_px", "landmarks_fitted_px")},
         },
     )
-    return asset, result
+
+
+def _geometry(pixels: np.ndarray, fit_result: Fit, model: MorphableModel, parts: bool) -> tuple[Asset, dict]:
+    """The asset of ``fit_result`` without maps, constants or metadata: its neutral-posed shape
+    with the fitted expression, face region and blendshapes, and the model's eyes and mouth
+    interior (the iris colour read in ``pixels``; a default one and a note in the fit's ``info``
+    when none is found); and the parts' report."""
+    part_list, report = [], {}
+    model_parts = load_parts(model) if parts else ()
+    if model_parts:
+        iris, report = iris_colour(pixels, fit_result.landmarks)
+        if iris is None:
+            fit_result.info.setdefault("notes", []).append(report["note"])
+        report["iris_srgb_used"] = list(iris or DEFAULT_IRIS_SRGB)
+        part_list = part_assets(model_parts, model, fit_result.alpha, fit_result.delta, iris or DEFAULT_IRIS_SRGB)
+        report["names"] = [p.name for p in part_list]
+    geometry = Asset(
+        vertices=fit_result.shape_vertices,
+        triangles=model.triangles,
+        uv=model.uv,
+        uv_triangles=model.uv_triangles,
+        name="face",
+        parts=part_list,
+        face_triangles=np.all(model.face_mask[model.triangles], axis=1),
+        blendshapes=model_blendshapes(model, fit_result.delta),
+    )
+    return geometry, report
+
+
+def _view_albedo(pixels: np.ndarray, fit_result: Fit, model: MorphableModel, skin: SkinMask | None, size: int,
+                 backend: TextureBackend, reference: bool) -> tuple[np.ndarray, np.ndarray, object, SkinMask]:
+    """What one photo of several gives: its de-lit albedo in UV ((S, S, 3) float32 linear RGB;
+    the reference's complete, by the backend's inpaint and homogenise, the others' only where
+    they saw the skin, by its ``delight``), how far each texel is to be taken from it ((S, S)
+    float32: the backend's reliability of the seen texel, for the others only on the face's skin
+    (the context's skin prior), × :func:`facegeo.texturing.fusion.view_weight`'s pixels per mm²), its :class:`TextureContext` (``backend`` keeps its analysis for
+    ``materials``) and its skin mask (``skin``, or made here from MediaPipe's mesh or the fit's
+    landmarks)."""
+    from facegeo.colour import srgb_to_linear
+    from facegeo.texturing.fusion import view_weight
+    from facegeo.uv import unwrap_details
+
+    skin = skin_mask(pixels, fit_result.landmarks) if skin is None else skin
+    raster = rasterize_uv(model, size=size)
+    camera_maps = geometry_maps(fit_result.vertices, model, raster, tangents=False)
+    ctx = build_context(model, fit_result, raster, camera_maps, white_reference=skin.white_reference)
+    seen = unwrap_details(pixels, fit_result, model, maps=camera_maps, occlusion=skin.occlusion)
+    if reference:
+        albedo = srgb_to_linear(backend.homogenise(backend.inpaint(seen.texture, seen.visibility, ctx), ctx)).astype(np.float32)
+        reliable = backend.seen_reliability(ctx)
+    else:  # only the face's skin (the context's skin prior): the lips, eyes and brows (which another expression or
+        # a blink changes), the scalp, ears and neck (hair, the background at a silhouette) stay the reference's
+        albedo, reliable = backend.delight(seen.texture, seen.visibility, ctx)
+        if ctx.skin is not None:
+            reliable = reliable * np.clip(ctx.skin, 0.0, 1.0)
+    distance = np.linalg.norm(camera_maps.position, axis=-1)
+    weight = view_weight(reliable, seen.cos_view, distance, fit_result.camera.focal)
+    return albedo, weight, ctx, skin
+
+
+def _other_view(pixels: np.ndarray, fit_result: Fit, model: MorphableModel, skin: SkinMask | None, size: int,
+                backend: str) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`_view_albedo` of a photo other than the reference, with a fresh ``backend`` (by
+    name): ``(albedo, weight)`` (what a forked child sends back)."""
+    albedo, weight, _, _ = _view_albedo(pixels, fit_result, model, skin, size, BACKENDS[backend](), reference=False)
+    return albedo, weight
+
+
+def _view_albedos(pixels: list[np.ndarray], fits: list[Fit], model: MorphableModel, skins: list[SkinMask | None], size: int,
+                  backend: str, reference: int, main_backend: TextureBackend,
+                  fork: bool) -> tuple[list[np.ndarray], list[np.ndarray], object, SkinMask]:
+    """Every photo's albedo and weight (:func:`_view_albedo`), in order, and the reference's
+    :class:`TextureContext` and skin mask: the reference's made here with ``main_backend``, the
+    others in forked children where ``fork`` and forking help, up to twice as many processes at
+    work as :func:`usable_threads` (the others' views cost under half the reference's: the
+    children started beside it keep the second core busy while this process works, without a
+    scheduler thread that would have to fork from beside it), each child's native pools on one
+    thread."""
+    from collections import deque
+
+    from facegeo.forked_call import ChildLost, can_fork, fork_call
+
+    results: dict[int, tuple[np.ndarray, np.ndarray]] = {}
+    waiting = deque(k for k in range(len(pixels)) if k != reference)
+    running: dict[int, object] = {}
+    slots = 2 * usable_threads() if fork and can_fork() else 0  # 0: every view here
+
+    def start(limit: int) -> None:
+        while waiting and len(running) < limit:
+            k = waiting.popleft()
+            running[k] = fork_call(_other_view, pixels[k], fits[k], model, skins[k], size, backend)
+
+    try:
+        start(slots - 1)  # beside the reference's, here
+        albedo, weight, ctx, skin = _view_albedo(pixels[reference], fits[reference], model, skins[reference], size, main_backend,
+                                                 reference=True)
+        results[reference] = (albedo, weight)
+        while waiting or running:
+            start(slots)
+            if not running:
+                k = waiting.popleft()
+                results[k] = _other_view(pixels[k], fits[k], model, skins[k], size, backend)
+                continue
+            k = next(iter(running))
+            try:
+                results[k] = running.pop(k).result()
+            except ChildLost:  # killed (e.g. out of memory): the same view, here
+                results[k] = _other_view(pixels[k], fits[k], model, skins[k], size, backend)
+    except BaseException:
+        for pending in running.values():
+            pending.abandon()
+        raise
+    return [results[k][0] for k in range(len(pixels))], [results[k][1] for k in range(len(pixels))], ctx, skin
+
+
+def reconstruct_views(
+    photos: list[Photo | np.ndarray],
+    fits: list[Fit],
+    model: MorphableModel | None = None,
+    *,
+    backend: str = "default",
+    size: int = 1024,
+    maps: Iterable[str] = MAP_NAMES,
+    skins: list[SkinMask | None] | None = None,
+    parts: bool = True,
+    progress: Callable[[str], None] | None = None,
+    fork: bool = False,
+    geometry_ready: Callable[[Asset], None] | None = None,
+) -> tuple[Asset, int, dict]:
+    """One textured face from several photos of one person, fitted jointly (one identity,
+    :func:`facegeo.fitting.fit_photos`): each photo unwrapped, completed and de-lit on its own
+    by a fresh ``backend`` (its own camera, light and exposure), the albedos fused texel by
+    texel from the photos that see each best, exposure and white balance matched to the
+    reference photo (:func:`facegeo.texturing.fusion.fuse_albedos`), then the other maps made
+    from the fused albedo in the reference's context. The reference is the photo whose head
+    faces the camera most (the smallest rotation); the asset carries its expression and parts.
+
+    Args:
+        photos: the K photos (:class:`Photo` or (H, W, 3) uint8 RGB), in the order of ``fits``.
+        fits: their fits (sharing ``alpha``).
+        model: the model the fits are of (default: the bundled one).
+        backend: a name in :data:`BACKENDS` that needs no weights (the default backend).
+        size: UV map size S. maps: as :func:`reconstruct_with_fit`.
+        skins: each photo's :class:`facegeo.skin_mask.SkinMask` if already computed (None
+            entries: computed here).
+        parts, progress: as :func:`reconstruct_with_fit` (stages :data:`VIEW_STAGES`).
+        fork: texture the other photos in forked children beside the reference's, as many at a
+            time as the process may keep threads busy (:func:`facegeo.forked_call.can_fork`,
+            :func:`facegeo.concurrency.usable_threads`); the results are the same either way.
+        geometry_ready: as :func:`reconstruct_with_fit`'s, called before the photos are textured.
+    Returns:
+        ``(asset, reference, report)``: the asset in model space (upright, mm; ``metadata``
+        records the photos, the reference, the fusion report and the stage timings), the
+        reference photo's index, and the fusion report.
+    Raises:
+        InputError: no photos, counts that do not match, bad maps or size. (One photo, e.g. the
+            only one of the person left: its own albedo, as :func:`reconstruct_with_fit` makes it.)
+    """
+    from facegeo.colour import linear_to_srgb
+    from facegeo.texturing.fusion import fuse_albedos
+    from facegeo.texturing.image_filters import pad_outside
+
+    wanted = frozenset(maps)
+    if not wanted or wanted - set(MAP_NAMES):
+        raise InputError("<argument>", "maps", f"a non-empty subset of {', '.join(MAP_NAMES)}", ", ".join(sorted(wanted)) or "none")
+    if not photos or len(photos) != len(fits) or (skins is not None and len(skins) != len(photos)):
+        raise InputError("<argument>", "photos", "one or more photos, one fit (and skin mask) each",
+                         f"{len(photos)} photos, {len(fits)} fits")
+    if not 64 <= size <= 8192:
+        raise InputError("<argument>", "size", "a map size between 64 and 8192 texels", str(size))
+    if backend not in BACKENDS or backend == "diffusion":
+        raise InputError("<argument>", "backend", "the default backend (several photos)", repr(backend))
+    model = load_model() if model is None else model
+    timings: dict[str, float] = {}
+
+    pixels = [photo.image if isinstance(photo, Photo) else as_rgb_uint8(photo) for photo in photos]
+    reference = int(np.argmin([np.arccos(np.clip((np.trace(np.asarray(f.rotation, np.float64)) - 1) / 2, -1, 1)) for f in fits]))
+    main = fits[reference]
+    t = _starting(progress, "parts")
+    geometry, parts_report = _geometry(pixels[reference], main, model, parts)
+    timings["parts"] = time.perf_counter() - t
+    if geometry_ready is not None:
+        geometry_ready(geometry)
+
+    t = _starting(progress, "views")
+    main_backend = BACKENDS[backend]()
+    albedos, weights, ctx, skin_used = _view_albedos(pixels, fits, model, skins or [None] * len(photos), size, backend, reference,
+                                                     main_backend, fork)
+    timings["views"] = time.perf_counter() - t
+
+    t = _starting(progress, "fuse")
+    skin = ctx.coverage if ctx.skin is None else ctx.coverage & (ctx.skin > 0.5)
+    fused, report = fuse_albedos(albedos, weights, skin, ctx.coverage, reference)
+    timings["fuse"] = time.perf_counter() - t
+
+    t = _starting(progress, "materials")
+    out = main_backend.materials(pad_outside(linear_to_srgb(fused).astype(np.float32), ctx.coverage), ctx, maps=wanted)
+    timings["materials"] = time.perf_counter() - t
+
+    asset = _textured(geometry, out, main_backend, model, main, skin_used, parts_report, size, 1, timings,
+                      photos=[str(f.info.get("source", k)) for k, f in enumerate(fits)], reference=reference, fusion=report)
+    return asset, reference, report

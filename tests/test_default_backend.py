@@ -1198,3 +1198,28 @@ def test_a_settings_value_passed_to_one_backend_changes_only_its_maps():
     assert np.abs(d_default[far]).max() > 0.02
     np.testing.assert_allclose(d_shallow[far], 0.5 * d_default[far], atol=1e-6)
     assert np.array_equal(DefaultBackend().materials(albedo, ctx, maps={"displacement"})["displacement"], d_default)
+
+
+def test_delight_is_inpaints_first_half_on_the_reliably_seen_texels():
+    """A photo of several (facegeo.pipeline.reconstruct_views): delight gives inpaint's de-lit
+    albedo where the photo was trusted, nothing where it saw nothing, and the same reliability
+    the inpaint kept (seen_reliability)."""
+    gamma = np.zeros((3, 9), np.float32)
+    gamma[:, 0], gamma[:, 2], gamma[:, 3] = 0.9, 0.2, -0.35
+    ctx = hemisphere_context(128)
+    albedo = skin_albedo(128)
+    e = sh_irradiance(torch.from_numpy(ctx.normal_camera), torch.from_numpy(gamma)).numpy()
+    shaded = linear_to_srgb(srgb_to_linear(albedo) * e)
+    visible = (ctx.coverage & (np.arange(128)[None, :] < 80)).astype(np.float32)  # the right side unseen
+    filled = DefaultBackend(settings=DIFFUSE)
+    complete = srgb_to_linear(filled.homogenise(filled.inpaint(shaded, visible, ctx), ctx))
+    alone = DefaultBackend(settings=DIFFUSE)
+    delit, reliable = alone.delight(shaded, visible, ctx)
+    assert delit.dtype == reliable.dtype == np.float32 and delit.shape == (128, 128, 3)
+    assert np.array_equal(reliable, filled.seen_reliability(ctx))
+    assert reliable[visible == 0].max() == 0.0 and reliable.max() == pytest.approx(1.0)
+    trusted = reliable > 0.999
+    assert trusted.sum() > 2000
+    assert np.abs(delit[trusted] - complete[trusted]).max() < 2e-3
+    with pytest.raises(ValueError, match="inpaint this context first"):
+        DefaultBackend().seen_reliability(ctx)

@@ -174,3 +174,41 @@ def test_facegeo_fit_one_person_writes_one_record(tmp_path):
                          capture_output=True, text=True, timeout=300)
     assert one.returncode == 2 and one.stderr.strip().splitlines() == [
         f"facegeo: error: <command line>: --one-person: expected two or more photo files of the person, found {photo}"]
+
+
+def test_facegeo_reconstruct_one_person_fuses_one_texture_from_the_photos(tmp_path):
+    """The command (forked views and export) on the bundled photo and its mirror image: one
+    asset whose albedo takes each side from the photo that sees it, the exposure matched (the
+    same photo: gains of 1), the record of the joint fit with the fusion's; the job in this
+    process writes the same maps."""
+    import json
+    import subprocess
+    import sys
+
+    import cv2
+
+    from facegeo.jobs import ReconstructOptions, reconstruct_one_person_into_folder
+
+    photo = asset_path("photos/astronaut.png")
+    mirrored = tmp_path / "mirrored.png"
+    cv2.imwrite(str(mirrored), cv2.imread(str(photo))[:, ::-1])
+    out = tmp_path / "out"
+    done = subprocess.run([sys.executable, "-m", "facegeo.cli", "reconstruct", "--one-person", str(photo), str(mirrored),
+                           "-o", str(out), "--size", "256"], capture_output=True, text=True, timeout=600)
+    assert done.returncode == 0, done.stderr[-3000:]
+    assert {"fit.json", "asset.json", "albedo.png", "face.glb", "face.usdz", "preview.png", "blendshapes.npz"} <= {
+        p.name for p in out.iterdir()}
+    record = json.loads((out / "fit.json").read_text())
+    assert record["one_person"] and [p["photo"] for p in record["photos"]] == [str(photo), str(mirrored)]
+    assert record["reference"] in (str(photo), str(mirrored))
+    fusion = record["fusion"]
+    assert np.allclose(fusion["gains"], 1.0, atol=0.05) and min(fusion["share"]) > 0.2
+    assert {"fit", "parts", "views", "fuse", "materials", "export", "preview", "total"} == set(record["timings_s"]["stages"])
+    inline = reconstruct_one_person_into_folder([photo, mirrored], tmp_path / "inline", ReconstructOptions(size=256), fork=False)
+    assert inline.map_size == 256
+    for name in ("albedo.png", "normal.png", "roughness.png"):
+        assert (out / name).read_bytes() == (tmp_path / "inline" / name).read_bytes(), name
+    one = subprocess.run([sys.executable, "-m", "facegeo.cli", "reconstruct", "--one-person", str(photo), "-o", str(tmp_path / "o2")],
+                         capture_output=True, text=True, timeout=300)
+    assert one.returncode == 2 and one.stderr.strip().splitlines() == [
+        f"facegeo: error: <command line>: --one-person: expected two or more photo files of the person, found {photo}"]

@@ -6,6 +6,7 @@ from __future__ import annotations
 import argparse
 import sys
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from facegeo.commands.arguments import (
     Command,
@@ -21,6 +22,9 @@ from facegeo.commands.arguments import (
     wants_batch,
 )
 from facegeo.commands.batch import run_batch
+
+if TYPE_CHECKING:
+    from facegeo.jobs import JobRecord, ReconstructOptions
 
 __all__ = ["COMMANDS"]
 
@@ -54,6 +58,10 @@ def _arguments(parser: argparse.ArgumentParser) -> None:
     add_parts_argument(texture)
     add_blendshape_arguments(texture)
     parser.add_argument("--no-preview", action="store_true", help="do not render preview.png")
+    parser.add_argument("--one-person", action="store_true",
+                        help="the photos are of one person: one identity fitted to all of them jointly and one texture fused from "
+                        "all of them (each texel from the photos that see it best), into one folder (a photo of someone else "
+                        "is named and left out)")
     add_batch_arguments(parser)
 
 
@@ -72,6 +80,8 @@ def _run(args: argparse.Namespace) -> int | None:
                                  size=args.size, upscale=args.upscale, subdiv=args.subdiv, maps=tuple(maps),
                                  formats=tuple(formats), parts=args.parts, preview=not args.no_preview,
                                  blendshapes=args.blendshapes != "none", blendshape_names=args.blendshape_names)
+    if args.one_person:
+        return _run_one_person(args, options)
     if wants_batch(args):
         return run_batch(args, "reconstruct", options)
     bars: list[tqdm] = []  # made at the first stage: the pipeline (and torch) is imported by then, while the fit runs
@@ -87,13 +97,33 @@ def _run(args: argparse.Namespace) -> int | None:
     record = reconstruct_into_folder(args.photo, args.output, options, progress=progress, fork=True)
     for bar in bars:
         bar.close()
+    _report(record, f"reconstructed {args.photo}: landmark RMS {record.landmark_rms_px:.2f} px, maps {', '.join(record.maps)} "
+                    f"at {record.map_size}², formats {', '.join(formats)}", args.output)
+    return None
+
+
+def _report(record: JobRecord, summary: str, output: Path) -> None:
+    """Print the job's notes, ``summary``, its stage timings and where it wrote."""
     for note in record.notes:
         print(f"note: {note}")
-    print(f"reconstructed {args.photo}: landmark RMS {record.landmark_rms_px:.2f} px, maps {', '.join(record.maps)} "
-          f"at {record.map_size}², formats {', '.join(formats)}")
+    print(summary)
     print("timings: " + ", ".join(f"{k} {v:.2f} s" for k, v in record.timings.items()))
-    print(f"wrote {args.output}")
-    return None
+    print(f"wrote {output}")
+
+
+def _run_one_person(args: argparse.Namespace, options: ReconstructOptions) -> None:
+    """``reconstruct --one-person A B ... -o OUT``: the photos as given (no folders or manifests;
+    ``-o`` checked with the other commands' by ``check_arguments``)."""
+    from facegeo.commands.arguments import COMMAND_LINE
+    from facegeo.errors import InputError
+    from facegeo.jobs import reconstruct_one_person_into_folder
+
+    photos = args.photo
+    if len(photos) < 2 or any(Path(p).is_dir() for p in photos):
+        raise InputError(COMMAND_LINE, "--one-person", "two or more photo files of the person", " ".join(map(str, photos)))
+    record = reconstruct_one_person_into_folder(photos, args.output, options, fork=True)
+    _report(record, f"reconstructed one person from {record.photo}: landmark RMS {record.landmark_rms_px:.2f} px "
+                    f"(over the photos), maps {', '.join(record.maps)} at {record.map_size}²", args.output)
 
 
 COMMANDS = (

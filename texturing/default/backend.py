@@ -7,6 +7,8 @@ over the modules of :mod:`facegeo.texturing.default`, with its settings and its 
   (:mod:`~facegeo.texturing.default.sheen`) taken out, filled
   (:mod:`~facegeo.texturing.default.fill`), and relit with the estimated shading and light colour.
 * **homogenise**: the filled texture divided by the shading and the light's colour.
+* **delight** (not a :class:`~facegeo.texturing.backend.TextureBackend` stage): inpaint's first
+  half, what one photo of several says of the texels it saw (no fill).
 * **materials**: :mod:`~facegeo.texturing.default.materials`.
 * **upscale**: Lanczos (OpenCV ``INTER_LANCZOS4``).
 """
@@ -39,6 +41,27 @@ from facegeo.texturing.image_filters import pad_outside, pad_width
 __all__ = ["DefaultBackend"]
 
 
+@dataclass(frozen=True)
+class _Delit:
+    """What :meth:`DefaultBackend._delit` found of one photo texture (all (S, S[, 3]) float32 or
+    bool): the analysis, its kept weight, the seen texels (weight > 0.5), their distance inside
+    the seen region, their reliability and the shading's confidence, the de-lit linear albedo,
+    the light's colour (its two chroma coordinates, or a map), whether the photo is greyscale,
+    notes and the illuminant's report."""
+
+    analysis: Analysis
+    weight: np.ndarray
+    seen: np.ndarray
+    inner: np.ndarray
+    reliable: np.ndarray
+    confidence: np.ndarray
+    albedo: np.ndarray
+    light: Any
+    greyscale: bool
+    notes: list[str]
+    illuminant: dict[str, Any]
+
+
 @dataclass
 class DefaultBackend:
     """Weight-free texture backend. ``settings``
@@ -55,6 +78,7 @@ class DefaultBackend:
     report: dict[str, Any] = field(default_factory=dict)
     _analysis: tuple[TextureContext, Analysis] | None = field(default=None, repr=False)
     _filled: tuple[np.ndarray, np.ndarray] | None = field(default=None, repr=False)
+    _reliable: tuple[TextureContext, np.ndarray] | None = field(default=None, repr=False)
 
     # ---------------------------------------------------------------------------------- analysis
     def analyse(self, T_inc: np.ndarray, M_vis: np.ndarray, ctx: TextureContext) -> Analysis:
@@ -85,8 +109,66 @@ class DefaultBackend:
     def inpaint(self, T_inc: np.ndarray, M_vis: np.ndarray, ctx: TextureContext) -> np.ndarray:
         """(S, S, 3) sRGB + (S, S) visibility -> (S, S, 3) sRGB, every texel filled, under the
         photo's lighting (the estimated shading and light colour applied to the filled albedo)."""
-        settings = self.settings
         cover = ctx.coverage
+        d = self._delit(T_inc, M_vis, ctx)
+        skin = skin_texels(ctx)
+        if d.reliable[skin].sum() >= 10:
+            mean = (d.albedo * d.reliable[..., None]).reshape(-1, 3).sum(0) / d.reliable.sum()
+        elif (d.weight > 0).any():
+            mean = (d.albedo * d.weight[..., None]).reshape(-1, 3).sum(0) / d.weight.sum()
+        else:  # nothing seen at all: the model's texture
+            mean = srgb_to_linear(ctx.mean_texture)[cover].mean(0)
+        filled = fill(np.log(np.maximum(d.albedo, 1e-4)), d.seen, d.weight, d.inner, d.reliable, d.confidence,
+                      d.analysis.ambient_dependence, mean, ctx, self.settings)
+        out = np.where(cover[..., None], np.exp(filled.log_rgb), 0.0)
+        if d.greyscale:
+            out = invent_chroma(luminance(out), ctx.regions.get("lips"))
+        peak = channel_max(out)
+        out = np.where(peak > 1.0, out / np.maximum(peak, 1e-6), out).astype(np.float32)  # keeps chroma
+        self.report["inpaint"] = {
+            "seen": float(M_vis[cover].mean()) if cover.any() else 0.0,
+            "kept_as_seen": float(d.reliable[cover].mean()) if cover.any() else 0.0,
+            "via_mirror": float(((1 - d.reliable) * filled.via_mirror)[cover].mean()) if cover.any() else 0.0,
+            "mirror_asymmetry": filled.mirror_asymmetry,
+            "mirror_tone": filled.mirror_tone,
+            "detail_contrast": filled.detail_contrast,
+        }
+        self.report["illuminant"] = d.illuminant
+        self.report["notes"] = d.notes
+        self._reliable = (ctx, np.where(cover, d.reliable, 0.0).astype(np.float32))
+        relit = linear_to_srgb(np.clip(out * cast_gains(d.light) * d.analysis.shading[..., None], 0.0, None))
+        result = self._pad(relit.astype(np.float32), cover)
+        self._filled = (result, out)
+        return result
+
+    def delight(self, T_inc: np.ndarray, M_vis: np.ndarray, ctx: TextureContext) -> tuple[np.ndarray, np.ndarray]:
+        """The first half of :meth:`inpaint` without the fill: ``(albedo (S, S, 3) float32 linear
+        RGB, de-lit, the light's colour and the sheen taken out, channel peaks limited to 1 as
+        :meth:`inpaint` limits them; reliable (S, S) float32 in [0, 1], how far each texel's
+        albedo is trusted, 0 where the photo did not see it)``: what one photo of several says
+        of the texels it saw (:func:`facegeo.pipeline.reconstruct_views`). A greyscale photo's
+        albedo is grey."""
+        d = self._delit(T_inc, M_vis, ctx)
+        albedo = np.where(ctx.coverage[..., None], d.albedo, 0.0)
+        peak = channel_max(albedo)
+        albedo = np.where(peak > 1.0, albedo / np.maximum(peak, 1e-6), albedo).astype(np.float32)
+        self.report["illuminant"] = d.illuminant
+        self.report["notes"] = d.notes
+        return albedo, np.where(ctx.coverage, d.reliable, 0.0).astype(np.float32)
+
+    def seen_reliability(self, ctx: TextureContext) -> np.ndarray:
+        """(S, S) float32 in [0, 1]: how far the last :meth:`inpaint` of ``ctx`` trusted each
+        texel as seen (the ``reliable`` of :meth:`delight`; 0 where the photo did not see it).
+
+        Raises:
+            ValueError: no inpaint of ``ctx`` was made by this backend."""
+        if self._reliable is None or self._reliable[0] is not ctx:
+            raise ValueError("seen_reliability: inpaint this context first")
+        return self._reliable[1]
+
+    def _delit(self, T_inc: np.ndarray, M_vis: np.ndarray, ctx: TextureContext) -> _Delit:
+        """Analyse the photo texture and de-light what it saw (:meth:`inpaint`'s first half)."""
+        settings = self.settings
         lin = srgb_to_linear(T_inc)
         an = self._analyse(T_inc, lin, M_vis, ctx)
         w = an.weight
@@ -119,33 +201,7 @@ class DefaultBackend:
         if an.sun_lobe is not None and not greyscale:  # (a greyscale photo has no chroma to tell the sheen by)
             delit = without_sun_sheen(delit, an.sun_lobe, w > 0, (reliable > 0.5) & skin, settings.sheen_smooth_mm / ctx.median_texel_mm,
                                       settings=settings)
-        if reliable[skin].sum() >= 10:
-            mean = (delit * reliable[..., None]).reshape(-1, 3).sum(0) / reliable.sum()
-        elif (w > 0).any():
-            mean = (delit * w[..., None]).reshape(-1, 3).sum(0) / w.sum()
-        else:  # nothing seen at all: the model's texture
-            mean = srgb_to_linear(ctx.mean_texture)[cover].mean(0)
-        filled = fill(np.log(np.maximum(delit, 1e-4)), seen, w, inner, reliable, confidence, an.ambient_dependence, mean, ctx,
-                      settings)
-        out = np.where(cover[..., None], np.exp(filled.log_rgb), 0.0)
-        if greyscale:
-            out = invent_chroma(luminance(out), ctx.regions.get("lips"))
-        peak = channel_max(out)
-        out = np.where(peak > 1.0, out / np.maximum(peak, 1e-6), out).astype(np.float32)  # keeps chroma
-        self.report["inpaint"] = {
-            "seen": float(M_vis[cover].mean()) if cover.any() else 0.0,
-            "kept_as_seen": float(reliable[cover].mean()) if cover.any() else 0.0,
-            "via_mirror": float(((1 - reliable) * filled.via_mirror)[cover].mean()) if cover.any() else 0.0,
-            "mirror_asymmetry": filled.mirror_asymmetry,
-            "mirror_tone": filled.mirror_tone,
-            "detail_contrast": filled.detail_contrast,
-        }
-        self.report["illuminant"] = illuminant_report
-        self.report["notes"] = notes
-        relit = linear_to_srgb(np.clip(out * cast_gains(light) * an.shading[..., None], 0.0, None))
-        result = self._pad(relit.astype(np.float32), cover)
-        self._filled = (result, out)
-        return result
+        return _Delit(an, w, seen, inner, reliable, confidence, delit, light, greyscale, notes, illuminant_report)
 
     # ---------------------------------------------------------------------------------- homogenise
     def homogenise(self, T_full: np.ndarray, ctx: TextureContext) -> np.ndarray:
