@@ -1,7 +1,7 @@
 """Contact sheet of ``facegeo reconstruct --one-person`` against one photo alone: the command's own
 preview.png (the reference photo beside the asset from the front, three-quarter and profile,
 textured and as clay) for renders of two real head scans (yaw 0°, ±20°, ±40°; ``scan_renders.py``)
-and two real photos of one person (``sample_photos.py``: obama.jpg, obama2.jpg; kept out of the
+and two real photos of one person (``sample_photos.white_house_photos``: obama.jpg, obama2.jpg; kept out of the
 fusion's tuning).
 
     python benchmarks/sheet_one_person.py [--out docs/one_person_fusion.jpg]
@@ -19,7 +19,7 @@ import cv2
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from sample_photos import sample_photos  # noqa: E402
+from sample_photos import white_house_photos  # noqa: E402
 from scan_renders import load_view, render_views  # noqa: E402
 
 import facegeo  # noqa: E402
@@ -57,7 +57,7 @@ def main() -> int:
     ap.add_argument("--out", type=Path, default=Path(__file__).resolve().parents[1] / "docs" / "one_person_fusion.jpg")
     ap.add_argument("--width", type=int, default=900)
     args = ap.parse_args()
-    samples = {p.name: p for p in sample_photos()}
+    samples = {p.name: p for p in white_house_photos()}
     cases = [(f"{name}: yaw 0 alone", files[:1]) for name, files in (("James (3dMD scan)", render_files("james")),
                                                                     ("Lee Perry-Smith (IR scan)", render_files("lee_perry_smith")))]
     cases = [cases[0], ("James: yaw 0, +-20, +-40 fused", render_files("james")), cases[1],
