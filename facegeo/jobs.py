@@ -622,21 +622,24 @@ def track_into_folder(video: str | Path, output: str | Path, options: TrackOptio
 
 def _animated_asset(video: str | Path, options: TrackOptions, model: Any, track: Any, take: Any, stage: Any) -> dict[str, Any]:
     """The person's textured asset, animated by the take (:func:`track_into_folder`): the
-    most frontal keyframe whose face lies wholly inside the frame (else the most frontal) fitted again with the clip's identity and camera (its albedo and light,
-    the single-photo checks), the texture stages on it (the default backend), its asset folder in
-    ``asset/``, ``face.glb`` and ``face.usdz`` with the take's keys (one a frame) and
-    ``preview.png`` (the keyframe beside the asset from the front, three-quarter and profile).
-    Returns what ``track.json`` records of it."""
-    from facegeo.camera import euler_from_rotation, project
+    keyframes whose face lies wholly inside the frame (else all of them) fitted again with the
+    clip's identity and camera (their albedo and light, the single-photo checks), their textures
+    fused (:func:`facegeo.pipeline.reconstruct_views`: the most frontal keyframe the reference,
+    the others' de-lit skin where they see it best; one keyframe: its own texture), its asset
+    folder in ``asset/``, ``face.glb`` and ``face.usdz`` with the take's keys (one a frame) and
+    ``preview.png`` (the reference keyframe beside the asset from the front, three-quarter and
+    profile). Returns what ``track.json`` records of it."""
+    from facegeo.camera import project
+    from facegeo.errors import FacegeoError, NoFaceError
     from facegeo.export.asset_io import write_asset_files
     from facegeo.export.textures import TextureFiles
     from facegeo.export.writers import export_asset
     from facegeo.fitting.photo_fit import finish_photo_fit, observe_photo
     from facegeo.image_files import png_bytes
     from facegeo.photo import Photo
-    from facegeo.pipeline import reconstruct_with_fit
+    from facegeo.pipeline import reconstruct_views
     from facegeo.texturing.preview import relit_preview
-    from facegeo.tracking import SolveStart, solve_frame
+    from facegeo.tracking import SolveStart, follow_region, solve_frame
     from facegeo.video import open_video
 
     keys = [f for f in track.frames if f.keyframe]
@@ -646,24 +649,48 @@ def _animated_asset(video: str | Path, options: TrackOptions, model: Any, track:
         uv = project(shape.astype(np.float64), np.asarray(f.rotation, np.float64), np.asarray(f.translation, np.float64), track.camera)
         return bool(np.all((uv >= 0) & (uv <= [track.camera.width, track.camera.height])))
 
-    frontal = min(keys, key=lambda f: (not inside(f), abs(euler_from_rotation(f.rotation)[0])))
-    _, frames = open_video(video, frontal.time_s, None, 1)
-    frame = next(f for f in frames if f.index == frontal.index)
-    photo = Photo(frame.image, f"{video} (frame {frame.index})", 1.0, (frame.image.shape[1], frame.image.shape[0]))
-    begin = time.perf_counter()
-    seen = observe_photo(photo, model, None, options.landmarks, track.camera)
+    def alone(image: np.ndarray, key: Any) -> np.ndarray:
+        """The frame with everything outside the tracked face's region (``tracking``'s follow
+        region around its projected landmarks) grey: a detector finds the tracked person, not
+        the largest face in the frame; the face's own pixels are the frame's."""
+        shape = model.shape_numpy(track.alpha, key.delta)[model.landmark_indices]
+        points = project(shape.astype(np.float64), np.asarray(key.rotation, np.float64), np.asarray(key.translation, np.float64),
+                         track.camera)
+        region = follow_region(points, image.shape[1], image.shape[0])
+        if region is None:
+            return image
+        x0, y0, x1, y1 = region
+        out = np.full_like(image, 128)
+        out[y0:y1, x0:x1] = image[y0:y1, x0:x1]
+        return out
+
     alpha = track.alpha.astype(np.float64)
-    solution = solve_frame(model, seen, track.camera, alpha, track.noise,
-                           SolveStart(frontal.rotation, frontal.translation, alpha, frontal.delta))
-    fitted = finish_photo_fit(seen, solution, photometric=True)
-    asset, result = reconstruct_with_fit(photo, model, backend="default", detector=options.landmarks,
-                                         fitted=(fitted, time.perf_counter() - begin))
+    photos, fits, indices, notes = [], [], [], []
+    for key in [f for f in keys if inside(f)] or keys:
+        _, frames = open_video(video, key.time_s, None, 1)
+        frame = next(f for f in frames if f.index == key.index)
+        photo = Photo(alone(frame.image, key), f"{video} (frame {frame.index})", 1.0, (frame.image.shape[1], frame.image.shape[0]))
+        try:
+            seen = observe_photo(photo, model, None, options.landmarks, track.camera)
+            solution = solve_frame(model, seen, track.camera, alpha, track.noise, SolveStart(key.rotation, key.translation, alpha, key.delta))
+            fits.append(finish_photo_fit(seen, solution, photometric=True))
+        except FacegeoError as error:  # the keyframe's face refused on its own (its checks): the others texture the face
+            notes.append(f"keyframe {key.index} left out of the texture: {error}")
+            continue
+        photos.append(photo)
+        indices.append(int(key.index))
+    if not fits:
+        raise NoFaceError(str(video), "keyframes", "a keyframe whose fit passes its checks for the texture", "none")
+    asset, reference, fusion = reconstruct_views(photos, fits, model, fork=True)
+    result = fits[reference]
     folder = stage.path("asset")
     folder.mkdir()
     texture_files = TextureFiles()
     write_asset_files(asset, folder, texture_files=texture_files)
     for fmt in ("glb", "usdz"):
         export_asset(asset, stage.path(f"face.{fmt}"), format=fmt, blendshapes="arkit", animation=take, texture_files=texture_files)
-    stage.path("preview.png").write_bytes(png_bytes(relit_preview(photo.image, asset, result)))
-    return {"keyframe": frontal.index, "landmark_rms_px": float(result.landmark_rms_px), "notes": list(result.info.get("notes", [])),
+    stage.path("preview.png").write_bytes(png_bytes(relit_preview(photos[reference].image, asset, result)))
+    return {"keyframe": indices[reference], "texture_keyframes": indices,
+            "fusion": fusion, "landmark_rms_px": float(result.landmark_rms_px),
+            "notes": notes + list(dict.fromkeys(n for f in fits for n in f.info.get("notes", []))) + fusion["notes"],
             "files": ["asset/", "face.glb", "face.usdz", "preview.png"]}

@@ -44,7 +44,7 @@ from facegeo.landmarks.detectors import get_detector
 from facegeo.landmarks.scheme import inter_ocular_distance
 from facegeo.morphable_model import MorphableModel
 
-__all__ = ["TrackedFrame", "Track", "ObservedFrame", "ClipIdentity", "track_frames", "observe_frames", "clip_identity",
+__all__ = ["TrackedFrame", "Track", "ObservedFrame", "ClipIdentity", "track_frames", "observe_frames", "clip_identity", "follow_region",
            "track_observed", "solve_frame", "smooth_track", "SolveStart", "TRACK_STAGE", "KEYFRAMES", "FOLLOW_MARGIN", "POSE_WINDOW",
            "WEIGHT_WINDOW", "IDENTITY_CHECK_EVERY"]
 
@@ -217,7 +217,7 @@ def observe_frames(frames: Iterable[Any], model: MorphableModel, detector: str =
         followed += 1
         previous = None if observation is None else observation.landmarks
         observed.append(ObservedFrame(frame.index, frame.time_s, observation, None if observation is not None else why))
-        region = None if observation is None else _region(observation.landmarks, width, height)
+        region = None if observation is None else follow_region(observation.landmarks, width, height)
         if progress is not None:
             progress(len(observed))
     if size is None:
@@ -246,7 +246,7 @@ def _jumped(previous: np.ndarray | None, landmarks: np.ndarray) -> bool:
 FOLLOW_MARGIN = 1.0
 
 
-def _region(landmarks: np.ndarray, width: int, height: int) -> tuple[int, int, int, int] | None:
+def follow_region(landmarks: np.ndarray, width: int, height: int) -> tuple[int, int, int, int] | None:
     """(x0, y0, x1, y1) px of the region around ``landmarks`` (88, 2) px where the next frame's
     face is looked for, inside the frame; None where it would be the whole frame anyway or too
     small for a photo (:data:`facegeo.photo.MIN_SIDE`)."""

@@ -79,3 +79,13 @@ def test_mismatched_inputs_are_refused():
         fuse_albedos([], [], np.ones((S, S), bool), np.ones((S, S), bool))
     with pytest.raises(ValueError):
         fuse_albedos([np.zeros((S, S, 3), np.float32)], [np.zeros((S, 4), np.float32)], np.ones((S, S), bool), np.ones((S, S), bool))
+
+
+def test_a_photo_of_another_face_is_left_out_by_its_implausible_gains():
+    truth = textured(3)
+    cover = np.ones((S, S), bool)
+    everywhere = np.ones((S, S), np.float32)
+    other_face = np.clip(truth * np.array([1.0, 0.45, 0.4], np.float32) * 1.6, 0, 1)  # redder: another person, another light
+    fused, report = fuse_albedos([truth, other_face], [everywhere, everywhere * 4], cover, cover, reference=0)
+    assert "photo 1 left out of the texture" in report["notes"][0]
+    assert np.abs(fused - truth).max() < 1e-4 and report["share"] == [1.0, 0.0]

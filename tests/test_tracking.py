@@ -105,7 +105,9 @@ def test_facegeo_track_writes_a_take_the_live_link_reader_reads(tmp_path):
     gltf = pygltflib.GLTF2().load(str(out / "face.glb"))
     keys = gltf.accessors[gltf.animations[0].samplers[0].input]
     assert keys.count == len(ROLLS) and keys.max[0] == pytest.approx((len(ROLLS) - 1) / 10.0, abs=1e-4)
-    assert record["asset"]["keyframe"] in record["keyframes"]
+    assert record["asset"]["keyframe"] in record["asset"]["texture_keyframes"]
+    assert set(record["asset"]["texture_keyframes"]) <= set(record["keyframes"]) and len(record["asset"]["fusion"]["gains"]) == len(
+        record["asset"]["texture_keyframes"])
 
 
 def test_a_video_without_any_face_is_one_line(tmp_path):

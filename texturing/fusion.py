@@ -33,11 +33,17 @@ import numpy as np
 
 from facegeo.texturing.image_filters import push_pull
 
-__all__ = ["fuse_albedos", "view_weight", "MIN_COMMON_TEXELS", "SHARPNESS", "LEVELS"]
+__all__ = ["fuse_albedos", "view_weight", "MIN_COMMON_TEXELS", "MAX_EXPOSURE", "MAX_WHITE_BALANCE", "SHARPNESS", "LEVELS"]
 
 #: Skin texels seen well (weight ≥ half its photo's 90th percentile) by both a photo and the
 #: reference that its exposure and white balance are matched on.
 MIN_COMMON_TEXELS = 200
+#: A photo whose matched gains differ from the reference's by more than this factor in exposure
+#: (any channel), or by more than :data:`MAX_WHITE_BALANCE` between its channels, is left out:
+#: after each photo's own light and its colour are taken out, so large a difference is another
+#: face or a failed fit, not another exposure (±2 EV) or a white balance left in.
+MAX_EXPOSURE = 4.0
+MAX_WHITE_BALANCE = 1.5
 #: Exponent of the weights before blending (the best-seeing photo dominates each texel).
 SHARPNESS = 4.0
 #: Pyramid levels of the blend: its coarsest band is 2^LEVELS texels (16), the scale over which
@@ -94,7 +100,13 @@ def fuse_albedos(albedos: Sequence[np.ndarray], weights: Sequence[np.ndarray], s
         if common[k] >= MIN_COMMON_TEXELS:
             gains[k] = np.median(logs[reference][both] - logs[k][both], axis=0)
             matched.append(k)
-    unmatched = [k for k in range(K) if k not in matched]
+    implausible = [k for k in matched[1:] if np.abs(gains[k]).max() > np.log(MAX_EXPOSURE)
+                   or gains[k].max() - gains[k].min() > np.log(MAX_WHITE_BALANCE)]
+    for k in implausible:
+        matched.remove(k)
+        notes.append(f"photo {k} left out of the texture: its albedo differs from the reference's by gains "
+                     f"{', '.join(f'{g:.2f}' for g in np.exp(gains[k]))} (another face or a failed fit)")
+    unmatched = [k for k in range(K) if k not in matched and k not in implausible]
     if unmatched:
         fallback = np.median(gains[matched], axis=0) if len(matched) > 1 else np.zeros(3)
         gains[unmatched] = fallback
@@ -104,6 +116,7 @@ def fuse_albedos(albedos: Sequence[np.ndarray], weights: Sequence[np.ndarray], s
     # each photo's albedo continued smoothly beyond what it saw, so that the blend's coarse bands,
     # which reach past a weight's edge, average colours it saw, not the zeros of what it did not
     # (the reference's own fill stays where no photo saw the skin)
+    weights = [np.zeros_like(w) if k in implausible else w for k, w in enumerate(weights)]
     nobody = ~np.any([w > 0 for w in weights], axis=0)
     logs = [_continued(lg, ((weights[k] > 0) | (nobody if k == reference else False)) & coverage) for k, lg in enumerate(logs)]
 
