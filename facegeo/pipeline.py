@@ -339,8 +339,10 @@ def reconstruct_views(
     by a fresh ``backend`` (its own camera, light and exposure), the albedos fused texel by
     texel from the photos that see each best, exposure and white balance matched to the
     reference photo (:func:`facegeo.texturing.fusion.fuse_albedos`), then the other maps made
-    from the fused albedo in the reference's context. The reference is the photo whose head
-    faces the camera most (the smallest rotation); the asset carries its expression and parts.
+    from the fused albedo in the reference's context. The reference is the colour photo whose
+    head faces the camera most (the smallest rotation); the asset carries its expression and
+    parts. A greyscale photo among colour ones is left out of the texture (it has no skin colour
+    to give), with a note.
 
     Args:
         photos: the K photos (:class:`Photo` or (H, W, 3) uint8 RGB), in the order of ``fits``.
@@ -380,8 +382,15 @@ def reconstruct_views(
     model = load_model() if model is None else model
     timings: dict[str, float] = {}
 
+    from facegeo.colour import is_greyscale
+
     pixels = [photo.image if isinstance(photo, Photo) else as_rgb_uint8(photo) for photo in photos]
-    reference = int(np.argmin([np.arccos(np.clip((np.trace(np.asarray(f.rotation, np.float64)) - 1) / 2, -1, 1)) for f in fits]))
+    names = [str(f.info.get("source", k)) for k, f in enumerate(fits)]
+    # a greyscale photo tells nothing of the skin's colour: the colour ones texture the face where there are any
+    grey = [is_greyscale(p[::4, ::4]) for p in pixels]
+    used = [k for k in range(len(pixels)) if not grey[k]] or list(range(len(pixels)))
+    turn = [np.arccos(np.clip((np.trace(np.asarray(f.rotation, np.float64)) - 1) / 2, -1, 1)) for f in fits]
+    reference = min(used, key=lambda k: turn[k])
     main = fits[reference]
     t = _starting(progress, "parts")
     geometry, parts_report = _geometry(pixels[reference], main, model, parts)
@@ -391,13 +400,17 @@ def reconstruct_views(
 
     t = _starting(progress, "views")
     main_backend = BACKENDS[backend]()
-    albedos, weights, ctx, skin_used = _view_albedos(pixels, fits, model, skins or [None] * len(photos), size, backend, reference,
-                                                     main_backend, fork)
+    skins = skins or [None] * len(photos)
+    albedos, weights, ctx, skin_used = _view_albedos([pixels[k] for k in used], [fits[k] for k in used], model,
+                                                     [skins[k] for k in used], size, backend, used.index(reference), main_backend, fork)
     timings["views"] = time.perf_counter() - t
 
     t = _starting(progress, "fuse")
     skin = ctx.coverage if ctx.skin is None else ctx.coverage & (ctx.skin > 0.5)
-    fused, report = fuse_albedos(albedos, weights, skin, ctx.coverage, reference)
+    fused, report = fuse_albedos(albedos, weights, skin, ctx.coverage, used.index(reference), names=[names[k] for k in used])
+    report["notes"] = [f"{names[k]}: a greyscale photo among colour ones: left out of the texture" for k in range(len(pixels))
+                       if k not in used] + report["notes"]
+    report["photos"] = [names[k] for k in used]
     timings["fuse"] = time.perf_counter() - t
 
     t = _starting(progress, "materials")
@@ -405,5 +418,5 @@ def reconstruct_views(
     timings["materials"] = time.perf_counter() - t
 
     asset = _textured(geometry, out, main_backend, model, main, skin_used, parts_report, size, 1, timings,
-                      photos=[str(f.info.get("source", k)) for k, f in enumerate(fits)], reference=reference, fusion=report)
+                      photos=names, reference=reference, fusion=report)
     return asset, reference, report

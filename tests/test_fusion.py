@@ -66,7 +66,7 @@ def test_photos_that_share_too_little_skin_are_not_matched_and_a_note_says_so():
     b[:, 70:] = 1
     _, report = fuse_albedos([truth, truth * 0.5], [a, b], cover, cover, reference=0)
     assert report["common_texels"][1] < MIN_COMMON_TEXELS and report["gains"][1] == [1.0, 1.0, 1.0]
-    assert "not matched" in report["notes"][0]
+    assert "not matched" in report["notes"][0] and report["notes"][0].startswith("photo 1:")
 
 
 def test_view_weight_is_visibility_times_pixels_per_square_mm():
@@ -87,5 +87,5 @@ def test_a_photo_of_another_face_is_left_out_by_its_implausible_gains():
     everywhere = np.ones((S, S), np.float32)
     other_face = np.clip(truth * np.array([1.0, 0.45, 0.4], np.float32) * 1.6, 0, 1)  # redder: another person, another light
     fused, report = fuse_albedos([truth, other_face], [everywhere, everywhere * 4], cover, cover, reference=0)
-    assert "photo 1 left out of the texture" in report["notes"][0]
+    assert report["notes"][0].startswith("photo 1: left out of the texture")
     assert np.abs(fused - truth).max() < 1e-4 and report["share"] == [1.0, 0.0]

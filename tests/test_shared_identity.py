@@ -212,3 +212,20 @@ def test_facegeo_reconstruct_one_person_fuses_one_texture_from_the_photos(tmp_pa
                          capture_output=True, text=True, timeout=300)
     assert one.returncode == 2 and one.stderr.strip().splitlines() == [
         f"facegeo: error: <command line>: --one-person: expected two or more photo files of the person, found {photo}"]
+
+
+def test_a_greyscale_photo_among_colour_ones_is_left_out_of_the_texture(model, tmp_path):
+    import cv2
+
+    from facegeo.pipeline import reconstruct_views
+
+    photo = asset_path("photos/astronaut.png")
+    grey = tmp_path / "grey_mirrored.png"
+    cv2.imwrite(str(grey), cv2.cvtColor(cv2.imread(str(photo), cv2.IMREAD_GRAYSCALE)[:, ::-1], cv2.COLOR_GRAY2BGR))
+    fits = fit_photos([grey, photo], model, photometric=False)
+    photos = [cv2.cvtColor(cv2.imread(str(p)), cv2.COLOR_BGR2RGB) for p in (grey, photo)]
+    asset, reference, report = reconstruct_views(photos, fits, model, size=128, maps={"albedo"}, parts=False)
+    assert reference == 1 and report["photos"] == [str(photo)]
+    assert report["notes"][0] == f"{grey}: a greyscale photo among colour ones: left out of the texture"
+    albedo = asset.maps["albedo"]
+    assert albedo.shape == (128, 128, 3) and np.ptp(albedo[..., 0] - albedo[..., 2]) > 0.05  # coloured, not grey

@@ -62,7 +62,7 @@ def view_weight(visibility: np.ndarray, cos_view: np.ndarray, distance_mm: np.nd
 
 
 def fuse_albedos(albedos: Sequence[np.ndarray], weights: Sequence[np.ndarray], skin: np.ndarray, coverage: np.ndarray,
-                 reference: int = 0) -> tuple[np.ndarray, dict[str, Any]]:
+                 reference: int = 0, names: Sequence[str] | None = None) -> tuple[np.ndarray, dict[str, Any]]:
     """Blend K photos' albedos into one (module docstring).
 
     Args:
@@ -73,6 +73,7 @@ def fuse_albedos(albedos: Sequence[np.ndarray], weights: Sequence[np.ndarray], s
         coverage: (S, S) bool, the texels of the layout.
         reference: the photo whose exposure and white balance the others are matched to, and
             whose albedo fills the texels no photo saw.
+        names: the photos' names for the notes (default: "photo <index>").
     Returns:
         ``(albedo (S, S, 3) float32 linear RGB in [0, 1], 0 outside coverage; report)``: the
         report holds per photo its ``gains`` (3,), the ``common_texels`` it was matched on, the
@@ -86,6 +87,7 @@ def fuse_albedos(albedos: Sequence[np.ndarray], weights: Sequence[np.ndarray], s
     if any(a.shape != (*size, 3) for a in albedos) or any(w.shape != size for w in weights):
         raise ValueError("fuse_albedos: every albedo must be (S, S, 3) and every weight (S, S) of the same S")
     K = len(albedos)
+    names = [f"photo {k}" for k in range(K)] if names is None else list(names)
     logs = [np.log(np.clip(a, 1e-4, 1.0)).astype(np.float32) for a in albedos]
     strong = [w >= 0.5 * max(float(np.percentile(w[w > 0], 90)) if (w > 0).any() else 0.0, 1e-12) for w in weights]
     notes: list[str] = []
@@ -104,14 +106,14 @@ def fuse_albedos(albedos: Sequence[np.ndarray], weights: Sequence[np.ndarray], s
                    or gains[k].max() - gains[k].min() > np.log(MAX_WHITE_BALANCE)]
     for k in implausible:
         matched.remove(k)
-        notes.append(f"photo {k} left out of the texture: its albedo differs from the reference's by gains "
-                     f"{', '.join(f'{g:.2f}' for g in np.exp(gains[k]))} (another face or a failed fit)")
+        notes.append(f"{names[k]}: left out of the texture: its albedo differs from the reference's by gains "
+                     f"{', '.join(f'{g:.2f}' for g in np.exp(gains[k]))} (another face, a failed fit or a photo without colour)")
     unmatched = [k for k in range(K) if k not in matched and k not in implausible]
     if unmatched:
         fallback = np.median(gains[matched], axis=0) if len(matched) > 1 else np.zeros(3)
         gains[unmatched] = fallback
-        notes.append(f"photos {', '.join(str(k) for k in unmatched)} share fewer than {MIN_COMMON_TEXELS} well-seen skin texels "
-                     "with the reference: their exposure and white balance were not matched (the others' median gain used)")
+        notes.append(f"{', '.join(names[k] for k in unmatched)}: fewer than {MIN_COMMON_TEXELS} well-seen skin texels shared "
+                     "with the reference: exposure and white balance not matched (the others' median gain used)")
     logs = [lg + gains[k].astype(np.float32) for k, lg in enumerate(logs)]
     # each photo's albedo continued smoothly beyond what it saw, so that the blend's coarse bands,
     # which reach past a weight's edge, average colours it saw, not the zeros of what it did not
