@@ -125,7 +125,7 @@ def main() -> int:
                   f"{issues['numInfos']} infos, {issues['numHints']} hints")
         except Exception as exc:  # the validator is optional here
             print(f"Khronos glTF-Validator: not run ({exc})")
-        from facegeo.export.arkit import target_naming
+        from facegeo.arkit import target_naming
         from facegeo.export.usd import skel_points, validate_usd
         from facegeo.parts import load_parts, part_vertices
         from facegeo.model_files import load_model

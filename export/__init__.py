@@ -26,10 +26,10 @@ _EXPORTS = {
     "load_asset": "facegeo.export.asset_io",
     "write_asset_files": "facegeo.export.asset_io",
     "skel_points": "facegeo.export.usd",
-    "ARKIT_NAMES": "facegeo.export.arkit",
-    "target_naming": "facegeo.export.arkit",
+    "ARKIT_NAMES": "facegeo.arkit",
+    "target_naming": "facegeo.arkit",
     "read_live_link_csv": "facegeo.export.live_link",
-    "ArkitTake": "facegeo.export.live_link",
+    "ArkitTake": "facegeo.arkit",
 }
 
 __all__ = list(_EXPORTS)

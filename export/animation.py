@@ -12,7 +12,7 @@ The rig (:func:`face_rig`):
   rotations, as in ARKit's own face rig, and is not applied twice.
 
 The values (:func:`target_weights`, :func:`rotations`): the take's 52 ARKit weights become the
-model's weights (:attr:`facegeo.export.arkit.TargetNaming.model_from_arkit`: ARKit's
+model's weights (:attr:`facegeo.arkit.TargetNaming.model_from_arkit`: ARKit's
 ``browInnerUp`` drives both of ICT's halves; ``tongueOut`` drives nothing) and then the file's
 target weights; Live Link Face's yaw, pitch and roll (radians, its signs: a positive yaw turns
 towards the subject's right, a positive pitch looks down, :mod:`facegeo.export.live_link`) become
@@ -26,9 +26,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from facegeo.arkit import ArkitTake, TargetNaming
 from facegeo.asset import Asset
-from facegeo.export.arkit import TargetNaming
-from facegeo.export.live_link import ArkitTake
 from facegeo.parts import EYEBALLS_PART, eyeball_centres
 
 __all__ = ["FaceRig", "face_rig", "target_weights", "rotations", "head_angles", "EYE_NAMES", "HEAD_NAME"]

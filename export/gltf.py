@@ -59,12 +59,12 @@ from typing import Any, Iterable
 
 import numpy as np
 
+from facegeo.arkit import ArkitTake
 from facegeo.asset import SPECULAR_F0_SCALE, Asset
 from facegeo.colour import linear_to_srgb, srgb_to_linear
 from facegeo.errors import InputError
 from facegeo.export.animation import EYE_NAMES, HEAD_NAME, FaceRig, face_rig, rotations, target_weights
 from facegeo.export.facevarying import wedges
-from facegeo.export.live_link import ArkitTake
 from facegeo.export.morph_targets import NORMAL_TARGET_MIN, SurfaceTargets
 from facegeo.export.scene import SceneContents, scene_contents, scene_surfaces
 from facegeo.export.textures import DEFAULT_ROUGHNESS, TextureFiles

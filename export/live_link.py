@@ -12,7 +12,7 @@ The file (one header row, one row per captured frame)::
   Times are relative to the first row and must increase.
 * ``BlendShapeCount``: how many values the app sent (61 = 52 shapes + 9 rotations); checked to be
   a whole number, not used.
-* The 52 ARKit blendshapes (:data:`facegeo.export.arkit.ARKIT_NAMES` with a capital first
+* The 52 ARKit blendshapes (:data:`facegeo.arkit.ARKIT_NAMES` with a capital first
   letter), weights in [0, 1]. All 52 are required, in any order.
 * ``HeadYaw/HeadPitch/HeadRoll`` and ``LeftEye…/RightEye…`` ``Yaw/Pitch/Roll``: rotations in
   radians. Each group of three (head, left eye, right eye) is optional but all or nothing.
@@ -40,15 +40,14 @@ import csv
 import math
 import os
 import re
-from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
+from facegeo.arkit import ARKIT_NAMES, ArkitTake
 from facegeo.errors import InputError
-from facegeo.export.arkit import ARKIT_NAMES
 
-__all__ = ["ArkitTake", "read_live_link_csv", "live_link_csv_text", "LIVE_LINK_COLUMNS", "ROTATION_GROUPS", "DEFAULT_FPS"]
+__all__ = ["read_live_link_csv", "live_link_csv_text", "LIVE_LINK_COLUMNS", "ROTATION_GROUPS", "DEFAULT_FPS"]
 
 #: Live Link Face's default time code rate (frames per second of the ``Timecode`` frame field).
 DEFAULT_FPS = 60.0
@@ -62,32 +61,6 @@ _SHAPE_COLUMNS = tuple(name[0].upper() + name[1:] for name in ARKIT_NAMES)
 #: Every column of a Live Link Face CSV, in the app's order.
 LIVE_LINK_COLUMNS = ("Timecode", "BlendShapeCount", *_SHAPE_COLUMNS, *(c for g in ROTATION_GROUPS.values() for c in g))
 _TIMECODE = re.compile(r"^(\d{1,2}):(\d{2}):(\d{2})[:;](\d{1,3}(?:\.\d+)?)$")
-
-
-@dataclass
-class ArkitTake:
-    """A recorded take (N frames).
-
-    Attributes:
-        source: the file it was read from.
-        fps: the time code rate used to read ``Timecode``.
-        times: (N,) float64 seconds from the first frame, strictly increasing.
-        weights: (N, 52) float32 blendshape weights in [0, 1], in :data:`ARKIT_NAMES` order.
-        rotations: group name (``head``, ``left_eye``, ``right_eye``) -> (N, 3) float64 yaw,
-            pitch, roll in radians (Live Link Face's signs); only the groups the file has.
-        notes: what reading changed (clamped weights).
-    """
-
-    source: str
-    fps: float
-    times: np.ndarray
-    weights: np.ndarray
-    rotations: dict[str, np.ndarray] = field(default_factory=dict)
-    notes: list[str] = field(default_factory=list)
-
-    @property
-    def n_frames(self) -> int:
-        return int(len(self.times))
 
 
 def read_live_link_csv(path: str | os.PathLike[str], fps: float = DEFAULT_FPS, clamp: bool = False) -> ArkitTake:

@@ -1,7 +1,7 @@
 """The morph targets of a written surface: its blendshapes as displacements of the exported mesh.
 
 :func:`surface_targets` turns a surface's :class:`facegeo.blendshapes.Blendshapes` into the named
-targets a file carries (:func:`facegeo.export.arkit.target_naming`: ARKit's names or the model's),
+targets a file carries (:func:`facegeo.arkit.target_naming`: ARKit's names or the model's),
 on the vertices that are written:
 
 * **positions**: each target's displacement (mm). With ``--subdiv`` > 0 the coarse displacements
@@ -30,7 +30,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from facegeo.blendshapes import Blendshapes
-from facegeo.export.arkit import TargetNaming
+from facegeo.arkit import TargetNaming
 from facegeo.export.subdivision import apply_operators
 from facegeo.normals import vertex_normals
 
@@ -68,7 +68,7 @@ class SurfaceTargets:
     shows the photo's expression.
 
     Attributes:
-        naming: the names' mapping (:class:`facegeo.export.arkit.TargetNaming`).
+        naming: the names' mapping (:class:`facegeo.arkit.TargetNaming`).
         targets: one :class:`MorphTarget` per name of ``naming``.
         weights: (T,) float64, the fitted weights in the targets' terms.
         notes: what the file should say about its targets (a missing ARKit shape, merged halves).

@@ -5,7 +5,7 @@ the geometry (``displacement="bake"``) or leaves it for a material input (``"tex
 only), computes smooth vertex normals of the final geometry, and resolves which maps become
 textures and which factors (:func:`facegeo.export.textures.material_inputs`).
 
-With ``blendshapes`` (a naming of :data:`facegeo.export.arkit.BLENDSHAPE_NAMINGS`) and an asset
+With ``blendshapes`` (a naming of :data:`facegeo.arkit.BLENDSHAPE_NAMINGS`) and an asset
 that carries :class:`facegeo.blendshapes.Blendshapes`, the mesh written is the **neutral** one
 (identity only, subdivided and displaced the same way) and ``targets`` holds the morph targets
 that pose it (:func:`facegeo.export.morph_targets.surface_targets`); the writers set the targets'
@@ -24,7 +24,7 @@ from facegeo.errors import InputError
 from facegeo.export.displacement import bake_displacement
 from facegeo.normals import vertex_normals
 from facegeo.export.facevarying import FaceVaryingMesh
-from facegeo.export.arkit import target_naming
+from facegeo.arkit import target_naming
 from facegeo.export.morph_targets import SurfaceTargets, surface_targets
 from facegeo.export.subdivision import subdivide_with_operators
 from facegeo.export.textures import MaterialInput, material_inputs

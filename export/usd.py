@@ -65,11 +65,11 @@ from typing import Any, Iterable
 
 import numpy as np
 
+from facegeo.arkit import ArkitTake
 from facegeo.asset import SPECULAR_F0_SCALE, Asset
 from facegeo.colour import srgb_to_linear
 from facegeo.errors import InputError, OutputError
 from facegeo.export.animation import EYE_NAMES, HEAD_NAME, rotations, target_weights
-from facegeo.export.live_link import ArkitTake
 from facegeo.export.scene import SceneContents, scene_surfaces
 from facegeo.parts import EYEBALLS_PART, eyeball_centres
 from facegeo.export.textures import DEFAULT_ROUGHNESS, TextureFiles, encode_map

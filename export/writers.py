@@ -15,7 +15,7 @@ from facegeo.asset import Asset
 from facegeo.errors import InputError
 
 if TYPE_CHECKING:
-    from facegeo.export.live_link import ArkitTake
+    from facegeo.arkit import ArkitTake
     from facegeo.export.scene import SceneContents, SceneGeometry
     from facegeo.export.textures import TextureFiles
 

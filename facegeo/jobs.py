@@ -90,7 +90,7 @@ class ReconstructOptions(FitOptions):
         preview: render preview.png.
         blendshapes: write the expression blendshapes into the scenes (glTF morph targets,
             UsdSkel blend shapes) so that they can be animated; False: a static asset.
-        blendshape_names: their names, ``arkit`` or ``ict`` (``facegeo.export.arkit.BLENDSHAPE_NAMINGS``).
+        blendshape_names: their names, ``arkit`` or ``ict`` (``facegeo.arkit.BLENDSHAPE_NAMINGS``).
     """
 
     backend: str = "default"
@@ -124,7 +124,7 @@ class ReconstructOptions(FitOptions):
             raise InputError(_SOURCE, "subdiv", "0, 1, 2 or 3", str(self.subdiv))
         if self.parts not in PART_CHOICES:
             raise InputError(_SOURCE, "parts", f"one of {', '.join(PART_CHOICES)}", repr(self.parts))
-        from facegeo.export.arkit import BLENDSHAPE_NAMINGS
+        from facegeo.arkit import BLENDSHAPE_NAMINGS
 
         if self.blendshape_names not in BLENDSHAPE_NAMINGS:
             raise InputError(_SOURCE, "blendshape_names", f"one of {', '.join(BLENDSHAPE_NAMINGS)}", repr(self.blendshape_names))
@@ -568,8 +568,9 @@ def track_into_folder(video: str | Path, output: str | Path, options: TrackOptio
             unwritable output, or another run writing into ``output``.
     """
     from facegeo.export.animation import head_angles
-    from facegeo.export.arkit import ARKIT_NAMES, target_naming
-    from facegeo.export.live_link import ArkitTake, live_link_csv_text
+    from facegeo.arkit import ARKIT_NAMES, target_naming
+    from facegeo.arkit import ArkitTake
+    from facegeo.export.live_link import live_link_csv_text
     from facegeo.staged_output import StagedOutput, locked_output
     from facegeo.tracking import POSE_WINDOW, WEIGHT_WINDOW, smooth_track, track_frames
     from facegeo.video import open_video

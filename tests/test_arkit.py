@@ -8,8 +8,9 @@ import pytest
 from facegeo.cli import main
 from facegeo.errors import InputError
 from facegeo.export.animation import rotations, target_weights
-from facegeo.export.arkit import ARKIT_NAMES, arkit_name, target_naming
-from facegeo.export.live_link import LIVE_LINK_COLUMNS, ArkitTake, live_link_csv_text, read_live_link_csv
+from facegeo.arkit import ARKIT_NAMES, arkit_name, target_naming
+from facegeo.arkit import ArkitTake
+from facegeo.export.live_link import LIVE_LINK_COLUMNS, live_link_csv_text, read_live_link_csv
 from arkit_support import shaped_asset, write_take
 
 

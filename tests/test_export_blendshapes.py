@@ -9,7 +9,7 @@ import pytest
 
 from facegeo.blendshapes import Blendshapes
 from facegeo.errors import InputError
-from facegeo.export.arkit import ARKIT_NAMES, target_naming
+from facegeo.arkit import ARKIT_NAMES, target_naming
 from facegeo.export.asset_io import load_asset, save_asset
 from facegeo.export.gltf import GltfValidatorMissing, find_gltf_validator, validate_glb, write_glb
 from facegeo.export.live_link import read_live_link_csv

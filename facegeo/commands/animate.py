@@ -42,7 +42,7 @@ def _run(args: argparse.Namespace) -> None:
     """Read the take, check the output, load the asset and write the animated file (staged)."""
     import numpy as np
 
-    from facegeo.export.arkit import ARKIT_NAMES, target_naming
+    from facegeo.arkit import ARKIT_NAMES, target_naming
     from facegeo.export.asset_io import load_asset
     from facegeo.export.live_link import DEFAULT_FPS, read_live_link_csv
     from facegeo.export.writers import export_asset

@@ -203,8 +203,8 @@ def add_parts_argument(parser: argparse.ArgumentParser) -> None:
                         "full = the head with eyes and mouth interior (default; the model's parts, if it has any)")
 
 
-#: The blendshape namings (``facegeo.export.arkit.BLENDSHAPE_NAMINGS``).
-BLENDSHAPE_NAMINGS = RegistryNames("facegeo.export.arkit", "BLENDSHAPE_NAMINGS")
+#: The blendshape namings (``facegeo.arkit.BLENDSHAPE_NAMINGS``).
+BLENDSHAPE_NAMINGS = RegistryNames("facegeo.arkit", "BLENDSHAPE_NAMINGS")
 
 
 def add_blendshape_arguments(parser: argparse.ArgumentParser | argparse._ArgumentGroup, choose: bool = True) -> None:

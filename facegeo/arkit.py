@@ -19,13 +19,13 @@ weight vector (a Live Link Face frame) becomes the model's δ with ``model_from_
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
 from facegeo.errors import InputError
 
-__all__ = ["ARKIT_NAMES", "BLENDSHAPE_NAMINGS", "TargetNaming", "target_naming", "arkit_name"]
+__all__ = ["ARKIT_NAMES", "BLENDSHAPE_NAMINGS", "TargetNaming", "target_naming", "arkit_name", "ArkitTake"]
 
 #: ARKit's 52 blendshape names, in the order of Live Link Face's CSV columns (camelCase; the CSV
 #: capitalises the first letter).
@@ -118,3 +118,30 @@ def target_naming(model_names: tuple[str, ...] | list[str], naming: str = "arkit
     weights_from_model = combine / combine.sum(axis=1, keepdims=True)
     missing = tuple(a for a in ARKIT_NAMES if a not in targets)
     return TargetNaming("arkit", tuple(targets), combine, weights_from_model, model_from_arkit, missing)
+
+
+@dataclass
+class ArkitTake:
+    """A take (N frames) in ARKit's terms: what Live Link Face records
+    (:func:`facegeo.export.live_link.read_live_link_csv`) and what ``facegeo track`` makes.
+
+    Attributes:
+        source: the file it was read from.
+        fps: the time code rate used to read ``Timecode``.
+        times: (N,) float64 seconds from the first frame, strictly increasing.
+        weights: (N, 52) float32 blendshape weights in [0, 1], in :data:`ARKIT_NAMES` order.
+        rotations: group name (``head``, ``left_eye``, ``right_eye``) -> (N, 3) float64 yaw,
+            pitch, roll in radians (Live Link Face's signs); only the groups the file has.
+        notes: what reading changed (clamped weights).
+    """
+
+    source: str
+    fps: float
+    times: np.ndarray
+    weights: np.ndarray
+    rotations: dict[str, np.ndarray] = field(default_factory=dict)
+    notes: list[str] = field(default_factory=list)
+
+    @property
+    def n_frames(self) -> int:
+        return int(len(self.times))
