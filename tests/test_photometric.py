@@ -81,7 +81,7 @@ def test_recovers_sh_lighting_of_a_rendered_face():
     normals = model.vertex_normals(torch.from_numpy(result.vertices))
     colours = (model.albedo() * sh_irradiance(normals, torch.from_numpy(gamma))).numpy()
     image = render_flat(result.vertices, model.triangles, colours, camera)
-    fit_photometric(model, result, srgb_to_linear(image.astype(np.float32) / 255.0))
+    result = fit_photometric(model, result, srgb_to_linear(image.astype(np.float32) / 255.0))
     info = result.info["photometric"]
     assert info["skin_vertices_used"] > 1000
     # Over the visible half of the sphere the bands 1, n_z and 3n_z² − 1 are nearly collinear, so

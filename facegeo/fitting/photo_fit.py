@@ -5,7 +5,7 @@ landmark fit (:mod:`facegeo.fitting.landmark_fit`) -> albedo and SH lighting
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -80,22 +80,22 @@ def finish_photo_fit(seen: PhotoObservation, solution: LandmarkSolution, photome
     """The second half of :func:`fit`: the landmark ``solution`` of the photo ``seen``
     (:func:`observe_photo`) completed with albedo and SH lighting (``photometric``), the optional
     ``shading`` stage, the photo's notes and detection record, and checked
-    (:func:`~facegeo.fitting.checks.check_fit`). Returns the solution's fit, completed in place."""
+    (:func:`~facegeo.fitting.checks.check_fit`). Returns the completed fit (a new :class:`Fit`)."""
     model, pixels, detection = seen.model, seen.pixels, seen.detection
-    result = solution.fit
-    result.timings = {**seen.timings, **result.timings}
+    result = replace(solution.fit, timings={**seen.timings, **solution.fit.timings})
     if photometric or shading is not None:
         t0 = time.perf_counter()
         linear = srgb_to_linear(pixels.astype(np.float32) / 255.0)
-        fit_photometric(model, result, linear)
+        result = fit_photometric(model, result, linear)
         result.timings["photometric"] = time.perf_counter() - t0
         if shading is not None and "skipped" not in result.info.get("photometric", {}):
             from facegeo.fitting.shading_refine import refine_with_shading  # torch: only for this opt-in stage
 
             t0 = time.perf_counter()
-            result.info["shading"] = refine_with_shading(model, result, solution.problem, solution.noise, linear,
-                                                         solution.expression_scale, solution.expression_rate, shading)
-            fit_photometric(model, result, linear)  # albedo and light for the refined shape
+            result, statistics = refine_with_shading(model, result, solution.problem, solution.noise, linear,
+                                                     solution.expression_scale, solution.expression_rate, shading)
+            result = fit_photometric(model, result, linear)  # albedo and light for the refined shape
+            result.info["shading"] = statistics
             result.timings["shading"] = time.perf_counter() - t0
     result.info.update(
         source=seen.source,

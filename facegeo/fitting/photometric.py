@@ -9,6 +9,7 @@ residuals beyond 3 robust σ (hair, glasses, specular highlights) are dropped be
 
 from __future__ import annotations
 
+from dataclasses import replace
 from typing import Any
 
 import numpy as np
@@ -28,8 +29,10 @@ __all__ = ["fit_photometric", "PHOTOMETRIC_REGULARISATION"]
 PHOTOMETRIC_REGULARISATION = {"tex": 1e-2, "sh": 1e-3}
 
 
-def fit_photometric(model: MorphableModel, fit_result: Fit, image_linear: np.ndarray, rounds: int = 4) -> None:
-    """Fit β and γ (in place on ``fit_result``) by alternating regularised least squares."""
+def fit_photometric(model: MorphableModel, fit_result: Fit, image_linear: np.ndarray, rounds: int = 4) -> Fit:
+    """``fit_result`` with β and γ fitted by alternating regularised least squares, and the
+    stage's statistics as ``info["photometric"]`` (a new :class:`Fit`; β and γ as they were
+    where too few skin vertices are visible)."""
     camera = fit_result.camera
     normals = vertex_normals(fit_result.vertices, model.triangles)
     visible = vertex_visibility(fit_result.vertices, model.triangles, normals, camera)
@@ -37,8 +40,7 @@ def fit_photometric(model: MorphableModel, fit_result: Fit, image_linear: np.nda
     info: dict[str, Any] = {"visible_vertices": int(visible.sum()), "skin_vertices_used": int(len(use))}
     if len(use) < 50:
         info["skipped"] = "fewer than 50 visible skin vertices"
-        fit_result.info["photometric"] = info
-        return
+        return replace(fit_result, info={**fit_result.info, "photometric": info})
     uv = project(fit_result.vertices[use].astype(np.float64), np.eye(3), np.zeros(3), camera)
     observed = sample_bilinear(image_linear, uv).astype(np.float64)
     basis = sh_basis(normals[use])  # (N, 9) float64
@@ -65,9 +67,8 @@ def fit_photometric(model: MorphableModel, fit_result: Fit, image_linear: np.nda
         sigma = 1.4826 * float(_lower_median(residual[inliers])) + 1e-6
         inliers = residual < 3.0 * sigma
     info.update(inliers=int(inliers.sum()), rms_linear=float(np.sqrt(np.mean(residual[inliers] ** 2))))
-    fit_result.beta = beta.astype(np.float32)
-    fit_result.gamma = gamma.astype(np.float32)
-    fit_result.info["photometric"] = info
+    return replace(fit_result, beta=beta.astype(np.float32), gamma=gamma.astype(np.float32),
+                   info={**fit_result.info, "photometric": info})
 
 
 def _lower_median(values: np.ndarray) -> float:

@@ -23,9 +23,11 @@ if TYPE_CHECKING:
 __all__ = ["Fit", "Fitter"]
 
 
-@dataclass
+@dataclass(frozen=True)
 class Fit:
-    """The result of a fit. Arrays are NumPy float32 unless stated.
+    """The result of a fit. Arrays are NumPy float32 unless stated. Frozen: a stage that changes
+    a fit makes a new one (``dataclasses.replace``); its ``timings`` and ``info`` dicts take the
+    records later stages add (notes, the checks' figures).
 
     alpha (n_id,), delta (n_exp,), beta (n_tex,): coefficients in σ units (δ: blendshape weights
     for ICT). gamma (3, 9): SH coefficients per RGB channel (total, no hidden offset).

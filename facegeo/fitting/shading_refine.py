@@ -24,7 +24,7 @@ without a GPU rasteriser, and at vertex resolution none is needed.
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any
 
 import numpy as np
@@ -68,9 +68,9 @@ def _bounds(model: MorphableModel) -> tuple[torch.Tensor, torch.Tensor]:
 
 def refine_with_shading(model: MorphableModel, result: Fit, problem: LandmarkProblem, noise: float,
                         image_linear: np.ndarray, expression_scale: np.ndarray, expression_rate: np.ndarray,
-                        settings: ShadingSettings = DEFAULT_SHADING) -> dict[str, Any]:
-    """Refine ``result`` (in place: α, δ, rotation, translation, vertices, shape_vertices)
-    against the photo's shading.
+                        settings: ShadingSettings = DEFAULT_SHADING) -> tuple[Fit, dict[str, Any]]:
+    """``result`` refined against the photo's shading (a new :class:`Fit`: α, δ, rotation,
+    translation, vertices, shape_vertices refined), and the stage's statistics.
 
     Args:
         model: the morphable model.
@@ -81,7 +81,7 @@ def refine_with_shading(model: MorphableModel, result: Fit, problem: LandmarkPro
         expression_scale, expression_rate: (n_exp,) the δ prior's scales and rates.
         settings: the stage's knobs.
     Returns:
-        Statistics for ``info["shading"]``: samples, energies before and after, seconds.
+        ``(refined fit, statistics for info["shading"]: samples, energies before and after, seconds)``.
     """
     threads = torch.get_num_threads()
     torch.set_num_threads(SHADING_THREADS)
@@ -92,7 +92,7 @@ def refine_with_shading(model: MorphableModel, result: Fit, problem: LandmarkPro
 
 
 def _refine(model: MorphableModel, result: Fit, problem: LandmarkProblem, noise: float, image_linear: np.ndarray,
-            expression_scale: np.ndarray, expression_rate: np.ndarray, settings: ShadingSettings) -> dict[str, Any]:
+            expression_scale: np.ndarray, expression_rate: np.ndarray, settings: ShadingSettings) -> tuple[Fit, dict[str, Any]]:
     start = time.perf_counter()
     f64 = torch.float64
     normals0 = model.vertex_normals(torch.from_numpy(result.vertices)).numpy()
@@ -193,12 +193,11 @@ def _refine(model: MorphableModel, result: Fit, problem: LandmarkProblem, noise:
         e_end, lan_end, photo_end = (float(v) for v in energy())
         rotation, translation = pose()
         shape = model.shape(alpha.float(), delta.float())
-    result.alpha = a_best.numpy().astype(np.float32)
-    result.delta = d_best.numpy().astype(np.float32)
-    result.rotation = rotation.numpy().astype(np.float32)
-    result.translation = translation.numpy().astype(np.float32)
-    result.shape_vertices = shape.numpy().astype(np.float32)
-    result.vertices = (result.shape_vertices @ result.rotation.T + result.translation).astype(np.float32)
-    return {"samples": int(len(use)), "energy": [e_start, e_end], "landmark_energy": [lan_start, lan_end],
+    shape_vertices, rotation_np = shape.numpy().astype(np.float32), rotation.numpy().astype(np.float32)
+    translation_np = translation.numpy().astype(np.float32)
+    refined = replace(result, alpha=a_best.numpy().astype(np.float32), delta=d_best.numpy().astype(np.float32),
+                      rotation=rotation_np, translation=translation_np, shape_vertices=shape_vertices,
+                      vertices=(shape_vertices @ rotation_np.T + translation_np).astype(np.float32))
+    return refined, {"samples": int(len(use)), "energy": [e_start, e_end], "landmark_energy": [lan_start, lan_end],
             "shading_energy": [photo_start, photo_end], "sigma_linear": sigma, "seconds": time.perf_counter() - start}
 

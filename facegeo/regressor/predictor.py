@@ -190,8 +190,7 @@ class Predictor:
         result = fitting.fit(image, model=self.model, landmarks=prediction.landmarks,
                              camera=dataclasses.replace(prediction.camera, focal_known=True),
                              photometric=photometric, init=prediction)
-        result.camera = prediction.camera
-        result.timings = {**prediction.timings, **result.timings}
+        result = dataclasses.replace(result, camera=prediction.camera, timings={**prediction.timings, **result.timings})
         result.info.update(fitter="regressor+refine", checkpoint=self.source, detector=prediction.info["detector"],
                            notes=notes + [n for n in result.info.get("notes", []) if n not in notes],
                            regressor_landmark_rms_px=prediction.landmark_rms_px)
