@@ -160,7 +160,10 @@ class MorphableModel:
         dtype = torch.float32 if dtype is None else dtype
         key = (name, dtype)
         if key not in self._torch:
-            self._torch[key] = torch.from_numpy(np.ascontiguousarray(getattr(self, name))).to(dtype)
+            array = np.ascontiguousarray(getattr(self, name))
+            if not array.flags.writeable:  # the default model's arrays are memory-mapped read-only (layout cache): torch wants its own
+                array = array.copy()
+            self._torch[key] = torch.from_numpy(array).to(dtype)
         return self._torch[key]
 
     def shape(

@@ -128,7 +128,8 @@ def vertex_normals_torch(vertices: torch.Tensor, triangles: torch.Tensor | np.nd
     """
     import torch
 
-    tri = torch.as_tensor(triangles, dtype=torch.long)
+    # (a read-only array, e.g. the default model's memory-mapped triangles, is copied: torch warns on sharing it)
+    tri = triangles.long() if isinstance(triangles, torch.Tensor) else torch.as_tensor(np.require(triangles, requirements="W"), dtype=torch.long)
     a, b, c = vertices[..., tri[:, 0], :], vertices[..., tri[:, 1], :], vertices[..., tri[:, 2], :]
     face_n = torch.cross(b - a, c - a, dim=-1)
     normals = torch.zeros_like(vertices)

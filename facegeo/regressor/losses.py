@@ -91,7 +91,8 @@ def slide_jaw(points_cam: torch.Tensor, landmark_indices: np.ndarray, targets: t
     Returns:
         (B, 88, 2) px; differentiable in ``points_cam`` (the choice of edge is not).
     """
-    idx = torch.as_tensor(landmark_indices, dtype=torch.long)
+    idx = (landmark_indices.long() if isinstance(landmark_indices, torch.Tensor)  # a read-only array copied (torch warns on sharing it)
+           else torch.as_tensor(np.require(landmark_indices, requirements="W"), dtype=torch.long))
     eye, zero = torch.eye(3).expand(len(points_cam), 3, 3), torch.zeros(len(points_cam), 3)
     points = points_cam[:, idx].clone()  # (B, 88, 3)
     jaw = idx[:17]

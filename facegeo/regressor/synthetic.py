@@ -107,7 +107,7 @@ def render_face(model: MorphableModel, face: dict[str, np.ndarray], size: int,
     background = np.clip(background + rng.normal(0, 0.03, background.shape), 0, 1)
     image = np.where(view.mask[..., None], linear_to_srgb(view.image), background)
     image = cv2.GaussianBlur(image.astype(np.float32), (0, 0), 0.6)  # a lens, not aliased edges
-    landmarks = project(posed[torch.from_numpy(model.landmark_indices)], torch.eye(3), torch.zeros(3), camera)
+    landmarks = project(posed[model.tensor("landmark_indices", torch.int64)], torch.eye(3), torch.zeros(3), camera)
     return (np.clip(image, 0, 1) * 255).round().astype(np.uint8), landmarks.numpy().astype(np.float32), camera
 
 
