@@ -365,7 +365,7 @@ def reconstruct_views(
         InputError: no photos, counts that do not match, bad maps or size. (One photo, e.g. the
             only one of the person left: its own albedo, as :func:`reconstruct_with_fit` makes it.)
     """
-    from facegeo.colour import linear_to_srgb
+    from facegeo.colour import is_greyscale, linear_to_srgb
     from facegeo.texturing.fusion import fuse_albedos
     from facegeo.texturing.image_filters import pad_outside
 
@@ -381,8 +381,6 @@ def reconstruct_views(
         raise InputError("<argument>", "backend", "the default backend (several photos)", repr(backend))
     model = load_model() if model is None else model
     timings: dict[str, float] = {}
-
-    from facegeo.colour import is_greyscale
 
     pixels = [photo.image if isinstance(photo, Photo) else as_rgb_uint8(photo) for photo in photos]
     names = [str(f.info.get("source", k)) for k, f in enumerate(fits)]
@@ -410,7 +408,7 @@ def reconstruct_views(
     fused, report = fuse_albedos(albedos, weights, skin, ctx.coverage, used.index(reference), names=[names[k] for k in used])
     report["notes"] = [f"{names[k]}: a greyscale photo among colour ones: left out of the texture" for k in range(len(pixels))
                        if k not in used] + report["notes"]
-    report["photos"] = [names[k] for k in used]
+    report["photos"] = [names[k] for k in used]  # what the report's indices (its reference's too) count
     timings["fuse"] = time.perf_counter() - t
 
     t = _starting(progress, "materials")
