@@ -7,21 +7,38 @@ JOB.json holds ``mesh`` (paths of raw little-endian arrays: ``vertices`` float32
 ``triangles`` int32 (F, 3), ``corner_uv`` float32 (F, 3, 2)), ``texture`` (an sRGB image),
 ``samples``, and ``views``: each ``{"name", "matrix" (4 x 4 row-major, scan mm -> camera
 metres: X_c = R·X·0.001 + t·0.001), "lens_mm", "sensor_mm" (along the long side), "width",
-"height", "light" ("soft" | "hard-side" | "sun-sky"), "image", "albedo"}`` (output PNG paths).
+"height", "light" (a key of :data:`LIGHTS`), "image", "albedo"}`` (output PNG paths).
 
 Scene: the camera sits at the world origin with no rotation, so Blender's camera axes are
 facegeo's (looking down −Z, +Y up) and world space is camera space (metres); the scan is placed
-by the view's matrix. Lights are fixed in camera space: "soft" is a uniform white environment
-(radiance 1: a fully open Lambertian point shows its albedo); "hard-side" is a dim environment
-(0.06) and a small sun from the subject's left (the image's right), a little above and in front;
-"sun-sky" is that sun warm (~4500 K) under a blue sky (an environment of 0.4, ~10000 K): the
-shadowed skin is lit by a light of another colour than the lit skin, as outdoors.
+by the view's matrix. Lights (:data:`LIGHTS`) are fixed in camera space: a uniform environment
+and up to two sun lamps (parallel light, so the shading does not depend on the face's distance;
+a sun's ``angle`` is its angular diameter: the larger, the softer its shadows). Directions are
+towards the light, by azimuth (positive: the subject's left, the image's right, +X) and
+elevation (positive: above) from the camera axis; a sun's energy is its irradiance (W/m²: a
+Lambertian point facing it shows its albedo × energy / π), the environment's strength its
+radiance (a fully open point shows its albedo × strength):
+
+* "soft": a uniform white environment (strength 1), no sun;
+* "hard-side": a small sun (1°, energy 5) from the subject's left, a little above and in front
+  (direction (0.82, 0.35, 0.45): azimuth 61°, elevation 20°), and a dim environment (0.06);
+* "sun-sky": that sun warm (~4500 K) under a blue sky (an environment of 0.4, ~10000 K): the
+  shadowed skin is lit by a light of another colour than the lit skin, as outdoors;
+* "key-fill": the studio portrait light: a large soft key (30°, energy 3) at azimuth 45°,
+  elevation 30°, a fill of a third of its irradiance (30°, energy 1: the 3:1 ratio) from the
+  other side (azimuth −45°, elevation 10°), and a dim environment (0.05);
+* "window": one large soft source from the side (40°, energy 3.6) at azimuth 75°, elevation 15°,
+  and a brighter environment (0.15) as the room's bounce;
+* "ring": a ring light around the lens: a soft sun along the camera axis (18°, energy 3,
+  direction (0, 0, 1)) and a dim environment (0.05).
+
 Outputs per view: the render (8-bit sRGB, view transform Standard) and the Diffuse Color pass
 (the texture's colour at each pixel, unshaded: the ground-truth albedo), both through the
 compositor. A ``done`` list with the written files is printed as ``RENDERED <json>``.
 """
 
 import array
+import collections
 import json
 import math
 import os
@@ -110,17 +127,12 @@ def set_up_scene(samples):
     world.use_nodes = True
     scene.world = world
 
-    sun_data = bpy.data.lights.new("sun", "SUN")
-    sun_data.angle = math.radians(1.0)
-    sun_data.energy = 5.0
-    sun = bpy.data.objects.new("sun", sun_data)
-    scene.collection.objects.link(sun)
-    # from the subject's left (+X), above (+Y) and in front (+Z): the light travels along -direction
-    direction = (0.82, 0.35, 0.45)
-    norm = math.sqrt(sum(c * c for c in direction))
-    d = [c / norm for c in direction]
-    sun.rotation_mode = "QUATERNION"
-    sun.rotation_quaternion = _quaternion_from_z(d)
+    suns = []
+    for name in ("sun", "fill"):
+        sun = bpy.data.objects.new(name, bpy.data.lights.new(name, "SUN"))
+        sun.rotation_mode = "QUATERNION"
+        scene.collection.objects.link(sun)
+        suns.append(sun)
 
     scene.use_nodes = True
     tree = scene.node_tree
@@ -138,7 +150,7 @@ def set_up_scene(samples):
     tree.links.new(layers.outputs["DiffCol"], output.inputs["albedo_"])
     composite = tree.nodes.new("CompositorNodeComposite")
     tree.links.new(layers.outputs["Image"], composite.inputs["Image"])
-    return scene, camera, world, sun, output
+    return scene, camera, world, suns, output
 
 
 def _quaternion_from_z(d):
@@ -153,34 +165,59 @@ def _quaternion_from_z(d):
     return (math.cos(angle / 2), x * h, y * h, z * h)
 
 
+def _towards(azimuth_deg, elevation_deg):
+    """The unit vector (camera space) towards a light at this azimuth (positive: the subject's
+    left, +X) and elevation (positive: above, +Y) from the camera axis (+Z)."""
+    a, e = math.radians(azimuth_deg), math.radians(elevation_deg)
+    return (math.sin(a) * math.cos(e), math.sin(e), math.cos(a) * math.cos(e))
+
+
 #: Linear RGB (largest channel 1) of the "sun-sky" light's sun (~4500 K, luminance 0.84) and sky
 #: (~10000 K, luminance 0.72).
 SUN_COLOUR = (1.0, 0.81, 0.63)
 SKY_COLOUR = (0.59, 0.73, 1.0)
+WHITE = (1.0, 1.0, 1.0)
+#: The small sun of "hard-side" and "sun-sky": from the subject's left (+X), above (+Y) and in
+#: front (+Z); normalised where it is placed.
+SIDE = (0.82, 0.35, 0.45)
+
+#: A sun lamp: direction towards it (camera space), angular diameter (degrees), energy (W/m²), colour.
+Sun = collections.namedtuple("Sun", "direction angle_deg energy colour")
+#: A light: the environment's strength and colour, and its suns (at most two).
+Light = collections.namedtuple("Light", "environment colour suns")
+LIGHTS = {
+    "soft": Light(1.0, WHITE, ()),
+    "hard-side": Light(0.06, WHITE, (Sun(SIDE, 1.0, 5.0, WHITE),)),
+    "sun-sky": Light(0.4, SKY_COLOUR, (Sun(SIDE, 1.0, 5.0, SUN_COLOUR),)),
+    "key-fill": Light(0.05, WHITE, (Sun(_towards(45.0, 30.0), 30.0, 3.0, WHITE), Sun(_towards(-45.0, 10.0), 30.0, 1.0, WHITE))),
+    "window": Light(0.15, WHITE, (Sun(_towards(75.0, 15.0), 40.0, 3.6, WHITE),)),
+    "ring": Light(0.05, WHITE, (Sun((0.0, 0.0, 1.0), 18.0, 3.0, WHITE),)),
+}
 
 
-def set_light(world, sun, light):
-    background = world.node_tree.nodes["Background"]
-    background.inputs["Color"].default_value = (1.0, 1.0, 1.0, 1.0)
-    sun.data.color = (1.0, 1.0, 1.0)
-    if light == "soft":
-        background.inputs["Strength"].default_value = 1.0
-        sun.hide_render = True
-    elif light == "hard-side":
-        background.inputs["Strength"].default_value = 0.06
-        sun.hide_render = False
-    elif light == "sun-sky":
-        background.inputs["Color"].default_value = (*SKY_COLOUR, 1.0)
-        background.inputs["Strength"].default_value = 0.4
-        sun.data.color = SUN_COLOUR
-        sun.hide_render = False
-    else:
+def set_light(world, suns, light):
+    """Set the environment and the suns to the recipe :data:`LIGHTS` ``[light]``; unused suns are hidden."""
+    if light not in LIGHTS:
         raise ValueError(f"unknown light {light!r}")
+    recipe = LIGHTS[light]
+    background = world.node_tree.nodes["Background"]
+    background.inputs["Color"].default_value = (*recipe.colour, 1.0)
+    background.inputs["Strength"].default_value = recipe.environment
+    for k, sun in enumerate(suns):
+        sun.hide_render = k >= len(recipe.suns)
+        if sun.hide_render:
+            continue
+        spec = recipe.suns[k]
+        norm = math.sqrt(sum(c * c for c in spec.direction))
+        sun.rotation_quaternion = _quaternion_from_z([c / norm for c in spec.direction])
+        sun.data.angle = math.radians(spec.angle_deg)
+        sun.data.energy = spec.energy
+        sun.data.color = spec.colour
 
 
 def main():
     job = json.load(open(sys.argv[sys.argv.index("--") + 1]))
-    scene, camera, world, sun, output = set_up_scene(job["samples"])
+    scene, camera, world, suns, output = set_up_scene(job["samples"])
     obj = build_mesh(job)
     done = []
     for view in job["views"]:
@@ -194,7 +231,7 @@ def main():
         camera.data.sensor_fit = "VERTICAL" if view["height"] >= view["width"] else "HORIZONTAL"
         camera.data.sensor_width = view["sensor_mm"]
         camera.data.sensor_height = view["sensor_mm"]
-        set_light(world, sun, view["light"])
+        set_light(world, suns, view["light"])
         folder = os.path.dirname(view["image"])
         output.base_path = folder
         output.file_slots[0].path = view["name"] + "__image_"

@@ -15,7 +15,7 @@ rendered again. Load one with :func:`load_view`::
     view.points     # (H, W, 3) float32 mm: the scan-space surface point at each pixel centre (NaN off the scan)
     view.camera     # facegeo.Camera: true focal (px) and principal point (px, pixel centres at +0.5)
     view.rotation, view.translation   # scan -> camera: X_c = R·X + t (mm), camera looks down −Z, +Y up
-    view.light      # "soft" | "hard-side"
+    view.light      # "soft" | "hard-side" (the views here; any light of blender_render_scan.LIGHTS for others)
 
 Views (:data:`VIEWS`), all 512 × 768 px (portrait) except the crop: a 50 mm lens on a full-frame
 camera (36 mm along the long side: focal 1066.7 px) at 600 mm from the face centre, under soft
