@@ -36,15 +36,18 @@ import os
 import re
 import shutil
 import tempfile
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from pathlib import Path
-from typing import Any
+from typing import Any, TypeVar
 
 import numpy as np
 
 from facegeo.cache_dir import cache_dir
+from facegeo.errors import InputError
 
-__all__ = ["CODE_MODULES", "LAYOUT_CACHE_ENV", "code_version", "entry_folder", "load_entry", "store_entry"]
+T = TypeVar("T")
+
+__all__ = ["CODE_MODULES", "LAYOUT_CACHE_ENV", "code_version", "entry_folder", "load_entry", "store_entry", "load_or_make"]
 
 #: Environment variable naming another folder for the cache (the tests point it at a temporary one).
 LAYOUT_CACHE_ENV = "FACEGEO_LAYOUT_CACHE"
@@ -158,3 +161,23 @@ def store_entry(folder: Path, arrays: Mapping[str, np.ndarray], meta: Mapping[st
     finally:
         if staging is not None:
             shutil.rmtree(staging, ignore_errors=True)
+
+
+def load_or_make(folder: Path, rebuild: Callable[[dict[str, np.ndarray], dict[str, Any]], T | None], make: Callable[[], T],
+                 entry: Callable[[T], tuple[Mapping[str, np.ndarray], Mapping[str, Any]]]) -> T:
+    """The object stored in the entry ``folder``, rebuilt from its arrays and meta by ``rebuild``;
+    where there is none or it is unusable (:func:`load_entry` finds none, or ``rebuild`` returns
+    None or refuses it with a KeyError, TypeError, ValueError or the object's own
+    :class:`facegeo.errors.InputError`: a damaged entry), ``make()``'s, stored as ``entry(made)``
+    (:func:`store_entry`)."""
+    found = load_entry(folder)
+    if found is not None:
+        try:
+            rebuilt = rebuild(*found)
+        except (KeyError, TypeError, ValueError, InputError):
+            rebuilt = None
+        if rebuilt is not None:
+            return rebuilt
+    made = make()
+    store_entry(folder, *entry(made))
+    return made

@@ -193,22 +193,17 @@ def _stored_default(path: Path, key: tuple[str, int, int]) -> MorphableModel:
     float16 conversion (~0.1 s for the bundled model)."""
     import hashlib
 
-    from facegeo.layout_cache import entry_folder, load_entry, store_entry
+    from facegeo.layout_cache import entry_folder, load_or_make
 
-    folder = entry_folder("model-" + hashlib.blake2b(repr(key).encode(), digest_size=16).hexdigest())
-    found = load_entry(folder)
-    if found is not None:
-        arrays, meta = found
-        try:
-            return MorphableModel(source=str(path), name=str(meta["name"]), expression_kind=str(meta["expression_kind"]),
-                                  expression_names=[str(n) for n in meta["expression_names"]],
-                                  **{name: arrays[name] for name in _MODEL_ARRAYS})
-        except (KeyError, TypeError, ValueError, ModelFileError):
-            pass  # a damaged entry: read the file, and store it again
-    model = _load(path, albedo_path=None, units="auto")
-    store_entry(folder, {name: getattr(model, name) for name in _MODEL_ARRAYS},
-                {"name": model.name, "expression_kind": model.expression_kind, "expression_names": list(model.expression_names)})
-    return model
+    return load_or_make(
+        entry_folder("model-" + hashlib.blake2b(repr(key).encode(), digest_size=16).hexdigest()),
+        lambda arrays, meta: MorphableModel(source=str(path), name=str(meta["name"]), expression_kind=str(meta["expression_kind"]),
+                                            expression_names=[str(n) for n in meta["expression_names"]],
+                                            **{name: arrays[name] for name in _MODEL_ARRAYS}),
+        lambda: _load(path, albedo_path=None, units="auto"),
+        lambda model: ({name: getattr(model, name) for name in _MODEL_ARRAYS},
+                       {"name": model.name, "expression_kind": model.expression_kind,
+                        "expression_names": list(model.expression_names)}))
 
 
 # ---------------------------------------------------------------------------------------- dispatch

@@ -13,7 +13,6 @@ import hashlib
 import threading
 from collections import OrderedDict
 from dataclasses import dataclass
-from pathlib import Path
 
 import numpy as np
 import scipy.sparse as sp
@@ -21,7 +20,7 @@ from scipy.spatial import cKDTree
 
 from facegeo.colour import linear_to_srgb
 from facegeo.fitting import Fit
-from facegeo.layout_cache import entry_folder, load_entry, store_entry
+from facegeo.layout_cache import entry_folder, load_or_make
 from facegeo.morphable_model import MorphableModel
 from facegeo.skin_mask import skin_vertex_mask, vertex_regions
 from facegeo.texturing.backend import SurfaceOperators, TextureContext
@@ -158,7 +157,7 @@ _SPARSE = ("interpolation", "laplacian")  # the CSR matrices of SurfaceOperators
 
 
 def _priors_arrays(priors: LayoutPriors) -> tuple[dict[str, np.ndarray], dict[str, object]]:
-    """The arrays and the JSON meta that :func:`_load_layout_priors` rebuilds ``priors`` from:
+    """The arrays and the JSON meta that :func:`_rebuilt_priors` rebuilds ``priors`` from:
     the dense maps (the regions stacked, (R, S, S)), each CSR matrix as ``<name>_data``,
     ``_indices`` and ``_indptr`` with its shape and canonical-format flag; the coverage and the
     texels are the raster's own."""
@@ -173,29 +172,23 @@ def _priors_arrays(priors: LayoutPriors) -> tuple[dict[str, np.ndarray], dict[st
     return arrays, meta
 
 
-def _load_layout_priors(folder: Path, model: MorphableModel, raster: UVRaster) -> LayoutPriors | None:
-    """The priors stored in the disk-cache entry ``folder`` (arrays memory-mapped, the same
-    dtypes, shapes and sparse formats as :func:`_compute_layout_priors` gives), or None where
-    there is no usable one."""
-    found = load_entry(folder)
-    if found is None:
-        return None
-    arrays, meta = found
-    try:
-        sparse = {}
-        for name in _SPARSE:
-            parts = tuple(arrays[f"{name}_{part}"] for part in ("data", "indices", "indptr"))
-            matrix = sp.csr_matrix(parts, shape=tuple(meta[name]["shape"]))
-            if any(m.dtype != a.dtype for m, a in zip((matrix.data, matrix.indices, matrix.indptr), parts)):
-                return None  # SciPy would have narrowed the index dtype: not the matrix that was stored
-            matrix.has_canonical_format = meta[name]["canonical"]
-            sparse[name] = matrix
-        regions = dict(zip(meta["regions"], arrays["regions"], strict=True))
-        return LayoutPriors(coverage=raster.inside, mirror=arrays["mirror"], regions=regions, skin=arrays["skin"],
-                            surface=SurfaceOperators(np.asarray(raster.texels), sparse["interpolation"], sparse["laplacian"]),
-                            mean_texture=None if model.n_tex else arrays["mean_texture"])
-    except (KeyError, TypeError, ValueError):
-        return None
+def _rebuilt_priors(arrays: dict[str, np.ndarray], meta: dict[str, object], model: MorphableModel,
+                    raster: UVRaster) -> LayoutPriors | None:
+    """The priors :func:`_priors_arrays` stored (arrays memory-mapped, the same dtypes, shapes and
+    sparse formats as :func:`_compute_layout_priors` gives), or None where SciPy would narrow a
+    stored index dtype (not the matrix that was stored)."""
+    sparse = {}
+    for name in _SPARSE:
+        parts = tuple(arrays[f"{name}_{part}"] for part in ("data", "indices", "indptr"))
+        matrix = sp.csr_matrix(parts, shape=tuple(meta[name]["shape"]))
+        if any(m.dtype != a.dtype for m, a in zip((matrix.data, matrix.indices, matrix.indptr), parts)):
+            return None
+        matrix.has_canonical_format = meta[name]["canonical"]
+        sparse[name] = matrix
+    regions = dict(zip(meta["regions"], arrays["regions"], strict=True))
+    return LayoutPriors(coverage=raster.inside, mirror=arrays["mirror"], regions=regions, skin=arrays["skin"],
+                        surface=SurfaceOperators(np.asarray(raster.texels), sparse["interpolation"], sparse["laplacian"]),
+                        mean_texture=None if model.n_tex else arrays["mean_texture"])
 
 
 def layout_priors(model: MorphableModel, raster: UVRaster) -> LayoutPriors:
@@ -210,11 +203,9 @@ def layout_priors(model: MorphableModel, raster: UVRaster) -> LayoutPriors:
         if hit is not None:
             _LAYOUT_CACHE.move_to_end(key)
             return hit
-    folder = entry_folder(f"priors-{digest}-{raster.key}-{raster.size}-{raster.padding}")
-    priors = _load_layout_priors(folder, model, raster)
-    if priors is None:
-        priors = _compute_layout_priors(model, raster)
-        store_entry(folder, *_priors_arrays(priors))
+    priors = load_or_make(entry_folder(f"priors-{digest}-{raster.key}-{raster.size}-{raster.padding}"),
+                          lambda arrays, meta: _rebuilt_priors(arrays, meta, model, raster),
+                          lambda: _compute_layout_priors(model, raster), _priors_arrays)
     with _LAYOUT_LOCK:
         _LAYOUT_CACHE[key] = priors
         _LAYOUT_CACHE.move_to_end(key)

@@ -26,13 +26,12 @@ import threading
 from collections import OrderedDict
 from collections.abc import Mapping
 from functools import cached_property
-from pathlib import Path
 
 import cv2
 import numpy as np
 
 from facegeo.errors import InputError
-from facegeo.layout_cache import entry_folder, load_entry, store_entry
+from facegeo.layout_cache import entry_folder, load_or_make
 from facegeo.uv._triangles import triangle_fragments
 from facegeo.uv.texels import uv_to_texel
 
@@ -207,12 +206,12 @@ def rasterize_uv(model_or_uv, uv_triangles: np.ndarray | None = None, size: int 
         if hit is not None:
             _CACHE.move_to_end(key)
             return hit
-    folder = entry_folder(f"raster-{digest}-{size}-{padding}")
-    raster = _load_raster(folder, digest, size, padding)
-    if raster is None:
-        raster = _rasterize(uv, tris, size, padding, digest)
-        store_entry(folder, {name: getattr(raster, name) for name in (*_COMPACT, *DISK_VIEWS)},
-                    {"n_triangles": raster.n_triangles})
+    raster = load_or_make(
+        entry_folder(f"raster-{digest}-{size}-{padding}"),
+        lambda arrays, meta: UVRaster(size, padding, meta["n_triangles"], *(arrays[name] for name in _COMPACT), key=digest,
+                                      views={name: arrays[name] for name in DISK_VIEWS}),  # memory-mapped
+        lambda: _rasterize(uv, tris, size, padding, digest),
+        lambda made: ({name: getattr(made, name) for name in (*_COMPACT, *DISK_VIEWS)}, {"n_triangles": made.n_triangles}))
     with _CACHE_LOCK:
         _CACHE[key] = raster
         _CACHE.move_to_end(key)
@@ -240,20 +239,6 @@ def _check_layout(uv: np.ndarray, tris: np.ndarray) -> tuple[np.ndarray, np.ndar
     if tris.size and (tris.min() < 0 or tris.max() >= uv.shape[0]):
         raise InputError("<array>", "uv_triangles", f"indices in [0, {uv.shape[0]})", f"range [{tris.min()}, {tris.max()}]")
     return uv.astype(np.float64), tris.astype(np.int64)
-
-
-def _load_raster(folder: Path, digest: str, size: int, padding: int) -> UVRaster | None:
-    """The raster stored in the disk-cache entry ``folder`` (arrays memory-mapped), or None where
-    there is no usable one."""
-    found = load_entry(folder)
-    if found is None:
-        return None
-    arrays, meta = found
-    try:
-        return UVRaster(size, padding, meta["n_triangles"], *(arrays[name] for name in _COMPACT), key=digest,
-                        views={name: arrays[name] for name in DISK_VIEWS})
-    except (KeyError, TypeError, ValueError):
-        return None
 
 
 def _layout_digest(uv: np.ndarray, tris: np.ndarray) -> str:
