@@ -312,7 +312,7 @@ def reconstruct_one_person_into_folder(photo_paths: list[str | Path], output: st
             (not supported here), a bad photo, no face, failed fit checks, an unwritable output,
             or another run writing into ``output``.
     """
-    from facegeo.export_job import ExportJob, ExportPlan
+    from facegeo.export_job import ExportJob
     from facegeo.forked_call import can_fork
     from facegeo.image_files import png_bytes
     from facegeo.pipeline import reconstruct_views
@@ -332,9 +332,7 @@ def reconstruct_one_person_into_folder(photo_paths: list[str | Path], output: st
         timings = {"fit": time.perf_counter() - start}
         with StagedOutput(output, replace=True) as stage:
             jobs: list[ExportJob] = []
-            plan = ExportPlan(folder=stage.staging_dir, formats=tuple(options.formats), parts=options.parts, level=options.subdiv,
-                              bake_displacement=options.subdiv > 0 and "displacement" in options.maps,  # DISPLACEMENT_BAKE_RULE
-                              blendshapes=options.blendshape_names if options.blendshapes else None)
+            plan = _export_plan(options, stage.staging_dir)
             try:  # the export begins on the reference's geometry, in a child where forking helps, while the photos are textured
                 asset, reference, _ = reconstruct_views(
                     photos, fits, model, size=options.size, maps=options.maps, progress=progress, fork=fork,
@@ -409,7 +407,7 @@ def reconstruct_into_folder(photo_path: str | Path, output: str | Path, options:
         forking = fork and backend == "default" and predictor is None and can_fork()
         pending = fork_call(_fitted, photo, str(photo_path), options) if forking else None
         try:  # while the child fits: the skin mask, the texture stages' imports, the UV raster and the layout priors
-            from facegeo.export_job import ExportJob, ExportPlan
+            from facegeo.export_job import ExportJob
             from facegeo.image_files import png_bytes
             from facegeo.pipeline import reconstruct_with_fit
             from facegeo.skin_mask import skin_mask_image
@@ -432,9 +430,7 @@ def reconstruct_into_folder(photo_path: str | Path, output: str | Path, options:
             raise
         with StagedOutput(output, replace=True) as stage:
             jobs: list[ExportJob] = []
-            plan = ExportPlan(folder=stage.staging_dir, formats=tuple(options.formats), parts=options.parts, level=options.subdiv,
-                              bake_displacement=options.subdiv > 0 and "displacement" in options.maps,  # DISPLACEMENT_BAKE_RULE
-                              blendshapes=options.blendshape_names if options.blendshapes else None)
+            plan = _export_plan(options, stage.staging_dir)
             try:  # the export begins on the fit's geometry, in a child where forking helps, while the texture stages run here
                 asset, result = reconstruct_with_fit(
                     photo, model, backend=backend, size=options.size, upscale=options.upscale, maps=options.maps,
@@ -469,6 +465,16 @@ def reconstruct_into_folder(photo_path: str | Path, output: str | Path, options:
                          landmark_rms_percent_iod=float(result.landmark_rms_percent_iod),
                          timings=timings, files=files, notes=list(result.info.get("notes", [])),
                          maps=list(asset.maps), map_size=int(next(iter(asset.maps.values())).shape[0]))
+
+
+def _export_plan(options: ReconstructOptions, folder: Path) -> Any:
+    """The :class:`facegeo.export_job.ExportPlan` of ``options`` into ``folder`` (the displacement
+    carried by the scenes as :data:`DISPLACEMENT_BAKE_RULE` says)."""
+    from facegeo.export_job import ExportPlan
+
+    return ExportPlan(folder=folder, formats=tuple(options.formats), parts=options.parts, level=options.subdiv,
+                      bake_displacement=options.subdiv > 0 and "displacement" in options.maps,
+                      blendshapes=options.blendshape_names if options.blendshapes else None)
 
 
 def _completed_export(job: Any, asset: Any, beside: list[tuple[str, Callable[[], Any]]]) -> dict[str, float]:
