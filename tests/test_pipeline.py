@@ -11,6 +11,7 @@ from facegeo.assets import asset_path
 from facegeo.cli import main
 from facegeo.errors import InputError
 from facegeo.pipeline import STAGES, reconstruct, reconstruct_with_fit
+from facegeo.texturing.default import DEFAULT_SETTINGS
 from facegeo.texturing.preview import relit_preview
 
 PHOTO = asset_path("photos/astronaut.png")
@@ -35,6 +36,9 @@ def test_only_the_requested_maps_are_made(small_asset):
     assert 0.0 <= asset.maps["albedo"].min() and asset.maps["albedo"].max() <= 1.0
     report = asset.metadata["texture_report"]
     assert report["homogenise"]["remaining_fraction"] < 0.5
+    level = report["albedo_level"]  # the albedo's level and what set it (fit.json's texture_report)
+    assert "skin_prior" in level["used"] and level["k"] > 0
+    assert DEFAULT_SETTINGS.level_skin_range[0] <= level["skin_luminance"] <= DEFAULT_SETTINGS.level_skin_range[1]
     mask = asset.metadata["skin_mask"]  # hair, suit and background are out of M_vis
     assert mask["source"] == "mediapipe" and 0.5 < mask["occluded_fraction"] < 0.98
 

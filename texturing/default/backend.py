@@ -26,6 +26,7 @@ from facegeo.asset import MAP_NAMES
 from facegeo.colour import channel_max, is_greyscale, linear_to_srgb, luminance, srgb_to_linear
 from facegeo.lighting import sh_basis
 from facegeo.texturing.backend import SKIN_CONSTANTS, TextureContext
+from facegeo.texturing.default.albedo_level import albedo_level
 from facegeo.texturing.default.clipping import restore_clipped
 from facegeo.texturing.default.delighting import Analysis, analyse
 from facegeo.texturing.default.fill import fill
@@ -47,7 +48,8 @@ class _Delit:
     bool): the analysis, its kept weight, the seen texels (weight > 0.5), their distance inside
     the seen region, their reliability and the shading's confidence, the de-lit linear albedo,
     the light's colour (its two chroma coordinates, or a map), whether the photo is greyscale,
-    notes and the illuminant's report."""
+    notes, the illuminant's report and the factor that set the albedo's level
+    (:func:`~facegeo.texturing.default.albedo_level.albedo_level`)."""
 
     analysis: Analysis
     weight: np.ndarray
@@ -60,6 +62,7 @@ class _Delit:
     greyscale: bool
     notes: list[str]
     illuminant: dict[str, Any]
+    level: float
 
 
 @dataclass
@@ -136,7 +139,8 @@ class DefaultBackend:
         self.report["illuminant"] = d.illuminant
         self.report["notes"] = d.notes
         self._reliable = (ctx, np.where(cover, d.reliable, 0.0).astype(np.float32))
-        relit = linear_to_srgb(np.clip(out * cast_gains(d.light) * d.analysis.shading[..., None], 0.0, None))
+        # under the photo's light and exposure again: the albedo's level (d.level) is not the photo's
+        relit = linear_to_srgb(np.clip(out * (cast_gains(d.light) / d.level) * d.analysis.shading[..., None], 0.0, None))
         result = self._pad(relit.astype(np.float32), cover)
         self._filled = (result, out)
         return result
@@ -201,7 +205,12 @@ class DefaultBackend:
         if an.sun_lobe is not None and not greyscale:  # (a greyscale photo has no chroma to tell the sheen by)
             delit = without_sun_sheen(delit, an.sun_lobe, w > 0, (reliable > 0.5) & skin, settings.sheen_smooth_mm / ctx.median_texel_mm,
                                       settings=settings)
-        return _Delit(an, w, seen, inner, reliable, confidence, delit, light, greyscale, notes, illuminant_report)
+        # the level: the exposure does not set it (the skin-reflectance prior, the white references)
+        white = ctx.white_reference if illuminant_report.get("white_used") else None
+        level, self.report["albedo_level"] = albedo_level(delit, skin_weight, an.shading, ctx.regions.get("eyes"), white,
+                                                          illuminant_report.get("skin_tone"), settings)
+        delit = delit * np.float32(level)
+        return _Delit(an, w, seen, inner, reliable, confidence, delit, light, greyscale, notes, illuminant_report, level)
 
     # ---------------------------------------------------------------------------------- homogenise
     def homogenise(self, T_full: np.ndarray, ctx: TextureContext) -> np.ndarray:

@@ -267,6 +267,28 @@ class DefaultSettings:
     #: Lattice of each octave's gradient noise in :func:`~facegeo.texturing.default.noise.band_noise`, in units of the octave's finer σ
     #: (a difference of Gaussians σ–2σ peaks at a wavelength of ~6.5σ; gradient noise at ~1.5–2 cells).
     noise_cell_per_sigma: float = 3.5
+    # ---- the albedo's level: albedo_level.py
+    #: (lowest, highest) linear luminance the skin-reflectance prior gives skin (Fitzpatrick VI to I
+    #: lie within; the locus's log-linear line through the ColorChecker's two skin patches is bounded
+    #: by it).
+    level_skin_range: tuple[float, float] = (0.05, 0.45)
+    #: The share of the ColorChecker skin patches' luminance-against-chroma slope that the skin prior
+    #: keeps: without a sclera in view a warm light reads partly as darker skin (a warmly lit light-
+    #: skinned face of the sample photos, biden.jpg, was placed beyond the dark patch: 0.06 at the
+    #: full slope, 0.11 at half).
+    level_tone_share: float = 0.5
+    #: σ in log of the skin prior's luminance (people of one skin chroma differ by about ±50 %).
+    level_skin_sigma: float = 0.5
+    #: Linear luminance of the white references as photos show them (the brighter, less saturated
+    #: half of the sclera that :func:`facegeo.skin_mask.white_reference` keeps: lit, but under the
+    #: lids' and lashes' shade; teeth alike).
+    level_white_reflectance: float = 0.55
+    #: σ in log of that (the lids' shade, a wet sclera's sheen, teeth's colour).
+    level_white_sigma: float = 0.35
+    #: A white reference whose level and the skin prior's differ by more than this many σ (their σ
+    #: combined) is not used: bench_albedo_scans' James scan, whose scanned eyes are grey, read
+    #: 4.8 σ off (its "white" 5× darker than the skin).
+    level_gate: float = 2.5
     # ---- materials: materials.py
     #: Displacement in mm per unit of high-frequency log-luminance detail (dark = deeper), clipped to
     #: ±DETAIL_LIMIT_MM: skin detail of 3 % contrast (the typical σ of a photo's fine skin detail) is
