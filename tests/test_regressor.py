@@ -436,6 +436,19 @@ def test_an_unknown_focal_is_predicted_with_the_fits_estimate(model, faces):
     np.testing.assert_allclose(uv, predicted.landmarks_fitted[17:], atol=1e-2)  # the prediction is posed in that camera
 
 
+def test_without_a_camera_the_prediction_takes_the_fits_default(model, faces):
+    """Issue 48 ('one front door'): given no camera, the predictor takes the fit's default, an
+    unknown focal estimated from the landmarks, as :func:`facegeo.fit` does (not a 40° camera
+    taken as known)."""
+    from facegeo import fit
+
+    photo, landmarks, predictor, _ = _camera_case(model, faces)
+    fitted = fit(photo, model=model, landmarks=landmarks, photometric=False)
+    predicted = predictor(photo, landmarks=landmarks)
+    assert predicted.camera == fitted.camera and not predicted.camera.focal_known
+    assert predicted.camera.focal != pytest.approx(Camera.for_image(96, 96).focal, rel=0.05)
+
+
 def test_refine_fits_in_the_predictions_camera(model, faces):
     """Issue 47: with ``refine`` and an unknown lens the fit starts from the prediction in the
     prediction's camera and estimates no focal of its own (one estimate, one note)."""

@@ -22,11 +22,11 @@ from facegeo.camera import Camera, project
 from facegeo.errors import InputError
 from facegeo.torch_checkpoint import read_torch_file
 from facegeo.fitting import Fit
-from facegeo.fitting.camera_estimate import camera_for_face
-from facegeo.landmarks.detectors import LandmarkDetector, get_detector
+from facegeo.fitting.photo_fit import observe_photo
+from facegeo.landmarks.detectors import LandmarkDetector
 from facegeo.model_files import load_model
 from facegeo.morphable_model import MorphableModel
-from facegeo.photo import Photo, as_rgb_uint8, load_photo
+from facegeo.photo import Photo
 from facegeo.regressor.config import RegressorConfig
 from facegeo.regressor.data import crop_box, crop_face
 from facegeo.regressor.losses import slide_jaw
@@ -105,11 +105,12 @@ class Predictor:
             model: must be the predictor's model (or None); another gives :class:`InputError`.
             landmarks: (88, 2) px to crop around and report errors against (else detected).
             detector: overrides the predictor's detector.
-            camera: the photo's intrinsics (default: :meth:`Camera.for_image`'s 40° field of
-                view, taken as known). A camera whose focal is not known (``focal_known`` False,
-                :meth:`Camera.unknown_focal`) gets the focal :func:`facegeo.fit` would estimate
-                from the same landmarks (:func:`~facegeo.fitting.camera_estimate.camera_for_face`),
-                once, before the prediction.
+            camera: the photo's intrinsics (default: an unknown focal, :meth:`Camera.unknown_focal`,
+                as :func:`facegeo.fit` takes it). A camera whose focal is not known (``focal_known``
+                False) gets the focal :func:`facegeo.fit` would estimate from the same landmarks
+                (:func:`~facegeo.fitting.camera_estimate.camera_for_face`), once, before the
+                prediction: the photo, landmarks and camera come from the fit's own front door,
+                :func:`facegeo.fitting.photo_fit.observe_photo`.
             photometric: with ``refine``, run the fit's photometric stage (the prediction itself
                 always includes β and γ).
         Returns:
@@ -121,32 +122,13 @@ class Predictor:
         """
         if model is not None and model is not self.model and ModelSignature.of(model) != self.network.signature:
             raise InputError(self.source, "model", f"the model the regressor was trained for ({self.network.signature.name})", model.name)
-        timings: dict[str, float] = {}
-        notes: list[str] = []
-        if isinstance(image, (str, Path)):
-            image = load_photo(image)
-        if isinstance(image, Photo):
-            notes.extend(image.notes)
-            source, pixels = image.path, image.image
-        else:
-            source, pixels = "<array>", as_rgb_uint8(image)
-        h, w = pixels.shape[:2]
-        camera = Camera.for_image(w, h) if camera is None else camera
-        detector_name = "given"
-        if landmarks is None:
-            t0 = time.perf_counter()
-            det = detector or self.detector
-            det = get_detector(det) if isinstance(det, str) else det
-            found = det.detect(pixels, source)
-            landmarks, detector_name = found.points, found.detector
-            notes.extend(found.notes)
-            timings["detect"] = time.perf_counter() - t0
-        targets = np.asarray(landmarks, np.float64)
-        if targets.shape != (88, 2):
-            raise InputError("<landmarks>", "landmarks", "shape (88, 2) in pixels", str(targets.shape))
-        camera, camera_note = camera_for_face(camera, targets, self.model)
-        if camera_note:
-            notes.append(camera_note)
+        # the fit's front door: the photo loaded, the landmarks detected, the one camera default
+        if landmarks is not None and np.shape(landmarks) != (88, 2):
+            raise InputError("<landmarks>", "landmarks", "shape (88, 2) in pixels", str(np.shape(landmarks)))
+        seen = observe_photo(image, self.model, landmarks, detector or self.detector, camera, dense=None)
+        timings = {name: seen.timings[name] for name in ("detect",) if name in seen.timings}
+        notes, source, pixels, camera, targets = list(seen.notes), seen.source, seen.pixels, seen.camera, seen.landmarks
+        detector_name = seen.detection.detector if seen.detection is not None else "given"
         t0 = time.perf_counter()
         size = self.config.network.image_size
         x0, y0, side = crop_box(targets, self.config.network.crop_scale)
@@ -178,7 +160,7 @@ class Predictor:
             info={"fitter": "regressor", "checkpoint": self.source, "source": source, "model": self.model.name,
                   "detector": detector_name, "notes": notes, "valid_landmarks": int(valid.sum())},
         )
-        return self._refined(prediction, image, photometric) if self.refine else prediction
+        return self._refined(prediction, seen.image, photometric) if self.refine else prediction
 
     def _refined(self, prediction: Fit, image: np.ndarray | Photo, photometric: bool) -> Fit:
         """The analysis-by-synthesis fit on the prediction's landmarks, started from the prediction
