@@ -18,6 +18,9 @@ Colour textures are sRGB in [0, 1], float32, S × S, image-style rows (see
 * **The light's colour** (:mod:`.light_colour`): from the skin locus and the photo's white
   references, divided out; a greyscale photo gets a generic skin chroma, and ``report["notes"]``
   says so (the pipeline copies the notes into ``fit.json``).
+* **The albedo's level** (:mod:`.albedo_level`): one factor from a skin-reflectance prior (the
+  skin's place on the skin locus) and the white references (sclera, teeth), so that the albedo
+  does not follow the photo's exposure; the relit texture keeps the photo's level.
 * **inpaint** (:mod:`.fill`): a gradient-domain blend in log RGB, the low frequencies a screened
   Poisson problem on the mesh's vertices (continuous across UV seams and the mirror line), the fine
   detail the seen texel's own, the mirror's, or quilted from the seen skin (:mod:`.quilting`)
