@@ -6,7 +6,7 @@ import pytest
 
 from facegeo.colour import is_greyscale, luminance
 from facegeo.texturing.illuminant import (AMBIENT_CHROMA_TOLERANCE, AMBIENT_SHARE_SPREAD, FIRM_FACTOR, NEUTRAL_TOLERANCE, PLANCKIAN,
-                                          SCLERA_CHROMA, SKIN_CHROMA, SKIN_LOCUS, WHITE_GATE, ambient_chroma_trend, chroma,
+                                          SCLERA_CHROMA, SKIN_CHROMA, SKIN_LOCUS, WHITE_COOL_SHARE, WHITE_GATE, ambient_chroma_trend, chroma,
                                           estimate_illuminant, firm_shrinkage, invent_chroma, remove_cast)
 
 
@@ -43,6 +43,23 @@ def test_a_white_reference_redder_than_the_skin_is_not_used():
     light, report = estimate_illuminant(skin, lid)
     assert not report["white_used"] and report["white_miss"] > WHITE_GATE
     np.testing.assert_allclose(light, estimate_illuminant(skin)[0])
+
+
+def test_a_neutral_sclera_beside_skin_yellower_than_the_locus_is_used():
+    """Skin yellower than the locus under a neutral light reads, alone, as skin under a warm
+    light; its sclera, cooler than that predicts by more than the gate, is used (lid skin only
+    makes a white warmer), and the light is then taken as neutral. The same miss towards warmer
+    (lid skin) is not used."""
+    skin = SKIN_CHROMA + np.array([0.0, -0.45])  # off the locus: much less blue (a scan's baked-in light)
+    predicted = estimate_illuminant(skin)[0]
+    cool = SCLERA_CHROMA + predicted - (WHITE_GATE + 0.1) * PLANCKIAN  # beyond the gate, cooler
+    light, report = estimate_illuminant(skin, cool)
+    assert report["white_used"]
+    assert report["white_miss"] == pytest.approx(WHITE_COOL_SHARE * (WHITE_GATE + 0.1), abs=1e-9)
+    assert np.linalg.norm(light) < np.linalg.norm(predicted)  # towards the white's neutral light
+    warm = SCLERA_CHROMA + predicted + (WHITE_GATE + 0.1) * PLANCKIAN
+    _, report = estimate_illuminant(skin, warm)
+    assert not report["white_used"] and report["white_miss"] == pytest.approx(WHITE_GATE + 0.1, abs=1e-9)
 
 
 def test_remove_cast_divides_the_light_and_keeps_luminance():

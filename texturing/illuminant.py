@@ -10,8 +10,12 @@ Three pieces of evidence, each a Gaussian, are combined by least squares
   position along it (prior σ :data:`SKIN_TONE_SIGMA`), σ :data:`SKIN_SIGMA` across it;
 * **the white references** (the sclera, teeth: :func:`facegeo.skin_mask.white_reference`), when
   there are any: their chroma is ``SCLERA_CHROMA + L`` (σ :data:`WHITE_SIGMA`); a reference that
-  disagrees with the skin by more than :data:`WHITE_GATE` (reddish lids picked for a small eye,
-  a lens's reflection) is not used;
+  disagrees with the skin by more than :data:`WHITE_GATE` (reddish lids picked for a small eye)
+  is not used. Lid skin mixed in only makes a reference warmer, more skin-like, than the skin
+  predicts: the part of the miss that makes it cooler along the Planckian locus counts
+  :data:`WHITE_COOL_SHARE` of its length (a skin whose colour lies off the locus, yellower than
+  the locus's skin, is otherwise taken for skin under a warm light and its neutral sclera for
+  lid skin);
 * **the light itself**: real lights lie near the Planckian locus (warm–cool, the direction
   :data:`PLANCKIAN`, σ :data:`LIGHT_SIGMA`), with little green–magenta (σ :data:`TINT_SIGMA`).
 
@@ -40,7 +44,7 @@ import numpy as np
 from facegeo.colour import luminance
 
 __all__ = ["estimate_illuminant", "remove_cast", "invent_chroma", "chroma", "SKIN_CHROMA", "SKIN_LOCUS",
-           "PLANCKIAN", "SCLERA_CHROMA", "LIPS_CHROMA", "SKIN_SIGMA", "SKIN_TONE_SIGMA", "WHITE_SIGMA", "WHITE_GATE",
+           "PLANCKIAN", "SCLERA_CHROMA", "LIPS_CHROMA", "SKIN_SIGMA", "SKIN_TONE_SIGMA", "WHITE_SIGMA", "WHITE_GATE", "WHITE_COOL_SHARE",
            "LIGHT_SIGMA", "TINT_SIGMA", "NEUTRAL_TOLERANCE", "FIRM_FACTOR", "firm_shrinkage", "ambient_chroma_trend",
            "AMBIENT_SHARE_SPREAD", "AMBIENT_CHROMA_TOLERANCE", "cast_gains"]
 
@@ -68,6 +72,11 @@ SKIN_TONE_SIGMA = 0.15
 WHITE_SIGMA = 0.05
 #: A white reference further than this from what the skin alone predicts is not used.
 WHITE_GATE = 0.45
+#: The share of a white reference's miss that counts where it is cooler than the skin predicts
+#: (along the Planckian locus): bench_albedo_scans' James scan, whose colour map is yellower
+#: than the skin locus, had neutral scleras at misses of 0.46-0.50 under the ring and sun + sky
+#: lights, rejected, and its albedo made bluish (82-86 % of the skin off the scan's colours).
+WHITE_COOL_SHARE = 0.4
 #: σ of the light's chroma along the Planckian locus (from the prior of a neutral light).
 LIGHT_SIGMA = 0.35
 #: σ of the light's chroma across it (green–magenta tints are rare).
@@ -115,7 +124,9 @@ def estimate_illuminant(skin: np.ndarray, white: np.ndarray | None = None) -> tu
     if white is not None and np.all(np.isfinite(white)):
         white = np.asarray(white, np.float64)
         report["white_chroma"] = white.tolist()
-        miss = float(np.linalg.norm(white - SCLERA_CHROMA - x[:2]))
+        offset = white - SCLERA_CHROMA - x[:2]
+        along = float(offset @ PLANCKIAN)
+        miss = float(np.hypot(along if along > 0 else WHITE_COOL_SHARE * along, float(offset @ normal)))
         report["white_miss"] = miss
         if miss <= WHITE_GATE:
             rows += [np.r_[np.eye(2)[i], 0.0] / WHITE_SIGMA for i in range(2)]
