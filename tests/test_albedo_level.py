@@ -26,8 +26,11 @@ def test_the_skin_prior_runs_through_the_colorchecker_skin_patches():
     # half the slope: the light patch's place gives the geometric mean of the middle and its luminance
     assert skin_prior_luminance(_locus_place(PATCHES[0]), DEFAULT_SETTINGS) == pytest.approx(
         np.sqrt(middle * float(luminance(PATCHES[0]))), rel=1e-5)
-    lo, hi = DEFAULT_SETTINGS.level_skin_range  # bounded: no skin is white or black
-    assert skin_prior_luminance(-5.0, DEFAULT_SETTINGS) == hi and skin_prior_luminance(5.0, DEFAULT_SETTINGS) == lo
+    # flat beyond the patches: redder than dark skin is a ruddy face or a warm light, not darker skin
+    for beyond, patch in ((-5.0, PATCHES[0]), (5.0, PATCHES[1])):
+        assert skin_prior_luminance(beyond, DEFAULT_SETTINGS) == skin_prior_luminance(_locus_place(patch), DEFAULT_SETTINGS)
+    narrow = replace(DEFAULT_SETTINGS, level_skin_range=(0.15, 0.25))  # bounded
+    assert skin_prior_luminance(-5.0, narrow) == 0.25 and skin_prior_luminance(5.0, narrow) == 0.15
 
 
 def _uniform(y: float, size: int = 32) -> np.ndarray:
@@ -52,8 +55,10 @@ def test_a_white_reference_and_the_skin_prior_are_combined_by_their_precisions()
     assert report["used"] == ["skin_prior"] and report["cues"]["white_reference"]["miss_sigma"] > DEFAULT_SETTINGS.level_gate
     assert k_dark == pytest.approx(prior_k, rel=1e-5)
     # whatever the cues say, the skin stays within the skin range
-    k_high, report = albedo_level(_uniform(0.01), weight, shading, None, None, -5.0, DEFAULT_SETTINGS)
-    assert report["skin_luminance"] == pytest.approx(DEFAULT_SETTINGS.level_skin_range[1], rel=1e-5)
+    dim = white * 0.1  # a white ten times darker asks for a ten times larger k: beyond a narrow range's top
+    narrow = replace(DEFAULT_SETTINGS, level_skin_range=(0.05, 0.2), level_gate=10.0)
+    _, report = albedo_level(albedo, weight, shading, None, dim, -5.0, narrow)
+    assert report["used"] == ["skin_prior", "white_reference"] and report["skin_luminance"] == pytest.approx(0.2, rel=1e-5)
     # too little seen skin: the photo's level is kept, and the report says so
     k_none, report = albedo_level(albedo, np.zeros((32, 32), np.float32), shading, None, None, tone, DEFAULT_SETTINGS)
     assert k_none == 1.0 and "note" in report

@@ -13,8 +13,8 @@ precisions (:func:`albedo_level`):
   channels, the same at any exposure) gives its log-luminance, linear in ``t`` through the middle
   of the ColorChecker's *light skin* and *dark skin* patches (:data:`SKIN_PATCHES`), the slope
   between them shrunk by ``settings.level_tone_share`` (a warm light still reads partly as darker
-  skin where no sclera tells them apart), bounded to ``settings.level_skin_range``, σ
-  ``settings.level_skin_sigma`` in log;
+  skin where no sclera tells them apart) and flat beyond them, bounded to
+  ``settings.level_skin_range``, σ ``settings.level_skin_sigma`` in log;
 * **the white references** (the sclera, teeth: :func:`facegeo.skin_mask.white_reference`), where the
   light's colour estimate used them: their luminance in the photo over the shading of the skin
   around the eyes is their albedo in the de-lit texture's units; what photos show of them
@@ -55,8 +55,10 @@ def skin_prior_luminance(t: float | None, settings: DefaultSettings) -> float:
     """Skin's linear albedo luminance at place ``t`` on the skin locus (None: unknown, a greyscale
     photo): log-linear in ``t`` through the middle of the :data:`SKIN_PATCHES` (their mean place
     and geometric-mean luminance, 0.19), with the slope between them times
-    ``settings.level_tone_share``, bounded to ``settings.level_skin_range``; the middle where
-    ``t`` is None."""
+    ``settings.level_tone_share``, and flat beyond the patches' places (``t`` clipped to their
+    span: redder than dark skin is not darker skin but a ruddy face or a warm light that the
+    light's colour estimate left in, and the darkest skin is less saturated, not more); bounded
+    to ``settings.level_skin_range``; the middle where ``t`` is None."""
     patches = [srgb_to_linear(np.asarray(p, np.float32) / 255.0) for p in SKIN_PATCHES]
     (t_light, t_dark), (y_light, y_dark) = [_locus_place(p) for p in patches], [float(luminance(p)) for p in patches]
     log_mid = 0.5 * (np.log(y_light) + np.log(y_dark))
@@ -64,6 +66,7 @@ def skin_prior_luminance(t: float | None, settings: DefaultSettings) -> float:
         return float(np.exp(log_mid))
     slope = settings.level_tone_share * np.log(y_dark / y_light) / (t_dark - t_light)
     lo, hi = settings.level_skin_range
+    t = float(np.clip(t, t_light, t_dark))
     return float(np.clip(np.exp(log_mid + slope * (t - 0.5 * (t_light + t_dark))), lo, hi))
 
 
