@@ -192,3 +192,26 @@ def test_a_cut_to_another_person_is_flagged(model):
     tracked = track_frames(frames, model, keyframes=2)
     assert [f.found for f in tracked.frames] == [True, True, False, False, True]
     assert tracked.frames[2].note.startswith("another person (face descriptor")
+
+
+def test_keyframes_span_the_head_turn_of_a_mostly_frontal_clip():
+    """A clip that faces the camera most of the time and turns to ±35° briefly: one keyframe
+    per yaw interval, the turns included (equal shares of the frames sorted by yaw picked only
+    frontal ones) and their ends; a stray yaw does not stretch the range; a yaw without a frame
+    near it takes the nearest unchosen one; more points win among the frames near a yaw."""
+    from facegeo.tracking import spanning_frames
+
+    yaws = np.concatenate([np.zeros(80), np.linspace(0, 35, 10), np.full(10, 35.0), np.linspace(0, -35, 10), np.full(10, -35.0)])
+    yaws = np.radians(yaws + np.random.default_rng(0).normal(0, 0.3, len(yaws)))
+    points = np.full(len(yaws), 88)
+    chosen = spanning_frames(yaws, points, 5)
+    assert len(chosen) == 5 and len(set(chosen)) == 5
+    picked = np.degrees(yaws[chosen])
+    assert picked.min() < -30 and picked.max() > 30 and np.abs(picked).min() < 10
+    with_stray = np.append(yaws, np.radians(170.0))  # one mis-fitted frame
+    assert len(yaws) not in spanning_frames(with_stray, np.append(points, 88), 5)
+    gap = np.radians([0.0, 0.1, 0.2, 40.0, 40.1, 40.2])  # nothing between 0.2° and 40°: the nearest unchosen frames
+    assert spanning_frames(gap, np.full(6, 88), 4) == [0, 2, 3, 5]  # targets 0°, 13.4°, 26.8°, 40.2°
+    fewer_points = np.full(len(yaws), 88)
+    fewer_points[np.argmin(np.abs(yaws))] = 70  # the most frontal frame lost points to a hand: another frontal one
+    assert np.argmin(np.abs(yaws)) not in spanning_frames(yaws, fewer_points, 5)
