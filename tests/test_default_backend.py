@@ -1224,3 +1224,27 @@ def test_delight_is_inpaints_first_half_on_the_reliably_seen_texels():
     assert np.abs(delit[trusted] - complete[trusted]).max() < 2e-3
     with pytest.raises(ValueError, match="inpaint this context first"):
         DefaultBackend().seen_reliability(ctx)
+
+
+def test_a_texel_whose_shading_is_in_doubt_keeps_its_own_chroma():
+    """own_chroma: where only the shading's confidence made the fill take over (reliable =
+    reliability × confidence), the texel's chroma is its own by its reliability alone and its
+    luminance (the channel mean of the log) the blend's; where the confidence is 1, or the
+    texel unseen, the blend is kept."""
+    from facegeo.texturing.default.fill import own_chroma
+
+    lips = np.log(np.float32([0.40, 0.15, 0.14]))  # a red lip, seen
+    filled = np.log(np.float32([0.45, 0.30, 0.25]))  # what the fill made there (the skin around)
+    confidence = np.float32([[0.5, 0.5, 1.0, 0.5]])
+    reliability = np.float32([[1.0, 0.6, 0.6, 0.0]])
+    reliable = reliability * confidence
+    seen = np.array([[True, True, True, False]])
+    log_seen = np.broadcast_to(lips, (1, 4, 3)).astype(np.float32)
+    out_log = (reliable[..., None] * lips + (1 - reliable[..., None]) * filled).astype(np.float32)  # the fill's blend
+    out = own_chroma(out_log, log_seen, seen, reliable, confidence)
+    chroma = lambda x: x - x.mean(-1, keepdims=True)  # noqa: E731
+    np.testing.assert_allclose(out.mean(-1), out_log.mean(-1), atol=1e-6)  # the luminance is the blend's
+    for texel in (0, 1):  # the own chroma by the reliability alone: 1.0 and 0.6 (the blend gave 0.5 and 0.3)
+        expected = reliability[0, texel] * chroma(lips) + (1 - reliability[0, texel]) * chroma(filled)
+        np.testing.assert_allclose(chroma(out[0, texel]), expected, atol=1e-5)
+    np.testing.assert_array_equal(out[0, 2:], out_log[0, 2:])  # confidence 1, or unseen: unchanged

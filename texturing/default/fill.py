@@ -22,7 +22,9 @@ de-lighting strength: skin lit by the ambient term alone carries that term's err
 fill would take its tone from it). The result's tone is r · (log seen − D_own) + (1 − r) · (B +
 M), M the seen texel's own band from D's scale to ``settings.own_mid_band_coarsest`` × S (its
 mottling, :func:`own_mottling`) less B's, where its colour is trusted (kept weight × shading
-confidence) away from the seen edge; its detail the texel's own D_own and the fill's other detail
+confidence) away from the seen edge, and the texel's own chroma by its reliability without the
+shading's confidence (:func:`own_chroma`: a scalar shading puts only the luminance in doubt); its
+detail the texel's own D_own and the fill's other detail
 D_fill mixed with weights a = r + (1 − r) · (the own detail's share of D) and 1 − a, divided by
 √(a² + (1 − a)²) (:func:`mix_keeping_contrast`: two independent layers mixed linearly lose up to
 half their variance, a band of smoother skin along the seen edge): no edge where the seen skin
@@ -53,8 +55,8 @@ from facegeo.texturing.default.settings import DefaultSettings
 from facegeo.texturing.default.texels import mirror_index, skin_texels, smoothstep
 from facegeo.texturing.image_filters import euclidean_distance, gaussian_blur, masked_blur, push_pull
 
-__all__ = ["Fill", "detail_contrast", "fill", "fill_base", "fill_detail", "mix_keeping_contrast", "own_mottling", "specks",
-           "with_mirror_tone"]
+__all__ = ["Fill", "detail_contrast", "fill", "fill_base", "fill_detail", "mix_keeping_contrast", "own_chroma", "own_mottling",
+           "specks", "with_mirror_tone"]
 
 
 @dataclass
@@ -98,7 +100,25 @@ def fill(log_seen: np.ndarray, seen: np.ndarray, kept: np.ndarray, inner: np.nda
     # contrast (mixed linearly, a band of smoother skin along the seen edge)
     r = reliable[..., None]
     out_log = r * (log_seen - own_detail) + (1 - r) * (base + mottling) + mix_keeping_contrast(r + (1 - r) * own, own_detail, other)
-    return Fill(out_log, via_mirror, asymmetry, trust, amp)
+    return Fill(own_chroma(out_log, log_seen, seen & cover, reliable, confidence), via_mirror, asymmetry, trust, amp)
+
+
+def own_chroma(out_log: np.ndarray, log_seen: np.ndarray, seen: np.ndarray, reliable: np.ndarray,
+               confidence: np.ndarray) -> np.ndarray:
+    """``out_log`` (S, S, 3) log linear RGB, the blend of the fill, with the chroma of each
+    ``seen`` (S, S) bool texel taken from its own ``log_seen`` (S, S, 3) by its reliability
+    without the shading's ``confidence`` (S, S) (``reliable`` (S, S) is reliability × confidence):
+    the shading is one scalar a texel, so where it is steep (a misplaced shadow's edge, the lips
+    under a key light) only the de-lit luminance is in doubt, not the colour. The chroma is the
+    log RGB less its channel mean; the texel's own chroma gets the weight r_c = reliable /
+    confidence in all (the blend gave it ``reliable``). float32."""
+    r_c = np.where(confidence > 1e-6, reliable / np.maximum(confidence, 1e-6), 0.0)
+    extra = np.where(seen, np.clip((r_c - reliable) / np.maximum(1.0 - reliable, 1e-6), 0.0, 1.0), 0.0)[..., None]
+    if not extra.any():
+        return out_log
+    chroma_seen = log_seen - log_seen.mean(axis=-1, keepdims=True)
+    chroma_out = out_log - out_log.mean(axis=-1, keepdims=True)
+    return (out_log + extra * (chroma_seen - chroma_out)).astype(np.float32)
 
 
 def fill_detail(log_seen: np.ndarray, seen: np.ndarray, inner: np.ndarray, reliable: np.ndarray, ctx: TextureContext,
