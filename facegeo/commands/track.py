@@ -26,8 +26,9 @@ def _arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--every", type=int, default=1, metavar="N", help="track every N-th frame (default 1: all)")
     group = parser.add_argument_group("fitting")
     add_model_argument(group)
-    group.add_argument("--landmarks", choices=DETECTOR_NAMES, default="hybrid", metavar="NAME",
-                       help="landmark detector, one of %(choices)s (default: hybrid)")
+    group.add_argument("--landmarks", choices=DETECTOR_NAMES, default="lids", metavar="NAME",
+                       help="landmark detector, one of %(choices)s (default: lids = hybrid with the Face Landmarker's "
+                            "mesh and its eyelids, which close on a blink)")
     group.add_argument("--focal", type=float, default=None, metavar="PX",
                        help="focal length in pixels of the frames; default: one focal for the clip, estimated from the face")
     group.add_argument("--keyframes", type=int, default=5, metavar="K",

@@ -6,6 +6,10 @@
   points come from the documented 468→68 table, the 20 lip points from the mesh. Licence-clean.
 * ``hybrid`` (default, the paper's configuration): dlib's 68 + MediaPipe's 20 lip points; dlib's
   predictor runs in a box estimated from MediaPipe's face, HOG only when MediaPipe finds none.
+* ``lids`` (``facegeo track``'s default): ``hybrid`` with the Face Landmarker's mesh (v2) and the
+  eyes' 12 points (iBUG 36-47) taken from it: dlib's and the v1 mesh's lids barely close on a shut
+  eye (lid gap over eye width 0.35 open, 0.20-0.25 shut on the ground-truth take of
+  ``benchmarks/bench_track_truth.py``), v2's do (0.36 open, 0.07-0.13 shut) and tell a wink.
 
 Several faces: the largest is used and a note says so. No face: :class:`NoFaceError`.
 
@@ -30,7 +34,7 @@ from facegeo.landmarks.dense import face_mesh_mirror
 from facegeo.landmarks.dlib_detector import DlibLandmarker
 from facegeo.landmarks.mediapipe_mesh import MEDIAPIPE_LIPS20, MediaPipeFaceMesh, ibug68_from_mesh
 from facegeo.photo import as_rgb_uint8
-from facegeo.landmarks.scheme import MOUTH
+from facegeo.landmarks.scheme import EYES, MOUTH
 
 __all__ = [
     "FaceLandmarks",
@@ -227,9 +231,16 @@ class HybridDetector(_UprightSearch):
 
     name = "hybrid"
 
-    def __init__(self, dlib: DlibDetector | None = None, mediapipe: MediaPipeDetector | None = None):
+    def __init__(self, dlib: DlibDetector | None = None, mediapipe: MediaPipeDetector | None = None, eyes: str = "dlib",
+                 name: str = "hybrid"):
+        """``eyes``: where the eyes' 12 points (iBUG 36-47) come from, ``"dlib"`` or ``"mesh"`` (the
+        face mesh's, by :func:`~facegeo.landmarks.mediapipe_mesh.ibug68_from_mesh`; dlib's where
+        MediaPipe finds no face). ``name``: the detector's name in its results."""
+        if eyes not in ("dlib", "mesh"):
+            raise ValueError(f"eyes: expected 'dlib' or 'mesh', got {eyes!r}")
         self.dlib = dlib or DlibDetector()
         self.mediapipe = mediapipe or MediaPipeDetector()
+        self.eyes, self.name = eyes, name
 
     def _probe(self) -> MediaPipeFaceMesh:
         return self.mediapipe.mesh
@@ -246,11 +257,19 @@ class HybridDetector(_UprightSearch):
         box = dlib_box_from_mediapipe(ibug68_from_mesh(face.mesh))
         lips = _corner_origin(face.mesh[MEDIAPIPE_LIPS20, :2])
         points = np.concatenate([self.dlib.landmarker.landmarks(image, box), lips])
+        if self.eyes == "mesh":
+            points[EYES] = _corner_origin(ibug68_from_mesh(face.mesh)[EYES])
         return FaceLandmarks(points, _corner_origin(face.box), len(mp_faces), self.name, _several(len(mp_faces)),
                              _corner_origin(face.mesh[:, :2]), self.mediapipe.mesh.spread(image, face, face_mesh_mirror()))
 
 
-DETECTORS = {"hybrid": HybridDetector, "dlib": DlibDetector, "mediapipe": MediaPipeDetector}
+def lids_detector() -> HybridDetector:
+    """The ``lids`` detector (module docstring): the hybrid one with the Face Landmarker's mesh
+    (v2) and its eyes."""
+    return HybridDetector(mediapipe=MediaPipeDetector(MediaPipeFaceMesh(mesh_model="v2")), eyes="mesh", name="lids")
+
+
+DETECTORS = {"hybrid": HybridDetector, "dlib": DlibDetector, "mediapipe": MediaPipeDetector, "lids": lids_detector}
 _instances: dict[str, LandmarkDetector] = {}
 
 
