@@ -41,7 +41,7 @@ from facegeo.fitting.photo_fit import PhotoObservation, observe_photo
 from facegeo.fitting.priors import DEFAULT_PRIORS, LandmarkStage
 from facegeo.fitting.shared_identity import LandmarkView, solve_shared_identity
 from facegeo.landmarks.detectors import get_detector
-from facegeo.landmarks.scheme import inter_ocular_distance
+from facegeo.landmarks.scheme import EYES, LANDMARK_WEIGHTS, inter_ocular_distance
 from facegeo.morphable_model import MorphableModel
 
 __all__ = ["TrackedFrame", "Track", "ObservedFrame", "ClipIdentity", "track_frames", "observe_frames", "clip_identity", "follow_region", "spanning_frames",
@@ -52,6 +52,9 @@ __all__ = ["TrackedFrame", "Track", "ObservedFrame", "ClipIdentity", "track_fram
 TRACK_STAGE = LandmarkStage("track", 8, 0, True)
 #: Keyframes for the identity (fewer when the clip has fewer frames with a face).
 KEYFRAMES = 5
+#: The eyes' 12 points weigh this many times their weight in a single photo's fit in the
+#: per-frame solve: a shut lid moves them by about the landmark noise alone.
+EYE_WEIGHT = 4.0
 #: Frames of the pose's running median (:func:`smooth_track`; a live use lags by half of it, rounded down).
 POSE_WINDOW = 5
 #: Frames of the expression weights' Savitzky–Golay filter, order 2 (:func:`smooth_track`).
@@ -329,8 +332,12 @@ def solve_frame(model: MorphableModel, seen: PhotoObservation, camera: Camera, a
     if start is None:
         rotation, translation = initial_pose(model, seen.landmarks, camera)
         start = SolveStart(rotation, translation, np.asarray(alpha, np.float64), np.zeros(model.n_exp))
-    priors = dataclasses.replace(DEFAULT_PRIORS, noise=noise, noise_rounds=0)
-    return solve_landmarks(model, seen.landmarks, camera, seen.weights, (stage,), priors, start, seen.surface_points)
+    # the gaze blendshapes move the lids: without the irises they only mimic a blink's opposite
+    gaze = tuple(n for n in model.expression_names if n.startswith("eyeLook"))
+    priors = dataclasses.replace(DEFAULT_PRIORS, noise=noise, noise_rounds=0, held_expressions=gaze)
+    weights = np.array(LANDMARK_WEIGHTS if seen.weights is None else seen.weights, np.float64)
+    weights[EYES] *= EYE_WEIGHT
+    return solve_landmarks(model, seen.landmarks, camera, weights, (stage,), priors, start, seen.surface_points)
 
 
 @dataclass(frozen=True)

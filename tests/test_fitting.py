@@ -224,6 +224,29 @@ def test_expressions_stay_in_their_range_and_most_are_exactly_zero(model):
     assert fit.info["landmark_noise"]["expression_at_lower"] == np.count_nonzero(fit.delta == 0.0)
 
 
+def test_held_expressions_stay_at_zero_and_the_rest_is_fitted(model):
+    """FitPriors.held_expressions: landmarks of a face looking up (the lids raised by the gaze
+    blendshapes) fitted with the gaze held: every eyeLook weight exactly 0, the other weights
+    free (the blink, say, still fitted where the lids show one)."""
+    from dataclasses import replace
+
+    from facegeo.fitting.priors import DEFAULT_PRIORS
+    names = list(model.expression_names)
+    gaze = tuple(n for n in names if n.startswith("eyeLook"))
+    delta = np.zeros(model.n_exp, np.float32)
+    delta[[names.index("eyeLookUp_L"), names.index("eyeLookUp_R")]] = 1.0
+    delta[names.index("eyeBlink_L")] = 0.8
+    rotation = rotation_from_euler(0.0, 0.0, 0.0)
+    shape = model.shape_numpy(np.zeros(model.n_id, np.float32), delta)
+    points = shape[model.landmark_indices] @ rotation.T + np.array([0.0, 0.0, -500.0])
+    landmarks = project(torch.from_numpy(points).float(), torch.eye(3), torch.zeros(3), CAMERA).numpy()
+    free = fit_landmarks(model, landmarks, CAMERA)
+    held = fit_landmarks(model, landmarks, CAMERA, priors=replace(DEFAULT_PRIORS, held_expressions=gaze + ("notAName",)))
+    assert max(free.delta[names.index(n)] for n in gaze) > 0.1  # free, the gaze explains the raised lids
+    assert all(held.delta[names.index(n)] == 0.0 for n in gaze)
+    assert held.delta[names.index("eyeBlink_L")] > 0.3
+
+
 @pytest.mark.parametrize("noise_iod", [0.01, 0.04])
 def test_noise_level_is_estimated(model, noise_iod):
     """Known Gaussian landmark noise (a fraction of the inter-ocular distance) is recovered by

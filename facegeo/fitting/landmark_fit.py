@@ -83,6 +83,8 @@ class LandmarkPrior:
         lower, upper = model.expression_range
         self.lower, self.upper = lower.astype(np.float64), upper.astype(np.float64)
         names = list(model.expression_names)
+        held = [names.index(n) for n in priors.held_expressions if n in names]
+        self.lower[held] = self.upper[held] = 0.0
         self.correctives = [(names.index(c), names.index(d)) for c, d in CORRECTIVES.items() if c in names and d in names]
 
     def project(self, delta: np.ndarray) -> np.ndarray:

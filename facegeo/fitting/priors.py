@@ -64,6 +64,10 @@ class FitPriors:
     noise_rounds: int = 4
     expression_scale: float = 0.25
     expression_rate: float = 2.0
+    #: Expressions (the model's names; names it lacks are ignored) held at 0: what the landmarks
+    #: cannot tell apart from another expression (a blendshape model's gaze, which moves the lids,
+    #: for a fit without the irises).
+    held_expressions: tuple[str, ...] = ()
 
     def __post_init__(self) -> None:
         for name in ("noise", "noise_floor", "expression_scale"):
