@@ -578,7 +578,7 @@ def track_into_folder(video: str | Path, output: str | Path, options: TrackOptio
     from facegeo.arkit import ArkitTake
     from facegeo.export.live_link import live_link_csv_text
     from facegeo.staged_output import StagedOutput, locked_output
-    from facegeo.tracking import POSE_WINDOW, WEIGHT_WINDOW, smooth_track, track_frames
+    from facegeo.tracking import POSE_WINDOW, SLOW_WEIGHT_WINDOW, WEIGHT_WINDOW, smooth_track, track_frames
     from facegeo.video import open_video
 
     options = TrackOptions() if options is None else options
@@ -589,7 +589,8 @@ def track_into_folder(video: str | Path, output: str | Path, options: TrackOptio
         report = None if progress is None else (lambda n: progress(n, n / max(time.perf_counter() - start, 1e-9)))
         track = track_frames(frames, model, options.landmarks, options.focal, options.keyframes, report, str(video))
         if options.smooth:
-            track.frames = smooth_track(track.frames, *model.expression_range)
+            lids = np.array([name.startswith("eye") for name in model.expression_names])
+            track.frames = smooth_track(track.frames, *model.expression_range, fast=lids)
         found = np.flatnonzero([f.found for f in track.frames])
         # each frame's nearest frame with a face (itself where it has one; the earlier on a tie)
         after = np.minimum(np.searchsorted(found, np.arange(len(track.frames))), len(found) - 1)
@@ -611,8 +612,12 @@ def track_into_folder(video: str | Path, output: str | Path, options: TrackOptio
                   "expression_names": list(model.expression_names),
                   "timings_s": {**track.timings, "total": seconds},
                   "frames_per_second": len(track.frames) / seconds,
-                  "smoothing": ({"pose": f"running median of {POSE_WINDOW} frames", "weights":
-                                 f"Savitzky-Golay filter of {WEIGHT_WINDOW} frames, order 2", "lag_frames_if_live": (POSE_WINDOW - 1) // 2}
+                  "smoothing": ({"pose": f"running median of {POSE_WINDOW} frames",
+                                 "eye weights": f"Savitzky-Golay filter of {WEIGHT_WINDOW} frames, order 2",
+                                 "other weights": f"running median of {WEIGHT_WINDOW} frames, then a Savitzky-Golay filter of "
+                                                  f"{SLOW_WEIGHT_WINDOW} frames, order 2",
+                                 "lag_frames_if_live": {"pose": (POSE_WINDOW - 1) // 2, "eye weights": (WEIGHT_WINDOW - 1) // 2,
+                                                        "other weights": (WEIGHT_WINDOW - 1) // 2 + (SLOW_WEIGHT_WINDOW - 1) // 2}}
                                 if options.smooth else None),
                   "notes": track.notes + [f"{n}: no shape in the model, written as 0" for n in naming.missing],
                   "frames": [f.to_dict() for f in track.frames]}

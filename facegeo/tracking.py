@@ -46,7 +46,7 @@ from facegeo.morphable_model import MorphableModel
 
 __all__ = ["TrackedFrame", "Track", "ObservedFrame", "ClipIdentity", "track_frames", "observe_frames", "clip_identity", "follow_region", "spanning_frames",
            "track_observed", "solve_frame", "smooth_track", "SolveStart", "TRACK_STAGE", "KEYFRAMES", "FOLLOW_MARGIN", "POSE_WINDOW",
-           "WEIGHT_WINDOW", "IDENTITY_CHECK_EVERY"]
+           "WEIGHT_WINDOW", "SLOW_WEIGHT_WINDOW", "IDENTITY_CHECK_EVERY"]
 
 #: The per-frame solve: pose and expression, identity fixed (no identity columns), warm-started.
 TRACK_STAGE = LandmarkStage("track", 8, 0, True)
@@ -57,8 +57,11 @@ KEYFRAMES = 5
 EYE_WEIGHT = 4.0
 #: Frames of the pose's running median (:func:`smooth_track`; a live use lags by half of it, rounded down).
 POSE_WINDOW = 5
-#: Frames of the expression weights' Savitzky–Golay filter, order 2 (:func:`smooth_track`).
+#: Frames of the lids' weights' Savitzky–Golay filter, order 2 (:func:`smooth_track`).
 WEIGHT_WINDOW = 5
+#: Frames of the other weights' Savitzky–Golay filter, order 2, after a running median of
+#: :data:`WEIGHT_WINDOW` frames (:func:`smooth_track`).
+SLOW_WEIGHT_WINDOW = 9
 
 
 @dataclass(frozen=True)
@@ -388,7 +391,8 @@ def spanning_frames(yaws: np.ndarray, points: np.ndarray, count: int) -> list[in
     return sorted(chosen)
 
 
-def smooth_track(frames: list[TrackedFrame], lower: np.ndarray, upper: np.ndarray) -> list[TrackedFrame]:
+def smooth_track(frames: list[TrackedFrame], lower: np.ndarray, upper: np.ndarray,
+                 fast: np.ndarray | None = None) -> list[TrackedFrame]:
     """The frames with their frame-to-frame jitter taken out, each run of consecutive frames with a
     face on its own (nothing is carried across a frame without one; a run shorter than a window
     keeps its values). Offline and centred: no lag in a file; used live, a window of n frames lags
@@ -398,12 +402,19 @@ def smooth_track(frames: list[TrackedFrame], lower: np.ndarray, upper: np.ndarra
       vectors about the run's middle frame's rotation, component by component) and of the
       translation. A median keeps a head turn's ramp and its stops where they are and takes out
       single-frame jumps.
-    * The expression weights: a Savitzky–Golay filter of :data:`WEIGHT_WINDOW` frames, order 2,
-      clipped to the model's range ``lower``/``upper`` (n_exp,): it keeps the peak of a blink of 3
-      frames at 0.97 of its height (a median would halve it) and halves the jitter.
+    * The ``fast`` (n_exp,) bool weights (the lids'; None: every weight): a Savitzky–Golay filter
+      of :data:`WEIGHT_WINDOW` frames, order 2: it keeps the peak of a blink of 3 frames at 0.97 of
+      its height (a median would halve it) and halves the jitter.
+    * The other weights: a running median of :data:`WEIGHT_WINDOW` frames, then a Savitzky–Golay
+      filter of :data:`SLOW_WEIGHT_WINDOW` frames, order 2 (a smile or a frown lasts longer than a
+      blink: on the ground-truth take of ``benchmarks/bench_track_truth.py`` their still
+      stretches' frame-to-frame change went from 0.04–0.05 to 0.02–0.03, and 8 curves pass its
+      bars instead of 6). Used live they would lag by 6 frames.
+    * The weights are clipped to the model's range ``lower``/``upper`` (n_exp,).
 
     Measured on real clips (benchmarks/RESULTS.md, "facegeo track on real clips"): the head's
-    frame-to-frame change from 0.4–0.8° to about 0.1°, the most jittery weight's from 0.08 to 0.04.
+    frame-to-frame change from 0.4–0.8° to about 0.1°, the most jittery weight's from 0.08 to 0.04
+    (the Savitzky–Golay filter of 5 frames alone).
     """
     from scipy.ndimage import median_filter
     from scipy.signal import savgol_filter
@@ -429,7 +440,12 @@ def smooth_track(frames: list[TrackedFrame], lower: np.ndarray, upper: np.ndarra
             for j in range(len(run)):
                 out[k + j] = dataclasses.replace(out[k + j], rotation=rotations[j], translation=translations[j])
         if len(run) >= WEIGHT_WINDOW:
-            weights = savgol_filter(np.stack([np.asarray(f.delta, np.float64) for f in run]), WEIGHT_WINDOW, 2, axis=0, mode="interp")
+            raw = np.stack([np.asarray(f.delta, np.float64) for f in run])
+            weights = savgol_filter(raw, WEIGHT_WINDOW, 2, axis=0, mode="interp")
+            slow = np.zeros(raw.shape[1], bool) if fast is None else ~np.asarray(fast, bool)
+            if slow.any() and len(run) >= SLOW_WEIGHT_WINDOW:
+                steady = median_filter(raw[:, slow], size=(WEIGHT_WINDOW, 1), mode="nearest")
+                weights[:, slow] = savgol_filter(steady, SLOW_WEIGHT_WINDOW, 2, axis=0, mode="interp")
             weights = np.clip(weights, lower, upper).astype(np.float32)
             for j in range(len(run)):
                 out[k + j] = dataclasses.replace(out[k + j], delta=weights[j])
