@@ -21,11 +21,13 @@ precisions (:func:`albedo_level`):
   (``settings.level_white_reflectance``, σ ``settings.level_white_sigma``) gives ``k``; one that
   the skin prior contradicts by more than ``settings.level_gate`` σ is not used.
 
-The skin's median luminance after the factor stays within ``settings.level_skin_range``.
+The seen skin's mean luminance (weighted by how far each texel is trusted; the weighted mean moved
+less with the exposure than the median on bench_albedo_scans' series) stays within
+``settings.level_skin_range`` after the factor.
 
 A greyscale photo has no chroma: its prior is the patches' middle (linear luminance 0.19). The
 report (the backend's ``report["albedo_level"]``, written in ``fit.json``'s ``texture_report``)
-gives each cue's ``k`` and σ, the factor used and the skin's median luminance before and after.
+gives each cue's ``k`` and σ, the factor used and the skin's mean luminance before and after.
 """
 
 from __future__ import annotations
@@ -77,7 +79,7 @@ def albedo_level(albedo: np.ndarray, skin_weight: np.ndarray, shading: np.ndarra
     Args:
         albedo: (S, S, 3) float32 linear RGB, de-lit, the light's colour and the sheen taken out.
         skin_weight: (S, S) float32 in [0, 1], how far each texel is trusted as seen skin; the
-            texels > 0.5 are the skin that the prior is judged on.
+            texels > 0.5, weighted by it, are the skin that the prior is judged on.
         shading: (S, S) float32, the shading the albedo was divided by (1 on the median seen skin).
         eyes: (S, S) float32 soft mask of the lids and canthi (the context's ``eyes`` region), or
             None: where the shading of the white references is read.
