@@ -254,11 +254,12 @@ class HybridDetector(_UprightSearch):
                 result.notes + ("MediaPipe found no face: the lip points are dlib's",),
             )
         face = mp_faces[0]
-        box = dlib_box_from_mediapipe(ibug68_from_mesh(face.mesh))
+        ibug = ibug68_from_mesh(face.mesh)
+        box = dlib_box_from_mediapipe(ibug)
         lips = _corner_origin(face.mesh[MEDIAPIPE_LIPS20, :2])
         points = np.concatenate([self.dlib.landmarker.landmarks(image, box), lips])
         if self.eyes == "mesh":
-            points[EYES] = _corner_origin(ibug68_from_mesh(face.mesh)[EYES])
+            points[EYES] = _corner_origin(ibug[EYES])
         return FaceLandmarks(points, _corner_origin(face.box), len(mp_faces), self.name, _several(len(mp_faces)),
                              _corner_origin(face.mesh[:, :2]), self.mediapipe.mesh.spread(image, face, face_mesh_mirror()))
 
