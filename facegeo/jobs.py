@@ -578,7 +578,7 @@ def track_into_folder(video: str | Path, output: str | Path, options: TrackOptio
     from facegeo.arkit import ArkitTake
     from facegeo.export.live_link import live_link_csv_text
     from facegeo.staged_output import StagedOutput, locked_output
-    from facegeo.tracking import POSE_WINDOW, SLOW_WEIGHT_WINDOW, WEIGHT_WINDOW, smooth_track, track_frames
+    from facegeo.tracking import POSE_WINDOW, SLOW_WEIGHT_WINDOW, WEIGHT_WINDOW, lid_weights, smooth_track, track_frames
     from facegeo.video import open_video
 
     options = TrackOptions() if options is None else options
@@ -589,8 +589,7 @@ def track_into_folder(video: str | Path, output: str | Path, options: TrackOptio
         report = None if progress is None else (lambda n: progress(n, n / max(time.perf_counter() - start, 1e-9)))
         track = track_frames(frames, model, options.landmarks, options.focal, options.keyframes, report, str(video))
         if options.smooth:
-            lids = np.array([name.startswith("eye") for name in model.expression_names])
-            track.frames = smooth_track(track.frames, *model.expression_range, fast=lids)
+            track.frames = smooth_track(track.frames, *model.expression_range, fast=lid_weights(model.expression_names))
         found = np.flatnonzero([f.found for f in track.frames])
         # each frame's nearest frame with a face (itself where it has one; the earlier on a tie)
         after = np.minimum(np.searchsorted(found, np.arange(len(track.frames))), len(found) - 1)

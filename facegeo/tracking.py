@@ -44,9 +44,10 @@ from facegeo.landmarks.detectors import get_detector
 from facegeo.landmarks.scheme import EYES, LANDMARK_WEIGHTS, inter_ocular_distance
 from facegeo.morphable_model import MorphableModel
 
-__all__ = ["TrackedFrame", "Track", "ObservedFrame", "ClipIdentity", "track_frames", "observe_frames", "clip_identity", "follow_region", "spanning_frames",
-           "track_observed", "solve_frame", "smooth_track", "SolveStart", "TRACK_STAGE", "KEYFRAMES", "FOLLOW_MARGIN", "POSE_WINDOW",
-           "WEIGHT_WINDOW", "SLOW_WEIGHT_WINDOW", "IDENTITY_CHECK_EVERY"]
+__all__ = ["TrackedFrame", "Track", "ObservedFrame", "ClipIdentity", "track_frames", "observe_frames", "clip_identity",
+           "follow_region", "spanning_frames", "lid_weights", "track_observed", "solve_frame", "smooth_track", "SolveStart",
+           "TRACK_STAGE", "KEYFRAMES", "FOLLOW_MARGIN", "POSE_WINDOW", "WEIGHT_WINDOW", "SLOW_WEIGHT_WINDOW",
+           "IDENTITY_CHECK_EVERY"]
 
 #: The per-frame solve: pose and expression, identity fixed (no identity columns), warm-started.
 TRACK_STAGE = LandmarkStage("track", 8, 0, True)
@@ -391,6 +392,13 @@ def spanning_frames(yaws: np.ndarray, points: np.ndarray, count: int) -> list[in
     return sorted(chosen)
 
 
+def lid_weights(names: list[str] | tuple[str, ...]) -> np.ndarray:
+    """(n_exp,) bool: the expressions whose weights :func:`smooth_track` keeps fast, the lids'
+    (ICT-FaceKit's ``eye*``: blink, squint, wide, and the gaze that moves them), of the model's
+    expression ``names``."""
+    return np.array([name.startswith("eye") for name in names], bool)
+
+
 def smooth_track(frames: list[TrackedFrame], lower: np.ndarray, upper: np.ndarray,
                  fast: np.ndarray | None = None) -> list[TrackedFrame]:
     """The frames with their frame-to-frame jitter taken out, each run of consecutive frames with a
@@ -402,7 +410,7 @@ def smooth_track(frames: list[TrackedFrame], lower: np.ndarray, upper: np.ndarra
       vectors about the run's middle frame's rotation, component by component) and of the
       translation. A median keeps a head turn's ramp and its stops where they are and takes out
       single-frame jumps.
-    * The ``fast`` (n_exp,) bool weights (the lids'; None: every weight): a Savitzky–Golay filter
+    * The ``fast`` (n_exp,) bool weights (the lids', :func:`lid_weights`; None: every weight): a Savitzky–Golay filter
       of :data:`WEIGHT_WINDOW` frames, order 2: it keeps the peak of a blink of 3 frames at 0.97 of
       its height (a median would halve it) and halves the jitter.
     * The other weights: a running median of :data:`WEIGHT_WINDOW` frames, then a Savitzky–Golay
