@@ -449,6 +449,18 @@ def test_without_a_camera_the_prediction_takes_the_fits_default(model, faces):
     assert predicted.camera.focal != pytest.approx(Camera.for_image(96, 96).focal, rel=0.05)
 
 
+def test_given_landmarks_of_another_shape_are_refused_at_the_front_door(model, faces, tmp_path):
+    """The fit and the predictor check given landmarks in the same place (observe_photo), before
+    the photo is read: (68, 2) points and a photo that does not exist name the landmarks."""
+    from facegeo import fit
+    from facegeo.errors import InputError
+
+    _, _, predictor, _ = _camera_case(model, faces)
+    for call in (lambda p, lm: fit(p, model=model, landmarks=lm), lambda p, lm: predictor(p, landmarks=lm)):
+        with pytest.raises(InputError, match=r"landmarks: expected shape \(88, 2\) in pixels, found \(68, 2\)"):
+            call(tmp_path / "missing.png", np.zeros((68, 2)))
+
+
 def test_refine_fits_in_the_predictions_camera(model, faces):
     """Issue 47: with ``refine`` and an unknown lens the fit starts from the prediction in the
     prediction's camera and estimates no focal of its own (one estimate, one note)."""

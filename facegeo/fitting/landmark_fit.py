@@ -38,8 +38,9 @@ from facegeo.morphable_model import MorphableModel
 if TYPE_CHECKING:
     import torch
 
-__all__ = ["fit_landmarks", "solve_landmarks", "LandmarkSolution", "LandmarkPrior", "estimate_noise", "assemble_fit", "damped_step",
-           "initial_pose", "T_UNIT_MM", "CONVERGED_RELATIVE_DECREASE", "NOISE_TOLERANCE", "LANDMARK_FIT_THREADS", "rotation_step"]
+__all__ = ["fit_landmarks", "solve_landmarks", "landmark_targets", "LandmarkSolution", "LandmarkPrior", "estimate_noise",
+           "assemble_fit", "damped_step", "initial_pose", "T_UNIT_MM", "CONVERGED_RELATIVE_DECREASE", "NOISE_TOLERANCE",
+           "LANDMARK_FIT_THREADS", "rotation_step"]
 
 CONVERGED_RELATIVE_DECREASE = 1e-4
 #: mm per unit of the translation parameter of a Levenberg–Marquardt step (keeps the system well scaled).
@@ -70,6 +71,17 @@ def initial_pose(model: MorphableModel, targets: np.ndarray, camera: Camera) -> 
                 return rotation, translation
     return np.eye(3), fallback_t
 
+
+
+def landmark_targets(landmarks: np.ndarray | torch.Tensor) -> np.ndarray:
+    """The 88 landmarks (N_LANDMARKS, 2) px as float64 NumPy.
+
+    Raises:
+        InputError: any other shape."""
+    targets = np.asarray(landmarks.detach().cpu().numpy() if is_tensor(landmarks) else landmarks, dtype=np.float64)
+    if targets.shape != (N_LANDMARKS, 2):
+        raise InputError("<landmarks>", "landmarks", f"shape ({N_LANDMARKS}, 2) in pixels", str(targets.shape))
+    return targets
 
 
 class LandmarkPrior:
@@ -257,9 +269,7 @@ def solve_landmarks(
         ``info["landmark_noise"]`` holds the estimated noise (px and inter-ocular fraction),
         the effective number of parameters and the expression weights held at a bound.
     """
-    targets = np.asarray(landmarks.detach().cpu().numpy() if is_tensor(landmarks) else landmarks, dtype=np.float64)
-    if targets.shape != (N_LANDMARKS, 2):
-        raise InputError("<landmarks>", "landmarks", f"shape ({N_LANDMARKS}, 2) in pixels", str(targets.shape))
+    targets = landmark_targets(landmarks)
     valid = np.isfinite(targets).all(axis=1)
     weights = LANDMARK_WEIGHTS if weights is None else np.asarray(weights, dtype=np.float32)
     if weights.shape != (N_LANDMARKS,):

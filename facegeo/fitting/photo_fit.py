@@ -17,7 +17,7 @@ from facegeo.fitting.camera_estimate import camera_for_face
 from facegeo.fitting.checks import (FOLLOWED_SHARE, MAX_LANDMARK_ERROR_PERCENT, check_fit, frontal_inter_ocular_distance,
                                      landmark_error_percent)
 from facegeo.fitting.dense_term import DEFAULT_DENSE, DenseSettings, dense_surface_points, landmark_weights_with_dense
-from facegeo.fitting.landmark_fit import LandmarkSolution, solve_landmarks
+from facegeo.fitting.landmark_fit import LandmarkSolution, landmark_targets, solve_landmarks
 from facegeo.fitting.landmark_problem import SurfacePoints
 from facegeo.fitting.photometric import fit_photometric
 from facegeo.fitting.priors import DEFAULT_PRIORS, FitPriors
@@ -145,9 +145,12 @@ def observe_photo(
     """The first half of :func:`fit` (same arguments): the photo loaded, the landmarks detected
     (unless given), the camera's focal estimated when unknown and the dense surface points placed
     on the model; what a landmark fit of this photo needs, alone or beside other photos of the
-    same person (:func:`facegeo.fitting.fit_photos`)."""
+    same person (:func:`facegeo.fitting.fit_photos`). Given landmarks of another shape than
+    (88, 2) are an :class:`~facegeo.errors.InputError` before the photo is read."""
     timings: dict[str, float] = {}
     notes: list[str] = []
+    if landmarks is not None:
+        landmarks = landmark_targets(landmarks)  # given ones checked before the photo is read
     if isinstance(image, (str, Path)):
         t0 = time.perf_counter()
         image = load_photo(image)

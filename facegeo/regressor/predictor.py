@@ -122,9 +122,7 @@ class Predictor:
         """
         if model is not None and model is not self.model and ModelSignature.of(model) != self.network.signature:
             raise InputError(self.source, "model", f"the model the regressor was trained for ({self.network.signature.name})", model.name)
-        # the fit's front door: the photo loaded, the landmarks detected, the one camera default
-        if landmarks is not None and np.shape(landmarks) != (88, 2):
-            raise InputError("<landmarks>", "landmarks", "shape (88, 2) in pixels", str(np.shape(landmarks)))
+        # the fit's front door: given landmarks checked, the photo loaded, the landmarks detected, the one camera default
         seen = observe_photo(image, self.model, landmarks, detector or self.detector, camera, dense=None)
         timings = {name: seen.timings[name] for name in ("detect",) if name in seen.timings}
         notes, source, pixels, camera, targets = list(seen.notes), seen.source, seen.pixels, seen.camera, seen.landmarks
