@@ -97,6 +97,10 @@ class LandmarkPrior:
         names = list(model.expression_names)
         held = [names.index(n) for n in priors.held_expressions if n in names]
         self.lower[held] = self.upper[held] = 0.0
+        for name, value in priors.measured_expressions:
+            if name in names:
+                k = names.index(name)
+                self.lower[k] = self.upper[k] = float(np.clip(value, lower[k], upper[k]))
         self.correctives = [(names.index(c), names.index(d)) for c, d in CORRECTIVES.items() if c in names and d in names]
 
     def project(self, delta: np.ndarray) -> np.ndarray:

@@ -68,6 +68,10 @@ class FitPriors:
     #: cannot tell apart from another expression (a blendshape model's gaze, which moves the lids,
     #: for a fit without the irises).
     held_expressions: tuple[str, ...] = ()
+    #: Expressions held at values measured by other means, as (name, value) pairs (names the model
+    #: lacks are ignored; values are clipped into the model's range): a tracker's blinks read from
+    #: the lids (:mod:`facegeo.landmarks.eyelids`).
+    measured_expressions: tuple[tuple[str, float], ...] = ()
 
     def __post_init__(self) -> None:
         for name in ("noise", "noise_floor", "expression_scale"):
@@ -76,6 +80,9 @@ class FitPriors:
                 raise InputError("<priors>", name, "a finite number > 0", repr(value))
         if not (np.isfinite(self.expression_rate) and self.expression_rate >= 0):
             raise InputError("<priors>", "expression_rate", "a finite number >= 0", repr(self.expression_rate))
+        for name, value in self.measured_expressions:
+            if not np.isfinite(value):
+                raise InputError("<priors>", f"measured_expressions[{name!r}]", "a finite number", repr(value))
         if self.noise_rounds < 0:
             raise InputError("<priors>", "noise_rounds", "an integer >= 0", repr(self.noise_rounds))
 

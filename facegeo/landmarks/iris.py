@@ -10,7 +10,7 @@ ai-edge-litert like :mod:`facegeo.landmarks.mediapipe_mesh`) takes one eye:
   subject's right eye); the subject's left eye is mirrored horizontally first.
 * outputs: ``output_iris`` (1, 15): 5 points (x, y, z) in crop pixels, the iris centre then 4
   points on its rim; ``output_eyes_contours_and_brows`` (1, 213): 71 eye-contour and brow points
-  (not used here).
+  (the lids' rows, :data:`LOWER_LID` and :data:`UPPER_LID`, are read by :mod:`facegeo.landmarks.eyelids`).
 
 Here the eye corners come from the fit's detected iBUG points (36/39: subject's right eye, 42/45:
 left eye), so no second face-mesh pass is needed. Pixel coordinates as in :mod:`facegeo.camera`
@@ -37,7 +37,7 @@ from facegeo.colour import linear_to_srgb, srgb_to_linear
 from facegeo.errors import ModelFileError
 from facegeo.landmarks.scheme import LEFT_EYE, RIGHT_EYE
 
-__all__ = ["IrisDetector", "Iris", "iris_colour", "sample_iris_ring", "IRIS_ASSET", "EYE_CORNERS"]
+__all__ = ["IrisDetector", "Iris", "iris_colour", "sample_iris_ring", "IRIS_ASSET", "EYE_CORNERS", "LOWER_LID", "UPPER_LID"]
 
 #: The bundled model, relative to ``facegeo.assets``.
 IRIS_ASSET = "mediapipe/iris_landmark.tflite"
@@ -47,6 +47,11 @@ ROI_SCALE = 2.3
 #: iBUG indices (start corner, end corner, eye polygon) and whether the crop is mirrored:
 #: subject's right eye (image left) as the model expects, the left eye mirrored.
 EYE_CORNERS = {"right": (36, 39, tuple(RIGHT_EYE), False), "left": (42, 45, tuple(LEFT_EYE), True)}
+#: Rows of the eye-contour output on the lids, corner to corner (MediaPipe's eye contour: row 0
+#: the eye's start corner, 8 its end corner; 1-7 the lower lid, 9-15 the upper lid from the
+#: start corner's side), in the crop's orientation: for the mirrored left eye too.
+LOWER_LID = tuple(range(0, 9))
+UPPER_LID = (0, *range(9, 16), 8)
 #: The ring sampled, as fractions of the iris radius.
 RING = (0.45, 0.95)
 #: Fewer valid pixels than this in both eyes together: no colour.
@@ -94,6 +99,14 @@ class IrisDetector:
     def eye(self, image: np.ndarray, start: np.ndarray, end: np.ndarray, mirror: bool) -> tuple[np.ndarray, float]:
         """The 5 iris points (5, 2) px of the eye whose corners are ``start``, ``end`` (px), and
         the ROI side in px."""
+        iris, _, side = self.eye_points(image, start, end, mirror)
+        return iris, side
+
+    def eye_points(self, image: np.ndarray, start: np.ndarray, end: np.ndarray,
+                   mirror: bool) -> tuple[np.ndarray, np.ndarray, float]:
+        """Both outputs for the eye whose corners are ``start``, ``end`` (px): the 5 iris points
+        (5, 2) px, the 71 eye-contour and brow points (71, 2) px (:data:`LOWER_LID`,
+        :data:`UPPER_LID`) and the ROI side in px."""
         start, end = np.asarray(start, np.float64), np.asarray(end, np.float64)
         centre = (start + end) / 2.0
         side = ROI_SCALE * float(np.max(np.abs(end - start)))
@@ -121,10 +134,12 @@ class IrisDetector:
         sample[:, 2] += to_source[:, 2]
         crop = cv2.warpAffine(source, sample, (INPUT_SIZE, INPUT_SIZE), flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP,
                               borderMode=cv2.BORDER_REPLICATE)
-        raw = self.model((crop.astype(np.float32) / 255.0)[None])["iris"].reshape(5, 3)[:, :2].astype(np.float64)
-        # model output: continuous crop coordinates -> pixel index coordinates -> image
-        points = (raw - 0.5) @ to_image[:, :2].T + to_image[:, 2] + 0.5
-        return points.astype(np.float32), side
+        out = self.model((crop.astype(np.float32) / 255.0)[None])
+
+        def to_pixels(raw: np.ndarray) -> np.ndarray:  # continuous crop coordinates -> pixel index coordinates -> image
+            return ((raw[:, :2].astype(np.float64) - 0.5) @ to_image[:, :2].T + to_image[:, 2] + 0.5).astype(np.float32)
+
+        return to_pixels(out["iris"].reshape(5, 3)), to_pixels(out["contours"].reshape(71, 3)), side
 
     def __call__(self, image: np.ndarray, landmarks: np.ndarray) -> list[Iris]:
         """Both irises of the face whose iBUG points (the first 68 rows of ``landmarks``, px)
