@@ -13,7 +13,10 @@
 4. tracks every frame with α fixed: pose and expression δ by the single-view MAP fit
    (:func:`facegeo.fitting.landmark_fit.solve_landmarks`, identity columns left out), warm-started
    from the previous frame (or, after a frame without a face, from solvePnP), at the keyframes'
-   median landmark noise.
+   median landmark noise. The blinks are not fitted but read from the lids
+   (:mod:`facegeo.landmarks.eyelids`: the iris model's lid gap of each eye, observed in step 1,
+   against the gap the eye shows open in the previous frame's pose, calibrated on the keyframes)
+   and held in the solve, where the lid points then weigh nothing.
 
 After a frame with a face the next is searched around that face first (the same person, not
 another face that comes into the frame; the whole frame where it is lost). :func:`smooth_track`
@@ -41,6 +44,7 @@ from facegeo.fitting.photo_fit import PhotoObservation, observe_photo
 from facegeo.fitting.priors import DEFAULT_PRIORS, LandmarkStage
 from facegeo.fitting.shared_identity import LandmarkView, solve_shared_identity
 from facegeo.landmarks.detectors import get_detector
+from facegeo.landmarks import eyelids
 from facegeo.landmarks.scheme import EYES, LANDMARK_WEIGHTS, inter_ocular_distance
 from facegeo.morphable_model import MorphableModel
 
@@ -119,25 +123,32 @@ class Track:
 @dataclass(frozen=True)
 class ObservedFrame:
     """A frame as observed (:func:`observe_frames`): ``index`` and ``time_s`` as the source's
-    frame, the ``observation`` without its pixels (None when no face was found) and ``note``, why."""
+    frame, the ``observation`` without its pixels (None when no face was found) and ``note``, why;
+    ``lid_gaps`` (2,) px, the subject's right and left eye's lid gap read by the iris model
+    (:func:`facegeo.landmarks.eyelids.lid_gaps`; NaN for an eye it could not read), None without a
+    face or for a model without :data:`~facegeo.landmarks.eyelids.BLINK_NAMES`."""
 
     index: int
     time_s: float
     observation: PhotoObservation | None
     note: str | None = None
+    lid_gaps: np.ndarray | None = None
 
 
 @dataclass(frozen=True)
 class ClipIdentity:
     """What a clip's frames share (:func:`clip_identity`): the ``camera``, the identity ``alpha``
     (n_id,) float64, the landmark ``noise`` (inter-ocular units, the keyframes' median), the
-    ``keyframes`` (positions in the observed list) and ``notes``."""
+    ``keyframes`` (positions in the observed list) and ``notes``; ``open_lids`` (2,), the ratio of
+    the iris model's lid gap to the model's neutral one on the keyframes, per eye
+    (:func:`facegeo.landmarks.eyelids.open_ratio`; None where the lids are not read)."""
 
     camera: Camera
     alpha: np.ndarray
     noise: float
     keyframes: list[int]
     notes: list[str]
+    open_lids: np.ndarray | None = None
 
 
 def track_frames(frames: Iterable[Any], model: MorphableModel, detector: str = "lids", focal: float | None = None,
@@ -189,8 +200,10 @@ def observe_frames(frames: Iterable[Any], model: MorphableModel, detector: str =
 
     Raises :class:`InputError` (naming ``source``) for no frames or frames of different sizes."""
     from facegeo.landmarks.face_identity import SAME_PERSON_DISTANCE, face_descriptor
+    from facegeo.landmarks.iris import IrisDetector
 
     det = get_detector(detector)
+    iris = IrisDetector() if all(name in model.expression_names for name in eyelids.BLINK_NAMES) else None
     observed: list[ObservedFrame] = []
     size = None
     region = None  # (x0, y0, x1, y1) px around the previous frame's face
@@ -223,7 +236,8 @@ def observe_frames(frames: Iterable[Any], model: MorphableModel, detector: str =
                                           f"{SAME_PERSON_DISTANCE:g})")
         followed += 1
         previous = None if observation is None else observation.landmarks
-        observed.append(ObservedFrame(frame.index, frame.time_s, observation, None if observation is not None else why))
+        gaps = None if observation is None or iris is None else eyelids.lid_gaps(frame.image, observation.landmarks, iris)
+        observed.append(ObservedFrame(frame.index, frame.time_s, observation, None if observation is not None else why, gaps))
         region = None if observation is None else follow_region(observation.landmarks, width, height)
         if progress is not None:
             progress(len(observed))
@@ -302,8 +316,21 @@ def clip_identity(model: MorphableModel, observed: list[ObservedFrame], size: tu
     views = [dataclasses.replace(LandmarkView.of(observed[k].observation, f"{source}, frame {observed[k].index}"), camera=camera)
              for k in chosen]
     solutions = solve_shared_identity(model, views)
-    return ClipIdentity(camera, solutions[0].fit.alpha.astype(np.float64), float(np.median([s.noise for s in solutions])),
-                        chosen, notes)
+    alpha = solutions[0].fit.alpha.astype(np.float64)
+    open_lids = None
+    if all(observed[k].lid_gaps is not None for k in chosen):
+        model_gaps = [eyelids.model_lid_gaps(model, alpha, _without_lids(model, s.fit.delta), s.fit.rotation, s.fit.translation, camera)
+                      for s in solutions]
+        ratio = eyelids.open_ratio(np.stack([observed[k].lid_gaps for k in chosen]), np.stack(model_gaps))
+        open_lids = ratio if np.isfinite(ratio).any() else None
+    return ClipIdentity(camera, alpha, float(np.median([s.noise for s in solutions])), chosen, notes, open_lids)
+
+
+def _without_lids(model: MorphableModel, delta: np.ndarray) -> np.ndarray:
+    """``delta`` (n_exp,) with the expressions that move the lids themselves (ICT-FaceKit's
+    ``eye*``: blink, squint, wide, gaze) at 0: the expression a lid's open gap is measured in (a
+    smile's raised cheeks and a lowered brow narrow the eye; they stay)."""
+    return np.where(lid_weights(model.expression_names), 0.0, np.asarray(delta, np.float64))
 
 
 def track_observed(model: MorphableModel, observed: list[ObservedFrame], shared: ClipIdentity,
@@ -320,7 +347,18 @@ def track_observed(model: MorphableModel, observed: list[ObservedFrame], shared:
             out.append(TrackedFrame(frame.index, frame.time_s, False, note=frame.note))
             previous = None
             continue
-        fit = solve_frame(model, obs, shared.camera, shared.alpha, shared.noise, previous, stage).fit
+        measured = None
+        if shared.open_lids is not None and frame.lid_gaps is not None:
+            # the eye's open gap in this frame's pose: the previous frame's (1/30 s ago) or solvePnP's
+            if previous is None:
+                rotation, translation = initial_pose(model, obs.landmarks, shared.camera)
+                delta = np.zeros(model.n_exp)
+            else:
+                rotation, translation, delta = previous.rotation, previous.translation, previous.delta
+            open_gaps = shared.open_lids * eyelids.model_lid_gaps(model, shared.alpha, _without_lids(model, delta), rotation, translation,
+                                                          shared.camera)
+            measured = eyelids.blinks(frame.lid_gaps, open_gaps, rotation)
+        fit = solve_frame(model, obs, shared.camera, shared.alpha, shared.noise, previous, stage, measured).fit
         previous = SolveStart(fit.rotation, fit.translation, shared.alpha, fit.delta)
         out.append(TrackedFrame(frame.index, frame.time_s, True, fit.rotation, fit.translation, fit.delta,
                                 float(fit.landmark_rms_px), float(fit.landmark_rms_percent_iod), k in shared.keyframes))
@@ -328,19 +366,31 @@ def track_observed(model: MorphableModel, observed: list[ObservedFrame], shared:
 
 
 def solve_frame(model: MorphableModel, seen: PhotoObservation, camera: Camera, alpha: np.ndarray, noise: float,
-                start: SolveStart | None = None, stage: LandmarkStage = TRACK_STAGE) -> LandmarkSolution:
+                start: SolveStart | None = None, stage: LandmarkStage = TRACK_STAGE,
+                blinks: np.ndarray | None = None) -> LandmarkSolution:
     """One frame's pose and expression with the clip's identity ``alpha`` (n_id,) fixed, in the
     clip's ``camera``, at its landmark ``noise`` (inter-ocular units, no re-estimation), from
     ``start`` (None: solvePnP on the mean shape, δ = 0): the per-frame solve of
-    :func:`track_observed`, and of a keyframe fitted again for the clip's asset."""
+    :func:`track_observed`, and of a keyframe fitted again for the clip's asset.
+
+    ``blinks`` (2,): the right and left eye's blink read from the lids
+    (:func:`facegeo.landmarks.eyelids.blinks`), held in the solve; the lid points
+    (:data:`~facegeo.landmarks.eyelids.LID_POINTS`) then weigh nothing (they would pull the eyes
+    open or shut again through the other lid shapes) and the eye corners their single-photo
+    weight. None (or NaN): the lids are fitted, the eyes' 12 points weighed ×:data:`EYE_WEIGHT`."""
     if start is None:
         rotation, translation = initial_pose(model, seen.landmarks, camera)
         start = SolveStart(rotation, translation, np.asarray(alpha, np.float64), np.zeros(model.n_exp))
     # the gaze blendshapes move the lids: without the irises they only mimic a blink's opposite
     gaze = tuple(n for n in model.expression_names if n.startswith("eyeLook"))
-    priors = dataclasses.replace(DEFAULT_PRIORS, noise=noise, noise_rounds=0, held_expressions=gaze)
     weights = np.array(LANDMARK_WEIGHTS if seen.weights is None else seen.weights, np.float64)
-    weights[EYES] *= EYE_WEIGHT
+    measured: tuple[tuple[str, float], ...] = ()
+    if blinks is not None and np.isfinite(blinks).all():
+        measured = tuple(zip(eyelids.BLINK_NAMES, (float(b) for b in blinks)))
+        weights[np.ravel(eyelids.LID_POINTS)] = 0.0
+    else:
+        weights[EYES] *= EYE_WEIGHT
+    priors = dataclasses.replace(DEFAULT_PRIORS, noise=noise, noise_rounds=0, held_expressions=gaze, measured_expressions=measured)
     return solve_landmarks(model, seen.landmarks, camera, weights, (stage,), priors, start, seen.surface_points)
 
 

@@ -218,3 +218,19 @@ def test_keyframes_span_the_head_turn_of_a_mostly_frontal_clip():
     fewer_points = np.full(len(yaws), 88)
     fewer_points[np.argmin(np.abs(yaws))] = 70  # the most frontal frame lost points to a hand: another frontal one
     assert np.argmin(np.abs(yaws)) not in spanning_frames(yaws, fewer_points, 5)
+
+
+def test_a_wink_is_tracked_as_one_eye_shut(model):
+    from test_eyelids import shut_left_eye
+
+    from facegeo.landmarks.detectors import detect_landmarks
+    from facegeo.tracking import track_frames
+
+    image = load_photo(PHOTO).image
+    winked = shut_left_eye(image, detect_landmarks(image, "lids"))
+    frames = [SimpleNamespace(index=k, time_s=k / 30.0, image=winked if k == 3 else image) for k in range(6)]
+    track = track_frames(frames, model, keyframes=3)
+    names = list(model.expression_names)
+    left, right = (np.array([f.delta[names.index(n)] for f in track.frames]) for n in ("eyeBlink_L", "eyeBlink_R"))
+    assert left[3] >= 0.6 and right[3] <= 0.3  # the wink: the subject's left eye alone
+    assert np.all(np.delete(left, 3) <= 0.3) and np.all(right <= 0.3)
