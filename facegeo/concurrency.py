@@ -31,7 +31,7 @@ from collections.abc import Callable, Iterator, Sequence
 from concurrent.futures import FIRST_EXCEPTION, Future, ThreadPoolExecutor, wait
 from typing import Any
 
-__all__ = ["run_concurrently", "native_threads", "usable_threads", "EXPORT_WORKERS"]
+__all__ = ["run_concurrently", "native_threads", "numpy_blas_threads", "usable_threads", "EXPORT_WORKERS"]
 
 #: Worker threads of the export stage (issue 29: two cores).
 EXPORT_WORKERS = 2
@@ -48,6 +48,23 @@ def usable_threads() -> int:
         return max(1, int(os.environ["OMP_NUM_THREADS"]))
     except (KeyError, ValueError):
         return max(1, len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1)
+
+
+_NUMPY_BLAS: Any = None  # threadpoolctl's controller of the BLAS libraries loaded with NumPy
+
+
+def numpy_blas_threads(count: int) -> contextlib.AbstractContextManager[Any]:
+    """A context that holds the BLAS pools NumPy loaded at ``count`` threads (restored on exit),
+    for NumPy code called many times (a tracked video's per-frame solves): the libraries are found
+    once a process (threadpoolctl scans the loaded libraries for each ``threadpool_limits``, about
+    a millisecond), so a BLAS loaded later (torch's) is not held; :func:`native_threads` holds them all."""
+    global _NUMPY_BLAS
+    if _NUMPY_BLAS is None:
+        import numpy  # noqa: F401  (its BLAS is loaded with it)
+        from threadpoolctl import ThreadpoolController
+
+        _NUMPY_BLAS = ThreadpoolController()
+    return _NUMPY_BLAS.limit(limits=count, user_api="blas")
 
 
 @contextlib.contextmanager

@@ -22,10 +22,10 @@ from typing import TYPE_CHECKING, Any
 
 import cv2
 import numpy as np
-from threadpoolctl import threadpool_limits
 
 from facegeo.array_namespace import is_tensor
 from facegeo.camera import OPENCV_FROM_OPENGL, Camera
+from facegeo.concurrency import numpy_blas_threads
 from facegeo.errors import InputError, check_finite
 from facegeo.fitting.checks import check_landmarks
 from facegeo.fitting.landmark_problem import LandmarkProblem, SurfacePoints
@@ -151,8 +151,9 @@ def _levenberg_marquardt(problem: LandmarkProblem, state: dict[str, np.ndarray],
     n = 6 + n_id + n_exp
     prior_precision = np.concatenate([np.zeros(6), np.ones(n_id), inv_var[:n_exp]])
     damping, accepted = 1e-3, 0
-    for _ in range(stage.iterations):
-        problem.slide(state["rotation"], state["translation"], state["alpha"], state["delta"])
+    for iteration in range(stage.iterations):
+        if stage.slides is None or iteration < stage.slides:
+            problem.slide(state["rotation"], state["translation"], state["alpha"], state["delta"])
         r0, cost0 = cost(state["rotation"], state["translation"], state["alpha"], state["delta"])
         jac = problem.jacobian(state["rotation"], state["translation"], state["alpha"], state["delta"], n_id, n_exp, T_UNIT_MM) / noise
         # normal equations of the landmark residuals plus the (diagonal) priors; grad is half ∇E
@@ -292,7 +293,7 @@ def solve_landmarks(
                          f"NaN or infinite at point {missing}")
     check_landmarks(targets, camera)
 
-    with threadpool_limits(limits=LANDMARK_FIT_THREADS, user_api="blas"):
+    with numpy_blas_threads(LANDMARK_FIT_THREADS):
         timings: dict[str, float] = {}
         t0 = time.perf_counter()
         prior = LandmarkPrior(model, priors)

@@ -20,6 +20,42 @@ __all__ = ["LandmarkProblem", "SurfacePoints", "silhouette_of"]
 _SILHOUETTES: dict[int, tuple[MorphableModel, Silhouette]] = {}
 
 
+class _SubsetBases:
+    """The model's mean and bases gathered at a set of vertices (float64, read-only): ``mean``
+    (S, 3), ``id_basis`` (n_id, S, 3), ``exp_basis`` (n_exp, S, 3), and ``flat`` {key: (mean
+    (K, 3), id (n_id, 3K), exp (n_exp, 3K))} at the rows of the jaw contour (``"contour"``) and of
+    the silhouette (``"silhouette"``) within them."""
+
+    def __init__(self, model: MorphableModel, subset: np.ndarray, rows: dict[str, np.ndarray]):
+        self.mean = model.mean_shape[subset].astype(np.float64)
+        self.id_basis = model.id_basis[:, subset].astype(np.float64)
+        self.exp_basis = model.exp_basis[:, subset].astype(np.float64)
+        # a gather along axis 1 is not C-contiguous, so flattening it copied (n_id + n_exp) × K × 3 per step
+        self.flat = {key: (self.mean[r], np.ascontiguousarray(self.id_basis[:, r]).reshape(model.n_id, -1),
+                           np.ascontiguousarray(self.exp_basis[:, r]).reshape(model.n_exp, -1)) for key, r in rows.items()}
+        for array in (self.mean, self.id_basis, self.exp_basis, *(a for arrays in self.flat.values() for a in arrays)):
+            array.setflags(write=False)
+
+
+#: The last few gathers, by model object and vertex set: a video's frames, and photos seen by one
+#: detector, observe the same model vertices, and gathering them was half of a tracked frame's solve.
+_BASES: dict[tuple[int, bytes], tuple[MorphableModel, _SubsetBases]] = {}
+_BASES_KEPT = 4
+
+
+def _subset_bases(model: MorphableModel, subset: np.ndarray, rows: dict[str, np.ndarray]) -> _SubsetBases:
+    """:class:`_SubsetBases` of ``model`` at ``subset`` (S,) int vertices and ``rows`` (into
+    ``subset``), gathered once per model object and vertex set in a process."""
+    key = (id(model), subset.tobytes() + b"|" + b"|".join(rows[k].tobytes() for k in sorted(rows)))
+    cached = _BASES.get(key)
+    if cached is None or cached[0] is not model:
+        cached = (model, _SubsetBases(model, subset, rows))
+        while len(_BASES) >= _BASES_KEPT:
+            del _BASES[next(iter(_BASES))]
+        _BASES[key] = cached
+    return cached[1]
+
+
 def silhouette_of(model: MorphableModel) -> Silhouette:
     """The :class:`Silhouette` bins of ``model``, built once per model object in a process."""
     cached = _SILHOUETTES.get(id(model))
@@ -109,9 +145,6 @@ class LandmarkProblem:
         self.subset = np.unique(np.concatenate([ids.ravel(), silhouette_vertices]))
         position = np.full(model.n_vertices, -1, dtype=np.int64)
         position[self.subset] = np.arange(len(self.subset))
-        self.mean = model.mean_shape[self.subset].astype(np.float64)
-        self.id_basis = model.id_basis[:, self.subset].astype(np.float64)
-        self.exp_basis = model.exp_basis[:, self.subset].astype(np.float64)
         self.rows = position[ids]  # (n, 3) rows into subset
         self.bary = np.concatenate([np.tile([1.0, 0.0, 0.0], (N_LANDMARKS, 1)), extra.barycentric])
         self.sliding_rows = np.array([j for j in range(17) if j != CHIN])
@@ -129,11 +162,9 @@ class LandmarkProblem:
         self.n_sliding = float(len(self.sliding) + np.minimum(w_all[self.silhouette_rows], 1.0).sum())
         self.contour_rows = {side: position[np.asarray(c)] for side, c in contours.items()}
         self.contour_vertex_rows = np.unique(np.concatenate(list(self.contour_rows.values())))
-        # the bases of the two vertex sets the slides pose at every step, gathered once: a gather
-        # along axis 1 is not C-contiguous, so flattening it copied (n_id + n_exp) × K × 3 per step
-        self._flat_bases = {key: (self.mean[rows], np.ascontiguousarray(self.id_basis[:, rows]).reshape(model.n_id, -1),
-                                  np.ascontiguousarray(self.exp_basis[:, rows]).reshape(model.n_exp, -1))
-                            for key, rows in (("contour", self.contour_vertex_rows), ("silhouette", self.silhouette_subset_rows))}
+        # the model at the observed vertices, and the bases of the two vertex sets the slides pose at every step
+        bases = _subset_bases(model, self.subset, {"contour": self.contour_vertex_rows, "silhouette": self.silhouette_subset_rows})
+        self.mean, self.id_basis, self.exp_basis, self._flat_bases = bases.mean, bases.id_basis, bases.exp_basis, bases.flat
         self._update_bases(np.zeros(model.n_exp))
 
     def _shape_at(self, key: str, alpha: np.ndarray, delta: np.ndarray) -> np.ndarray:

@@ -16,12 +16,15 @@ __all__ = ["FitPriors", "DEFAULT_PRIORS", "LandmarkStage", "LANDMARK_SCHEDULE", 
 @dataclass(frozen=True)
 class LandmarkStage:
     """One coarse-to-fine stage: Levenberg–Marquardt ``iterations`` with the pose, the first
-    ``n_id`` identity components (None: all) and, if ``expression``, all expression components."""
+    ``n_id`` identity components (None: all) and, if ``expression``, all expression components;
+    the jaw and outline points slide to the model's contours (:meth:`~facegeo.fitting.landmark_problem.LandmarkProblem.slide`)
+    before each of the first ``slides`` iterations (None: before every one)."""
 
     name: str
     iterations: int
     n_id: int | None
     expression: bool
+    slides: int | None = None
 
 
 #: The documented coarse-to-fine schedule of the landmark stage (error against iterations in

@@ -42,9 +42,9 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 import numpy as np
-from threadpoolctl import threadpool_limits
 
 from facegeo.camera import Camera
+from facegeo.concurrency import numpy_blas_threads
 from facegeo.errors import InputError, check_finite
 from facegeo.fitting.landmark_fit import (CONVERGED_RELATIVE_DECREASE, LANDMARK_FIT_THREADS, NOISE_TOLERANCE, T_UNIT_MM,
                                           LandmarkPrior, LandmarkSolution, assemble_fit, damped_step, estimate_noise,
@@ -128,7 +128,7 @@ def solve_shared_identity(model: MorphableModel, views: Sequence[LandmarkView], 
     if not (np.isfinite(identity_precision) and identity_precision > 0):
         raise InputError("<views>", "identity_precision", "a finite number > 0", repr(identity_precision))
     steps, history = [], [list(noises)]
-    with threadpool_limits(limits=LANDMARK_FIT_THREADS, user_api="blas"):
+    with numpy_blas_threads(LANDMARK_FIT_THREADS):
         for round_ in range(priors.noise_rounds + 1):
             if round_ > 0:
                 estimates = [max(estimate_noise(p, st, prior, n)[0], priors.noise_floor) for p, st, n in zip(problems, states, noises)]
