@@ -15,8 +15,9 @@ from __future__ import annotations
 
 import functools
 import json
+import math
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterable, Iterator
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
@@ -586,8 +587,9 @@ def track_into_folder(video: str | Path, output: str | Path, options: TrackOptio
         start = time.perf_counter()
         model, _ = loaded_resources(options.model, None, False, options.landmarks)
         info, frames = open_video(video, options.start_s, options.end_s, options.every)
+        frames, rest = _clip_parts(video, info, frames, options)
         report = None if progress is None else (lambda n: progress(n, n / max(time.perf_counter() - start, 1e-9)))
-        track = track_frames(frames, model, options.landmarks, options.focal, options.keyframes, report, str(video))
+        track = track_frames(frames, model, options.landmarks, options.focal, options.keyframes, report, str(video), rest)
         if options.smooth:
             track.frames = smooth_track(track.frames, *model.expression_range, fast=lid_weights(model.expression_names))
         found = np.flatnonzero([f.found for f in track.frames])
@@ -629,6 +631,40 @@ def track_into_folder(video: str | Path, output: str | Path, options: TrackOptio
                 record["timings_s"]["total"] = time.perf_counter() - start
             stage.path("track.json").write_text(json.dumps(record, indent=1))
         return record
+
+
+def _clip_parts(video: str | Path, info: Any, frames: Iterator[Any], options: TrackOptions) -> tuple[Iterable[Any], Any]:
+    """The clip ``frames`` (of ``open_video(video, ...)`` with ``options``' range) as its first half
+    and a callable that opens its second half, observed beside each other
+    (:func:`facegeo.tracking.observe_frames`); ``(frames, None)`` where the source's frame count is
+    unknown, the halves would be shorter than :data:`facegeo.tracking.MIN_PART_FRAMES`, or no
+    second process can be forked. The halves meet at a frame of the ``--every`` grid."""
+    import itertools
+
+    from facegeo.forked_call import can_fork
+    from facegeo.tracking import MIN_PART_FRAMES
+    from facegeo.video import open_video
+
+    first = next(frames)
+    frames = itertools.chain([first], frames)
+    if info.frame_count is None or not can_fork():
+        return frames, None
+    last = info.frame_count - 1
+    if options.end_s is not None:
+        last = min(last, math.ceil(options.end_s * info.fps) - 1)
+    kept = len(range(first.index, last + 1, options.every))
+    if kept < 2 * MIN_PART_FRAMES:
+        return frames, None
+    middle = first.index + options.every * (kept // 2)  # the second half's first frame
+
+    def rest() -> Iterator[Any]:
+        try:
+            second = open_video(video, (middle - 0.5) / info.fps, options.end_s, options.every)[1]
+        except InputError:  # the container's frame count overstated the clip: no second half
+            return
+        yield from second
+
+    return itertools.takewhile(lambda frame: frame.index < middle, frames), rest
 
 
 def _animated_asset(video: str | Path, options: TrackOptions, model: Any, track: Any, take: Any, stage: Any) -> dict[str, Any]:

@@ -18,15 +18,18 @@
    against the gap the eye shows open in the previous frame's pose, calibrated on the keyframes)
    and held in the solve, where the lid points then weigh nothing.
 
-After a frame with a face the next is searched around that face first (the same person, not
-another face that comes into the frame; the whole frame where it is lost). :func:`smooth_track`
+After a frame with a face the face is followed into the next without the face detector (the
+face mesh on the previous frame's mesh, as MediaPipe's video mode does: the same person, not
+another face that comes into the frame; the region around it, then the whole frame, are searched
+where it is lost). A clip long enough is observed and solved in two halves at once, the second
+in a forked process (:data:`MIN_PART_FRAMES`). :func:`smooth_track`
 takes the frame-to-frame jitter out afterwards; a cut to another person is told by the face
-descriptor (:func:`observe_frames`). What is not done yet (issue 48): the detector still runs in
-that region on every frame, no gaze (eye rotations).
+descriptor (:func:`observe_frames`). What is not done yet (issue 48): gaze (eye rotations).
 """
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import time
 from collections.abc import Callable, Iterable
@@ -53,8 +56,13 @@ __all__ = ["TrackedFrame", "Track", "ObservedFrame", "ClipIdentity", "track_fram
            "TRACK_STAGE", "KEYFRAMES", "FOLLOW_MARGIN", "POSE_WINDOW", "WEIGHT_WINDOW", "SLOW_WEIGHT_WINDOW",
            "IDENTITY_CHECK_EVERY"]
 
-#: The per-frame solve: pose and expression, identity fixed (no identity columns), warm-started.
-TRACK_STAGE = LandmarkStage("track", 8, 0, True)
+#: The per-frame solve: pose and expression, identity fixed (no identity columns), warm-started;
+#: the contours slid before its first 2 iterations (from the previous frame's pose they barely
+#: move after). Knobs against the ground-truth take (benchmarks/RESULTS.md, "the track's speed"):
+#: 8, 6, 4, 2 iterations give a head median of 0.49, 0.50, 0.51, 0.54° and a mean curve r of 0.744,
+#: 0.740, 0.735, 0.719 in 1.0, 0.86, 0.69, 0.52 of 8's time; sliding before 2 of 6 iterations
+#: instead of all 6 gives 0.50° and 0.741 in 0.71 of the time (before 1: 0.54°, 0.736).
+TRACK_STAGE = LandmarkStage("track", 6, 0, True, slides=2)
 #: Keyframes for the identity (fewer when the clip has fewer frames with a face).
 KEYFRAMES = 5
 #: The eyes' 12 points weigh this many times their weight in a single photo's fit in the
@@ -152,7 +160,8 @@ class ClipIdentity:
 
 
 def track_frames(frames: Iterable[Any], model: MorphableModel, detector: str = "lids", focal: float | None = None,
-                 keyframes: int = KEYFRAMES, progress: Callable[[int], None] | None = None, source: str = "<video>") -> Track:
+                 keyframes: int = KEYFRAMES, progress: Callable[[int], None] | None = None, source: str = "<video>",
+                 rest: Callable[[], Iterable[Any]] | None = None) -> Track:
     """Track the face through ``frames`` (module docstring): :func:`observe_frames`, then
     :func:`clip_identity`, then :func:`track_observed`.
 
@@ -165,6 +174,7 @@ def track_frames(frames: Iterable[Any], model: MorphableModel, detector: str = "
         keyframes: how many frames the identity is fitted to.
         progress: called with the number of frames observed so far, after each.
         source: the video's name, for errors.
+        rest: opens the frames after ``frames``, observed beside them (:func:`observe_frames`).
     Returns:
         The :class:`Track`.
     Raises:
@@ -172,7 +182,7 @@ def track_frames(frames: Iterable[Any], model: MorphableModel, detector: str = "
     """
     timings: dict[str, float] = {}
     start = time.perf_counter()
-    observed, size = observe_frames(frames, model, detector, progress, source)
+    observed, size = observe_frames(frames, model, detector, progress, source, rest)
     timings["observe"] = time.perf_counter() - start
     start = time.perf_counter()
     shared = clip_identity(model, observed, size, focal, keyframes, source)
@@ -184,13 +194,16 @@ def track_frames(frames: Iterable[Any], model: MorphableModel, detector: str = "
 
 
 def observe_frames(frames: Iterable[Any], model: MorphableModel, detector: str = "lids",
-                   progress: Callable[[int], None] | None = None, source: str = "<video>") -> tuple[list[ObservedFrame], tuple[int, int]]:
+                   progress: Callable[[int], None] | None = None, source: str = "<video>",
+                   rest: Callable[[], Iterable[Any]] | None = None) -> tuple[list[ObservedFrame], tuple[int, int]]:
     """Every frame observed as a photo fit observes a photo (module docstring, step 1), the
     pixels dropped: ``(frames, (width, height))``. The person stays the same from frame to frame:
 
-    * after a frame with a face, the next is observed in the region around that face
-      (:data:`FOLLOW_MARGIN` × the landmarks' extent on each side), so that another face in the
-      frame is not taken for it; where no face is found there, the whole frame is searched;
+    * after a frame with a face, the face is followed into the next frame without the face
+      detector where the detector can (its ``follow``: the face mesh on the previous frame's
+      mesh ROI, as MediaPipe's video mode does), so that another face in the frame is not taken
+      for it; where it is lost, the region around the last face (:data:`FOLLOW_MARGIN` × the
+      landmarks' extent on each side) is searched, then the whole frame;
     * the clip's person is the first face found; a face found by searching the whole frame, and
       a face that jumped from the previous frame's (:func:`_jumped`: a cut), and every
       :data:`IDENTITY_CHECK_EVERY`-th followed one, is compared
@@ -198,57 +211,145 @@ def observe_frames(frames: Iterable[Any], model: MorphableModel, detector: str =
       face is not observed (the frame is flagged as showing another person, and the next frame
       searched whole again).
 
-    Raises :class:`InputError` (naming ``source``) for no frames or frames of different sizes."""
-    from facegeo.landmarks.face_identity import SAME_PERSON_DISTANCE, face_descriptor
-    from facegeo.landmarks.iris import IrisDetector
+    ``rest``: opens the clip's frames that follow ``frames`` (its second part), which a forked
+    child (:mod:`facegeo.forked_call`, where :func:`~facegeo.forked_call.can_fork`) observes on
+    the other core once the clip's person is found here, from a detection of its own; their
+    observations follow these. None: ``frames`` is the whole clip. ``progress`` is called with
+    the number of frames this process observed, doubled while the child works.
 
-    det = get_detector(detector)
-    iris = IrisDetector() if all(name in model.expression_names for name in eyelids.BLINK_NAMES) else None
+    Raises :class:`InputError` (naming ``source``) for no frames or frames of different sizes."""
+    from facegeo.concurrency import native_threads
+    from facegeo.forked_call import ChildLost, can_fork, fork_call
+
+    observer = _FrameObserver(model, detector, source)
     observed: list[ObservedFrame] = []
-    size = None
-    region = None  # (x0, y0, x1, y1) px around the previous frame's face
-    person = None  # the clip's person's face descriptor
-    previous = None  # the previous frame's landmarks (None: no face there)
-    followed = 0  # frames followed in a region since the last identity check
-    for frame in frames:
+    pending = None
+    try:
+        frames = iter(frames)
+        for frame in frames:  # until the clip's person is found (the child's part needs it)
+            observed.append(observer.observe(frame))
+            if progress is not None:
+                progress(len(observed))
+            if rest is not None and observer.person is not None and can_fork():
+                pending = fork_call(_observe_rest, observer, rest)
+                break
+        with native_threads(1) if pending is not None else contextlib.nullcontext():  # the child has the other core
+            for frame in frames:
+                observed.append(observer.observe(frame))
+                if progress is not None:
+                    progress(len(observed) * (2 if pending is not None else 1))
+        if rest is not None:
+            theirs = None
+            if pending is not None:
+                try:
+                    theirs = pending.result()
+                except ChildLost:  # killed (memory): its part is observed here
+                    pass
+            if theirs is None:  # no face here to hand over, the child met another person first, or it was lost
+                theirs = [observer.observe(frame) for frame in rest()]
+            observed += theirs
+    except BaseException:
+        if pending is not None:
+            pending.abandon()
+        raise
+    if observer.size is None:
+        raise InputError(source, "frames", "at least one frame", "none in the range")
+    return observed, observer.size
+
+
+def _observe_rest(observer: _FrameObserver, rest: Callable[[], Iterable[Any]]) -> list[ObservedFrame] | None:
+    """A forked child's part of :func:`observe_frames`: the frames ``rest`` opens, observed by a
+    copy of ``observer`` that knows the clip's person and frame size but starts with no face.
+    None where the first face it finds is another person's (a clip with several people: the
+    largest face is not always the clip's person, whom the caller then follows into this part)."""
+    observer.forget_face()
+    out = []
+    for frame in rest():
+        seen = observer.observe(frame)
+        if observer.stranger and not any(f.observation is not None for f in out):
+            return None
+        out.append(seen)
+    return out
+
+
+class _FrameObserver:
+    """The state :func:`observe_frames` carries from frame to frame (its docstring): the detector,
+    the iris model, the clip's ``person`` descriptor and frame ``size``, and the last face."""
+
+    def __init__(self, model: MorphableModel, detector: str, source: str):
+        from facegeo.landmarks.iris import IrisDetector
+
+        self.model, self.source = model, source
+        self.det = get_detector(detector)
+        self.follow = getattr(self.det, "follow", None)  # a detector that follows a face from frame to frame
+        self.iris = IrisDetector() if all(name in model.expression_names for name in eyelids.BLINK_NAMES) else None
+        self.size: tuple[int, int] | None = None
+        self.person: np.ndarray | None = None  # the clip's person's face descriptor
+        self.forget_face()
+
+    def forget_face(self) -> None:
+        """Start as after a frame without a face."""
+        self.region = None  # (x0, y0, x1, y1) px around the previous frame's face
+        self.previous = None  # the previous frame's landmarks
+        self.previous_detection = None  # the previous frame's detection, frame pixels
+        self.followed = 0  # frames followed since the last identity check
+        self.spread_age = SPREAD_EVERY  # frames since the mesh model's spread was found (the frame it was found counts 1)
+        self.stranger = False  # whether another person's face was found since
+
+    def observe(self, frame: Any) -> ObservedFrame:
+        """One frame (``index``, ``time_s``, ``image`` (H, W, 3) uint8 RGB) observed."""
+        from facegeo.landmarks.face_identity import SAME_PERSON_DISTANCE, face_descriptor
+
         height, width = frame.image.shape[:2]
-        if size is None:
-            size = (width, height)
-        elif size != (width, height):
-            raise InputError(source, f"frame {frame.index}: frame size", f"{size[0]}x{size[1]} px as the first frame", f"{width}x{height} px")
+        if self.size is None:
+            self.size = (width, height)
+        elif self.size != (width, height):
+            raise InputError(self.source, f"frame {frame.index}: frame size", f"{self.size[0]}x{self.size[1]} px as the first frame",
+                             f"{width}x{height} px")
         observation, why, searched_whole = None, None, False
-        for x0, y0, x1, y1 in ([region] if region is not None else []) + [(0, 0, width, height)]:
+        if self.follow is not None and self.previous_detection is not None:
+            keep = self.spread_age < SPREAD_EVERY
+            found = self.follow(frame.image, self.previous_detection, self.source, keep_spread=keep)
+            if found is not None:
+                self.spread_age = self.spread_age + 1 if keep else 1
+                observation = _shifted(observe_photo(np.ascontiguousarray(frame.image), self.model, None, found, None, DEFAULT_DENSE),
+                                       0, 0)
+        regions = [] if observation is not None else ([self.region] if self.region is not None else []) + [(0, 0, width, height)]
+        for x0, y0, x1, y1 in regions:
             try:
-                observation = _shifted(observe_photo(np.ascontiguousarray(frame.image[y0:y1, x0:x1]), model, None, det, None,
+                observation = _shifted(observe_photo(np.ascontiguousarray(frame.image[y0:y1, x0:x1]), self.model, None, self.det, None,
                                                      DEFAULT_DENSE), x0, y0)
                 searched_whole = (x0, y0, x1, y1) == (0, 0, width, height)
+                self.spread_age = 1
                 break
             except NoFaceError as error:
                 why = f"{error.field}: {error.found or error.expected}"
-        if observation is not None and (person is None or searched_whole or followed >= IDENTITY_CHECK_EVERY
-                                        or _jumped(previous, observation.landmarks)):
+        if observation is not None and (self.person is None or searched_whole or self.followed >= IDENTITY_CHECK_EVERY
+                                        or _jumped(self.previous, observation.landmarks)):
             descriptor = face_descriptor(frame.image, observation.landmarks)
-            followed = 0
-            if person is None:
-                person = descriptor
-            elif (distance := float(np.linalg.norm(descriptor - person))) > SAME_PERSON_DISTANCE:
+            self.followed = 0
+            if self.person is None:
+                self.person = descriptor
+            elif (distance := float(np.linalg.norm(descriptor - self.person))) > SAME_PERSON_DISTANCE:
+                self.stranger = True
                 observation, why = None, (f"another person (face descriptor {distance:.2f} from the clip's person's, more than "
                                           f"{SAME_PERSON_DISTANCE:g})")
-        followed += 1
-        previous = None if observation is None else observation.landmarks
-        gaps = None if observation is None or iris is None else eyelids.lid_gaps(frame.image, observation.landmarks, iris)
-        observed.append(ObservedFrame(frame.index, frame.time_s, observation, None if observation is not None else why, gaps))
-        region = None if observation is None else follow_region(observation.landmarks, width, height)
-        if progress is not None:
-            progress(len(observed))
-    if size is None:
-        raise InputError(source, "frames", "at least one frame", "none in the range")
-    return observed, size
+        self.followed += 1
+        self.previous = None if observation is None else observation.landmarks
+        self.previous_detection = None if observation is None else observation.detection
+        self.region = None if observation is None else follow_region(observation.landmarks, width, height)
+        gaps = None if observation is None or self.iris is None else eyelids.lid_gaps(frame.image, observation.landmarks, self.iris)
+        return ObservedFrame(frame.index, frame.time_s, observation, None if observation is not None else why, gaps)
 
 
 #: A followed face is compared with the clip's person every this many frames (a cut to another
 #: person in the same place); a face found by searching the whole frame always is.
 IDENTITY_CHECK_EVERY = 15
+#: A followed face's dense points keep the spread of the mesh model (its mirror pass,
+#: :meth:`~facegeo.landmarks.mediapipe_mesh.MediaPipeFaceMesh.spread`) found this many frames
+#: before at most: it follows the head's pose, which moves little in a few frames, and the pass
+#: was a sixth of a frame's observation.
+SPREAD_EVERY = 5
 
 
 def _jumped(previous: np.ndarray | None, landmarks: np.ndarray) -> bool:
@@ -285,15 +386,21 @@ def follow_region(landmarks: np.ndarray, width: int, height: int) -> tuple[int, 
 
 def _shifted(observation: PhotoObservation, x0: int, y0: int) -> PhotoObservation:
     """An observation made in a region whose top-left corner is (x0, y0) px of the frame, in the
-    frame's pixels, its pixels dropped (a clip's frames are not kept in memory)."""
+    frame's pixels (its landmarks, surface points and detection), its pixels dropped (a clip's
+    frames are not kept in memory)."""
     offset = np.array([x0, y0], dtype=np.float64)
     surface = observation.surface_points
     if surface is not None:
         surface = SurfacePoints(surface.targets + offset, surface.vertex_ids, surface.barycentric, surface.weights,
                                 surface.contour, surface.expressive)
+    detection = observation.detection
+    if detection is not None:
+        shift = offset.astype(np.float32)
+        detection = dataclasses.replace(detection, points=detection.points + shift, box=detection.box + np.tile(shift, 2),
+                                        dense=None if detection.dense is None else detection.dense + shift)
     empty = np.zeros((0, 0, 3), np.uint8)
     return dataclasses.replace(observation, image=empty, pixels=empty, landmarks=observation.landmarks + offset,
-                               surface_points=surface)
+                               surface_points=surface, detection=detection)
 
 
 def clip_identity(model: MorphableModel, observed: list[ObservedFrame], size: tuple[int, int], focal: float | None = None,
@@ -334,14 +441,49 @@ def _without_lids(model: MorphableModel, delta: np.ndarray) -> np.ndarray:
 
 
 def track_observed(model: MorphableModel, observed: list[ObservedFrame], shared: ClipIdentity,
-                   stage: LandmarkStage = TRACK_STAGE) -> list[TrackedFrame]:
+                   stage: LandmarkStage = TRACK_STAGE, parts: int = 2) -> list[TrackedFrame]:
     """Every observed frame's pose and expression with the clip's identity fixed (module
-    docstring, step 4), ``stage`` the per-frame solve (its ``n_id`` must be 0: the identity stays)."""
+    docstring, step 4), ``stage`` the per-frame solve (its ``n_id`` must be 0: the identity stays).
+
+    ``parts`` 2: a clip of at least 2 × :data:`MIN_PART_FRAMES` frames is solved in two halves at
+    once, the second by a forked child (:mod:`facegeo.forked_call`, where it
+    :func:`~facegeo.forked_call.can_fork`), which starts its first frame from solvePnP as after a
+    frame without a face (the halves' solves are otherwise the same); 1: in this process alone."""
+    from facegeo.concurrency import native_threads
+    from facegeo.forked_call import ChildLost, can_fork, fork_call
+
     if stage.n_id != 0:
         raise InputError("<argument>", "stage", "a stage that leaves the identity out (n_id 0)", repr(stage.n_id))
+    split = len(observed) // 2 if parts >= 2 and len(observed) >= 2 * MIN_PART_FRAMES and can_fork() else len(observed)
+    pending = fork_call(_track_part, model, observed, shared, stage, split, len(observed)) if split < len(observed) else None
+    try:
+        with native_threads(1) if pending is not None else contextlib.nullcontext():  # the child has the other core
+            out = _track_part(model, observed, shared, stage, 0, split)
+        if pending is not None:
+            try:
+                out += pending.result()
+            except ChildLost:  # killed (memory): its half is solved here
+                out += _track_part(model, observed, shared, stage, split, len(observed))
+    except BaseException:
+        if pending is not None:
+            pending.abandon()
+        raise
+    return out
+
+
+#: A clip is tracked in two parts at once (:func:`observe_frames`' ``rest``, :func:`track_observed`)
+#: when each has at least this many frames: below, a forked process's start (about 0.1 s) and its
+#: first frame's detection weigh more than they save.
+MIN_PART_FRAMES = 30
+
+
+def _track_part(model: MorphableModel, observed: list[ObservedFrame], shared: ClipIdentity, stage: LandmarkStage, first: int,
+                end: int) -> list[TrackedFrame]:
+    """:func:`track_observed` on ``observed[first:end]``, the first from solvePnP."""
     out: list[TrackedFrame] = []
     previous = None
-    for k, frame in enumerate(observed):
+    for k in range(first, end):
+        frame = observed[k]
         obs = frame.observation
         if obs is None:
             out.append(TrackedFrame(frame.index, frame.time_s, False, note=frame.note))

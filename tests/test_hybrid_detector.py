@@ -74,3 +74,31 @@ def test_the_lids_detector_takes_the_eyes_from_the_face_landmarkers_mesh(photo):
     np.testing.assert_array_equal(found.points[others], plain.points[others])
     with pytest.raises(ValueError, match="eyes"):
         HybridDetector(eyes="iris")
+
+
+def test_a_face_is_followed_into_the_next_frame_without_the_detector(photo):
+    """``follow`` (a video's frames): the mesh on the previous frame's mesh ROI, no BlazeFace and
+    no rotation search; it finds the face where it moved and says when it is lost."""
+    import cv2
+
+    from facegeo.landmarks.detectors import get_detector
+
+    lids = get_detector("lids")
+    found = lids.detect(photo)
+    shift = np.float32([[1, 0, 6], [0, 1, -4]])  # the next frame: the face 6 px right, 4 px up
+    moved = cv2.warpAffine(photo, shift, photo.shape[1::-1], borderMode=cv2.BORDER_REPLICATE)
+    calls = []
+    detect = lids.mediapipe.mesh.detect
+    lids.mediapipe.mesh.detect = lambda image: calls.append(1) or detect(image)
+    try:
+        followed = lids.follow(moved, found)
+    finally:
+        lids.mediapipe.mesh.detect = detect
+    assert calls == [] and followed is not None and followed.detector == "lids" and followed.dense is not None
+    fresh = lids.detect(moved)
+    iod = np.linalg.norm(fresh.points[36] - fresh.points[45])
+    assert np.median(np.linalg.norm(followed.points - fresh.points, axis=1)) < 0.02 * iod  # as good as detecting it
+    assert np.median(np.linalg.norm(followed.points - (found.points + [6, -4]), axis=1)) < 0.03 * iod
+    noise = np.random.default_rng(0).integers(0, 256, photo.shape, dtype=np.uint8)
+    assert lids.follow(noise, found) is None  # lost
+    assert lids.follow(moved, HybridDetector(DlibDetector(), MediaPipeDetector(_NoFaceMesh())).detect(photo)) is None  # no mesh

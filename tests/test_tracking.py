@@ -234,3 +234,72 @@ def test_a_wink_is_tracked_as_one_eye_shut(model):
     left, right = (np.array([f.delta[names.index(n)] for f in track.frames]) for n in ("eyeBlink_L", "eyeBlink_R"))
     assert left[3] >= 0.6 and right[3] <= 0.3  # the wink: the subject's left eye alone
     assert np.all(np.delete(left, 3) <= 0.3) and np.all(right <= 0.3)
+
+
+PARTS_SCRIPT = r"""
+import json, sys
+import numpy as np
+import facegeo.forked_call as forked
+from facegeo.jobs import TrackOptions, track_into_folder
+
+clip, out = sys.argv[1], sys.argv[2]
+forks, fork_call = [], forked.fork_call
+forked.fork_call = lambda function, *args, **kwargs: forks.append(function.__name__) or fork_call(function, *args, **kwargs)
+options = TrackOptions(asset=False, smooth=False, keyframes=3, every=int(sys.argv[3]))
+two = track_into_folder(clip, out + "/two", options)
+forked.can_fork = lambda: False
+one = track_into_folder(clip, out + "/one", options)
+assert "torch" not in sys.modules
+print(json.dumps({"forks": forks, "two": two["frames"], "one": one["frames"]}))
+"""
+
+
+@pytest.mark.parametrize("every", [1, 2])
+def test_a_clip_tracked_in_two_processes_is_the_clip_tracked_in_one(tmp_path, every):
+    """Halves of a clip observed and solved at once, the second in a forked child: the same
+    frames, in order, the same faces, poses and weights up to the child's own first detection
+    and solve (the second half starts from a detection, not from the first half's last face)."""
+    from facegeo.tracking import MIN_PART_FRAMES
+
+    image = load_photo(PHOTO).image
+    height, width = image.shape[:2]
+    clip = tmp_path / "pan.avi"
+    count = 2 * MIN_PART_FRAMES * every + 3
+    writer = cv2.VideoWriter(str(clip), cv2.VideoWriter_fourcc(*"MJPG"), 30.0, (width, height))
+    for k in range(count):  # a slow pan and turn in the image plane
+        turn = cv2.getRotationMatrix2D((width / 2.0, height / 3.0), 6.0 * np.sin(k / 15.0), 1.0)
+        turn[0, 2] += 8.0 * np.sin(k / 20.0)
+        writer.write(cv2.cvtColor(cv2.warpAffine(image, turn, (width, height), borderMode=cv2.BORDER_REPLICATE), cv2.COLOR_RGB2BGR))
+    writer.release()
+    done = subprocess.run([sys.executable, "-c", PARTS_SCRIPT, str(clip), str(tmp_path), str(every)], capture_output=True, text=True,
+                          timeout=900)
+    assert done.returncode == 0, done.stderr[-3000:]
+    result = json.loads(done.stdout.strip().splitlines()[-1])
+    assert result["forks"] == ["_observe_rest", "_track_part"]
+    two, one = result["two"], result["one"]
+    assert [f["index"] for f in two] == [f["index"] for f in one] == list(range(0, count, every))
+    assert all(f["found"] for f in two + one)
+    yaw_roll = np.array([[f["euler_deg"]["yaw"], f["euler_deg"]["roll"]] for f in two])
+    assert np.abs(yaw_roll - [[f["euler_deg"]["yaw"], f["euler_deg"]["roll"]] for f in one]).max() < 1.0  # degrees
+    assert np.abs(np.array([f["delta"] for f in two]) - [f["delta"] for f in one]).max() < 0.15
+
+
+def test_a_second_part_that_starts_on_another_person_is_left_to_the_caller(model):
+    """The forked child's part (:func:`facegeo.tracking._observe_rest`) starts from a detection of
+    its own: where that finds another person first (the largest face of a crowd), it hands its
+    part back rather than flag it all, and the caller follows the clip's person into it."""
+    matplotlib = pytest.importorskip("matplotlib")
+    from pathlib import Path
+
+    from facegeo.tracking import _FrameObserver, _observe_rest
+
+    face = load_photo(PHOTO).image
+    other = cv2.resize(load_photo(Path(matplotlib.get_data_path()) / "sample_data" / "grace_hopper.jpg").image,
+                       (face.shape[1], face.shape[0]))
+    observer = _FrameObserver(model, "lids", "<clip>")
+    assert observer.observe(SimpleNamespace(index=0, time_s=0.0, image=face)).observation is not None
+    person = observer.person.copy()
+    assert _observe_rest(observer, lambda: iter([SimpleNamespace(index=1, time_s=0.1, image=other)])) is None
+    observer.person = person
+    part = _observe_rest(observer, lambda: iter([SimpleNamespace(index=k, time_s=k / 10, image=face) for k in (1, 2)]))
+    assert [f.index for f in part] == [1, 2] and all(f.observation is not None for f in part)

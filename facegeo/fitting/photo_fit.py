@@ -138,7 +138,7 @@ def observe_photo(
     image: np.ndarray | str | Path | Photo,
     model: MorphableModel | None = None,
     landmarks: np.ndarray | None = None,
-    detector: str | LandmarkDetector = "hybrid",
+    detector: str | LandmarkDetector | FaceLandmarks = "hybrid",
     camera: Camera | None = None,
     dense: DenseSettings | None = DEFAULT_DENSE,
 ) -> PhotoObservation:
@@ -146,7 +146,9 @@ def observe_photo(
     (unless given), the camera's focal estimated when unknown and the dense surface points placed
     on the model; what a landmark fit of this photo needs, alone or beside other photos of the
     same person (:func:`facegeo.fitting.fit_photos`). Given landmarks of another shape than
-    (88, 2) are an :class:`~facegeo.errors.InputError` before the photo is read."""
+    (88, 2) are an :class:`~facegeo.errors.InputError` before the photo is read. ``detector`` may
+    also be a detection already made on this photo (a video's face followed from the frame
+    before, :meth:`~facegeo.landmarks.detectors.HybridDetector.follow`)."""
     timings: dict[str, float] = {}
     notes: list[str] = []
     if landmarks is not None:
@@ -168,8 +170,11 @@ def observe_photo(
     detection: FaceLandmarks | None = None
     if landmarks is None:
         t0 = time.perf_counter()
-        det = get_detector(detector) if isinstance(detector, str) else detector
-        detection = det.detect(pixels, source)
+        if isinstance(detector, FaceLandmarks):  # detected already (a video's face followed from its previous frame)
+            detection = detector
+        else:
+            det = get_detector(detector) if isinstance(detector, str) else detector
+            detection = det.detect(pixels, source)
         landmarks = detection.points
         notes.extend(detection.notes)
         timings["detect"] = time.perf_counter() - t0

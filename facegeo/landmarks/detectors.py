@@ -32,7 +32,7 @@ import numpy as np
 from facegeo.errors import NoFaceError
 from facegeo.landmarks.dense import face_mesh_mirror
 from facegeo.landmarks.dlib_detector import DlibLandmarker
-from facegeo.landmarks.mediapipe_mesh import MEDIAPIPE_LIPS20, MediaPipeFaceMesh, ibug68_from_mesh
+from facegeo.landmarks.mediapipe_mesh import MEDIAPIPE_LIPS20, MediaPipeFace, MediaPipeFaceMesh, ibug68_from_mesh
 from facegeo.photo import as_rgb_uint8
 from facegeo.landmarks.scheme import EYES, MOUTH
 
@@ -253,15 +253,34 @@ class HybridDetector(_UprightSearch):
                 result.points, result.box, result.n_faces, self.name,
                 result.notes + ("MediaPipe found no face: the lip points are dlib's",),
             )
-        face = mp_faces[0]
+        return self._landmarks(image, mp_faces[0], len(mp_faces))
+
+    def _landmarks(self, image: np.ndarray, face: MediaPipeFace, n_faces: int, spread: np.ndarray | None = None) -> FaceLandmarks:
+        """The 88 points of MediaPipe's ``face`` in ``image``: dlib's predictor in the box HOG would
+        give it, the mesh's lips (and eyes, with ``eyes="mesh"``), its dense points and their
+        spread (``spread`` (468,) px where given, else the mesh model's on this image)."""
         ibug = ibug68_from_mesh(face.mesh)
         box = dlib_box_from_mediapipe(ibug)
         lips = _corner_origin(face.mesh[MEDIAPIPE_LIPS20, :2])
         points = np.concatenate([self.dlib.landmarker.landmarks(image, box), lips])
         if self.eyes == "mesh":
             points[EYES] = _corner_origin(ibug[EYES])
-        return FaceLandmarks(points, _corner_origin(face.box), len(mp_faces), self.name, _several(len(mp_faces)),
-                             _corner_origin(face.mesh[:, :2]), self.mediapipe.mesh.spread(image, face, face_mesh_mirror()))
+        return FaceLandmarks(points, _corner_origin(face.box), n_faces, self.name, _several(n_faces),
+                             _corner_origin(face.mesh[:, :2]),
+                             self.mediapipe.mesh.spread(image, face, face_mesh_mirror()) if spread is None else spread)
+
+    def follow(self, image: np.ndarray, previous: FaceLandmarks, source: str = "<array>",
+               keep_spread: bool = False) -> FaceLandmarks | None:
+        """The face of ``previous`` (this detector's result on the previous frame of a video) in
+        ``image`` (H, W, 3) uint8 RGB, without the face detector or the rotation search: the mesh
+        on the ROI of the previous frame's mesh (:meth:`MediaPipeFaceMesh.follow`). None where the
+        face is lost (detect it again with :meth:`detect`) or ``previous`` has no mesh.
+        ``keep_spread``: the dense points keep ``previous``'s spread (where it has one) instead of
+        the mesh model's mirror pass on this frame."""
+        if previous.dense is None:
+            return None
+        face = self.mediapipe.mesh.follow(as_rgb_uint8(image, source), np.asarray(previous.dense, np.float64) - 0.5)
+        return None if face is None else self._landmarks(image, face, 1, previous.dense_spread if keep_spread else None)
 
 
 def lids_detector() -> HybridDetector:

@@ -766,6 +766,22 @@ class MediaPipeFaceMesh:
             presence=float(presence), keypoints=detection.keypoints.astype(np.float32),
             roi=np.array([center[0], center[1], side, angle], np.float32), irises=irises)
 
+    def follow(self, image: np.ndarray, previous: np.ndarray) -> MediaPipeFace | None:
+        """The face whose mesh in the previous frame of a video was ``previous`` ((468, 2+) px,
+        pixel-centre convention), found in ``image`` without the detector: one mesh pass on the
+        tracking ROI of ``previous`` (MediaPipe's own video mode). None when the mesh model's
+        presence falls below ``min_presence`` (the face is lost: detect it again). The face's
+        ``box`` is its 68 points' bounding box and its ``score`` the presence."""
+        center, side, angle = self.roi_from_mesh(np.asarray(previous, np.float64))
+        mesh, presence = self.mesh_in_roi(image, center, side, angle)
+        if presence < self.min_presence:
+            return None
+        points = ibug68_from_mesh(mesh[:N_MESH])
+        box = np.concatenate([points.min(axis=0), points.max(axis=0)]).astype(np.float32)
+        irises = mesh[N_MESH:].reshape(2, 5, 3) if len(mesh) == N_MESH + 10 else None
+        return MediaPipeFace(mesh=mesh[:N_MESH], box=box, score=float(presence), presence=float(presence),
+                             roi=np.array([center[0], center[1], side, angle], np.float32), irises=irises)
+
     def __call__(self, image: np.ndarray) -> list[MediaPipeFace]:
         """All faces in an (H, W, 3) uint8 RGB photo, largest detection box first."""
         detections = self.detect(image)
