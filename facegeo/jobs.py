@@ -667,6 +667,10 @@ def _clip_parts(video: str | Path, info: Any, frames: Iterator[Any], options: Tr
     return itertools.takewhile(lambda frame: frame.index < middle, frames), rest
 
 
+#: Frames of the clip shown in ``facegeo track``'s ``preview.png`` (spread evenly over the frames with a face).
+PREVIEW_FRAMES = 6
+
+
 def _animated_asset(video: str | Path, options: TrackOptions, model: Any, track: Any, take: Any, stage: Any) -> dict[str, Any]:
     """The person's textured asset, animated by the take (:func:`track_into_folder`): the
     keyframes whose face lies wholly inside the frame (else all of them) fitted again with the
@@ -675,7 +679,9 @@ def _animated_asset(video: str | Path, options: TrackOptions, model: Any, track:
     the others' de-lit skin where they see it best; one keyframe: its own texture), its asset
     folder in ``asset/``, ``face.glb`` and ``face.usdz`` with the take's keys (one a frame) and
     ``preview.png`` (the reference keyframe beside the asset from the front, three-quarter and
-    profile). Returns what ``track.json`` records of it."""
+    profile; below it :data:`PREVIEW_FRAMES` frames spread over the clip, each with the asset
+    posed as tracked there drawn over it, textured and as clay). Returns what ``track.json``
+    records of it."""
     from facegeo.camera import project
     from facegeo.errors import FacegeoError, NoFaceError
     from facegeo.export.asset_io import write_asset_files
@@ -685,25 +691,26 @@ def _animated_asset(video: str | Path, options: TrackOptions, model: Any, track:
     from facegeo.image_files import png_bytes
     from facegeo.photo import Photo
     from facegeo.pipeline import reconstruct_views
-    from facegeo.texturing.preview import relit_preview
+    from facegeo.texturing.preview import clip_preview, relit_preview
     from facegeo.tracking import SolveStart, follow_region, solve_frame
     from facegeo.video import open_video
 
     keys = [f for f in track.frames if f.keyframe]
 
+    def landmarks_of(tracked: Any) -> np.ndarray:  # (88, 2) px: the tracked face's landmarks as fitted
+        shape = model.shape_numpy(track.alpha, tracked.delta)[model.landmark_indices]
+        return project(shape.astype(np.float64), np.asarray(tracked.rotation, np.float64), np.asarray(tracked.translation, np.float64),
+                       track.camera)
+
     def inside(f: Any) -> bool:  # the face's 68 points within the frame (a face cut by the border loses texture)
-        shape = model.shape_numpy(track.alpha, f.delta)[model.landmark_indices[:68]]
-        uv = project(shape.astype(np.float64), np.asarray(f.rotation, np.float64), np.asarray(f.translation, np.float64), track.camera)
+        uv = landmarks_of(f)[:68]
         return bool(np.all((uv >= 0) & (uv <= [track.camera.width, track.camera.height])))
 
     def alone(image: np.ndarray, key: Any) -> np.ndarray:
         """The frame with everything outside the tracked face's region (``tracking``'s follow
         region around its projected landmarks) grey: a detector finds the tracked person, not
         the largest face in the frame; the face's own pixels are the frame's."""
-        shape = model.shape_numpy(track.alpha, key.delta)[model.landmark_indices]
-        points = project(shape.astype(np.float64), np.asarray(key.rotation, np.float64), np.asarray(key.translation, np.float64),
-                         track.camera)
-        region = follow_region(points, image.shape[1], image.shape[0])
+        region = follow_region(landmarks_of(key), image.shape[1], image.shape[0])
         if region is None:
             return image
         x0, y0, x1, y1 = region
@@ -711,11 +718,14 @@ def _animated_asset(video: str | Path, options: TrackOptions, model: Any, track:
         out[y0:y1, x0:x1] = image[y0:y1, x0:x1]
         return out
 
+    def frame_of(tracked: Any) -> Any:  # the video's frame of a tracked frame, decoded again
+        _, frames = open_video(video, tracked.time_s, None, 1)
+        return next(f for f in frames if f.index == tracked.index)
+
     alpha = track.alpha.astype(np.float64)
     photos, fits, indices, notes = [], [], [], []
     for key in [f for f in keys if inside(f)] or keys:
-        _, frames = open_video(video, key.time_s, None, 1)
-        frame = next(f for f in frames if f.index == key.index)
+        frame = frame_of(key)
         photo = Photo(alone(frame.image, key), f"{video} (frame {frame.index})", 1.0, (frame.image.shape[1], frame.image.shape[0]))
         try:
             seen = observe_photo(photo, model, None, options.landmarks, track.camera)
@@ -736,7 +746,15 @@ def _animated_asset(video: str | Path, options: TrackOptions, model: Any, track:
     write_asset_files(asset, folder, texture_files=texture_files)
     for fmt in ("glb", "usdz"):
         export_asset(asset, stage.path(f"face.{fmt}"), format=fmt, blendshapes="arkit", animation=take, texture_files=texture_files)
-    stage.path("preview.png").write_bytes(png_bytes(relit_preview(photos[reference].image, asset, result)))
+    turntable = relit_preview(photos[reference].image, asset, result)
+    found = [f for f in track.frames if f.found]
+    shown = [found[k] for k in np.unique(np.linspace(0, len(found) - 1, PREVIEW_FRAMES).round().astype(int))]
+    names = list(model.expression_names)
+    clip = clip_preview([(frame_of(f).image, f.rotation, f.translation, dict(zip(names, np.asarray(f.delta, float))),
+                          landmarks_of(f)[:68]) for f in shown], asset, track.camera, panel=turntable.shape[1] // PREVIEW_FRAMES)
+    strip = np.zeros((clip.shape[0], turntable.shape[1], 3), np.uint8)
+    strip[:, : clip.shape[1]] = clip
+    stage.path("preview.png").write_bytes(png_bytes(np.concatenate([turntable, strip], axis=0)))
     return {"keyframe": indices[reference], "texture_keyframes": indices,
             "fusion": fusion, "landmark_rms_px": float(result.landmark_rms_px),
             "notes": notes + list(dict.fromkeys(n for f in fits for n in f.info.get("notes", []))) + fusion["notes"],

@@ -268,3 +268,32 @@ def test_a_signal_during_the_export_leaves_nothing(tmp_path, capsys, monkeypatch
     assert finished == [True]
     time.sleep(0.2)
     assert sorted(p.name for p in tmp_path.iterdir()) == []
+
+
+def test_clip_preview_draws_the_posed_asset_over_each_frame(small_asset):
+    from facegeo.texturing.preview import clip_preview, posed_asset
+
+    photo, model, asset, fit = small_asset
+    names = list(model.expression_names)
+    fitted = dict(zip(names, np.asarray(fit.delta, float)))
+    same = posed_asset(asset, fitted)  # at the fitted weights: the asset as it is
+    np.testing.assert_allclose(same.vertices, asset.vertices, atol=1e-3)
+    for a, b in zip(same.parts, asset.parts):
+        np.testing.assert_allclose(a.vertices, b.vertices, atol=1e-3)
+    jaw = posed_asset(asset, {**fitted, "jawOpen": 0.8})
+    chin = model.landmark_indices[8]
+    assert jaw.vertices[chin, 1] < asset.vertices[chin, 1] - 5.0  # the jaw opens: the chin drops (mm)
+    p = 64
+    frames = [(photo.image, fit.rotation, fit.translation, weights, fit.landmarks[:68]) for weights in (fitted, {**fitted, "jawOpen": 0.8})]
+    preview = clip_preview(frames, asset, fit.camera, panel=p)
+    assert preview.shape == (3 * p, 2 * p, 3) and preview.dtype == np.uint8
+    frame, textured, clay = (preview[k * p:(k + 1) * p, :p].astype(float) for k in range(3))
+    drawn = np.any(np.abs(textured - frame) > 8, axis=-1)  # where the asset covers the frame
+    assert 0.3 < drawn.mean() < 0.98
+    ys, xs = np.nonzero(drawn)
+    assert abs(xs.mean() - p / 2) < 0.12 * p  # drawn over the face, which the panel centres
+    centre = clay[p // 2 - 4:p // 2 + 4, p // 2 - 4:p // 2 + 4].reshape(-1, 3)
+    assert np.abs(centre[:, 0] - centre[:, 2]).max() <= 2  # grey clay
+    assert np.abs(textured[p // 2, p // 2] - frame[p // 2, p // 2]).max() < 80  # the texture is the face's colour
+    second = preview[2 * p:, p:].astype(float)
+    assert np.abs(second - clay).mean() > 1.0  # the open jaw shows

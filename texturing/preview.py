@@ -24,7 +24,7 @@ from facegeo.uv.renderer import rasterize_mesh
 from facegeo.uv.tangents import mesh_tangents
 from facegeo.uv.texels import sample_uv
 
-__all__ = ["relit_preview", "PREVIEW_VIEWS", "PREVIEW_LIGHTS", "PREVIEW_AMBIENT", "CLAY", "PREVIEW_BACKGROUND"]
+__all__ = ["relit_preview", "clip_preview", "posed_asset", "PREVIEW_VIEWS", "PREVIEW_LIGHTS", "PREVIEW_AMBIENT", "CLAY", "PREVIEW_BACKGROUND"]
 
 
 #: The preview's views: yaw in degrees (rotation_from_euler's convention: positive turns the nose
@@ -54,28 +54,15 @@ def relit_preview(photo: np.ndarray, asset: Asset, fit_result: Fit, *, panel: in
     """
     scene = _PreviewScene(asset)
     p = int(panel)
-    lights = np.array([d for d, _ in PREVIEW_LIGHTS], np.float32)
-    radiance = np.array([[r, r, r] for _, r in PREVIEW_LIGHTS], np.float32)
-    coverage, buffers = [], []
+    shots = []
     for _, yaw in PREVIEW_VIEWS:
         rotation = rotation_from_euler(yaw, 0.0, 0.0)
         distance = 800.0
         focal = 0.5 * p * (distance - scene.radius) / (1.05 * scene.radius)
-        camera = Camera(focal, p / 2.0, p / 2.0, p, p)
-        cam_vertices = (scene.vertices - scene.centre) @ rotation.T + [0.0, 0.0, -distance]
-        tri, bary, _ = rasterize_mesh(cam_vertices, scene.triangles, camera)
-        coverage.append(np.flatnonzero(tri.ravel() >= 0))
-        buffers.append(scene.buffers(tri, bary, cam_vertices, rotation))
-    # the covered pixels of all views shaded in one call: (2, N, C) materials over (1, N, C) geometry
-    inputs = [np.concatenate(column, axis=-2) for column in zip(*buffers)]
-    shaded = ggx_shaded(*inputs, lights, radiance, np.zeros(3, np.float32), PREVIEW_AMBIENT)
-    pixels = linear_to_srgb(shaded.clip(0.0, None))  # (2, N, 3)
-    columns, start = [], 0
-    for idx in coverage:
-        panel_rgb = np.full((2, p * p, 3), PREVIEW_BACKGROUND, np.float32)
-        panel_rgb[:, idx] = pixels[:, start:start + len(idx)]
-        start += len(idx)
-        columns.append(panel_rgb.reshape(2 * p, p, 3))
+        shots.append((scene, (scene.vertices - scene.centre) @ rotation.T + [0.0, 0.0, -distance], rotation,
+                      Camera(focal, p / 2.0, p / 2.0, p, p)))
+    columns = [np.where(covered[None, ..., None], shaded, np.float32(PREVIEW_BACKGROUND)).reshape(2 * p, p, 3)
+               for covered, shaded in _shaded_views(shots)]
     landmarks = np.asarray(fit_result.landmarks[IBUG68], np.float64)
     landmarks = landmarks[np.all(np.isfinite(landmarks), axis=1)]
     lo, hi = landmarks.min(axis=0), landmarks.max(axis=0)
@@ -86,6 +73,81 @@ def relit_preview(photo: np.ndarray, asset: Asset, fit_result: Fit, *, panel: in
     photo_panel = cv2.warpAffine(as_rgb_uint8(photo), warp, (side, side), flags=cv2.INTER_AREA, borderMode=cv2.BORDER_REPLICATE)
     views = (np.concatenate(columns, axis=1) * 255.0).round().clip(0, 255).astype(np.uint8)
     return np.concatenate([photo_panel, views], axis=1)
+
+
+def _shaded_views(shots: list[tuple["_PreviewScene", np.ndarray, np.ndarray, Camera]]) -> list[tuple[np.ndarray, np.ndarray]]:
+    """Each shot (scene, its camera-space vertices (V, 3) mm, the rotation (3, 3) that took the
+    model's normals there, the view's camera) rasterised and shaded textured and as clay under
+    :data:`PREVIEW_LIGHTS`, all views' covered pixels in one call of :func:`ggx_shaded`. Returns
+    per view (covered (H, W) bool, (2, H, W, 3) float32 sRGB: textured, clay; 0 where not covered)."""
+    lights = np.array([d for d, _ in PREVIEW_LIGHTS], np.float32)
+    radiance = np.array([[r, r, r] for _, r in PREVIEW_LIGHTS], np.float32)
+    coverage, buffers = [], []
+    for scene, cam_vertices, rotation, camera in shots:
+        tri, bary, _ = rasterize_mesh(cam_vertices, scene.triangles, camera)
+        coverage.append(tri >= 0)
+        buffers.append(scene.buffers(tri, bary, cam_vertices, rotation))
+    # (2, N, C) materials over (1, N, C) geometry
+    inputs = [np.concatenate(column, axis=-2) for column in zip(*buffers)]
+    shaded = ggx_shaded(*inputs, lights, radiance, np.zeros(3, np.float32), PREVIEW_AMBIENT)
+    pixels = linear_to_srgb(shaded.clip(0.0, None))  # (2, N, 3)
+    out, start = [], 0
+    for covered in coverage:
+        idx = np.flatnonzero(covered.ravel())
+        image = np.zeros((2, covered.size, 3), np.float32)
+        image[:, idx] = pixels[:, start:start + len(idx)]
+        start += len(idx)
+        out.append((covered, image.reshape(2, *covered.shape, 3)))
+    return out
+
+
+def posed_asset(asset: Asset, weights: dict[str, float]) -> Asset:
+    """``asset`` with its skin and parts at the expression ``weights`` (blendshape name -> weight;
+    shapes not named are at 0) instead of the fitted ones: neutral + Σ w·deltas
+    (:class:`facegeo.blendshapes.Blendshapes`). Surfaces without blendshapes stay as they are."""
+    import dataclasses
+
+    def pose(surface: Asset) -> Asset:
+        shapes = surface.blendshapes
+        if shapes is None:
+            return surface
+        w = np.array([weights.get(name, 0.0) for name in shapes.names], np.float64)
+        vertices = surface.vertices - shapes.offset() + shapes.offset(w)
+        return dataclasses.replace(surface, vertices=vertices.astype(np.float32))
+
+    return dataclasses.replace(pose(asset), parts=[pose(part) for part in asset.parts])
+
+
+def clip_preview(frames: list[tuple[np.ndarray, np.ndarray, np.ndarray, dict[str, float], np.ndarray]], asset: Asset,
+                 camera: Camera, *, panel: int = 212) -> np.ndarray:
+    """A tracked clip's frames beside the asset posed as tracked on each (``facegeo track``'s
+    ``preview.png``): one column a frame, (image (H, W, 3) uint8 RGB, rotation (3, 3) and
+    translation (3,) mm of the head (model to camera), expression weights by blendshape name, the
+    face's landmarks (K, 2) px that frame it), seen by the clip's ``camera``: the frame around the
+    face on top, then the asset drawn over it textured and relit (:data:`PREVIEW_LIGHTS`), then as
+    clay. Each panel is the square around the landmarks, 1.5 × their extent (as
+    :func:`relit_preview` frames the photo). Returns (3·panel, len(frames)·panel, 3) uint8 sRGB."""
+    p = int(panel)
+    shots, backgrounds = [], []
+    for image, rotation, translation, weights, landmarks in frames:
+        scene = _PreviewScene(posed_asset(asset, weights))
+        rotation, translation = np.asarray(rotation, np.float64), np.asarray(translation, np.float64)
+        cam_vertices = scene.vertices @ rotation.T + translation
+        points = np.asarray(landmarks, np.float64)
+        points = points[np.all(np.isfinite(points), axis=1)]
+        centre, side = (points.min(axis=0) + points.max(axis=0)) / 2.0, 1.5 * float(np.max(points.max(axis=0) - points.min(axis=0)))
+        scale = p / side
+        x0, y0 = centre - side / 2.0
+        shots.append((scene, cam_vertices, rotation,
+                      Camera(camera.focal * scale, (camera.cx - x0) * scale, (camera.cy - y0) * scale, p, p)))
+        warp = np.array([[scale, 0.0, -x0 * scale], [0.0, scale, -y0 * scale]])
+        backgrounds.append(cv2.warpAffine(as_rgb_uint8(image), warp, (p, p), flags=cv2.INTER_AREA,
+                                          borderMode=cv2.BORDER_CONSTANT).astype(np.float32) / 255.0)
+    columns = []
+    for (covered, shaded), frame in zip(_shaded_views(shots), backgrounds):
+        drawn = np.where(covered[None, ..., None], shaded, frame[None])
+        columns.append(np.concatenate([frame, drawn[0], drawn[1]], axis=0))
+    return (np.concatenate(columns, axis=1) * 255.0).round().clip(0, 255).astype(np.uint8)
 
 
 class _PreviewScene:
