@@ -673,16 +673,17 @@ PREVIEW_FRAMES = 6
 
 def _animated_asset(video: str | Path, options: TrackOptions, model: Any, track: Any, take: Any, stage: Any) -> dict[str, Any]:
     """The person's textured asset, animated by the take (:func:`track_into_folder`): the
-    keyframes whose face lies wholly inside the frame (else all of them) fitted again with the
-    clip's identity and camera (their albedo and light, the single-photo checks), their textures
-    fused (:func:`facegeo.pipeline.reconstruct_views`: the most frontal keyframe the reference,
-    the others' de-lit skin where they see it best; one keyframe: its own texture), its asset
-    folder in ``asset/``, ``face.glb`` and ``face.usdz`` with the take's keys (one a frame) and
-    ``preview.png`` (the reference keyframe beside the asset from the front, three-quarter and
+    texture frames (the keyframes, each replaced by the frame nearest to it in yaw that shows the
+    face whole where its own face is cut by the frame's border) fitted again with the clip's
+    identity and camera (their albedo and light, the single-photo checks), their textures fused
+    (:func:`facegeo.pipeline.reconstruct_views`: the most frontal without a hand over the face
+    the reference, the others' de-lit skin where they see it best; one frame: its own texture),
+    its asset folder in ``asset/``, ``face.glb`` and ``face.usdz`` with the take's keys (one a
+    frame) and ``preview.png`` (the reference frame beside the asset from the front, three-quarter and
     profile; below it :data:`PREVIEW_FRAMES` frames spread over the clip, each with the asset
     posed as tracked there drawn over it, textured and as clay). Returns what ``track.json``
     records of it."""
-    from facegeo.camera import project
+    from facegeo.camera import euler_from_rotation, project
     from facegeo.errors import FacegeoError, NoFaceError
     from facegeo.export.asset_io import write_asset_files
     from facegeo.export.textures import TextureFiles
@@ -691,6 +692,7 @@ def _animated_asset(video: str | Path, options: TrackOptions, model: Any, track:
     from facegeo.image_files import png_bytes
     from facegeo.photo import Photo
     from facegeo.pipeline import reconstruct_views
+    from facegeo.skin_mask import skin_mask
     from facegeo.texturing.preview import clip_preview, relit_preview
     from facegeo.tracking import SolveStart, follow_region, solve_frame
     from facegeo.video import open_video
@@ -698,7 +700,7 @@ def _animated_asset(video: str | Path, options: TrackOptions, model: Any, track:
     keys = [f for f in track.frames if f.keyframe]
 
     def landmarks_of(tracked: Any) -> np.ndarray:  # (88, 2) px: the tracked face's landmarks as fitted
-        shape = model.shape_numpy(track.alpha, tracked.delta)[model.landmark_indices]
+        shape = model.shape_numpy(track.alpha, tracked.delta, vertex_indices=model.landmark_indices)
         return project(shape.astype(np.float64), np.asarray(tracked.rotation, np.float64), np.asarray(tracked.translation, np.float64),
                        track.camera)
 
@@ -722,23 +724,44 @@ def _animated_asset(video: str | Path, options: TrackOptions, model: Any, track:
         _, frames = open_video(video, tracked.time_s, None, 1)
         return next(f for f in frames if f.index == tracked.index)
 
+    def texture_frames() -> list[Any]:
+        """Each keyframe where its face lies wholly inside the frame, else the frame nearest to it
+        in yaw that shows the face whole (the sides the keyframes span, seen whole; each frame
+        once); the keyframes themselves where no frame shows the face whole."""
+        whole = [f for f in track.frames if f.found and inside(f)]
+        if not whole:
+            return keys
+        yaw = {f.index: euler_from_rotation(f.rotation)[0] for f in whole + keys}
+        chosen: dict[int, Any] = {}
+        for key in keys:
+            if key.index in {f.index for f in whole}:
+                chosen.setdefault(key.index, key)
+                continue
+            spare = [f for f in whole if f.index not in chosen]
+            if spare:
+                near = min(spare, key=lambda f: abs(yaw[f.index] - yaw[key.index]))
+                chosen[near.index] = near
+        return sorted(chosen.values(), key=lambda f: f.index)
+
     alpha = track.alpha.astype(np.float64)
-    photos, fits, indices, notes = [], [], [], []
-    for key in [f for f in keys if inside(f)] or keys:
+    photos, fits, skins, indices, notes = [], [], [], [], []
+    for key in texture_frames():
         frame = frame_of(key)
         photo = Photo(alone(frame.image, key), f"{video} (frame {frame.index})", 1.0, (frame.image.shape[1], frame.image.shape[0]))
         try:
             seen = observe_photo(photo, model, None, options.landmarks, track.camera)
             solution = solve_frame(model, seen, track.camera, alpha, track.noise, SolveStart(key.rotation, key.translation, alpha, key.delta))
             fits.append(finish_photo_fit(seen, solution, photometric=True))
-        except FacegeoError as error:  # the keyframe's face refused on its own (its checks): the others texture the face
-            notes.append(f"keyframe {key.index} left out of the texture: {error}")
+        except FacegeoError as error:  # the frame's face refused on its own (its checks): the others texture the face
+            notes.append(f"frame {key.index} left out of the texture: {error}")
             continue
         photos.append(photo)
+        # the skin mask from the whole frame: a hand over the face reaches beyond the face's region
+        skins.append(skin_mask(frame.image, fits[-1].landmarks))
         indices.append(int(key.index))
     if not fits:
-        raise NoFaceError(str(video), "keyframes", "a keyframe whose fit passes its checks for the texture", "none")
-    asset, reference, fusion = reconstruct_views(photos, fits, model, fork=True)
+        raise NoFaceError(str(video), "keyframes", "a texture frame whose fit passes its checks", "none")
+    asset, reference, fusion = reconstruct_views(photos, fits, model, skins=skins, fork=True)
     result = fits[reference]
     folder = stage.path("asset")
     folder.mkdir()
@@ -755,7 +778,7 @@ def _animated_asset(video: str | Path, options: TrackOptions, model: Any, track:
     strip = np.zeros((clip.shape[0], turntable.shape[1], 3), np.uint8)
     strip[:, : clip.shape[1]] = clip
     stage.path("preview.png").write_bytes(png_bytes(np.concatenate([turntable, strip], axis=0)))
-    return {"keyframe": indices[reference], "texture_keyframes": indices,
+    return {"reference_frame": indices[reference], "texture_frames": indices,
             "fusion": fusion, "landmark_rms_px": float(result.landmark_rms_px),
             "notes": notes + list(dict.fromkeys(n for f in fits for n in f.info.get("notes", []))) + fusion["notes"],
             "files": ["asset/", "face.glb", "face.usdz", "preview.png"]}

@@ -340,8 +340,9 @@ def reconstruct_views(
     texel from the photos that see each best, exposure and white balance matched to the
     reference photo (:func:`facegeo.texturing.fusion.fuse_albedos`), then the other maps made
     from the fused albedo in the reference's context. The reference is the colour photo whose
-    head faces the camera most (the smallest rotation); the asset carries its expression and
-    parts. A greyscale photo among colour ones is left out of the texture (it has no skin colour
+    head faces the camera most (the smallest rotation) among those without a hand over the face
+    (their skin masks', all of them where every one has a hand); the asset carries its
+    expression and parts. A greyscale photo among colour ones is left out of the texture (it has no skin colour
     to give), with a note.
 
     Args:
@@ -388,7 +389,11 @@ def reconstruct_views(
     grey = [is_greyscale(p[::4, ::4]) for p in pixels]
     used = [k for k in range(len(pixels)) if not grey[k]] or list(range(len(pixels)))
     turn = [np.arccos(np.clip((np.trace(np.asarray(f.rotation, np.float64)) - 1) / 2, -1, 1)) for f in fits]
-    reference = min(used, key=lambda k: turn[k])
+    skins = list(skins) if skins is not None else [None] * len(photos)
+    for k in used:  # the masks first: a hand over the face rules a photo out as the reference
+        if skins[k] is None:
+            skins[k] = skin_mask(pixels[k], fits[k].landmarks)
+    reference = min([k for k in used if skins[k].hands == 0] or used, key=lambda k: turn[k])
     main = fits[reference]
     t = _starting(progress, "parts")
     geometry, parts_report = _geometry(pixels[reference], main, model, parts)
@@ -398,7 +403,6 @@ def reconstruct_views(
 
     t = _starting(progress, "views")
     main_backend = BACKENDS[backend]()
-    skins = skins or [None] * len(photos)
     albedos, weights, ctx, skin_used = _view_albedos([pixels[k] for k in used], [fits[k] for k in used], model,
                                                      [skins[k] for k in used], size, backend, used.index(reference), main_backend, fork)
     timings["views"] = time.perf_counter() - t

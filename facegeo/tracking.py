@@ -285,7 +285,24 @@ class _FrameObserver:
         self.iris = IrisDetector() if all(name in model.expression_names for name in eyelids.BLINK_NAMES) else None
         self.size: tuple[int, int] | None = None
         self.person: np.ndarray | None = None  # the clip's person's face descriptor
+        self.same_person: list[float] = []  # descriptor distances of the faces accepted as the person
         self.forget_face()
+
+    def same_person_limit(self) -> float:
+        """The largest descriptor distance from the clip's person at which a face is still the
+        person: :data:`~facegeo.landmarks.face_identity.SAME_PERSON_DISTANCE` (dlib's, for photos)
+        until :data:`SAME_PERSON_CHECKS` faces have been accepted, then what this clip shows of the
+        person (the accepted distances' median + 3 robust σ), within [:data:`SAME_PERSON_FLOOR`,
+        SAME_PERSON_DISTANCE]: a video's frames are blurred and small, and two people in one
+        clip can be nearer than 0.6 to each other while the person stays near 0.35 to herself."""
+        from facegeo.landmarks.face_identity import SAME_PERSON_DISTANCE
+
+        if len(self.same_person) < SAME_PERSON_CHECKS:
+            return SAME_PERSON_DISTANCE
+        seen = np.asarray(self.same_person)
+        median = float(np.median(seen))
+        spread = 1.4826 * float(np.median(np.abs(seen - median)))
+        return float(np.clip(median + 3.0 * spread, SAME_PERSON_FLOOR, SAME_PERSON_DISTANCE))
 
     def forget_face(self) -> None:
         """Start as after a frame without a face."""
@@ -298,7 +315,7 @@ class _FrameObserver:
 
     def observe(self, frame: Any) -> ObservedFrame:
         """One frame (``index``, ``time_s``, ``image`` (H, W, 3) uint8 RGB) observed."""
-        from facegeo.landmarks.face_identity import SAME_PERSON_DISTANCE, face_descriptor
+        from facegeo.landmarks.face_identity import face_descriptor
 
         height, width = frame.image.shape[:2]
         if self.size is None:
@@ -330,10 +347,12 @@ class _FrameObserver:
             self.followed = 0
             if self.person is None:
                 self.person = descriptor
-            elif (distance := float(np.linalg.norm(descriptor - self.person))) > SAME_PERSON_DISTANCE:
+            elif (distance := float(np.linalg.norm(descriptor - self.person))) > (limit := self.same_person_limit()):
                 self.stranger = True
                 observation, why = None, (f"another person (face descriptor {distance:.2f} from the clip's person's, more than "
-                                          f"{SAME_PERSON_DISTANCE:g})")
+                                          f"{limit:.2f})")
+            else:
+                self.same_person.append(distance)
         self.followed += 1
         self.previous = None if observation is None else observation.landmarks
         self.previous_detection = None if observation is None else observation.detection
@@ -345,6 +364,10 @@ class _FrameObserver:
 #: A followed face is compared with the clip's person every this many frames (a cut to another
 #: person in the same place); a face found by searching the whole frame always is.
 IDENTITY_CHECK_EVERY = 15
+#: Faces accepted as the clip's person before the clip's own descriptor distances set the limit
+#: (:meth:`_FrameObserver.same_person_limit`), and the lowest that limit goes.
+SAME_PERSON_CHECKS = 3
+SAME_PERSON_FLOOR = 0.45
 #: A followed face's dense points keep the spread of the mesh model (its mirror pass,
 #: :meth:`~facegeo.landmarks.mediapipe_mesh.MediaPipeFaceMesh.spread`) found this many frames
 #: before at most: it follows the head's pose, which moves little in a few frames, and the pass

@@ -297,3 +297,24 @@ def test_clip_preview_draws_the_posed_asset_over_each_frame(small_asset):
     assert np.abs(textured[p // 2, p // 2] - frame[p // 2, p // 2]).max() < 80  # the texture is the face's colour
     second = preview[2 * p:, p:].astype(float)
     assert np.abs(second - clay).mean() > 1.0  # the open jaw shows
+
+
+def test_a_photo_with_a_hand_over_the_face_is_not_the_reference():
+    import dataclasses
+
+    from facegeo import fit
+    from facegeo.pipeline import reconstruct_views
+    from facegeo.skin_mask import skin_mask
+
+    photo = load_photo(PHOTO)
+    mirrored = np.ascontiguousarray(photo.image[:, ::-1])
+    model = load_model()
+    fits = [fit(photo, model, photometric=False), fit(mirrored, model, photometric=False)]
+    masks = [skin_mask(photo.image, fits[0].landmarks), skin_mask(mirrored, fits[1].landmarks)]
+    _, frontal, _ = reconstruct_views([photo, mirrored], fits, model, size=64, maps={"albedo"}, skins=masks, parts=False)
+    with_hand = list(masks)
+    with_hand[frontal] = dataclasses.replace(masks[frontal], hands=1)
+    _, reference, _ = reconstruct_views([photo, mirrored], fits, model, size=64, maps={"albedo"}, skins=with_hand, parts=False)
+    assert reference == 1 - frontal  # the other, though it faces the camera less
+    both = [dataclasses.replace(m, hands=1) for m in masks]  # a hand in every photo: the most frontal again
+    assert reconstruct_views([photo, mirrored], fits, model, size=64, maps={"albedo"}, skins=both, parts=False)[1] == frontal

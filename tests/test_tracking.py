@@ -105,9 +105,10 @@ def test_facegeo_track_writes_a_take_the_live_link_reader_reads(tmp_path):
     gltf = pygltflib.GLTF2().load(str(out / "face.glb"))
     keys = gltf.accessors[gltf.animations[0].samplers[0].input]
     assert keys.count == len(ROLLS) and keys.max[0] == pytest.approx((len(ROLLS) - 1) / 10.0, abs=1e-4)
-    assert record["asset"]["keyframe"] in record["asset"]["texture_keyframes"]
-    assert set(record["asset"]["texture_keyframes"]) <= set(record["keyframes"]) and len(record["asset"]["fusion"]["gains"]) == len(
-        record["asset"]["texture_keyframes"])
+    assert record["asset"]["reference_frame"] in record["asset"]["texture_frames"]
+    found = {f["index"] for f in record["frames"] if f["found"]}
+    assert set(record["asset"]["texture_frames"]) <= found and len(record["asset"]["fusion"]["gains"]) == len(
+        record["asset"]["texture_frames"])
 
 
 def test_a_video_without_any_face_is_one_line(tmp_path):
@@ -303,3 +304,19 @@ def test_a_second_part_that_starts_on_another_person_is_left_to_the_caller(model
     observer.person = person
     part = _observe_rest(observer, lambda: iter([SimpleNamespace(index=k, time_s=k / 10, image=face) for k in (1, 2)]))
     assert [f.index for f in part] == [1, 2] and all(f.observation is not None for f in part)
+
+
+def test_the_same_person_limit_follows_what_the_clip_shows_of_the_person(model):
+    from facegeo.landmarks.face_identity import SAME_PERSON_DISTANCE
+    from facegeo.tracking import SAME_PERSON_CHECKS, SAME_PERSON_FLOOR, _FrameObserver
+
+    observer = _FrameObserver(model, "lids", "<clip>")
+    assert observer.same_person_limit() == SAME_PERSON_DISTANCE  # no evidence yet: dlib's
+    observer.same_person = [0.34, 0.36, 0.35, 0.37][:SAME_PERSON_CHECKS - 1]
+    assert observer.same_person_limit() == SAME_PERSON_DISTANCE
+    observer.same_person = [0.34, 0.36, 0.35, 0.37, 0.33]  # a clip whose person stays near 0.35 to herself
+    assert observer.same_person_limit() == pytest.approx(SAME_PERSON_FLOOR)  # 0.35 + 3 robust σ is under the floor
+    observer.same_person = [0.30, 0.50, 0.40, 0.45, 0.35]
+    assert SAME_PERSON_FLOOR < observer.same_person_limit() <= SAME_PERSON_DISTANCE
+    observer.same_person = [0.2, 0.55, 0.58, 0.3, 0.59]
+    assert observer.same_person_limit() == SAME_PERSON_DISTANCE  # never above dlib's
