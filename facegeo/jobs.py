@@ -684,6 +684,7 @@ def _animated_asset(video: str | Path, options: TrackOptions, model: Any, track:
     posed as tracked there drawn over it, textured and as clay). Returns what ``track.json``
     records of it."""
     from facegeo.camera import euler_from_rotation, project
+    from facegeo.concurrency import EXPORT_WORKERS, run_concurrently
     from facegeo.errors import FacegeoError, NoFaceError
     from facegeo.export.asset_io import write_asset_files
     from facegeo.export.textures import TextureFiles
@@ -765,19 +766,23 @@ def _animated_asset(video: str | Path, options: TrackOptions, model: Any, track:
     result = fits[reference]
     folder = stage.path("asset")
     folder.mkdir()
-    texture_files = TextureFiles()
-    write_asset_files(asset, folder, texture_files=texture_files)
-    for fmt in ("glb", "usdz"):
-        export_asset(asset, stage.path(f"face.{fmt}"), format=fmt, blendshapes="arkit", animation=take, texture_files=texture_files)
-    turntable = relit_preview(photos[reference].image, asset, result)
-    found = [f for f in track.frames if f.found]
-    shown = [found[k] for k in np.unique(np.linspace(0, len(found) - 1, PREVIEW_FRAMES).round().astype(int))]
-    names = list(model.expression_names)
-    clip = clip_preview([(frame_of(f).image, f.rotation, f.translation, dict(zip(names, np.asarray(f.delta, float))),
-                          landmarks_of(f)[:68]) for f in shown], asset, track.camera, panel=turntable.shape[1] // PREVIEW_FRAMES)
-    strip = np.zeros((clip.shape[0], turntable.shape[1], 3), np.uint8)
-    strip[:, : clip.shape[1]] = clip
-    stage.path("preview.png").write_bytes(png_bytes(np.concatenate([turntable, strip], axis=0)))
+    texture_files = TextureFiles()  # each map's PNG made once, shared by the folder and the scenes
+
+    def preview() -> None:
+        turntable = relit_preview(photos[reference].image, asset, result)
+        found = [f for f in track.frames if f.found]
+        shown = [found[k] for k in np.unique(np.linspace(0, len(found) - 1, PREVIEW_FRAMES).round().astype(int))]
+        names = list(model.expression_names)
+        clip = clip_preview([(frame_of(f).image, f.rotation, f.translation, dict(zip(names, np.asarray(f.delta, float))),
+                              landmarks_of(f)[:68]) for f in shown], asset, track.camera, panel=turntable.shape[1] // PREVIEW_FRAMES)
+        strip = np.zeros((clip.shape[0], turntable.shape[1], 3), np.uint8)
+        strip[:, : clip.shape[1]] = clip
+        stage.path("preview.png").write_bytes(png_bytes(np.concatenate([turntable, strip], axis=0)))
+
+    # the preview first: the longest; the folder and the two scenes share the map files as they come
+    run_concurrently([preview, lambda: write_asset_files(asset, folder, texture_files=texture_files)]
+                     + [functools.partial(export_asset, asset, stage.path(f"face.{fmt}"), format=fmt, blendshapes="arkit", animation=take,
+                                          texture_files=texture_files) for fmt in ("glb", "usdz")], EXPORT_WORKERS)
     return {"reference_frame": indices[reference], "texture_frames": indices,
             "fusion": fusion, "landmark_rms_px": float(result.landmark_rms_px),
             "notes": notes + list(dict.fromkeys(n for f in fits for n in f.info.get("notes", []))) + fusion["notes"],
