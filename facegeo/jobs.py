@@ -579,6 +579,7 @@ def track_into_folder(video: str | Path, output: str | Path, options: TrackOptio
     from facegeo.arkit import ArkitTake
     from facegeo.export.live_link import live_link_csv_text
     from facegeo.staged_output import StagedOutput, locked_output
+    from facegeo.landmarks.eyelids import SHUT_FRACTION
     from facegeo.tracking import POSE_WINDOW, SLOW_WEIGHT_WINDOW, WEIGHT_WINDOW, lid_weights, smooth_track, track_frames
     from facegeo.video import open_video
 
@@ -620,6 +621,12 @@ def track_into_folder(video: str | Path, output: str | Path, options: TrackOptio
                                  "lag_frames_if_live": {"pose": (POSE_WINDOW - 1) // 2, "eye weights": (WEIGHT_WINDOW - 1) // 2,
                                                         "other weights": (WEIGHT_WINDOW - 1) // 2 + (SLOW_WEIGHT_WINDOW - 1) // 2}}
                                 if options.smooth else None),
+                  "blinks": ({"read_from": "the lids' gap in MediaPipe's iris model, held in each frame's solve "
+                                           "(facegeo.landmarks.eyelids)",
+                              "open_gap_over_model": {eye: float(v) if np.isfinite(v) else None
+                                                      for eye, v in zip(("right", "left"), track.open_lids)},
+                              "shut_fraction": SHUT_FRACTION}
+                             if track.open_lids is not None else {"read_from": "the fit (no lid reading)"}),
                   "notes": track.notes + [f"{n}: no shape in the model, written as 0" for n in naming.missing],
                   "frames": [f.to_dict() for f in track.frames]}
         with StagedOutput(output, replace=True) as stage:

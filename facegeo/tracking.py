@@ -113,7 +113,8 @@ class TrackedFrame:
 class Track:
     """A tracked clip: the identity ``alpha`` (n_id,) float32 shared by every frame, the clip's
     ``camera`` and landmark ``noise`` (inter-ocular units, :class:`ClipIdentity`), the ``frames``
-    in order, ``timings`` (s by stage) and ``notes``."""
+    in order, ``timings`` (s by stage), ``notes`` and ``open_lids`` (2,), the lid reader's open
+    gap over the model's per eye (:class:`ClipIdentity`; None where the blinks were fitted)."""
 
     alpha: np.ndarray
     camera: Camera
@@ -121,6 +122,7 @@ class Track:
     frames: list[TrackedFrame]
     timings: dict[str, float] = field(default_factory=dict)
     notes: list[str] = field(default_factory=list)
+    open_lids: np.ndarray | None = None
 
     @property
     def keyframes(self) -> list[int]:
@@ -190,7 +192,7 @@ def track_frames(frames: Iterable[Any], model: MorphableModel, detector: str = "
     start = time.perf_counter()
     tracked = track_observed(model, observed, shared)
     timings["track"] = time.perf_counter() - start
-    return Track(shared.alpha.astype(np.float32), shared.camera, shared.noise, tracked, timings, shared.notes)
+    return Track(shared.alpha.astype(np.float32), shared.camera, shared.noise, tracked, timings, shared.notes, shared.open_lids)
 
 
 def observe_frames(frames: Iterable[Any], model: MorphableModel, detector: str = "lids",

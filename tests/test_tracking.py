@@ -96,6 +96,7 @@ def test_facegeo_track_writes_a_take_the_live_link_reader_reads(tmp_path):
     record = json.loads((out / "track.json").read_text())
     assert [f["found"] for f in record["frames"]] == [k != NO_FACE for k in range(len(ROLLS))]
     assert record["frames_with_face"] == len(ROLLS) - 1 and record["fps"] == pytest.approx(10.0)
+    assert record["blinks"]["shut_fraction"] > 0 and 0.5 < record["blinks"]["open_gap_over_model"]["left"] < 2.0
     # the frame without a face repeats its nearest tracked neighbour's values (flagged in track.json)
     np.testing.assert_array_equal(take.weights[NO_FACE], take.weights[NO_FACE - 1])
     assert {p.name for p in out.iterdir()} >= {"take.csv", "track.json", "asset", "face.glb", "face.usdz", "preview.png"}
