@@ -20,7 +20,7 @@ that the machine's load is shared alike:
   main.py's modules) / subjects, and the largest relative difference of REALY_error.txt is given
   with the largest numerical uncertainty facegeo reports;
 * with ``--knobs``, instead, the error against time of the speed knobs and of the SuperLU
-  solver (facegeo.eval.realy_align.Settings) on the first set: the largest and mean relative
+  solver (facegeo.eval.realy_settings.Settings) on the first set: the largest and mean relative
   deviation from the exact numbers and the time per subject of each setting, as a table and a
   text plot;
 * with ``--compare-seeds A-B``, instead, facegeo against the official code value by value on
@@ -182,7 +182,7 @@ def _perturbed(args: argparse.Namespace, seeds: list[int]) -> None:
 
     from facegeo.eval import realy_error
     from facegeo.eval.realy import UNCERTAINTY_FLAG, evaluate
-    from facegeo.eval.realy_align import Settings
+    from facegeo.eval.realy_settings import Settings
     sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tools"))
     from realy_synthetic import make_dataset
 
@@ -377,7 +377,7 @@ def main(argv: list[str] | None = None) -> None:
     from threadpoolctl import threadpool_limits
 
     from facegeo.eval.realy import evaluate
-    from facegeo.eval.realy_align import Settings
+    from facegeo.eval.realy_settings import Settings
     from facegeo.eval.realy_io import read_obj
     from facegeo.eval.realy_solver import cholmod_available
     sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tools"))

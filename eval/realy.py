@@ -23,7 +23,7 @@ match threshold, the stopping test) and the final closest points' tie decisions 
 that close to their thresholds. Each such decision is followed the other way and its effect
 counted (:func:`~facegeo.eval.realy_error.region_error`); one turned decision can move a value
 by up to 1e-2. Values above ``UNCERTAINTY_FLAG`` (1e-6 relative) are flagged in the summary.
-``settings`` (:class:`~facegeo.eval.realy_align.Settings`) loosens the protocol's stopping rules
+``settings`` (:class:`~facegeo.eval.realy_settings.Settings`) loosens the protocol's stopping rules
 and the solver's tolerance for speed; the default is exact.
 
 Per subject (see :mod:`facegeo.eval.realy_align` and :mod:`facegeo.eval.realy_error`):
@@ -64,19 +64,11 @@ from typing import Any
 import numpy as np
 
 from facegeo.errors import FacegeoError, InputError
-from facegeo.eval.realy_align import (
-    ERROR_KEYPOINTS,
-    EXACT,
-    ICP_ORDER,
-    REGIONS,
-    RIGID_KEYPOINTS,
-    Settings,
-    global_alignment,
-    regional_icp,
-)
+from facegeo.eval.realy_align import ERROR_KEYPOINTS, ICP_ORDER, REGIONS, RIGID_KEYPOINTS, global_alignment, regional_icp
 from facegeo.eval.realy_error import region_error
 from facegeo.eval.realy_geometry import SurfaceQuery
 from facegeo.eval.realy_solver import cholmod_available, resolve as resolve_solver
+from facegeo.eval.realy_settings import EXACT, Settings
 from facegeo.eval.realy_io import (
     Mesh,
     barycentric_points,
@@ -445,7 +437,7 @@ def evaluate(
     subjects in that many processes (the numbers do not depend on it). ``template_mask``: the
     official ``--template_mask`` (0/1 per vertex, comma separated; only triangles whose three
     vertices are 1 are used in the error step). ``settings``: the speed / exactness knobs
-    (:class:`~facegeo.eval.realy_align.Settings`; the default is the official protocol).
+    (:class:`~facegeo.eval.realy_settings.Settings`; the default is the official protocol).
     ``progress``: a tqdm bar (None: only on a terminal). ``client``: a
     :class:`distributed.Client`; the regions are then evaluated on its cluster's workers instead
     (``workers`` is ignored; the same numbers: each region is the same computation anywhere).

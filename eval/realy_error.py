@@ -47,7 +47,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from facegeo.errors import FacegeoError
-from facegeo.eval.realy_align import EXACT, Settings
+from facegeo.eval.realy_settings import EXACT, Settings
 from facegeo.eval.realy_geometry import SurfaceQuery, merge_vertices
 from facegeo.eval.realy_solver import make_solver
 

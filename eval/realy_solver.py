@@ -34,7 +34,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from facegeo.errors import FacegeoError
-from facegeo.eval.realy_align import SOLVERS
+from facegeo.eval.realy_settings import SOLVERS
 
 __all__ = ["cholmod_available", "resolve", "make_solver", "pcg", "CholmodSolver", "SuperLUSolver"]
 

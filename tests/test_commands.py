@@ -89,10 +89,12 @@ def test_the_subcommands_are_those_of_the_command_modules():
 
 
 def test_building_the_parser_imports_nothing_heavy():
-    """Building the parser loads no heavy module; a subcommand's help (which lists the detectors'
+    """Building the parser loads no heavy module (nor REALY's alignment: the realy command's defaults
+    come from ``facegeo.eval.realy_settings``); a subcommand's help (which lists the detectors'
     registry) loads OpenCV with the detectors, but not torch."""
     code = ("import sys; from facegeo.commands import build_parser; parser = build_parser(); "
-            "print(sorted(m for m in ('torch', 'cv2', 'diffusers', 'transformers', 'pxr') if m in sys.modules)); "
+            "print(sorted(m for m in ('torch', 'cv2', 'diffusers', 'transformers', 'pxr', 'facegeo.eval.realy_align') "
+            "if m in sys.modules)); "
             "(sub,) = [a for a in parser._actions if a.dest == 'command']; "
             "assert 'mediapipe' in sub.choices['reconstruct'].format_help(); "
             "print(sorted(m for m in ('torch', 'diffusers', 'transformers', 'pxr') if m in sys.modules))")

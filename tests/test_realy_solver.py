@@ -9,7 +9,7 @@ import scipy.sparse as sp
 from scipy.sparse.linalg import spsolve
 
 from facegeo.errors import FacegeoError
-from facegeo.eval.realy_align import EXACT, Settings
+from facegeo.eval.realy_settings import EXACT, Settings
 from facegeo.eval import realy_solver
 from facegeo.eval.realy_solver import SuperLUSolver, _superlu, make_solver, pcg, resolve
 

@@ -16,7 +16,7 @@ __all__ = ["COMMANDS"]
 
 
 def _arguments(p: argparse.ArgumentParser) -> None:
-    from facegeo.eval.realy_align import EXACT, SOLVERS
+    from facegeo.eval.realy_settings import EXACT, SOLVERS
 
     p.add_argument("pred_dir", type=Path, metavar="PRED_DIR", help="folder of predicted meshes (.obj)")
     p.add_argument("--realy-root", type=Path, default=None,
@@ -71,7 +71,7 @@ def _arguments(p: argparse.ArgumentParser) -> None:
 def _run(args: argparse.Namespace) -> None:
     from facegeo.errors import FacegeoError, InputError
     from facegeo.eval.realy import DEFAULT_TOPOLOGY, evaluate
-    from facegeo.eval.realy_align import Settings
+    from facegeo.eval.realy_settings import Settings
     from facegeo.eval.realy_solver import resolve as resolve_solver
     from facegeo.eval.realy_report import OUTPUT_FILES, markdown_table, write_outputs
 
