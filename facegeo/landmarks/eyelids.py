@@ -73,14 +73,13 @@ def lid_gaps(image: np.ndarray, landmarks: np.ndarray, detector: IrisDetector | 
     uint8 RGB (module docstring), the eyes found by the corners of ``landmarks`` (88, 2) px (iBUG
     36/39 and 42/45). NaN for an eye whose corners are not finite or less than 4 px apart."""
     detector = IrisDetector() if detector is None else detector
+    rows = np.array(_GAP_ROWS)
+    seen = detector.eyes(image, np.asarray(landmarks, np.float64))
     out = np.full(2, np.nan)
-    for k, (a, b, _, mirror) in enumerate(EYE_CORNERS.values()):
-        start, end = np.asarray(landmarks[a], np.float64), np.asarray(landmarks[b], np.float64)
-        if not (np.isfinite(start).all() and np.isfinite(end).all()) or np.linalg.norm(end - start) < 4.0:
-            continue
-        _, contour, _ = detector.eye_points(image, start, end, mirror)
-        rows = np.array(_GAP_ROWS)
-        out[k] = _across(contour[rows[:, 0]], contour[rows[:, 1]], contour[LOWER_LID[0]], contour[LOWER_LID[-1]])
+    for k, eye in enumerate(EYE_CORNERS):  # the subject's right eye, then the left
+        if eye in seen:
+            contour = seen[eye][1]
+            out[k] = _across(contour[rows[:, 0]], contour[rows[:, 1]], contour[LOWER_LID[0]], contour[LOWER_LID[-1]])
     return out
 
 
@@ -90,11 +89,8 @@ def model_lid_gaps(model: MorphableModel, alpha: np.ndarray, delta: np.ndarray, 
     :data:`LID_POINTS` across the line through the eye's corners, each pair's distance averaged)
     for identity ``alpha`` (n_id,) and expression ``delta`` (n_exp,), posed by ``rotation`` (3, 3)
     and ``translation`` (3,) mm and seen by ``camera``."""
-    ids = np.asarray(model.landmark_indices)
-    vertices = ids[np.array([[36, 39, *LID_POINTS[0]], [42, 45, *LID_POINTS[1]]]).ravel()]  # corners, 2 upper, 2 lower
-    shape = (model.mean_shape[vertices].astype(np.float64)
-             + np.tensordot(np.asarray(alpha, np.float64), model.id_basis[:, vertices].astype(np.float64), 1)
-             + np.tensordot(np.asarray(delta, np.float64), model.exp_basis[:, vertices].astype(np.float64), 1))
+    vertices = np.asarray(model.landmark_indices)[np.array([[36, 39, *LID_POINTS[0]], [42, 45, *LID_POINTS[1]]]).ravel()]
+    shape = model.shape_numpy(alpha, delta, vertex_indices=vertices).astype(np.float64)  # corners, 2 upper, 2 lower per eye
     uv = project(shape, np.asarray(rotation, np.float64), np.asarray(translation, np.float64), camera).reshape(2, 6, 2)
     return np.array([_across(e[2:4], e[4:6], e[0], e[1]) for e in uv])
 

@@ -96,11 +96,17 @@ class IrisDetector:
                                  {"contours": (1, 213), "iris": (1, 15)}, self.num_threads)
         return self._model
 
-    def eye(self, image: np.ndarray, start: np.ndarray, end: np.ndarray, mirror: bool) -> tuple[np.ndarray, float]:
-        """The 5 iris points (5, 2) px of the eye whose corners are ``start``, ``end`` (px), and
-        the ROI side in px."""
-        iris, _, side = self.eye_points(image, start, end, mirror)
-        return iris, side
+    def eyes(self, image: np.ndarray, landmarks: np.ndarray) -> dict[str, tuple[np.ndarray, np.ndarray, float]]:
+        """:meth:`eye_points` of each eye (``"right"``, ``"left"``: the subject's) of the face whose
+        iBUG points (the first 68 rows of ``landmarks``, px) are given; an eye whose corners are
+        not finite or less than 4 px apart is left out."""
+        out = {}
+        for eye, (a, b, _, mirror) in EYE_CORNERS.items():
+            start, end = landmarks[a], landmarks[b]
+            if not (np.all(np.isfinite(start)) and np.all(np.isfinite(end))) or np.linalg.norm(end - start) < 4.0:
+                continue
+            out[eye] = self.eye_points(image, start, end, mirror)
+        return out
 
     def eye_points(self, image: np.ndarray, start: np.ndarray, end: np.ndarray,
                    mirror: bool) -> tuple[np.ndarray, np.ndarray, float]:
@@ -145,11 +151,7 @@ class IrisDetector:
         """Both irises of the face whose iBUG points (the first 68 rows of ``landmarks``, px)
         are given; an eye whose corners are not finite or less than 4 px apart is skipped."""
         out = []
-        for eye, (a, b, _, mirror) in EYE_CORNERS.items():
-            start, end = landmarks[a], landmarks[b]
-            if not (np.all(np.isfinite(start)) and np.all(np.isfinite(end))) or np.linalg.norm(end - start) < 4.0:
-                continue
-            points, _ = self.eye(image, start, end, mirror)
+        for eye, (points, _, _) in self.eyes(image, landmarks).items():
             radius = float(np.linalg.norm(points[1:] - points[0], axis=1).mean())
             out.append(Iris(eye, points[0], radius, points[1:]))
         return out
