@@ -220,40 +220,29 @@ def observe_frames(frames: Iterable[Any], model: MorphableModel, detector: str =
     the number of frames this process observed, doubled while the child works.
 
     Raises :class:`InputError` (naming ``source``) for no frames or frames of different sizes."""
-    from facegeo.concurrency import native_threads
-    from facegeo.forked_call import ChildLost, can_fork, fork_call
+    from facegeo.forked_call import can_fork, fork_call
 
     observer = _FrameObserver(model, detector, source)
     observed: list[ObservedFrame] = []
     pending = None
-    try:
-        frames = iter(frames)
-        for frame in frames:  # until the clip's person is found (the child's part needs it)
+    frames = iter(frames)
+    for frame in frames:  # until the clip's person is found (the child's part needs it)
+        observed.append(observer.observe(frame))
+        if progress is not None:
+            progress(len(observed))
+        if rest is not None and observer.person is not None and can_fork():
+            pending = fork_call(_observe_rest, observer, rest)
+            break
+
+    def here() -> list[ObservedFrame]:
+        for frame in frames:
             observed.append(observer.observe(frame))
             if progress is not None:
-                progress(len(observed))
-            if rest is not None and observer.person is not None and can_fork():
-                pending = fork_call(_observe_rest, observer, rest)
-                break
-        with native_threads(1) if pending is not None else contextlib.nullcontext():  # the child has the other core
-            for frame in frames:
-                observed.append(observer.observe(frame))
-                if progress is not None:
-                    progress(len(observed) * (2 if pending is not None else 1))
-        if rest is not None:
-            theirs = None
-            if pending is not None:
-                try:
-                    theirs = pending.result()
-                except ChildLost:  # killed (memory): its part is observed here
-                    pass
-            if theirs is None:  # no face here to hand over, the child met another person first, or it was lost
-                theirs = [observer.observe(frame) for frame in rest()]
-            observed += theirs
-    except BaseException:
-        if pending is not None:
-            pending.abandon()
-        raise
+                progress(len(observed) * (2 if pending is not None else 1))
+        return observed
+
+    # the rest here when there is no face to hand over, the child met another person first, or it was lost
+    observed = _beside_child(pending, here, lambda: [observer.observe(frame) for frame in rest()] if rest is not None else [])
     if observer.size is None:
         raise InputError(source, "frames", "at least one frame", "none in the range")
     return observed, observer.size
@@ -367,7 +356,8 @@ class _FrameObserver:
     def _kept(self, observation: PhotoObservation) -> PhotoObservation:
         """What a clip keeps of a frame's observation: without the detection (the next frame
         follows it from :attr:`previous_detection`), the dense points' model correspondence (the
-        same every frame, 22 KB) shared with the frames before: about 16 KB a frame instead of 45."""
+        same every frame, 22 KB) shared with the frames before: 33 KB a frame instead of 66
+        (tracemalloc, benchmarks/RESULTS.md "the track's speed")."""
         surface = observation.surface_points
         if surface is not None:
             shared = self.correspondence
@@ -488,26 +478,39 @@ def track_observed(model: MorphableModel, observed: list[ObservedFrame], shared:
     once, the second by a forked child (:mod:`facegeo.forked_call`, where it
     :func:`~facegeo.forked_call.can_fork`), which starts its first frame from solvePnP as after a
     frame without a face (the halves' solves are otherwise the same); 1: in this process alone."""
-    from facegeo.concurrency import native_threads
-    from facegeo.forked_call import ChildLost, can_fork, fork_call
+    from facegeo.forked_call import can_fork, fork_call
 
     if stage.n_id != 0:
         raise InputError("<argument>", "stage", "a stage that leaves the identity out (n_id 0)", repr(stage.n_id))
     split = len(observed) // 2 if parts >= 2 and len(observed) >= 2 * MIN_PART_FRAMES and can_fork() else len(observed)
     pending = fork_call(_track_part, model, observed, shared, stage, split, len(observed)) if split < len(observed) else None
+    return _beside_child(pending, lambda: _track_part(model, observed, shared, stage, 0, split),
+                         lambda: _track_part(model, observed, shared, stage, split, len(observed)))
+
+
+def _beside_child(pending: Any, here: Callable[[], list[Any]], instead: Callable[[], list[Any]]) -> list[Any]:
+    """``here()`` (this process's part of a clip, its native pools at one thread while the forked
+    child of ``pending`` (:class:`facegeo.forked_call.PendingCall`, or None) has the other core),
+    followed by the child's part: its answer, or ``instead()`` where there is no child, it
+    answered None or it was lost (killed, e.g. out of memory). The child is stopped if this
+    process fails first."""
+    from facegeo.concurrency import native_threads
+    from facegeo.forked_call import ChildLost
+
     try:
-        with native_threads(1) if pending is not None else contextlib.nullcontext():  # the child has the other core
-            out = _track_part(model, observed, shared, stage, 0, split)
+        with native_threads(1) if pending is not None else contextlib.nullcontext():
+            out = here()
+        theirs = None
         if pending is not None:
             try:
-                out += pending.result()
-            except ChildLost:  # killed (memory): its half is solved here
-                out += _track_part(model, observed, shared, stage, split, len(observed))
+                theirs = pending.result()
+            except ChildLost:
+                pass
+        return out + (instead() if theirs is None else theirs)
     except BaseException:
         if pending is not None:
             pending.abandon()
         raise
-    return out
 
 
 #: A clip is tracked in two parts at once (:func:`observe_frames`' ``rest``, :func:`track_observed`)
