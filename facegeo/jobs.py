@@ -740,9 +740,10 @@ def _animated_asset(video: str | Path, options: TrackOptions, model: Any, track:
         if not whole:
             return keys
         yaw = {f.index: euler_from_rotation(f.rotation)[0] for f in whole + keys}
+        whole_indices = {f.index for f in whole}
         chosen: dict[int, Any] = {}
         for key in keys:
-            if key.index in {f.index for f in whole}:
+            if key.index in whole_indices:
                 chosen.setdefault(key.index, key)
                 continue
             spare = [f for f in whole if f.index not in chosen]

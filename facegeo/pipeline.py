@@ -390,14 +390,14 @@ def reconstruct_views(
     used = [k for k in range(len(pixels)) if not grey[k]] or list(range(len(pixels)))
     turn = [np.arccos(np.clip((np.trace(np.asarray(f.rotation, np.float64)) - 1) / 2, -1, 1)) for f in fits]
     skins = list(skins) if skins is not None else [None] * len(photos)
-    reference = None
-    for k in sorted(used, key=lambda k: turn[k]):  # the most frontal whose mask finds no hand over the face
-        if skins[k] is None:  # (the reference's mask is made here anyway; another's only if one before it has a hand)
-            skins[k] = skin_mask(pixels[k], fits[k].landmarks)
-        if skins[k].hands == 0:
-            reference = k
+    frontal_first = sorted(used, key=lambda k: turn[k])
+    for reference in frontal_first:  # the most frontal whose mask finds no hand over the face
+        if skins[reference] is None:  # (the reference's mask is made here anyway; another's only if one before it has a hand)
+            skins[reference] = skin_mask(pixels[reference], fits[reference].landmarks)
+        if skins[reference].hands == 0:
             break
-    reference = min(used, key=lambda k: turn[k]) if reference is None else reference
+    else:  # a hand in every photo
+        reference = frontal_first[0]
     main = fits[reference]
     t = _starting(progress, "parts")
     geometry, parts_report = _geometry(pixels[reference], main, model, parts)
