@@ -112,8 +112,7 @@ def posed_asset(asset: Asset, weights: dict[str, float]) -> Asset:
         if shapes is None:
             return surface
         w = np.array([weights.get(name, 0.0) for name in shapes.names], np.float64)
-        vertices = surface.vertices - shapes.offset() + shapes.offset(w)
-        return dataclasses.replace(surface, vertices=vertices.astype(np.float32))
+        return dataclasses.replace(surface, vertices=(surface.neutral_vertices() + shapes.offset(w)).astype(np.float32))
 
     return dataclasses.replace(pose(asset), parts=[pose(part) for part in asset.parts])
 
