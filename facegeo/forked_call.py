@@ -19,7 +19,9 @@ instead). OpenCV's pthreads pool does
 not survive a fork either: it is stopped (one thread) while forking and the caller gets its count
 back. The child runs its OpenCV and BLAS pools on one thread (the caller keeps the other core),
 takes the default action on SIGINT and SIGTERM (it ends without a word; the caller reports the
-interruption), and must write no file; a caller that fails first kills it.
+interruption), and must write no named file (it may fill an unnamed one that the caller made
+before the fork and reads afterwards: :class:`facegeo.observed_frames.ObservedFrames`); a caller
+that fails first kills it.
 A call forked with ``inbox=True`` also receives what the caller sends it later
 (:meth:`PendingCall.send`, :func:`facegeo.jobs.reconstruct_into_folder`'s export: it starts on
 the fit's geometry and receives the maps when the texture stages end): the function gets one more

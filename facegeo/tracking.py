@@ -22,7 +22,8 @@ After a frame with a face the face is followed into the next without the face de
 face mesh on the previous frame's mesh, as MediaPipe's video mode does: the same person, not
 another face that comes into the frame; the region around it, then the whole frame, are searched
 where it is lost). A clip long enough is observed and solved in two halves at once, the second
-in a forked process (:data:`MIN_PART_FRAMES`). :func:`smooth_track`
+in a forked process (:data:`MIN_PART_FRAMES`). What was observed waits for the identity in an
+unnamed temporary file (:class:`~facegeo.observed_frames.ObservedFrames`), not in memory. :func:`smooth_track`
 takes the frame-to-frame jitter out afterwards; a cut to another person is told by the face
 descriptor (:func:`observe_frames`). What is not done yet (issue 48): gaze (eye rotations).
 """
@@ -31,10 +32,11 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
+import operator
 import time
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, TypeVar
 
 import numpy as np
 
@@ -50,8 +52,9 @@ from facegeo.landmarks.detectors import get_detector
 from facegeo.landmarks import eyelids
 from facegeo.landmarks.scheme import EYES, LANDMARK_WEIGHTS, inter_ocular_distance
 from facegeo.morphable_model import MorphableModel
+from facegeo.observed_frames import ObservedFrame, ObservedFrames
 
-__all__ = ["TrackedFrame", "Track", "ObservedFrame", "ClipIdentity", "track_frames", "observe_frames", "clip_identity",
+__all__ = ["TrackedFrame", "Track", "ClipIdentity", "track_frames", "observe_frames", "clip_identity",
            "follow_region", "spanning_frames", "lid_weights", "track_observed", "solve_frame", "smooth_track", "SolveStart",
            "TRACK_STAGE", "KEYFRAMES", "FOLLOW_MARGIN", "POSE_WINDOW", "WEIGHT_WINDOW", "SLOW_WEIGHT_WINDOW",
            "IDENTITY_CHECK_EVERY"]
@@ -75,6 +78,9 @@ WEIGHT_WINDOW = 5
 #: Frames of the other weights' Savitzky–Golay filter, order 2, after a running median of
 #: :data:`WEIGHT_WINDOW` frames (:func:`smooth_track`).
 SLOW_WEIGHT_WINDOW = 9
+
+#: A part of a clip, as observed or as solved (:func:`_beside_child`).
+Part = TypeVar("Part")
 
 
 @dataclass(frozen=True)
@@ -131,21 +137,6 @@ class Track:
 
 
 @dataclass(frozen=True)
-class ObservedFrame:
-    """A frame as observed (:func:`observe_frames`): ``index`` and ``time_s`` as the source's
-    frame, the ``observation`` without its pixels (None when no face was found) and ``note``, why;
-    ``lid_gaps`` (2,) px, the subject's right and left eye's lid gap read by the iris model
-    (:func:`facegeo.landmarks.eyelids.lid_gaps`; NaN for an eye it could not read), None without a
-    face or for a model without :data:`~facegeo.landmarks.eyelids.BLINK_NAMES`."""
-
-    index: int
-    time_s: float
-    observation: PhotoObservation | None
-    note: str | None = None
-    lid_gaps: np.ndarray | None = None
-
-
-@dataclass(frozen=True)
 class ClipIdentity:
     """What a clip's frames share (:func:`clip_identity`): the ``camera``, the identity ``alpha``
     (n_id,) float64, the landmark ``noise`` (inter-ocular units, the keyframes' median), the
@@ -197,9 +188,11 @@ def track_frames(frames: Iterable[Any], model: MorphableModel, detector: str = "
 
 def observe_frames(frames: Iterable[Any], model: MorphableModel, detector: str = "lids",
                    progress: Callable[[int], None] | None = None, source: str = "<video>",
-                   rest: Callable[[], Iterable[Any]] | None = None) -> tuple[list[ObservedFrame], tuple[int, int]]:
+                   rest: Callable[[], Iterable[Any]] | None = None) -> tuple[ObservedFrames, tuple[int, int]]:
     """Every frame observed as a photo fit observes a photo (module docstring, step 1), the
-    pixels dropped: ``(frames, (width, height))``. The person stays the same from frame to frame:
+    pixels dropped: ``(frames, (width, height))``, the frames in an
+    :class:`~facegeo.observed_frames.ObservedFrames` (an unnamed temporary file: memory stays the
+    same however long the clip). The person stays the same from frame to frame:
 
     * after a frame with a face, the face is followed into the next frame without the face
       detector where the detector can (its ``follow``: the face mesh on the previous frame's
@@ -223,7 +216,8 @@ def observe_frames(frames: Iterable[Any], model: MorphableModel, detector: str =
     from facegeo.forked_call import can_fork, fork_call
 
     observer = _FrameObserver(model, detector, source)
-    observed: list[ObservedFrame] = []
+    observed = observer.store()
+    theirs: ObservedFrames | None = None  # the child's part, filled by the child
     pending = None
     frames = iter(frames)
     for frame in frames:  # until the clip's person is found (the child's part needs it)
@@ -231,36 +225,46 @@ def observe_frames(frames: Iterable[Any], model: MorphableModel, detector: str =
         if progress is not None:
             progress(len(observed))
         if rest is not None and observer.person is not None and can_fork():
-            pending = fork_call(_observe_rest, observer, rest)
+            theirs = observer.store()
+            pending = fork_call(_observe_rest, observer, rest, theirs)
             break
 
-    def here() -> list[ObservedFrame]:
+    def here() -> ObservedFrames:
         for frame in frames:
             observed.append(observer.observe(frame))
             if progress is not None:
                 progress(len(observed) * (2 if pending is not None else 1))
         return observed
 
-    # the rest here when there is no face to hand over, the child met another person first, or it was lost
-    observed = _beside_child(pending, here, lambda: [observer.observe(frame) for frame in rest()] if rest is not None else [])
+    def instead() -> ObservedFrames:  # the rest here: no face to hand over, the child met another person first, or it was lost
+        part = observer.store() if theirs is None else theirs.clear()
+        if rest is not None:
+            part.extend(observer.observe(frame) for frame in rest())
+        return part
+
+    observed = _beside_child(pending, here, instead, lambda count: None if count is None or theirs is None else theirs.sync(),
+                             ObservedFrames.extend)
     if observer.size is None:
         raise InputError(source, "frames", "at least one frame", "none in the range")
     return observed, observer.size
 
 
-def _observe_rest(observer: _FrameObserver, rest: Callable[[], Iterable[Any]]) -> list[ObservedFrame] | None:
+def _observe_rest(observer: _FrameObserver, rest: Callable[[], Iterable[Any]], store: ObservedFrames) -> int | None:
     """A forked child's part of :func:`observe_frames`: the frames ``rest`` opens, observed by a
-    copy of ``observer`` that knows the clip's person and frame size but starts with no face.
-    None where the first face it finds is another person's (a clip with several people: the
-    largest face is not always the clip's person, whom the caller then follows into this part)."""
+    copy of ``observer`` that knows the clip's person and frame size but starts with no face,
+    appended to ``store`` (made by the caller before the fork; it takes them with
+    :meth:`~facegeo.observed_frames.ObservedFrames.sync`); returns their number. None where the
+    first face it finds is another person's (a clip with several people: the largest face is not
+    always the clip's person, whom the caller then follows into this part)."""
     observer.forget_face()
-    out = []
+    faces = 0
     for frame in rest():
         seen = observer.observe(frame)
-        if observer.stranger and not any(f.observation is not None for f in out):
+        if observer.stranger and not faces:
             return None
-        out.append(seen)
-    return out
+        faces += seen.observation is not None
+        store.append(seen)
+    return len(store)
 
 
 class _FrameObserver:
@@ -277,7 +281,6 @@ class _FrameObserver:
         self.size: tuple[int, int] | None = None
         self.person: np.ndarray | None = None  # the clip's person's face descriptor
         self.same_person: list[float] = []  # descriptor distances of the faces accepted as the person
-        self.correspondence: tuple[np.ndarray, np.ndarray] | None = None  # the dense points' vertex ids and barycentrics
         self.forget_face()
 
     def same_person_limit(self) -> float:
@@ -350,21 +353,16 @@ class _FrameObserver:
         self.previous_detection = None if observation is None else observation.detection
         self.region = None if observation is None else follow_region(observation.landmarks, width, height)
         gaps = None if observation is None or self.iris is None else eyelids.lid_gaps(frame.image, observation.landmarks, self.iris)
-        return ObservedFrame(frame.index, frame.time_s, None if observation is None else self._kept(observation),
+        return ObservedFrame(frame.index, frame.time_s, None if observation is None else dataclasses.replace(observation, detection=None),
                              None if observation is not None else why, gaps)
 
-    def _kept(self, observation: PhotoObservation) -> PhotoObservation:
-        """What a clip keeps of a frame's observation: without the detection (the next frame
-        follows it from :attr:`previous_detection`), the dense points' model correspondence (the
-        same every frame, 22 KB) shared with the frames before: 33 KB a frame instead of 66
-        (tracemalloc, benchmarks/RESULTS.md "the track's speed")."""
-        surface = observation.surface_points
-        if surface is not None:
-            shared = self.correspondence
-            if shared is None or not (np.array_equal(shared[0], surface.vertex_ids) and np.array_equal(shared[1], surface.barycentric)):
-                shared = self.correspondence = (surface.vertex_ids, surface.barycentric)
-            surface = SurfacePoints(surface.targets, shared[0], shared[1], surface.weights, surface.contour, surface.expressive)
-        return dataclasses.replace(observation, detection=None, surface_points=surface)
+    def store(self) -> ObservedFrames:
+        """An empty :class:`~facegeo.observed_frames.ObservedFrames` for this clip's frames."""
+        from facegeo.landmarks.dense import load_dense_correspondence
+
+        correspondence = load_dense_correspondence(self.model)
+        return ObservedFrames(self.model, self.source, None if correspondence is None else (correspondence.vertex_ids,
+                                                                                           correspondence.barycentric))
 
 
 #: A followed face is compared with the clip's person every this many frames (a cut to another
@@ -432,23 +430,26 @@ def _shifted(observation: PhotoObservation, x0: int, y0: int) -> PhotoObservatio
                                surface_points=surface, detection=detection)
 
 
-def clip_identity(model: MorphableModel, observed: list[ObservedFrame], size: tuple[int, int], focal: float | None = None,
+def clip_identity(model: MorphableModel, observed: Sequence[ObservedFrame], size: tuple[int, int], focal: float | None = None,
                   keyframes: int = KEYFRAMES, source: str = "<video>") -> ClipIdentity:
     """The clip's camera and identity (module docstring, steps 2 and 3). ``size``: (width,
     height) px of the frames. Raises :class:`NoFaceError` when no frame has a face."""
-    found = [k for k, f in enumerate(observed) if f.observation is not None]
+    found, focals = [], []  # one pass over the frames, none of them kept (a long clip's are on disk)
+    for k, frame in enumerate(observed):
+        if frame.observation is not None:
+            found.append(k)
+            focals.append(frame.observation.camera.focal)
     if not found:
         raise NoFaceError(source, "face", "a face in at least one frame", f"none in {len(observed)} frames")
     width, height = size
     notes = []
     if focal is None:
-        median = float(np.median([observed[k].observation.camera.focal for k in found]))
-        camera = Camera(median, width / 2.0, height / 2.0, width, height)
+        camera = Camera(float(np.median(focals)), width / 2.0, height / 2.0, width, height)
         notes.append(f"focal length unknown: set to {camera.focal:.0f} px, the median over the frames of the focal that puts "
                      "the face 1.0 m from the camera (give --focal for a known lens)")
     else:
         camera = Camera(float(focal), width / 2.0, height / 2.0, width, height)
-    chosen = [found[j] for j in _keyframes(model, [observed[k].observation for k in found], camera, keyframes)]
+    chosen = [found[j] for j in _keyframes(model, (observed[k].observation for k in found), len(found), camera, keyframes)]
     views = [dataclasses.replace(LandmarkView.of(observed[k].observation, f"{source}, frame {observed[k].index}"), camera=camera)
              for k in chosen]
     solutions = solve_shared_identity(model, views)
@@ -469,7 +470,7 @@ def _without_lids(model: MorphableModel, delta: np.ndarray) -> np.ndarray:
     return np.where(lid_weights(model.expression_names), 0.0, np.asarray(delta, np.float64))
 
 
-def track_observed(model: MorphableModel, observed: list[ObservedFrame], shared: ClipIdentity,
+def track_observed(model: MorphableModel, observed: Sequence[ObservedFrame], shared: ClipIdentity,
                    stage: LandmarkStage = TRACK_STAGE, parts: int = 2) -> list[TrackedFrame]:
     """Every observed frame's pose and expression with the clip's identity fixed (module
     docstring, step 4), ``stage`` the per-frame solve (its ``n_id`` must be 0: the identity stays).
@@ -488,12 +489,14 @@ def track_observed(model: MorphableModel, observed: list[ObservedFrame], shared:
                          lambda: _track_part(model, observed, shared, stage, split, len(observed)))
 
 
-def _beside_child(pending: Any, here: Callable[[], list[Any]], instead: Callable[[], list[Any]]) -> list[Any]:
+def _beside_child(pending: Any, here: Callable[[], Part], instead: Callable[[], Part],
+                  answer: Callable[[Any], Part | None] = lambda part: part,
+                  join: Callable[[Part, Part], Part] = operator.add) -> Part:
     """``here()`` (this process's part of a clip, its native pools at one thread while the forked
     child of ``pending`` (:class:`facegeo.forked_call.PendingCall`, or None) has the other core),
-    followed by the child's part: its answer, or ``instead()`` where there is no child, it
-    answered None or it was lost (killed, e.g. out of memory). The child is stopped if this
-    process fails first."""
+    joined with the child's part: ``answer`` of what the child returned, or ``instead()`` where
+    there is no child, that is None or the child was lost (killed, e.g. out of memory). The
+    child is stopped if this process fails first."""
     from facegeo.concurrency import native_threads
     from facegeo.forked_call import ChildLost
 
@@ -503,10 +506,10 @@ def _beside_child(pending: Any, here: Callable[[], list[Any]], instead: Callable
         theirs = None
         if pending is not None:
             try:
-                theirs = pending.result()
+                theirs = answer(pending.result())
             except ChildLost:
                 pass
-        return out + (instead() if theirs is None else theirs)
+        return join(out, instead() if theirs is None else theirs)
     except BaseException:
         if pending is not None:
             pending.abandon()
@@ -519,7 +522,7 @@ def _beside_child(pending: Any, here: Callable[[], list[Any]], instead: Callable
 MIN_PART_FRAMES = 30
 
 
-def _track_part(model: MorphableModel, observed: list[ObservedFrame], shared: ClipIdentity, stage: LandmarkStage, first: int,
+def _track_part(model: MorphableModel, observed: Sequence[ObservedFrame], shared: ClipIdentity, stage: LandmarkStage, first: int,
                 end: int) -> list[TrackedFrame]:
     """:func:`track_observed` on ``observed[first:end]``, the first from solvePnP."""
     out: list[TrackedFrame] = []
@@ -589,13 +592,15 @@ class SolveStart:
     delta: np.ndarray
 
 
-def _keyframes(model: MorphableModel, observations: list[PhotoObservation], camera: Camera, count: int) -> list[int]:
-    """Indices into ``observations`` of up to ``count`` keyframes spanning the head's yaw (the
-    frames' solvePnP yaws on the mean shape, :func:`spanning_frames`)."""
-    if len(observations) <= count:
-        return list(range(len(observations)))
-    yaws = np.array([euler_from_rotation(initial_pose(model, o.landmarks, camera)[0])[0] for o in observations])
-    points = np.array([int(np.isfinite(o.landmarks).all(axis=1).sum()) for o in observations])
+def _keyframes(model: MorphableModel, observations: Iterable[PhotoObservation], n: int, camera: Camera, count: int) -> list[int]:
+    """Indices into the ``n`` ``observations`` (read once, in order) of up to ``count`` keyframes
+    spanning the head's yaw (the frames' solvePnP yaws on the mean shape, :func:`spanning_frames`)."""
+    if n <= count:
+        return list(range(n))
+    yaws, points = np.empty(n), np.empty(n, np.int64)
+    for k, o in enumerate(observations):
+        yaws[k] = euler_from_rotation(initial_pose(model, o.landmarks, camera)[0])[0]
+        points[k] = int(np.isfinite(o.landmarks).all(axis=1).sum())
     return spanning_frames(yaws, points, count)
 
 

@@ -301,9 +301,10 @@ def test_a_second_part_that_starts_on_another_person_is_left_to_the_caller(model
     observer = _FrameObserver(model, "lids", "<clip>")
     assert observer.observe(SimpleNamespace(index=0, time_s=0.0, image=face)).observation is not None
     person = observer.person.copy()
-    assert _observe_rest(observer, lambda: iter([SimpleNamespace(index=1, time_s=0.1, image=other)])) is None
+    assert _observe_rest(observer, lambda: iter([SimpleNamespace(index=1, time_s=0.1, image=other)]), observer.store()) is None
     observer.person = person
-    part = _observe_rest(observer, lambda: iter([SimpleNamespace(index=k, time_s=k / 10, image=face) for k in (1, 2)]))
+    part = observer.store()
+    assert _observe_rest(observer, lambda: iter([SimpleNamespace(index=k, time_s=k / 10, image=face) for k in (1, 2)]), part) == 2
     assert [f.index for f in part] == [1, 2] and all(f.observation is not None for f in part)
 
 
