@@ -40,6 +40,7 @@ import csv
 import math
 import os
 import re
+from collections.abc import Iterator
 from pathlib import Path
 
 import numpy as np
@@ -47,7 +48,7 @@ import numpy as np
 from facegeo.arkit import ARKIT_NAMES, ArkitTake
 from facegeo.errors import InputError
 
-__all__ = ["read_live_link_csv", "live_link_csv_text", "LIVE_LINK_COLUMNS", "ROTATION_GROUPS", "DEFAULT_FPS"]
+__all__ = ["read_live_link_csv", "live_link_csv_text", "live_link_csv_lines", "LIVE_LINK_COLUMNS", "ROTATION_GROUPS", "DEFAULT_FPS"]
 
 #: Live Link Face's default time code rate (frames per second of the ``Timecode`` frame field).
 DEFAULT_FPS = 60.0
@@ -185,8 +186,10 @@ def _number(source: Path, line: int, column: str, cell: str) -> float:
     return value
 
 
-def live_link_csv_text(take: ArkitTake, timecode_start_s: float = 0.0) -> str:
-    """The CSV text of ``take`` in Live Link Face's layout (module docstring).
+def live_link_csv_lines(take: ArkitTake, timecode_start_s: float = 0.0) -> Iterator[str]:
+    """The CSV text of ``take`` in Live Link Face's layout (module docstring), one line at a time
+    (each ending in ``\\n``; the take is checked at the call, the lines made as they are read:
+    a long take's file is written without its whole text in memory).
 
     Args:
         take: the take: ``times`` (N,) seconds, strictly increasing; ``weights`` (N, 52) in
@@ -195,7 +198,7 @@ def live_link_csv_text(take: ArkitTake, timecode_start_s: float = 0.0) -> str:
             (shortest round-trip ``repr``); ``fps`` the time code rate of the ``Timecode`` frames.
         timecode_start_s: the time code of ``times == 0`` in seconds from midnight (>= 0).
     Returns:
-        The text: one header row (``Timecode``, ``BlendShapeCount``, the 52 shapes, then the
+        The lines: one header row (``Timecode``, ``BlendShapeCount``, the 52 shapes, then the
         take's rotation groups in :data:`ROTATION_GROUPS` order), one row per frame, each line
         ending in ``\\n``. ``Timecode`` is ``HH:MM:SS:FF.fff`` with the time rounded to a
         thousandth of a frame; ``BlendShapeCount`` is 52 + 3 x the number of rotation groups (61
@@ -232,15 +235,26 @@ def live_link_csv_text(take: ArkitTake, timecode_start_s: float = 0.0) -> str:
             raise ValueError(f"take.rotations[{g!r}] must be a finite (N, 3) = ({n}, 3) array, got shape {a.shape}")
         angles.append(a)
     header = ["Timecode", "BlendShapeCount", *_SHAPE_COLUMNS, *(c for g in groups for c in ROTATION_GROUPS[g])]
-    count = str(len(_SHAPE_COLUMNS) + 3 * len(groups))
-    lines = [",".join(header)]
-    for i in range(n):
+    return _rows(header, str(len(_SHAPE_COLUMNS) + 3 * len(groups)), times, weights, angles, timecode_start_s, fps)
+
+
+def _rows(header: list[str], count: str, times: np.ndarray, weights: np.ndarray, angles: list[np.ndarray], timecode_start_s: float,
+          fps: float) -> Iterator[str]:
+    """:func:`live_link_csv_lines`' lines of a checked take."""
+    yield ",".join(header) + "\n"
+    for i in range(len(times)):
         cells = [_timecode(timecode_start_s + float(times[i]), fps), count]
         cells.extend("%.9g" % w for w in weights[i].tolist())
         for a in angles:
             cells.extend(repr(v) for v in a[i].tolist())
-        lines.append(",".join(cells))
-    return "\n".join(lines) + "\n"
+        yield ",".join(cells) + "\n"
+
+
+def live_link_csv_text(take: ArkitTake, timecode_start_s: float = 0.0) -> str:
+    """The whole CSV text of ``take`` (:func:`live_link_csv_lines`, joined)."""
+    return "".join(live_link_csv_lines(take, timecode_start_s))
+
+
 
 
 def _timecode(t: float, fps: float) -> str:

@@ -17,7 +17,7 @@ import functools
 import json
 import math
 import time
-from collections.abc import Callable, Iterable, Iterator
+from collections.abc import Callable, Iterable, Iterator, Sequence
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
@@ -556,7 +556,7 @@ def track_into_folder(video: str | Path, output: str | Path, options: TrackOptio
                       progress: Callable[[int, float], None] | None = None) -> dict[str, Any]:
     """Track the face through a video (:mod:`facegeo.tracking`) and write into ``output``:
 
-    * ``take.csv``: a Live Link Face take (:func:`facegeo.export.live_link.live_link_csv_text`),
+    * ``take.csv``: a Live Link Face take (:func:`facegeo.export.live_link.live_link_csv_lines`),
       one row per tracked frame at the video's frame rate: the 52 ARKit weights of the frame's
       expression (``tongueOut`` 0: the model has no such shape) and the head's yaw, pitch and roll;
       a frame without a face repeats the nearest tracked frame's values (``track.json`` flags it);
@@ -568,7 +568,8 @@ def track_into_folder(video: str | Path, output: str | Path, options: TrackOptio
       ``face.usdz`` animated by the take, and ``preview.png`` (:func:`_animated_asset`).
 
     ``progress``: called with (frames observed, frames per second so far). Returns the
-    ``track.json`` record.
+    ``track.json`` record without its ``frames`` (written a frame at a time: read them from the
+    file).
 
     Raises:
         facegeo.errors.FacegeoError: an unreadable video, bad options, no face in any frame, an
@@ -577,7 +578,7 @@ def track_into_folder(video: str | Path, output: str | Path, options: TrackOptio
     from facegeo.export.animation import head_angles
     from facegeo.arkit import ARKIT_NAMES, target_naming
     from facegeo.arkit import ArkitTake
-    from facegeo.export.live_link import live_link_csv_text
+    from facegeo.export.live_link import live_link_csv_lines
     from facegeo.staged_output import StagedOutput, locked_output
     from facegeo.landmarks.eyelids import SHUT_FRACTION
     from facegeo.tracking import POSE_WINDOW, SLOW_WEIGHT_WINDOW, WEIGHT_WINDOW, lid_weights, smooth_track, track_frames
@@ -628,16 +629,40 @@ def track_into_folder(video: str | Path, output: str | Path, options: TrackOptio
                               "shut_fraction": SHUT_FRACTION}
                              if track.open_lids is not None else {"read_from": "the fit (no lid reading)"}),
                   "notes": track.notes + [f"{n}: no shape in the model, written as 0" for n in naming.missing],
-                  "frames": [f.to_dict() for f in track.frames]}
+                  "frames": _FRAMES_HERE}
         with StagedOutput(output, replace=True) as stage:
-            stage.path("take.csv").write_text(live_link_csv_text(take, timecode_start_s=float(times[0])))
+            with open(stage.path("take.csv"), "w", encoding="utf-8", newline="") as handle:
+                handle.writelines(live_link_csv_lines(take, timecode_start_s=float(times[0])))
             if options.asset:
                 begin = time.perf_counter()
                 record["asset"] = _animated_asset(video, options, model, track, take, stage)
                 record["timings_s"]["asset"] = time.perf_counter() - begin
                 record["timings_s"]["total"] = time.perf_counter() - start
-            stage.path("track.json").write_text(json.dumps(record, indent=1))
+            _write_track_json(stage.path("track.json"), record, track.frames)
+        del record["frames"]
         return record
+
+
+#: Where :func:`_write_track_json` puts the frames in ``track.json``'s record.
+_FRAMES_HERE = "\0frames\0"
+
+
+def _write_track_json(path: Path, record: dict[str, Any], frames: Sequence[Any]) -> None:
+    """``track.json``: ``record`` as ``json.dumps(record, indent=1)`` writes it, with the list of
+    ``frames``' :meth:`~facegeo.tracking.TrackedFrame.to_dict` where ``record["frames"]`` is
+    :data:`_FRAMES_HERE`, written one frame at a time (a long clip's file without its whole text,
+    or a dict a frame, in memory)."""
+    head, tail = json.dumps(record, indent=1).split(json.dumps(_FRAMES_HERE), 1)
+    with open(path, "w", encoding="utf-8") as handle:
+        handle.write(head)
+        if not frames:
+            handle.write("[]")
+        else:
+            handle.write("[")
+            for k, frame in enumerate(frames):  # each at the list's depth (1) in the record: two spaces more a line
+                handle.write(("\n  " if k == 0 else ",\n  ") + json.dumps(frame.to_dict(), indent=1).replace("\n", "\n  "))
+            handle.write("\n ]")
+        handle.write(tail)
 
 
 def _clip_parts(video: str | Path, info: Any, frames: Iterator[Any], options: TrackOptions) -> tuple[Iterable[Any], Any]:

@@ -93,7 +93,9 @@ def test_facegeo_track_writes_a_take_the_live_link_reader_reads(tmp_path):
     take = read_live_link_csv(out / "take.csv", fps=10.0)
     assert take.n_frames == len(ROLLS) and np.allclose(take.times, np.arange(len(ROLLS)) / 10.0, atol=1e-6)
     assert set(take.rotations) == {"head"}
-    record = json.loads((out / "track.json").read_text())
+    text = (out / "track.json").read_text()
+    record = json.loads(text)
+    assert json.dumps(record, indent=1) == text  # written a frame at a time, as json.dumps writes the whole
     assert [f["found"] for f in record["frames"]] == [k != NO_FACE for k in range(len(ROLLS))]
     assert record["frames_with_face"] == len(ROLLS) - 1 and record["fps"] == pytest.approx(10.0)
     assert record["blinks"]["shut_fraction"] > 0 and 0.5 < record["blinks"]["open_gap_over_model"]["left"] < 2.0
@@ -252,7 +254,9 @@ two = track_into_folder(clip, out + "/two", options)
 forked.can_fork = lambda: False
 one = track_into_folder(clip, out + "/one", options)
 assert "torch" not in sys.modules
-print(json.dumps({"forks": forks, "two": two["frames"], "one": one["frames"]}))
+frames = {name: json.load(open(out + "/" + name + "/track.json"))["frames"] for name in ("two", "one")}
+assert "frames" not in two and "frames" not in one  # the record returned: the file has them
+print(json.dumps({"forks": forks, **frames}))
 """
 
 
