@@ -85,15 +85,16 @@ def _source_file(module: str) -> Path:
 
 @functools.cache
 def code_version() -> str:
-    """32 hex digits: a digest of the source bytes of :data:`CODE_MODULES` and of the NumPy,
-    SciPy and OpenCV versions (computed once per process)."""
+    """32 hex digits: a digest of the source bytes of :data:`CODE_MODULES`, of the NumPy and
+    OpenCV versions and of SciPy's ``scipy/version.py`` (its version and git revision; read, not
+    imported: importing scipy is 20 ms of a command that may not need it), computed once per process."""
     import cv2
-    import scipy
 
     h = hashlib.blake2b(digest_size=16)
     for module in CODE_MODULES:
         h.update(module.encode() + b"\0" + _source_file(module).read_bytes() + b"\0")
-    h.update(f"numpy {np.__version__} scipy {scipy.__version__} opencv {cv2.__version__}".encode())
+    h.update(f"numpy {np.__version__} opencv {cv2.__version__}\0".encode())
+    h.update(_source_file("scipy.version").read_bytes())
     return h.hexdigest()
 
 

@@ -52,13 +52,13 @@ from __future__ import annotations
 
 import contextlib
 import errno
+import functools
 import hashlib
 import json
 import os
 import re
 import secrets
 import shutil
-import socket
 import stat
 from collections.abc import Iterator
 from pathlib import Path
@@ -66,7 +66,7 @@ from types import TracebackType
 from typing import Callable, Iterable
 
 from facegeo.errors import InputError, OutputError
-from facegeo.output_lock import LOCK_PREFIX, OutputLock, make_parents, remove_created_parents, remove_stale_lock_file
+from facegeo.output_lock import LOCK_PREFIX, OutputLock, host_name, make_parents, remove_created_parents, remove_stale_lock_file
 
 __all__ = ["StagedOutput", "locked_output", "atomic_write_bytes", "atomic_write_text", "check_output_location",
            "remove_stale_temporaries", "remove_other_temporaries", "TEMP_PREFIX", "MANIFEST", "OUTPUT_MARKERS",
@@ -83,9 +83,6 @@ OUTPUT_MARKERS = ("fit.json", "unwrap.json", "asset.json", MANIFEST)
 #: Inside a staging folder: the journal of a commit into an existing folder (plan.json, old/).
 _JOURNAL = TEMP_PREFIX + "commit"
 _OWNER = re.compile(re.escape(TEMP_PREFIX) + r"(\d+)-(?:h([0-9a-f]{8})-)?")
-#: This host in temporary names: processes of other hosts writing to a shared file system
-#: cannot be checked by process id, so their temporaries are never taken for stale ones.
-_HOST = hashlib.sha1(socket.gethostname().encode("utf-8", "replace")).hexdigest()[:8]
 #: errno values of writes that fail for want of room or of a working file system.
 WRITE_FAULTS = {errno.ENOSPC: "no space left on the device", errno.EFBIG: "file too large for the file system or the process's file size limit",
                 errno.EDQUOT: "disk quota exceeded", errno.EROFS: "read-only file system", errno.EIO: "input/output error"}
@@ -363,7 +360,7 @@ def _remove_temporaries(folder: str | os.PathLike[str], doomed: Callable[[str], 
 
 def _stale(name: str) -> bool:
     match = _OWNER.match(name)
-    return match is not None and match.group(2) in (None, _HOST) and not _process_alive(int(match.group(1)))
+    return match is not None and match.group(2) in (None, _host()) and not _process_alive(int(match.group(1)))
 
 
 def remove_stale_temporaries(folder: str | os.PathLike[str]) -> list[Path]:
@@ -587,6 +584,14 @@ def _recover(staging: Path) -> bool:
 # -- helpers ---------------------------------------------------------------------------------
 
 
+@functools.cache
+def _host() -> str:
+    """8 hex digits naming this host in temporary names: processes of other hosts writing to a
+    shared file system cannot be checked by process id, so their temporaries are never taken for
+    stale ones."""
+    return hashlib.sha1(host_name().encode("utf-8", "replace")).hexdigest()[:8]
+
+
 def _as_output_error(exc: BaseException | None, out: Path, staging: Path | None = None) -> OutputError | None:
     """The :class:`OutputError` for a write fault (ENOSPC, EFBIG, ... or an OutputError raised
     deeper), naming the final output path rather than the staging one; None for anything else."""
@@ -619,7 +624,7 @@ def _process_alive(pid: int) -> bool:
 def _temp_name() -> str:
     """``.facegeo-tmp-<pid>-h<host>-<random>``: the process id and host let a later run tell a
     stale one."""
-    return f"{TEMP_PREFIX}{os.getpid()}-h{_HOST}-{secrets.token_hex(4)}"
+    return f"{TEMP_PREFIX}{os.getpid()}-h{_host()}-{secrets.token_hex(4)}"
 
 
 def _make_hidden_dir(parent: Path) -> Path:

@@ -104,7 +104,7 @@ def test_building_the_parser_imports_nothing_heavy():
 
 #: Modules whose import costs a user's wait (torch alone about two seconds on 2 cores) and which
 #: ``facegeo fit`` does not use: the fit is NumPy, OpenCV, MediaPipe's LiteRT and dlib.
-HEAVY_FOR_A_FIT = ("torch", "open3d", "pxr", "diffusers", "transformers", "dask", "sympy", "matplotlib", "scipy.spatial",
+HEAVY_FOR_A_FIT = ("torch", "open3d", "pxr", "diffusers", "transformers", "dask", "sympy", "matplotlib", "scipy", "scipy.spatial",
                    "trimesh", "pymeshlab", "pygltflib")
 
 
@@ -129,8 +129,8 @@ def test_a_fit_imports_nothing_heavy(tmp_path):
 
 #: What ``facegeo reconstruct`` does not use: the texture stages, the parts and the preview are
 #: NumPy and OpenCV (the preview's GGX shader too: facegeo.texturing.ggx); the export needs pxr
-#: and pygltflib, the layout priors scipy.spatial.
-HEAVY_FOR_A_RECONSTRUCTION = tuple(m for m in HEAVY_FOR_A_FIT if m not in ("pxr", "pygltflib", "scipy.spatial"))
+#: and pygltflib, the layout priors scipy.spatial (a fit alone needs no scipy at all).
+HEAVY_FOR_A_RECONSTRUCTION = tuple(m for m in HEAVY_FOR_A_FIT if m not in ("pxr", "pygltflib", "scipy", "scipy.spatial"))
 
 
 def test_a_reconstruction_imports_no_torch(tmp_path):

@@ -167,8 +167,10 @@ def test_the_code_version_is_in_the_key_and_a_new_version_replaces_the_old_entri
     forget(monkeypatch)
     rasterize_uv(model, size=SIZE)  # a miss under the new version: stored, the old version's folder removed
     assert [p.name for p in cache.iterdir()] == [after]
-    monkeypatch.setattr(layout_cache, "_source_file", real_source)
-    monkeypatch.setattr("scipy.__version__", "0.0.1")
+    # another SciPy: its version.py (read, not imported) differs
+    other_scipy = tmp_path / "version.py"
+    other_scipy.write_bytes(real_source("scipy.version").read_bytes().replace(b"version = ", b"version = '0.0.1' or "))
+    monkeypatch.setattr(layout_cache, "_source_file", lambda m: other_scipy if m == "scipy.version" else real_source(m))
     code_version.cache_clear()
     assert code_version() not in (before, after)
 

@@ -243,28 +243,35 @@ def test_stale_temporaries_of_this_host_only(tmp_path):
     import subprocess
     import sys
 
-    from facegeo.staged_output import _HOST, remove_stale_temporaries
+    from facegeo.staged_output import _host, remove_stale_temporaries
 
+    import hashlib
+    import socket
+
+    host = _host()
+    assert host == hashlib.sha1(socket.gethostname().encode()).hexdigest()[:8]  # the name socket gives, without it
     dead = subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"], capture_output=True, text=True)
     pid = int(dead.stdout)
-    mine = tmp_path / f"{TEMP_PREFIX}{pid}-h{_HOST}-0000abcd"
-    other = tmp_path / f"{TEMP_PREFIX}{pid}-h{'0' * 8 if _HOST != '0' * 8 else '1' * 8}-0000abcd"
+    mine = tmp_path / f"{TEMP_PREFIX}{pid}-h{host}-0000abcd"
+    other = tmp_path / f"{TEMP_PREFIX}{pid}-h{'0' * 8 if host != '0' * 8 else '1' * 8}-0000abcd"
     old_style = tmp_path / f"{TEMP_PREFIX}{pid}-0000abcd"
     for d in (mine, other, old_style):
         d.mkdir()
     assert sorted(remove_stale_temporaries(tmp_path)) == sorted([mine, old_style])
     assert other.is_dir()
     with StagedOutput(tmp_path / "out") as stage:
-        assert stage.staging_dir.name.startswith(f"{TEMP_PREFIX}{os.getpid()}-h{_HOST}-")
+        assert stage.staging_dir.name.startswith(f"{TEMP_PREFIX}{os.getpid()}-h{host}-")
 
 
 def test_other_temporaries_are_removed_and_this_processs_kept(tmp_path):
     """What a batch removes once none of its jobs runs: every temporary but its own process's,
     of any host or process, live or not; files that are not temporaries stay."""
-    from facegeo.staged_output import _HOST, remove_other_temporaries
+    from facegeo.staged_output import _host, remove_other_temporaries
 
-    own = tmp_path / f"{TEMP_PREFIX}{os.getpid()}-h{_HOST}-0000abcd"
-    others = [tmp_path / f"{TEMP_PREFIX}1-h{_HOST}-0000abcd", tmp_path / f"{TEMP_PREFIX}1-h{'0' * 8}-0000abcd",
+    host = _host()
+
+    own = tmp_path / f"{TEMP_PREFIX}{os.getpid()}-h{host}-0000abcd"
+    others = [tmp_path / f"{TEMP_PREFIX}1-h{host}-0000abcd", tmp_path / f"{TEMP_PREFIX}1-h{'0' * 8}-0000abcd",
               tmp_path / f"{TEMP_PREFIX}x-file"]
     keep = tmp_path / "photo-1"
     for d in (own, others[0], others[1], keep):
