@@ -25,12 +25,14 @@ weighted mean where one photo alone saw the texel.
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Sequence
 from typing import Any
 
 import cv2
 import numpy as np
 
+from facegeo.concurrency import run_concurrently, usable_threads
 from facegeo.texturing.image_filters import push_pull
 
 __all__ = ["fuse_albedos", "view_weight", "MIN_COMMON_TEXELS", "MAX_EXPOSURE", "MAX_WHITE_BALANCE", "SHARPNESS", "LEVELS"]
@@ -120,7 +122,8 @@ def fuse_albedos(albedos: Sequence[np.ndarray], weights: Sequence[np.ndarray], s
     # (the reference's own fill stays where no photo saw the skin)
     weights = [np.zeros_like(w) if k in implausible else w for k, w in enumerate(weights)]
     nobody = ~np.any([w > 0 for w in weights], axis=0)
-    logs = [_continued(lg, ((weights[k] > 0) | (nobody if k == reference else False)) & coverage) for k, lg in enumerate(logs)]
+    logs = run_concurrently([functools.partial(_continued, lg, ((weights[k] > 0) | (nobody if k == reference else False)) & coverage)
+                             for k, lg in enumerate(logs)], usable_threads())
 
     sharp = [np.where(coverage, w.astype(np.float64), 0.0) ** SHARPNESS for w in weights]
     scale = max(float(max(s.max() for s in sharp)), 1e-30)

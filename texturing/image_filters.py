@@ -46,10 +46,15 @@ def masked_blur(image: np.ndarray, weight: np.ndarray, sigma: float) -> np.ndarr
     """Gaussian blur (σ texels) of ``image`` (S, S[, C]) that only averages texels with ``weight``
     (S, S) > 0: blur(w·x) / blur(w), float32. Texels with no weighted neighbour within ~3σ get 0."""
     w = weight.astype(np.float32)
-    num = gaussian_blur(image * (w[..., None] if image.ndim == 3 else w), sigma)
-    den = gaussian_blur(w, sigma)
-    den = np.maximum(den, 1e-6)
-    return num / (den[..., None] if image.ndim == 3 else den)
+    return _blurred_over(image * (w[..., None] if image.ndim == 3 else w), w, sigma)[0]
+
+
+def _blurred_over(weighted: np.ndarray, w: np.ndarray, sigma: float) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`masked_blur` of the image whose product with its float32 weight ``w`` is
+    ``weighted``, and blur(w) (S, S), the weight's own blur (what :func:`push_pull` calls support)."""
+    coverage = gaussian_blur(w, sigma)
+    den = np.maximum(coverage, 1e-6)
+    return gaussian_blur(weighted, sigma) / (den[..., None] if weighted.ndim == 3 else den), coverage
 
 
 def area_mean(image: np.ndarray, weight: np.ndarray, grid: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]:
@@ -68,9 +73,11 @@ def push_pull(values: np.ndarray, weight: np.ndarray, size: int, finest: float, 
     sigmas = [size / 2.0]
     while sigmas[-1] / 4 >= max(finest, 0.5):
         sigmas.append(sigmas[-1] / 4)
+    w = weight.astype(np.float32)
+    weighted = values * w[..., None]  # the same at every level, as the weight's blur is for the blend and the support
     for sigma in sigmas:
-        blurred = masked_blur(values, weight, sigma)
-        support = np.clip(gaussian_blur(weight, sigma) * 4.0, 0.0, 1.0)[..., None]
+        blurred, coverage = _blurred_over(weighted, w, sigma)
+        support = np.clip(coverage * 4.0, 0.0, 1.0)[..., None]
         out = support * blurred + (1 - support) * out
     return out
 
