@@ -50,12 +50,14 @@ from facegeo.fitting.priors import DEFAULT_PRIORS, LandmarkStage
 from facegeo.fitting.shared_identity import LandmarkView, solve_shared_identity
 from facegeo.landmarks.detectors import get_detector
 from facegeo.landmarks import eyelids
-from facegeo.landmarks.scheme import EYES, LANDMARK_WEIGHTS, inter_ocular_distance
+from facegeo.landmarks.scheme import BROWS, EYES, LANDMARK_WEIGHTS, inter_ocular_distance
 from facegeo.morphable_model import MorphableModel
+from facegeo.normals import vertex_normals
 from facegeo.observed_frames import ObservedFrame, ObservedFrames
 
 __all__ = ["TrackedFrame", "Track", "ClipIdentity", "track_frames", "observe_frames", "clip_identity",
            "follow_region", "spanning_frames", "lid_weights", "track_observed", "solve_frame", "smooth_track", "SolveStart",
+           "turned_brow_weights", "TURNED_BROW_RAMP",
            "TRACK_STAGE", "KEYFRAMES", "FOLLOW_MARGIN", "POSE_WINDOW", "WEIGHT_WINDOW", "SLOW_WEIGHT_WINDOW",
            "IDENTITY_CHECK_EVERY"]
 
@@ -564,7 +566,8 @@ def solve_frame(model: MorphableModel, seen: PhotoObservation, camera: Camera, a
     (:func:`facegeo.landmarks.eyelids.blinks`), held in the solve; the lid points
     (:data:`~facegeo.landmarks.eyelids.LID_POINTS`) then weigh nothing (they would pull the eyes
     open or shut again through the other lid shapes) and the eye corners their single-photo
-    weight. None (or NaN): the lids are fitted, the eyes' 12 points weighed ×:data:`EYE_WEIGHT`."""
+    weight. None (or NaN): the lids are fitted, the eyes' 12 points weighed ×:data:`EYE_WEIGHT`.
+    The brows weigh less as the head turns them away (:func:`turned_brow_weights`)."""
     if start is None:
         rotation, translation = initial_pose(model, seen.landmarks, camera)
         start = SolveStart(rotation, translation, np.asarray(alpha, np.float64), np.zeros(model.n_exp))
@@ -577,8 +580,71 @@ def solve_frame(model: MorphableModel, seen: PhotoObservation, camera: Camera, a
         weights[np.ravel(eyelids.LID_POINTS)] = 0.0
     else:
         weights[EYES] *= EYE_WEIGHT
+    weights[BROWS] *= turned_brow_weights(model, start)
     priors = dataclasses.replace(DEFAULT_PRIORS, noise=noise, noise_rounds=0, held_expressions=gaze, measured_expressions=measured)
     return solve_landmarks(model, seen.landmarks, camera, weights, (stage,), priors, start, seen.surface_points)
+
+
+#: The brows' weights in the per-frame solve fall from 1 to 0 as a brow point's facing ratio
+#: (:func:`turned_brow_weights`) goes from the second to the first of these, squared.
+TURNED_BROW_RAMP = (0.4, 0.9)
+
+
+def turned_brow_weights(model: MorphableModel, start: SolveStart) -> np.ndarray:
+    """(10,) factors for the 88 points' brows (:data:`~facegeo.landmarks.scheme.BROWS`, dlib's)
+    in a frame whose head is posed as ``start``: a 2-D detector puts a brow that turns away from
+    the camera on the head's outline, not on the brow (on the ground-truth take, dlib's far brow
+    read as browDown 0.75 while the head held 36° of yaw, the truth 0). A point's facing ratio
+    is the cosine between its surface normal and the ray from the camera in that pose over the
+    normal's cosine to a frontal camera's axis; its factor ((ratio − 0.4) / 0.5, clipped to
+    [0, 1])² (:data:`TURNED_BROW_RAMP`), and a point and its mirror partner take the smaller of
+    theirs, so that a clip and its mirror image weigh their brows alike (the far brow's alone:
+    the head's yaw then agreed less with the mirrored clip's). Measured in
+    benchmarks/RESULTS.md ("the brows that drop when the head turns")."""
+    ring = _brow_ring(model)
+    vertices = (ring.mean + (np.asarray(start.alpha, np.float64) @ ring.id_flat).reshape(-1, 3)
+                + (np.asarray(start.delta, np.float64) @ ring.exp_flat).reshape(-1, 3))
+    normals = vertex_normals(vertices, ring.triangles)[ring.rows]
+    rotation = np.asarray(start.rotation, np.float64)
+    points = vertices[ring.rows] @ rotation.T + np.asarray(start.translation, np.float64)
+    facing = -np.einsum("kc,kc->k", normals @ rotation.T, points / np.linalg.norm(points, axis=1, keepdims=True))
+    ratio = facing / np.maximum(normals[:, 2], 0.1)
+    low, high = TURNED_BROW_RAMP
+    factor = np.clip((ratio - low) / (high - low), 0.0, 1.0) ** 2
+    return np.minimum(factor, factor[::-1])  # BROWS runs from one brow's outer end to the other's
+
+
+@dataclass(frozen=True)
+class _BrowRing:
+    """The model's triangles around the brows' landmark vertices: the ``triangles`` (T, 3)
+    indexing into the U vertices they use, the brow vertices' ``rows`` (10,) among them (each
+    brow vertex's normal over its whole ring is its normal on the whole mesh), and the model at
+    those vertices, float64: ``mean`` (U, 3), ``id_flat`` (n_id, 3U), ``exp_flat`` (n_exp, 3U)
+    (gathered once: a frame's shape there is then two small products)."""
+
+    triangles: np.ndarray
+    rows: np.ndarray
+    mean: np.ndarray
+    id_flat: np.ndarray
+    exp_flat: np.ndarray
+
+
+_BROW_RINGS: dict[int, tuple[MorphableModel, _BrowRing]] = {}
+
+
+def _brow_ring(model: MorphableModel) -> _BrowRing:
+    """The :class:`_BrowRing` of ``model``, made once per model object in a process."""
+    kept = _BROW_RINGS.get(id(model))
+    if kept is None or kept[0] is not model:
+        brows = np.asarray(model.landmark_indices)[BROWS]
+        triangles = np.asarray(model.triangles, np.int64)
+        around = triangles[np.isin(triangles, brows).any(axis=1)]
+        vertices, local = np.unique(around, return_inverse=True)
+        kept = (model, _BrowRing(local.reshape(-1, 3), np.searchsorted(vertices, brows), model.mean_shape[vertices].astype(np.float64),
+                                 model.id_basis[:, vertices].astype(np.float64).reshape(model.n_id, -1),
+                                 model.exp_basis[:, vertices].astype(np.float64).reshape(model.n_exp, -1)))
+        _BROW_RINGS[id(model)] = kept
+    return kept[1]
 
 
 @dataclass(frozen=True)

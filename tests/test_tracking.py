@@ -326,3 +326,31 @@ def test_the_same_person_limit_follows_what_the_clip_shows_of_the_person(model):
     assert SAME_PERSON_FLOOR < observer.same_person_limit() <= SAME_PERSON_DISTANCE
     observer.same_person = [0.2, 0.55, 0.58, 0.3, 0.59]
     assert observer.same_person_limit() == SAME_PERSON_DISTANCE  # never above dlib's
+
+
+def test_brows_weigh_less_as_the_head_turns_them_away_and_alike_on_both_sides(model):
+    """turned_brow_weights: 1 on a frontal face's inner brow, falling as the head turns (never
+    rising), a point and its mirror partner alike, the same at +yaw and -yaw (ICT is nearly
+    symmetric), and the brow ring's normals those of the whole mesh."""
+    from facegeo.camera import rotation_from_euler
+    from facegeo.landmarks.scheme import BROWS
+    from facegeo.normals import vertex_normals
+    from facegeo.tracking import SolveStart, _brow_ring, turned_brow_weights
+
+    def at(yaw: float) -> np.ndarray:
+        return turned_brow_weights(model, SolveStart(rotation_from_euler(yaw, 0.0, 0.0), np.array([0.0, 0.0, -1000.0]),
+                                                     np.zeros(model.n_id), np.zeros(model.n_exp)))
+
+    frontal = at(0.0)
+    assert frontal.shape == (10,) and np.all(frontal[2:8] == 1.0) and np.all(frontal > 0.3)
+    previous = frontal
+    for yaw in (10.0, 20.0, 36.0, 60.0):
+        now = at(yaw)
+        np.testing.assert_array_equal(now, now[::-1])
+        np.testing.assert_allclose(now, at(-yaw), atol=0.05)
+        assert np.all(now <= previous + 1e-12) and now.sum() < previous.sum()
+        previous = now
+    assert at(60.0).max() == 0.0  # both brows left to the dense points
+    ring = _brow_ring(model)
+    everywhere = vertex_normals(model.shape_numpy().astype(np.float64), model.triangles)[np.asarray(model.landmark_indices)[BROWS]]
+    np.testing.assert_allclose(vertex_normals(ring.mean, ring.triangles)[ring.rows], everywhere, atol=1e-9)
