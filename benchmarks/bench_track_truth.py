@@ -27,8 +27,10 @@ folder named by a hash of that step's inputs, so a second run redoes only what c
    by the glb's bytes and the render settings, not the Blender script's source: delete the
    ``render-*`` folder after editing it; an interrupted render resumes). The frames are also
    written as ``take.mp4`` (OpenCV, ``mp4v``, 30 fps);
-5. **track**: ``facegeo track take.mp4 -o OUT`` (as a user runs it: the asset too), timed, and
-   ``facegeo track FRAMES_DIR -o OUT --no-asset`` on the lossless PNG frames (keyed by the input
+5. **track**: ``facegeo track take.mp4 -o OUT`` (as a user runs it: the asset too), timed,
+   ``facegeo track FRAMES_DIR -o OUT --no-asset`` on the lossless PNG frames, and the same with
+   ``--neutral`` at :data:`NEUTRAL_S` (the take's face is at rest there, as a Live Link Face user
+   calibrates on their neutral face before a take) (keyed by the input
    and a hash of facegeo's sources in ``facegeo/`` and ``export/``, so a change to the tracker
    tracks again; ``--retrack`` always does);
 6. **MediaPipe**: the Face Landmarker bundle ``face_landmarker.task`` (float16 v1), taken from the
@@ -91,6 +93,9 @@ EXTRACTOR = REPO_ROOT / "assets" / "mediapipe" / "extract_mediapipe_models.py"
 FPS = 30.0
 N_FRAMES = 710
 WIDTH, HEIGHT = 640, 480
+#: Seconds into the take at which the face is at rest (its first second is: every weight 0, the
+#: head still), for the run calibrated on the neutral face (``facegeo track --neutral``).
+NEUTRAL_S = 0.5
 #: The render's focal length (px): a 49° horizontal field of view, a webcam's.
 FOCAL_PX = 700.0
 #: The camera's distance in front of the nose tip (mm): the face about 200 px wide.
@@ -346,16 +351,17 @@ def write_mp4(frames: Path) -> Path:
     return target
 
 
-def track(source: Path, cache: Path, label: str, asset: bool, retrack: bool) -> dict:
-    """Step 5: ``facegeo track`` on ``source``; returns track.json's record and the wall time."""
+def track(source: Path, cache: Path, label: str, asset: bool, retrack: bool, extra: tuple[str, ...] = ()) -> dict:
+    """Step 5: ``facegeo track`` on ``source`` (with the options ``extra``); returns track.json's
+    record and the wall time."""
     digest = _file_digest(source) if source.is_file() else _digest(*[p.read_bytes() for p in sorted(source.glob("*.png"))])
-    folder = cache / f"track-{label}-{_digest(digest, asset, facegeo_source_digest())}"
+    folder = cache / f"track-{label}-{_digest(digest, asset, facegeo_source_digest(), *extra)}"
     out = folder / "out"
     if retrack or not (folder / "timing.json").exists():
         shutil.rmtree(folder, ignore_errors=True)
         folder.mkdir(parents=True)
         load = os.getloadavg()[0]
-        seconds = _run([_facegeo(), "track", str(source), "-o", str(out)] + ([] if asset else ["--no-asset"]), folder / "track.log")
+        seconds = _run([_facegeo(), "track", str(source), "-o", str(out), *extra] + ([] if asset else ["--no-asset"]), folder / "track.log")
         (folder / "timing.json").write_text(json.dumps({"wall_s": seconds, "load_before": load, "load_after": os.getloadavg()[0]}))
     record = json.loads((out / "track.json").read_text())
     return {"folder": str(out), "record": record, "timing": json.loads((folder / "timing.json").read_text()), "asset": asset,
@@ -673,7 +679,7 @@ def contact_strip(frames: Path, take: Any, estimates: list[Estimate], target: Pa
     from facegeo.export.animation import head_angles
 
     picks = [20, 60, 75, 94, 118, 142, 166, 192, 218, 242, 266, 290, 314, 400, 470]
-    colours = ["tab:red", "tab:blue", "tab:green"]
+    colours = ["tab:red", "tab:blue", "tab:purple", "tab:green"]
     fig = plt.figure(figsize=(28, 14), dpi=80)
     grid = fig.add_gridspec(2 + len(MAIN_CURVES) // 2 + 1, len(picks), height_ratios=[1.6, 1.4] + [1.0] * (len(MAIN_CURVES) // 2 + 1))
     cols = [ARKIT_NAMES.index(c) for c in MAIN_CURVES]
@@ -734,7 +740,8 @@ def main() -> None:
     probe_check = check_probe(probe, take)
     mp4 = write_mp4(frames)
     runs = {"facegeo (mp4)": track(mp4, args.cache, "mp4", True, args.retrack),
-            "facegeo (PNG)": track(frames, args.cache, "png", False, args.retrack)}
+            "facegeo (PNG)": track(frames, args.cache, "png", False, args.retrack),
+            f"facegeo (PNG, --neutral {NEUTRAL_S:g})": track(frames, args.cache, "png", False, args.retrack, ("--neutral", f"{NEUTRAL_S:g}"))}
     estimates = [facegeo_estimate(label, Path(run["folder"]), run["record"]) for label, run in runs.items()]
     mediapipe = None
     if args.mediapipe_python:

@@ -531,6 +531,9 @@ class TrackOptions:
             (:func:`track_into_folder`).
         smooth: take the frame-to-frame jitter out of the pose and the weights
             (:func:`facegeo.tracking.smooth_track`).
+        neutral_s: seconds into the video at which the face is at rest: every weight is then
+            measured from the face there (:func:`facegeo.tracking.calibrated_to_neutral`, as Live
+            Link Face's calibration); None: as fitted.
     """
 
     model: Path | None = None
@@ -542,6 +545,7 @@ class TrackOptions:
     keyframes: int = 5
     asset: bool = True
     smooth: bool = True
+    neutral_s: float | None = None
 
     def __post_init__(self) -> None:
         from facegeo.landmarks import DETECTORS
@@ -550,6 +554,11 @@ class TrackOptions:
             raise InputError(_SOURCE, "landmarks", f"one of {', '.join(DETECTORS)}", repr(self.landmarks))
         if not (isinstance(self.keyframes, int) and self.keyframes >= 1):
             raise InputError(_SOURCE, "keyframes", "an integer >= 1", repr(self.keyframes))
+        if self.neutral_s is not None and not (math.isfinite(self.neutral_s) and self.neutral_s >= 0):
+            raise InputError(_SOURCE, "neutral", "a time in seconds >= 0", repr(self.neutral_s))
+        if self.neutral_s is not None and not ((self.start_s is None or self.neutral_s >= self.start_s)
+                                               and (self.end_s is None or self.neutral_s < self.end_s)):
+            raise InputError(_SOURCE, "neutral", "a time within the tracked range (--start to --end)", f"{self.neutral_s:g} s")
 
 
 def track_into_folder(video: str | Path, output: str | Path, options: TrackOptions | None = None,
@@ -562,8 +571,9 @@ def track_into_folder(video: str | Path, output: str | Path, options: TrackOptio
       a frame without a face repeats the nearest tracked frame's values (``track.json`` flags it);
     * ``track.json``: the source, frame rate, camera, identity α, per frame whether a face was
       found, its landmark RMS (px, % of the inter-ocular distance; of the frame's own fit), pose,
-      ICT weights (smoothed with ``options.smooth``, as in the take) and whether it was a
-      keyframe; the smoothing, keyframes, timings and notes;
+      ICT weights (smoothed with ``options.smooth`` and measured from the neutral face with
+      ``options.neutral_s``, as in the take) and whether it was a keyframe; the smoothing, the
+      neutral calibration (None without one), keyframes, timings and notes;
     * with ``options.asset``: the person's textured asset (``asset/``), ``face.glb`` and
       ``face.usdz`` animated by the take, and ``preview.png`` (:func:`_animated_asset`).
 
@@ -581,7 +591,8 @@ def track_into_folder(video: str | Path, output: str | Path, options: TrackOptio
     from facegeo.export.live_link import live_link_csv_lines
     from facegeo.staged_output import StagedOutput, locked_output
     from facegeo.landmarks.eyelids import SHUT_FRACTION
-    from facegeo.tracking import POSE_WINDOW, SLOW_WEIGHT_WINDOW, WEIGHT_WINDOW, lid_weights, smooth_track, track_frames
+    from facegeo.tracking import (POSE_WINDOW, SLOW_WEIGHT_WINDOW, WEIGHT_WINDOW, calibrated_to_neutral, lid_weights, smooth_track,
+                                  track_frames)
     from facegeo.video import open_video
 
     options = TrackOptions() if options is None else options
@@ -594,6 +605,13 @@ def track_into_folder(video: str | Path, output: str | Path, options: TrackOptio
         track = track_frames(frames, model, options.landmarks, options.focal, options.keyframes, report, str(video), rest)
         if options.smooth:
             track.frames = smooth_track(track.frames, *model.expression_range, fast=lid_weights(model.expression_names))
+        calibration = None
+        if options.neutral_s is not None:
+            track.frames, neutral, neutral_frames = calibrated_to_neutral(track.frames, options.neutral_s, *model.expression_range,
+                                                                          str(video))
+            calibration = {"time_s": options.neutral_s, "frames": neutral_frames,
+                           "rule": "(w - n) / (1 - n), clipped to [0, 1]; n: the median weights of these frames",
+                           "neutral": dict(zip(model.expression_names, neutral.round(4).tolist()))}
         found = np.flatnonzero([f.found for f in track.frames])
         # each frame's nearest frame with a face (itself where it has one; the earlier on a tie)
         after = np.minimum(np.searchsorted(found, np.arange(len(track.frames))), len(found) - 1)
@@ -628,6 +646,7 @@ def track_into_folder(video: str | Path, output: str | Path, options: TrackOptio
                                                       for eye, v in zip(("right", "left"), track.open_lids)},
                               "shut_fraction": SHUT_FRACTION}
                              if track.open_lids is not None else {"read_from": "the fit (no lid reading)"}),
+                  "neutral_calibration": calibration,
                   "notes": track.notes + [f"{n}: no shape in the model, written as 0" for n in naming.missing],
                   "frames": _FRAMES_HERE}
         with StagedOutput(output, replace=True) as stage:

@@ -57,7 +57,7 @@ from facegeo.observed_frames import ObservedFrame, ObservedFrames
 
 __all__ = ["TrackedFrame", "Track", "ClipIdentity", "track_frames", "observe_frames", "clip_identity",
            "follow_region", "spanning_frames", "lid_weights", "track_observed", "solve_frame", "smooth_track", "SolveStart",
-           "turned_brow_weights", "TURNED_BROW_RAMP",
+           "turned_brow_weights", "TURNED_BROW_RAMP", "calibrated_to_neutral", "NEUTRAL_WINDOW_S", "NEUTRAL_CAP",
            "TRACK_STAGE", "KEYFRAMES", "FOLLOW_MARGIN", "POSE_WINDOW", "WEIGHT_WINDOW", "SLOW_WEIGHT_WINDOW",
            "IDENTITY_CHECK_EVERY"]
 
@@ -695,6 +695,45 @@ def spanning_frames(yaws: np.ndarray, points: np.ndarray, count: int) -> list[in
         else:
             chosen.append(int(np.flatnonzero(free)[np.argmin(distance[free])]))
     return sorted(chosen)
+
+
+#: The frames with a face within this many seconds of the neutral time are the person's neutral
+#: (:func:`calibrated_to_neutral`: their median weights).
+NEUTRAL_WINDOW_S = 0.25
+#: A weight the neutral face holds above this is measured from it as from this (a shape held that
+#: high at rest is the fit's, not the face's, and would stretch the rest of its range without bound).
+NEUTRAL_CAP = 0.9
+
+
+def calibrated_to_neutral(frames: list[TrackedFrame], time_s: float, lower: np.ndarray, upper: np.ndarray,
+                          source: str = "<video>") -> tuple[list[TrackedFrame], np.ndarray, list[int]]:
+    """The frames' weights measured from the person's neutral face, as Live Link Face's
+    calibration does: the neutral n (n_exp,) is the median weights of the frames with a face
+    within :data:`NEUTRAL_WINDOW_S` of ``time_s`` (seconds, the frames' own clock), and each
+    weight w of a bounded expression ([``lower``, ``upper``] (n_exp,), ICT-FaceKit's [0, 1]) becomes
+    (w − n) / (upper − n), clipped to [lower, upper] (n capped at :data:`NEUTRAL_CAP` of the range);
+    an unbounded one (a PCA model's) w − n. A face that reads as a slight smile or frown at rest,
+    its identity and expression not told apart by the landmarks, then reads 0 there (the
+    ground-truth take's neutral start read mouthSmile 0.14-0.15: benchmarks/RESULTS.md).
+    Returns ``(frames, n, the neutral frames' indices)``. Raises :class:`InputError` (naming
+    ``source``'s neutral time) where no frame near ``time_s`` has a face."""
+    near = [f for f in frames if f.found and abs(f.time_s - time_s) <= NEUTRAL_WINDOW_S]
+    if not near:
+        raise InputError(source, "--neutral", f"a time at which the face is found (within {NEUTRAL_WINDOW_S:g} s)",
+                         f"{time_s:g} s: no tracked face there")
+    neutral = np.median(np.stack([np.asarray(f.delta, np.float64) for f in near]), axis=0)
+    lower, upper = np.asarray(lower, np.float64), np.asarray(upper, np.float64)
+    bounded = np.isfinite(lower) & np.isfinite(upper)
+    span = np.where(bounded, upper - lower, 1.0)
+    rest = np.where(bounded, np.minimum(neutral, lower + NEUTRAL_CAP * span), neutral)
+    out = []
+    for f in frames:
+        if f.found:
+            w = np.asarray(f.delta, np.float64) - rest
+            w = np.where(bounded, np.clip(lower + w * span / np.maximum(upper - rest, 1e-9), lower, upper), w)
+            f = dataclasses.replace(f, delta=w.astype(np.float32))
+        out.append(f)
+    return out, neutral, [f.index for f in near]
 
 
 def lid_weights(names: list[str] | tuple[str, ...]) -> np.ndarray:

@@ -354,3 +354,34 @@ def test_brows_weigh_less_as_the_head_turns_them_away_and_alike_on_both_sides(mo
     ring = _brow_ring(model)
     everywhere = vertex_normals(model.shape_numpy().astype(np.float64), model.triangles)[np.asarray(model.landmark_indices)[BROWS]]
     np.testing.assert_allclose(vertex_normals(ring.mean, ring.triangles)[ring.rows], everywhere, atol=1e-9)
+
+
+def test_weights_measured_from_the_neutral_face():
+    """calibrated_to_neutral: the median of the frames within the window is the neutral; bounded
+    weights map n -> 0 and 1 -> 1 linearly (clipped), an unbounded one shifts; frames without a
+    face stay as they are; no face near the time is a clear error."""
+    from facegeo.errors import InputError
+    from facegeo.tracking import NEUTRAL_WINDOW_S, TrackedFrame, calibrated_to_neutral
+
+    def frame(k: int, smile: float, pca: float, found: bool = True) -> TrackedFrame:
+        if not found:
+            return TrackedFrame(k, k / 10, False, note="no face")
+        return TrackedFrame(k, k / 10, True, np.eye(3, dtype=np.float32), np.zeros(3, np.float32),
+                            np.array([smile, 0.95, pca], np.float32), 1.0, 1.0)
+
+    frames = [frame(0, 0.2, 1.0), frame(1, 0.1, 2.0), frame(2, 0.3, 3.0), frame(3, 0.0, 0.0, found=False), frame(9, 0.6, 5.0),
+              frame(10, 1.0, -1.0)]
+    lower, upper = np.array([0.0, 0.0, -np.inf]), np.array([1.0, 1.0, np.inf])
+    out, neutral, used = calibrated_to_neutral(frames, 0.1, lower, upper)
+    assert used == [0, 1, 2] and NEUTRAL_WINDOW_S >= 0.1
+    np.testing.assert_allclose(neutral, [0.2, 0.95, 2.0], atol=1e-6)
+    np.testing.assert_allclose(out[4].delta, [(0.6 - 0.2) / 0.8, 0.5, 3.0], atol=1e-6)  # 0.95 at rest: measured from the cap 0.9
+    np.testing.assert_allclose(out[5].delta, [1.0, 0.5, -3.0], atol=1e-6)
+    np.testing.assert_allclose(out[1].delta, [0.0, 0.5, 0.0], atol=1e-6)  # below the neutral: clipped at 0
+    assert out[3] is frames[3]
+    with pytest.raises(InputError, match="--neutral.*no tracked face"):
+        calibrated_to_neutral(frames, 0.6, lower, upper)
+    with pytest.raises(InputError, match="within the tracked range"):
+        from facegeo.jobs import TrackOptions
+
+        TrackOptions(start_s=1.0, end_s=2.0, neutral_s=2.5)

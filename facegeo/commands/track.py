@@ -5,6 +5,7 @@ person's asset animated by it, through :func:`facegeo.jobs.track_into_folder` (`
 from __future__ import annotations
 
 import argparse
+import math
 import sys
 from pathlib import Path
 
@@ -33,6 +34,9 @@ def _arguments(parser: argparse.ArgumentParser) -> None:
                        help="focal length in pixels of the frames; default: one focal for the clip, estimated from the face")
     group.add_argument("--keyframes", type=int, default=5, metavar="K",
                        help="frames spanning the head's turn that the identity is fitted to (default 5)")
+    parser.add_argument("--neutral", type=float, default=None, metavar="S",
+                        help="seconds into the video at which the face is at rest: every expression is measured from it, "
+                             "as Live Link Face's calibration does (default: as fitted)")
     parser.add_argument("--no-smooth", action="store_true",
                         help="write each frame's own fit (no smoothing of the pose and the weights over neighbouring frames)")
     parser.add_argument("--no-asset", action="store_true",
@@ -44,9 +48,11 @@ def _run(args: argparse.Namespace) -> None:
 
     if args.keyframes < 1:  # (--start, --end and --every are checked by facegeo.video.open_video, naming the video)
         raise InputError(COMMAND_LINE, "--keyframes", "an integer >= 1", str(args.keyframes))
+    if args.neutral is not None and not (math.isfinite(args.neutral) and args.neutral >= 0):
+        raise InputError(COMMAND_LINE, "--neutral", "a time in seconds >= 0", str(args.neutral))
     options = TrackOptions(model=args.model, landmarks=args.landmarks, focal=args.focal, start_s=args.start, end_s=args.end,
                            every=args.every, keyframes=args.keyframes, asset=not args.no_asset,
-                           smooth=not args.no_smooth)
+                           smooth=not args.no_smooth, neutral_s=args.neutral)
     live = sys.stderr.isatty()
 
     def progress(frames: int, rate: float) -> None:
