@@ -65,7 +65,10 @@ def test_blinks_between_the_open_gap_and_the_shut_share():
     assert np.allclose(eyelids.blinks(shut, open_gaps, frontal), 1.0)
     assert np.allclose(eyelids.blinks(0.5 * shut, open_gaps, frontal), 1.0)  # clipped
     assert np.allclose(eyelids.blinks(1.2 * open_gaps, open_gaps, frontal), 0.0)
-    half = (open_gaps + shut) / 2
+    counted_open = (1.0 - eyelids.OPEN_NOISE) * open_gaps  # the reader's noise on an open eye: still open
+    assert np.allclose(eyelids.blinks(counted_open, open_gaps, frontal), 0.0)
+    assert np.allclose(eyelids.blinks(0.99 * counted_open, open_gaps, frontal), 0.0, atol=0.02)
+    half = (counted_open + shut) / 2
     assert np.allclose(eyelids.blinks(half, open_gaps, frontal), 0.5)
     wink = np.array([open_gaps[0], shut[1]])
     assert np.allclose(eyelids.blinks(wink, open_gaps, frontal), [0.0, 1.0])

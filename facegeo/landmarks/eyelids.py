@@ -21,7 +21,10 @@ The blink of an eye is read from three quantities:
 * ``SHUT_FRACTION``: the share of the open gap the reader still reads on a shut eye (the lashes'
   thickness at the crop's resolution; 0.24-0.51 on the take's shut frames).
 
-blink = clip((open − gap) / (open · (1 − SHUT_FRACTION)), 0, 1). An eye turned away from the
+* ``OPEN_NOISE``: how much narrower than ``open`` the reader reads an open eye by its noise
+  alone (as a share of the open gap), which counts as open.
+
+blink = clip(((open − gap) / open − OPEN_NOISE) / (1 − SHUT_FRACTION − OPEN_NOISE), 0, 1). An eye turned away from the
 camera (the far eye of a turned head) is read worse than a near one (on the take the far eye at
 35° of yaw read 0.4-0.6 shut while open), so it takes the near eye's reading as it turns away
 (:func:`blinks`): by the cosine between its outward direction (:data:`EYE_OUTWARD_DEG` from the
@@ -42,13 +45,19 @@ from facegeo.landmarks.iris import EYE_CORNERS, LOWER_LID, UPPER_LID, IrisDetect
 if TYPE_CHECKING:
     from facegeo.morphable_model import MorphableModel
 
-__all__ = ["lid_gaps", "model_lid_gaps", "open_ratio", "blinks", "BLINK_NAMES", "SHUT_FRACTION", "EYE_OUTWARD_DEG",
+__all__ = ["lid_gaps", "model_lid_gaps", "open_ratio", "blinks", "BLINK_NAMES", "SHUT_FRACTION", "OPEN_NOISE", "EYE_OUTWARD_DEG",
            "FACING", "LID_POINTS"]
 
 #: The model's expressions that :func:`blinks` reads, subject's right eye then left (ICT-FaceKit's).
 BLINK_NAMES = ("eyeBlink_R", "eyeBlink_L")
 #: The share of the open gap the iris model reads between the lids of a shut eye.
 SHUT_FRACTION = 0.4
+#: The share of the open gap by which the reader reads an open eye narrower through its noise
+#: alone: on the take's open eyes (--no-smooth, benchmarks/RESULTS.md "an open eye's noise") the
+#: blink read without it has its 84th percentile at 0.05 frontally and 0.08 at ±35° of yaw,
+#: i.e. a narrowing of 0.03-0.05 (blink × (1 − SHUT_FRACTION)); 0.06 leaves that noise at 0 and a
+#: shut eye at 1.
+OPEN_NOISE = 0.06
 #: Each eye's outward direction: the face's forward axis turned this many degrees to its side.
 EYE_OUTWARD_DEG = 20.0
 #: Cosines of an eye's outward direction with the direction to the camera between which its own
@@ -115,7 +124,7 @@ def blinks(gaps: np.ndarray, open_gaps: np.ndarray, rotation: np.ndarray) -> np.
     lid ``gaps`` (2,) px and the gaps they show open in this pose, ``open_gaps`` (2,) px, for a
     head posed by ``rotation`` (3, 3, model to camera; the camera looks along its −Z). An eye
     without a reading (NaN) takes the other's; NaN for both when neither has one."""
-    value = np.clip((open_gaps - gaps) / (open_gaps * (1.0 - SHUT_FRACTION)), 0.0, 1.0)
+    value = np.clip(((open_gaps - gaps) / open_gaps - OPEN_NOISE) / (1.0 - SHUT_FRACTION - OPEN_NOISE), 0.0, 1.0)
     turn = np.radians(EYE_OUTWARD_DEG)
     outward = np.array([[-np.sin(turn), 0.0, np.cos(turn)], [np.sin(turn), 0.0, np.cos(turn)]])  # right eye at −x
     facing = (outward @ np.asarray(rotation, np.float64).T)[:, 2]
