@@ -19,18 +19,18 @@ The blink of an eye is read from three quantities:
   open; it absorbs where the reader puts a lid against where the scheme does, and the person's
   eyes against the model's). The model's gap follows the head's pitch, yaw and distance;
 * ``SHUT_FRACTION``: the share of the open gap the reader still reads on a shut eye (the lashes'
-  thickness at the crop's resolution; 0.24-0.51 on the take's shut frames).
-
+  thickness at the crop's resolution; 0.24-0.51 on the take's shut frames);
 * ``OPEN_NOISE``: how much narrower than ``open`` the reader reads an open eye by its noise
   alone (as a share of the open gap), which counts as open.
 
-blink = clip(((open − gap) / open − OPEN_NOISE) / (1 − SHUT_FRACTION − OPEN_NOISE), 0, 1). An eye turned away from the
-camera (the far eye of a turned head) is read worse than a near one (on the take the far eye at
-35° of yaw read 0.4-0.6 shut while open), so it takes the near eye's reading as it turns away
-(:func:`blinks`): by the cosine between its outward direction (:data:`EYE_OUTWARD_DEG` from the
-face's forward axis) and the direction to the camera, all its own at :data:`FACING` [1] and
-above, all the near eye's at :data:`FACING` [0] and below. A wink on a head turned further than
-that is read as a blink.
+blink = clip(((open − gap) / open − OPEN_NOISE) / (1 − SHUT_FRACTION − OPEN_NOISE), 0, 1).
+
+An eye turned away from the camera (the far eye of a turned head) is read worse than a near one
+(on the take the far eye at 35° of yaw read 0.4-0.6 shut while open), so it takes the near eye's
+reading as it turns away (:func:`blinks`): by the cosine between its outward direction
+(:data:`EYE_OUTWARD_DEG` from the face's forward axis) and the direction to the camera, all its
+own at :data:`FACING` [1] and above, all the near eye's at :data:`FACING` [0] and below. A wink on
+a head turned further than that is read as a blink.
 """
 
 from __future__ import annotations
