@@ -591,8 +591,8 @@ def track_into_folder(video: str | Path, output: str | Path, options: TrackOptio
     from facegeo.export.live_link import live_link_csv_lines
     from facegeo.staged_output import StagedOutput, locked_output
     from facegeo.landmarks.eyelids import SHUT_FRACTION
-    from facegeo.tracking import (POSE_WINDOW, SLOW_WEIGHT_WINDOW, WEIGHT_WINDOW, calibrated_to_neutral, lid_weights, smooth_track,
-                                  track_frames)
+    from facegeo.tracking import (NEUTRAL_CAP, POSE_WINDOW, SLOW_WEIGHT_WINDOW, WEIGHT_WINDOW, calibrated_to_neutral, lid_weights,
+                                  smooth_track, track_frames)
     from facegeo.video import open_video
 
     options = TrackOptions() if options is None else options
@@ -610,7 +610,7 @@ def track_into_folder(video: str | Path, output: str | Path, options: TrackOptio
             track.frames, neutral, neutral_frames = calibrated_to_neutral(track.frames, options.neutral_s, *model.expression_range,
                                                                           str(video))
             calibration = {"time_s": options.neutral_s, "frames": neutral_frames,
-                           "rule": "(w - n) / (1 - n), clipped to [0, 1]; n: the median weights of these frames",
+                           "rule": f"(w - n) / (1 - n), clipped to [0, 1], n at most {NEUTRAL_CAP:g}; n: the median weights of these frames",
                            "neutral": dict(zip(model.expression_names, neutral.round(4).tolist()))}
         found = np.flatnonzero([f.found for f in track.frames])
         # each frame's nearest frame with a face (itself where it has one; the earlier on a tie)

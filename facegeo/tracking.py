@@ -44,7 +44,7 @@ from facegeo.camera import Camera, euler_from_rotation
 from facegeo.errors import InputError, NoFaceError
 from facegeo.fitting.dense_term import DEFAULT_DENSE
 from facegeo.fitting.landmark_fit import LandmarkSolution, initial_pose, solve_landmarks
-from facegeo.fitting.landmark_problem import SurfacePoints
+from facegeo.fitting.landmark_problem import SurfacePoints, subset_bases
 from facegeo.fitting.photo_fit import PhotoObservation, observe_photo
 from facegeo.fitting.priors import DEFAULT_PRIORS, LandmarkStage
 from facegeo.fitting.shared_identity import LandmarkView, solve_shared_identity
@@ -355,8 +355,7 @@ class _FrameObserver:
         self.previous_detection = None if observation is None else observation.detection
         self.region = None if observation is None else follow_region(observation.landmarks, width, height)
         gaps = None if observation is None or self.iris is None else eyelids.lid_gaps(frame.image, observation.landmarks, self.iris)
-        return ObservedFrame(frame.index, frame.time_s, None if observation is None else dataclasses.replace(observation, detection=None),
-                             None if observation is not None else why, gaps)
+        return ObservedFrame(frame.index, frame.time_s, observation, None if observation is not None else why, gaps)
 
     def store(self) -> ObservedFrames:
         """An empty :class:`~facegeo.observed_frames.ObservedFrames` for this clip's frames."""
@@ -602,8 +601,8 @@ def turned_brow_weights(model: MorphableModel, start: SolveStart) -> np.ndarray:
     the head's yaw then agreed less with the mirrored clip's). Measured in
     benchmarks/RESULTS.md ("the brows that drop when the head turns")."""
     ring = _brow_ring(model)
-    vertices = (ring.mean + (np.asarray(start.alpha, np.float64) @ ring.id_flat).reshape(-1, 3)
-                + (np.asarray(start.delta, np.float64) @ ring.exp_flat).reshape(-1, 3))
+    bases = subset_bases(model, ring.vertices, {"ring": np.arange(len(ring.vertices))})  # gathered once a process
+    vertices = bases.shape_at("ring", np.asarray(start.alpha, np.float64), np.asarray(start.delta, np.float64))
     normals = vertex_normals(vertices, ring.triangles)[ring.rows]
     rotation = np.asarray(start.rotation, np.float64)
     points = vertices[ring.rows] @ rotation.T + np.asarray(start.translation, np.float64)
@@ -616,17 +615,13 @@ def turned_brow_weights(model: MorphableModel, start: SolveStart) -> np.ndarray:
 
 @dataclass(frozen=True)
 class _BrowRing:
-    """The model's triangles around the brows' landmark vertices: the ``triangles`` (T, 3)
-    indexing into the U vertices they use, the brow vertices' ``rows`` (10,) among them (each
-    brow vertex's normal over its whole ring is its normal on the whole mesh), and the model at
-    those vertices, float64: ``mean`` (U, 3), ``id_flat`` (n_id, 3U), ``exp_flat`` (n_exp, 3U)
-    (gathered once: a frame's shape there is then two small products)."""
+    """The model's triangles around the brows' landmark vertices: the U ``vertices`` (U,) they
+    use, the ``triangles`` (T, 3) indexing into them and the brow vertices' ``rows`` (10,) among
+    them (each brow vertex's normal over its whole ring is its normal on the whole mesh)."""
 
+    vertices: np.ndarray
     triangles: np.ndarray
     rows: np.ndarray
-    mean: np.ndarray
-    id_flat: np.ndarray
-    exp_flat: np.ndarray
 
 
 _BROW_RINGS: dict[int, tuple[MorphableModel, _BrowRing]] = {}
@@ -640,9 +635,7 @@ def _brow_ring(model: MorphableModel) -> _BrowRing:
         triangles = np.asarray(model.triangles, np.int64)
         around = triangles[np.isin(triangles, brows).any(axis=1)]
         vertices, local = np.unique(around, return_inverse=True)
-        kept = (model, _BrowRing(local.reshape(-1, 3), np.searchsorted(vertices, brows), model.mean_shape[vertices].astype(np.float64),
-                                 model.id_basis[:, vertices].astype(np.float64).reshape(model.n_id, -1),
-                                 model.exp_basis[:, vertices].astype(np.float64).reshape(model.n_exp, -1)))
+        kept = (model, _BrowRing(vertices, local.reshape(-1, 3), np.searchsorted(vertices, brows)))
         _BROW_RINGS[id(model)] = kept
     return kept[1]
 

@@ -353,7 +353,8 @@ def test_brows_weigh_less_as_the_head_turns_them_away_and_alike_on_both_sides(mo
     assert at(60.0).max() == 0.0  # both brows left to the dense points
     ring = _brow_ring(model)
     everywhere = vertex_normals(model.shape_numpy().astype(np.float64), model.triangles)[np.asarray(model.landmark_indices)[BROWS]]
-    np.testing.assert_allclose(vertex_normals(ring.mean, ring.triangles)[ring.rows], everywhere, atol=1e-9)
+    np.testing.assert_allclose(vertex_normals(model.mean_shape[ring.vertices].astype(np.float64), ring.triangles)[ring.rows], everywhere,
+                               atol=1e-9)
 
 
 def test_weights_measured_from_the_neutral_face():

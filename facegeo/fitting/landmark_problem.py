@@ -15,16 +15,17 @@ from facegeo.fitting.silhouette import Silhouette
 from facegeo.landmarks.scheme import CHIN, N_LANDMARKS, inter_ocular_distance
 from facegeo.morphable_model import MorphableModel
 
-__all__ = ["LandmarkProblem", "SurfacePoints", "silhouette_of"]
+__all__ = ["LandmarkProblem", "SurfacePoints", "silhouette_of", "SubsetBases", "subset_bases"]
 
 _SILHOUETTES: dict[int, tuple[MorphableModel, Silhouette]] = {}
 
 
-class _SubsetBases:
+class SubsetBases:
     """The model's mean and bases gathered at a set of vertices (float64, read-only): ``mean``
     (S, 3), ``id_basis`` (n_id, S, 3), ``exp_basis`` (n_exp, S, 3), and ``flat`` {key: (mean
-    (K, 3), id (n_id, 3K), exp (n_exp, 3K))} at the rows of the jaw contour (``"contour"``) and of
-    the silhouette (``"silhouette"``) within them."""
+    (K, 3), id (n_id, 3K), exp (n_exp, 3K))} at named sets of rows within them (a landmark
+    problem's: the jaw contour, ``"contour"``, and the silhouette, ``"silhouette"``), whose shape
+    under α and δ :meth:`shape_at` gives."""
 
     def __init__(self, model: MorphableModel, subset: np.ndarray, rows: dict[str, np.ndarray]):
         self.mean = model.mean_shape[subset].astype(np.float64)
@@ -36,20 +37,25 @@ class _SubsetBases:
         for array in (self.mean, self.id_basis, self.exp_basis, *(a for arrays in self.flat.values() for a in arrays)):
             array.setflags(write=False)
 
+    def shape_at(self, key: str, alpha: np.ndarray, delta: np.ndarray) -> np.ndarray:
+        """(K, 3) model-space positions (mm) of the rows ``key`` under α (n_id,) and δ (n_exp,), float64."""
+        mean, id_flat, exp_flat = self.flat[key]
+        return mean + (alpha @ id_flat).reshape(-1, 3) + (delta @ exp_flat).reshape(-1, 3)
+
 
 #: The last few gathers, by model object and vertex set: a video's frames, and photos seen by one
 #: detector, observe the same model vertices, and gathering them was half of a tracked frame's solve.
-_BASES: dict[tuple[int, bytes], tuple[MorphableModel, _SubsetBases]] = {}
+_BASES: dict[tuple[int, bytes], tuple[MorphableModel, SubsetBases]] = {}
 _BASES_KEPT = 4
 
 
-def _subset_bases(model: MorphableModel, subset: np.ndarray, rows: dict[str, np.ndarray]) -> _SubsetBases:
-    """:class:`_SubsetBases` of ``model`` at ``subset`` (S,) int vertices and ``rows`` (into
+def subset_bases(model: MorphableModel, subset: np.ndarray, rows: dict[str, np.ndarray]) -> SubsetBases:
+    """:class:`SubsetBases` of ``model`` at ``subset`` (S,) int vertices and ``rows`` (into
     ``subset``), gathered once per model object and vertex set in a process."""
     key = (id(model), subset.tobytes() + b"|" + b"|".join(rows[k].tobytes() for k in sorted(rows)))
     cached = _BASES.get(key)
     if cached is None or cached[0] is not model:
-        cached = (model, _SubsetBases(model, subset, rows))
+        cached = (model, SubsetBases(model, subset, rows))
         while len(_BASES) >= _BASES_KEPT:
             del _BASES[next(iter(_BASES))]
         _BASES[key] = cached
@@ -163,15 +169,9 @@ class LandmarkProblem:
         self.contour_rows = {side: position[np.asarray(c)] for side, c in contours.items()}
         self.contour_vertex_rows = np.unique(np.concatenate(list(self.contour_rows.values())))
         # the model at the observed vertices, and the bases of the two vertex sets the slides pose at every step
-        bases = _subset_bases(model, self.subset, {"contour": self.contour_vertex_rows, "silhouette": self.silhouette_subset_rows})
-        self.mean, self.id_basis, self.exp_basis, self._flat_bases = bases.mean, bases.id_basis, bases.exp_basis, bases.flat
+        self._bases = subset_bases(model, self.subset, {"contour": self.contour_vertex_rows, "silhouette": self.silhouette_subset_rows})
+        self.mean, self.id_basis, self.exp_basis = self._bases.mean, self._bases.id_basis, self._bases.exp_basis
         self._update_bases(np.zeros(model.n_exp))
-
-    def _shape_at(self, key: str, alpha: np.ndarray, delta: np.ndarray) -> np.ndarray:
-        """(K, 3) model-space positions (mm) of the ``"contour"`` or ``"silhouette"`` vertex set
-        under α and δ."""
-        mean, id_flat, exp_flat = self._flat_bases[key]
-        return mean + (alpha @ id_flat).reshape(-1, 3) + (delta @ exp_flat).reshape(-1, 3)
 
     def _blend(self, values: np.ndarray, rows: np.ndarray | slice) -> np.ndarray:
         """(..., K, 3) per subset vertex -> (..., len(rows), 3) at the observed points."""
@@ -201,7 +201,7 @@ class LandmarkProblem:
         """Move each jaw point (but the chin) to the nearest point of its projected contour, and
         freeze the contour's expression part at ``delta``."""
         rows_all = self.contour_vertex_rows  # the contour vertices only
-        shape = self._shape_at("contour", alpha, delta)
+        shape = self._bases.shape_at("contour", alpha, delta)
         uv = np.zeros((len(self.mean), 2))
         uv[rows_all] = project(shape, rotation, translation, self.camera)
         for side, jaw_points in (("right", np.arange(0, CHIN)), ("left", np.arange(CHIN + 1, 17))):
@@ -223,7 +223,7 @@ class LandmarkProblem:
         if self.silhouette is None:
             return
         rows_all = self.silhouette_subset_rows
-        shape = self._shape_at("silhouette", alpha, delta)
+        shape = self._bases.shape_at("silhouette", alpha, delta)
         cam = shape @ rotation.T + translation
         picks = self.silhouette.contour(cam, rotation)
         if len(picks) < 2:
