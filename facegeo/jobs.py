@@ -531,9 +531,9 @@ class TrackOptions:
             (:func:`track_into_folder`).
         smooth: take the frame-to-frame jitter out of the pose and the weights
             (:func:`facegeo.tracking.smooth_track`).
-        neutral_s: seconds into the video at which the face is at rest: every weight is then
-            measured from the face there (:func:`facegeo.tracking.calibrated_to_neutral`, as Live
-            Link Face's calibration); None: as fitted.
+        neutral_s: seconds into the video at which the face is at rest: every frame's points are
+            then measured from the person's own there (:func:`facegeo.tracking.neutral_offsets`,
+            what Live Link Face's calibration is for); None: as observed.
     """
 
     model: Path | None = None
@@ -571,9 +571,9 @@ def track_into_folder(video: str | Path, output: str | Path, options: TrackOptio
       a frame without a face repeats the nearest tracked frame's values (``track.json`` flags it);
     * ``track.json``: the source, frame rate, camera, identity α, per frame whether a face was
       found, its landmark RMS (px, % of the inter-ocular distance; of the frame's own fit), pose,
-      ICT weights (smoothed with ``options.smooth`` and measured from the neutral face with
-      ``options.neutral_s``, as in the take) and whether it was a keyframe; the smoothing, the
-      neutral calibration (None without one), keyframes, timings and notes;
+      ICT weights (smoothed with ``options.smooth``, as in the take) and whether it was a
+      keyframe; the smoothing, the neutral calibration (``options.neutral_s``; None without one),
+      keyframes, timings and notes;
     * with ``options.asset``: the person's textured asset (``asset/``), ``face.glb`` and
       ``face.usdz`` animated by the take, and ``preview.png`` (:func:`_animated_asset`).
 
@@ -591,8 +591,8 @@ def track_into_folder(video: str | Path, output: str | Path, options: TrackOptio
     from facegeo.export.live_link import live_link_csv_lines
     from facegeo.staged_output import StagedOutput, locked_output
     from facegeo.landmarks.eyelids import SHUT_FRACTION
-    from facegeo.tracking import (NEUTRAL_CAP, POSE_WINDOW, SLOW_WEIGHT_WINDOW, WEIGHT_WINDOW, calibrated_to_neutral, lid_weights,
-                                  smooth_track, track_frames)
+    from facegeo.tracking import (NEUTRAL_FADE_DEG, POSE_WINDOW, SLOW_WEIGHT_WINDOW, WEIGHT_WINDOW, lid_weights, smooth_track,
+                                  track_frames)
     from facegeo.video import open_video
 
     options = TrackOptions() if options is None else options
@@ -602,16 +602,20 @@ def track_into_folder(video: str | Path, output: str | Path, options: TrackOptio
         info, frames = open_video(video, options.start_s, options.end_s, options.every)
         frames, rest = _clip_parts(video, info, frames, options)
         report = None if progress is None else (lambda n: progress(n, n / max(time.perf_counter() - start, 1e-9)))
-        track = track_frames(frames, model, options.landmarks, options.focal, options.keyframes, report, str(video), rest)
+        track = track_frames(frames, model, options.landmarks, options.focal, options.keyframes, report, str(video), rest,
+                             options.neutral_s)
         if options.smooth:
             track.frames = smooth_track(track.frames, *model.expression_range, fast=lid_weights(model.expression_names))
         calibration = None
-        if options.neutral_s is not None:
-            track.frames, neutral, neutral_frames = calibrated_to_neutral(track.frames, options.neutral_s, *model.expression_range,
-                                                                          str(video))
-            calibration = {"time_s": options.neutral_s, "frames": neutral_frames,
-                           "rule": f"(w - n) / (1 - n), clipped to [0, 1], n at most {NEUTRAL_CAP:g}; n: the median weights of these frames",
-                           "neutral": dict(zip(model.expression_names, neutral.round(4).tolist()))}
+        if track.neutral is not None:
+            size = np.linalg.norm(track.neutral.offsets, axis=1)
+            calibration = {"time_s": options.neutral_s, "frames": track.neutral.frames,
+                           "rule": "each frame's landmarks and dense points measured from where the detector put the person's at rest in "
+                                   "these frames (their offsets from the clip's identity with no expression, turning with the head), in "
+                                   f"full within {NEUTRAL_FADE_DEG[0]:g} deg of the head's rotation there, none beyond "
+                                   f"{NEUTRAL_FADE_DEG[1]:g} deg",
+                           "offsets_mm": {"landmarks_median": float(np.median(size[:88])), "landmarks_max": float(size[:88].max()),
+                                          "dense_median": float(np.median(size[88:])) if len(size) > 88 else None}}
         found = np.flatnonzero([f.found for f in track.frames])
         # each frame's nearest frame with a face (itself where it has one; the earlier on a tie)
         after = np.minimum(np.searchsorted(found, np.arange(len(track.frames))), len(found) - 1)

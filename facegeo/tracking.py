@@ -25,7 +25,9 @@ where it is lost). A clip long enough is observed and solved in two halves at on
 in a forked process (:data:`MIN_PART_FRAMES`). What was observed waits for the identity in an
 unnamed temporary file (:class:`~facegeo.observed_frames.ObservedFrames`), not in memory. :func:`smooth_track`
 takes the frame-to-frame jitter out afterwards; a cut to another person is told by the face
-descriptor (:func:`observe_frames`). What is not done yet (issue 48): gaze (eye rotations).
+descriptor (:func:`observe_frames`). Given a time at which the face is at rest, every frame's
+points are measured from the person's own there (:func:`neutral_offsets`). What is not done yet
+(issue 48): gaze (eye rotations).
 """
 
 from __future__ import annotations
@@ -34,13 +36,14 @@ import contextlib
 import dataclasses
 import operator
 import time
+import warnings
 from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, field
 from typing import Any, TypeVar
 
 import numpy as np
 
-from facegeo.camera import Camera, euler_from_rotation
+from facegeo.camera import Camera, euler_from_rotation, to_pixels
 from facegeo.errors import InputError, NoFaceError
 from facegeo.fitting.dense_term import DEFAULT_DENSE
 from facegeo.fitting.landmark_fit import LandmarkSolution, initial_pose, solve_landmarks
@@ -50,14 +53,15 @@ from facegeo.fitting.priors import DEFAULT_PRIORS, LandmarkStage
 from facegeo.fitting.shared_identity import LandmarkView, solve_shared_identity
 from facegeo.landmarks.detectors import get_detector
 from facegeo.landmarks import eyelids
-from facegeo.landmarks.scheme import BROWS, EYES, LANDMARK_WEIGHTS, inter_ocular_distance
+from facegeo.landmarks.scheme import BROWS, EYES, JAW, LANDMARK_WEIGHTS, N_LANDMARKS, inter_ocular_distance
 from facegeo.morphable_model import MorphableModel
 from facegeo.normals import vertex_normals
 from facegeo.observed_frames import ObservedFrame, ObservedFrames
 
 __all__ = ["TrackedFrame", "Track", "ClipIdentity", "track_frames", "observe_frames", "clip_identity",
            "follow_region", "spanning_frames", "lid_weights", "track_observed", "solve_frame", "smooth_track", "SolveStart",
-           "turned_brow_weights", "TURNED_BROW_RAMP", "calibrated_to_neutral", "NEUTRAL_WINDOW_S", "NEUTRAL_CAP",
+           "turned_brow_weights", "TURNED_BROW_RAMP", "NeutralOffsets", "neutral_offsets", "NEUTRAL_POSE_STAGE", "NEUTRAL_WINDOW_S",
+           "NEUTRAL_FADE_DEG",
            "TRACK_STAGE", "KEYFRAMES", "FOLLOW_MARGIN", "POSE_WINDOW", "WEIGHT_WINDOW", "SLOW_WEIGHT_WINDOW",
            "IDENTITY_CHECK_EVERY"]
 
@@ -122,7 +126,9 @@ class Track:
     """A tracked clip: the identity ``alpha`` (n_id,) float32 shared by every frame, the clip's
     ``camera`` and landmark ``noise`` (inter-ocular units, :class:`ClipIdentity`), the ``frames``
     in order, ``timings`` (s by stage), ``notes`` and ``open_lids`` (2,), the lid reader's open
-    gap over the model's per eye (:class:`ClipIdentity`; None where the blinks were fitted)."""
+    gap over the model's per eye (:class:`ClipIdentity`; None where the blinks were fitted);
+    ``neutral``, the person's points at rest every frame was measured from (:func:`neutral_offsets`;
+    None: none given)."""
 
     alpha: np.ndarray
     camera: Camera
@@ -131,6 +137,7 @@ class Track:
     timings: dict[str, float] = field(default_factory=dict)
     notes: list[str] = field(default_factory=list)
     open_lids: np.ndarray | None = None
+    neutral: NeutralOffsets | None = None
 
     @property
     def keyframes(self) -> list[int]:
@@ -156,7 +163,7 @@ class ClipIdentity:
 
 def track_frames(frames: Iterable[Any], model: MorphableModel, detector: str = "lids", focal: float | None = None,
                  keyframes: int = KEYFRAMES, progress: Callable[[int], None] | None = None, source: str = "<video>",
-                 rest: Callable[[], Iterable[Any]] | None = None) -> Track:
+                 rest: Callable[[], Iterable[Any]] | None = None, neutral_s: float | None = None) -> Track:
     """Track the face through ``frames`` (module docstring): :func:`observe_frames`, then
     :func:`clip_identity`, then :func:`track_observed`.
 
@@ -170,10 +177,13 @@ def track_frames(frames: Iterable[Any], model: MorphableModel, detector: str = "
         progress: called with the number of frames observed so far, after each.
         source: the video's name, for errors.
         rest: opens the frames after ``frames``, observed beside them (:func:`observe_frames`).
+        neutral_s: seconds (the frames' clock) at which the face is at rest: every frame's points
+            are measured from the person's own there (:func:`neutral_offsets`); None: as observed.
     Returns:
         The :class:`Track`.
     Raises:
-        InputError: no frames, frames of different sizes, or no frame with a face.
+        InputError: no frames, frames of different sizes, no frame with a face, or none near
+            ``neutral_s``.
     """
     timings: dict[str, float] = {}
     start = time.perf_counter()
@@ -181,11 +191,13 @@ def track_frames(frames: Iterable[Any], model: MorphableModel, detector: str = "
     timings["observe"] = time.perf_counter() - start
     start = time.perf_counter()
     shared = clip_identity(model, observed, size, focal, keyframes, source)
+    offsets = None if neutral_s is None else neutral_offsets(model, observed, shared, neutral_s, source)
     timings["identity"] = time.perf_counter() - start
     start = time.perf_counter()
-    tracked = track_observed(model, observed, shared)
+    tracked = track_observed(model, observed, shared, offsets=offsets)
     timings["track"] = time.perf_counter() - start
-    return Track(shared.alpha.astype(np.float32), shared.camera, shared.noise, tracked, timings, shared.notes, shared.open_lids)
+    return Track(shared.alpha.astype(np.float32), shared.camera, shared.noise, tracked, timings, shared.notes, shared.open_lids,
+                 offsets)
 
 
 def observe_frames(frames: Iterable[Any], model: MorphableModel, detector: str = "lids",
@@ -472,9 +484,10 @@ def _without_lids(model: MorphableModel, delta: np.ndarray) -> np.ndarray:
 
 
 def track_observed(model: MorphableModel, observed: Sequence[ObservedFrame], shared: ClipIdentity,
-                   stage: LandmarkStage = TRACK_STAGE, parts: int = 2) -> list[TrackedFrame]:
+                   stage: LandmarkStage = TRACK_STAGE, parts: int = 2, offsets: NeutralOffsets | None = None) -> list[TrackedFrame]:
     """Every observed frame's pose and expression with the clip's identity fixed (module
-    docstring, step 4), ``stage`` the per-frame solve (its ``n_id`` must be 0: the identity stays).
+    docstring, step 4), ``stage`` the per-frame solve (its ``n_id`` must be 0: the identity stays),
+    the points measured from the person's at rest where ``offsets`` are given (:func:`solve_frame`).
 
     ``parts`` 2: a clip of at least 2 × :data:`MIN_PART_FRAMES` frames is solved in two halves at
     once, the second by a forked child (:mod:`facegeo.forked_call`, where it
@@ -485,9 +498,9 @@ def track_observed(model: MorphableModel, observed: Sequence[ObservedFrame], sha
     if stage.n_id != 0:
         raise InputError("<argument>", "stage", "a stage that leaves the identity out (n_id 0)", repr(stage.n_id))
     split = len(observed) // 2 if parts >= 2 and len(observed) >= 2 * MIN_PART_FRAMES and can_fork() else len(observed)
-    pending = fork_call(_track_part, model, observed, shared, stage, split, len(observed)) if split < len(observed) else None
-    return _beside_child(pending, lambda: _track_part(model, observed, shared, stage, 0, split),
-                         lambda: _track_part(model, observed, shared, stage, split, len(observed)))
+    pending = fork_call(_track_part, model, observed, shared, stage, split, len(observed), offsets) if split < len(observed) else None
+    return _beside_child(pending, lambda: _track_part(model, observed, shared, stage, 0, split, offsets),
+                         lambda: _track_part(model, observed, shared, stage, split, len(observed), offsets))
 
 
 def _beside_child(pending: Any, here: Callable[[], Part], instead: Callable[[], Part],
@@ -524,7 +537,7 @@ MIN_PART_FRAMES = 30
 
 
 def _track_part(model: MorphableModel, observed: Sequence[ObservedFrame], shared: ClipIdentity, stage: LandmarkStage, first: int,
-                end: int) -> list[TrackedFrame]:
+                end: int, offsets: NeutralOffsets | None = None) -> list[TrackedFrame]:
     """:func:`track_observed` on ``observed[first:end]``, the first from solvePnP."""
     out: list[TrackedFrame] = []
     previous = None
@@ -546,7 +559,7 @@ def _track_part(model: MorphableModel, observed: Sequence[ObservedFrame], shared
             open_gaps = shared.open_lids * eyelids.model_lid_gaps(model, shared.alpha, _without_lids(model, delta), rotation, translation,
                                                           shared.camera)
             measured = eyelids.blinks(frame.lid_gaps, open_gaps, rotation)
-        fit = solve_frame(model, obs, shared.camera, shared.alpha, shared.noise, previous, stage, measured).fit
+        fit = solve_frame(model, obs, shared.camera, shared.alpha, shared.noise, previous, stage, measured, offsets).fit
         previous = SolveStart(fit.rotation, fit.translation, shared.alpha, fit.delta)
         out.append(TrackedFrame(frame.index, frame.time_s, True, fit.rotation, fit.translation, fit.delta,
                                 float(fit.landmark_rms_px), float(fit.landmark_rms_percent_iod), k in shared.keyframes))
@@ -555,7 +568,7 @@ def _track_part(model: MorphableModel, observed: Sequence[ObservedFrame], shared
 
 def solve_frame(model: MorphableModel, seen: PhotoObservation, camera: Camera, alpha: np.ndarray, noise: float,
                 start: SolveStart | None = None, stage: LandmarkStage = TRACK_STAGE,
-                blinks: np.ndarray | None = None) -> LandmarkSolution:
+                blinks: np.ndarray | None = None, offsets: NeutralOffsets | None = None) -> LandmarkSolution:
     """One frame's pose and expression with the clip's identity ``alpha`` (n_id,) fixed, in the
     clip's ``camera``, at its landmark ``noise`` (inter-ocular units, no re-estimation), from
     ``start`` (None: solvePnP on the mean shape, δ = 0): the per-frame solve of
@@ -566,10 +579,14 @@ def solve_frame(model: MorphableModel, seen: PhotoObservation, camera: Camera, a
     (:data:`~facegeo.landmarks.eyelids.LID_POINTS`) then weigh nothing (they would pull the eyes
     open or shut again through the other lid shapes) and the eye corners their single-photo
     weight. None (or NaN): the lids are fitted, the eyes' 12 points weighed ×:data:`EYE_WEIGHT`.
-    The brows weigh less as the head turns them away (:func:`turned_brow_weights`)."""
+    The brows weigh less as the head turns them away (:func:`turned_brow_weights`). ``offsets``:
+    the person's points at rest (:func:`neutral_offsets`), taken off the observed points in the
+    start's pose; None: the points as observed."""
     if start is None:
         rotation, translation = initial_pose(model, seen.landmarks, camera)
         start = SolveStart(rotation, translation, np.asarray(alpha, np.float64), np.zeros(model.n_exp))
+    if offsets is not None:
+        seen = offsets.taken_off(seen, start.rotation, start.translation, camera)
     # the gaze blendshapes move the lids: without the irises they only mimic a blink's opposite
     gaze = tuple(n for n in model.expression_names if n.startswith("eyeLook"))
     weights = np.array(LANDMARK_WEIGHTS if seen.weights is None else seen.weights, np.float64)
@@ -690,43 +707,121 @@ def spanning_frames(yaws: np.ndarray, points: np.ndarray, count: int) -> list[in
     return sorted(chosen)
 
 
-#: The frames with a face within this many seconds of the neutral time are the person's neutral
-#: (:func:`calibrated_to_neutral`: their median weights).
+#: The frames with a face within this many seconds of the neutral time show the person at rest
+#: (:func:`neutral_offsets`).
 NEUTRAL_WINDOW_S = 0.25
-#: A weight the neutral face holds above this is measured from it as from this (a shape held that
-#: high at rest is the fit's, not the face's, and would stretch the rest of its range without bound).
-NEUTRAL_CAP = 0.9
 
 
-def calibrated_to_neutral(frames: list[TrackedFrame], time_s: float, lower: np.ndarray, upper: np.ndarray,
-                          source: str = "<video>") -> tuple[list[TrackedFrame], np.ndarray, list[int]]:
-    """The frames' weights measured from the person's neutral face, as Live Link Face's
-    calibration does: the neutral n (n_exp,) is the median weights of the frames with a face
-    within :data:`NEUTRAL_WINDOW_S` of ``time_s`` (seconds, the frames' own clock), and each
-    weight w of a bounded expression ([``lower``, ``upper``] (n_exp,), ICT-FaceKit's [0, 1]) becomes
-    (w − n) / (upper − n), clipped to [lower, upper] (n capped at :data:`NEUTRAL_CAP` of the range);
-    an unbounded one (a PCA model's) w − n. A face that reads as a slight smile or frown at rest,
-    its identity and expression not told apart by the landmarks, then reads 0 there (the
-    ground-truth take's neutral start read mouthSmile 0.14-0.15: benchmarks/RESULTS.md).
-    Returns ``(frames, n, the neutral frames' indices)``. Raises :class:`InputError` (naming
-    ``source``'s neutral time) where no frame near ``time_s`` has a face."""
-    near = [f for f in frames if f.found and abs(f.time_s - time_s) <= NEUTRAL_WINDOW_S]
+#: The person's points at rest (:class:`NeutralOffsets`) hold in full within the first of these
+#: angles (degrees) of the head's rotation at rest, not at all beyond the second, linearly between:
+#: measured on the ground-truth take with ``--neutral 0.5`` (benchmarks/RESULTS.md, "the person's
+#: points at rest"), curves passing of 14: no fade 6, (2, 8) 10, (3, 12) 11, (5, 15) 10,
+#: (5, 20) 10, (10, 30) 8; the weights' calibration it replaced 8. Beyond, the take's turned head
+#: read false frowns from the frontal offsets.
+NEUTRAL_FADE_DEG = (3.0, 12.0)
+#: The solve of a neutral frame (:func:`neutral_offsets`): the pose alone, from solvePnP, the jaw
+#: and the outline slid before every iteration.
+NEUTRAL_POSE_STAGE = LandmarkStage("neutral pose", 12, 0, False)
+
+
+@dataclass(frozen=True)
+class NeutralOffsets:
+    """Where a clip's detector puts the person's points at rest, against where the clip's
+    identity with no expression puts them (:func:`neutral_offsets`): ``points`` (88 + K, 3) mm,
+    the 88 landmarks' and the K dense points' places on that neutral face in model space;
+    ``offsets`` (88 + K, 3) mm, model space, what the detector adds to them; ``frames``, the
+    source indices of the neutral frames they were measured on; ``rest_rotation`` (3, 3), the
+    head's rotation there (their mean). A detector's bias depends on the view: measured in one,
+    the offsets hold near it and fade as the head turns away from it (:meth:`share`)."""
+
+    points: np.ndarray
+    offsets: np.ndarray
+    frames: list[int]
+    rest_rotation: np.ndarray
+
+    def shift(self, rotation: np.ndarray, translation: np.ndarray, camera: Camera) -> np.ndarray:
+        """(88 + K, 2) px: how far the offsets move the points' images with the head posed by
+        ``rotation`` (3, 3) and ``translation`` (3,) mm (the offsets turn with the head)."""
+        rotation = np.asarray(rotation, np.float64)
+        at = self.points @ rotation.T + np.asarray(translation, np.float64)
+        return self.share(rotation) * (to_pixels(at + self.offsets @ rotation.T, camera) - to_pixels(at, camera))
+
+    def share(self, rotation: np.ndarray) -> float:
+        """The share of the offsets that holds with the head turned by ``rotation`` (3, 3): 1
+        within the first of :data:`NEUTRAL_FADE_DEG` of :attr:`rest_rotation`, 0 beyond the
+        second, linear between."""
+        cos = (np.trace(np.asarray(rotation, np.float64) @ self.rest_rotation.T) - 1.0) / 2.0
+        angle = np.degrees(np.arccos(np.clip(cos, -1.0, 1.0)))
+        full, none = NEUTRAL_FADE_DEG
+        return float(np.clip((none - angle) / (none - full), 0.0, 1.0))
+
+    def taken_off(self, seen: PhotoObservation, rotation: np.ndarray, translation: np.ndarray, camera: Camera) -> PhotoObservation:
+        """``seen`` with :meth:`shift` in that pose taken off its 88 landmarks and, where it has
+        the K dense points measured, off those."""
+        shift = self.shift(rotation, translation, camera)
+        surface = seen.surface_points
+        if surface is not None and len(surface) == len(shift) - N_LANDMARKS:
+            surface = SurfacePoints(surface.targets - shift[N_LANDMARKS:], surface.vertex_ids, surface.barycentric, surface.weights,
+                                    surface.contour, surface.expressive)
+        return dataclasses.replace(seen, landmarks=seen.landmarks - shift[:N_LANDMARKS], surface_points=surface)
+
+
+def neutral_offsets(model: MorphableModel, observed: Sequence[ObservedFrame], shared: ClipIdentity, time_s: float,
+                    source: str = "<video>") -> NeutralOffsets:
+    """The person's points at rest (:class:`NeutralOffsets`), measured on the frames with a face
+    within :data:`NEUTRAL_WINDOW_S` of ``time_s`` (seconds, the frames' own clock): each posed
+    alone (:data:`NEUTRAL_POSE_STAGE`, no expression: the face is at rest there), each point's
+    residual (observed − model, px) lifted to the point's depth parallel to the image plane and
+    turned into model space, the median over those frames. Points that slide along the outline
+    (the 88's jaw, the dense contour) keep their place and get no offset, nor do dense points not
+    seen there.
+
+    This is Live Link Face's neutral calibration done where the bias is, in the landmarks: a 2-D
+    detector puts a real face's brows, lip corners and cheeks a few pixels off the model's
+    (dlib's brows 3-9 px below the take's at rest), and a bounded weight cannot show a bias
+    below its rest (a brow raised first fills that gap: the take's browInnerUp peaked at 0.09
+    for 0.85). The idea of per-point displacements beside a blendshape model is Cao et al.'s
+    displaced dynamic expression regression (SIGGRAPH 2014). Raises :class:`InputError` naming
+    ``--neutral`` where no frame near ``time_s`` has a face."""
+    camera, alpha = shared.camera, np.asarray(shared.alpha, np.float64)
+    near = [frame for frame in observed if frame.observation is not None and abs(frame.time_s - time_s) <= NEUTRAL_WINDOW_S]
     if not near:
         raise InputError(source, "--neutral", f"a time at which the face is found (within {NEUTRAL_WINDOW_S:g} s)",
                          f"{time_s:g} s: no tracked face there")
-    neutral = np.median(np.stack([np.asarray(f.delta, np.float64) for f in near]), axis=0)
-    lower, upper = np.asarray(lower, np.float64), np.asarray(upper, np.float64)
-    bounded = np.isfinite(lower) & np.isfinite(upper)
-    span = np.where(bounded, upper - lower, 1.0)
-    rest = np.where(bounded, np.minimum(neutral, lower + NEUTRAL_CAP * span), neutral)
-    out = []
-    for f in frames:
-        if f.found:
-            w = np.asarray(f.delta, np.float64) - rest
-            w = np.where(bounded, np.clip(lower + w * span / np.maximum(upper - rest, 1e-9), lower, upper), w)
-            f = dataclasses.replace(f, delta=w.astype(np.float32))
-        out.append(f)
-    return out, neutral, [f.index for f in near]
+    dense = near[0].observation.surface_points
+    landmark_ids = np.asarray(model.landmark_indices, np.int64)
+    dense_ids = np.zeros((0, 3), np.int64) if dense is None else dense.vertex_ids
+    ids, inverse = np.unique(np.concatenate([landmark_ids, dense_ids.ravel()]), return_inverse=True)
+    bases = subset_bases(model, ids, {"all": np.arange(len(ids))})
+    at_rest = bases.shape_at("all", alpha, np.zeros(model.n_exp))
+    points = at_rest[inverse[:N_LANDMARKS]]
+    if dense is not None:
+        points = np.concatenate([points, np.einsum("kj,kjc->kc", dense.barycentric, at_rest[inverse[N_LANDMARKS:]].reshape(-1, 3, 3))])
+    sliding = np.zeros(len(points), bool)
+    sliding[JAW] = True
+    if dense is not None:
+        sliding[N_LANDMARKS:] = dense.contour
+    priors = dataclasses.replace(DEFAULT_PRIORS, noise=shared.noise, noise_rounds=0)
+    lifted, rotations = [], []
+    for frame in near:
+        seen = frame.observation
+        rotation, translation = initial_pose(model, seen.landmarks, camera)
+        start = SolveStart(rotation, translation, alpha, np.zeros(model.n_exp))
+        fit = solve_landmarks(model, seen.landmarks, camera, None, (NEUTRAL_POSE_STAGE,), priors, start, seen.surface_points).fit
+        observed_px = seen.landmarks if dense is None else np.concatenate([seen.landmarks, seen.surface_points.targets])
+        posed = points @ fit.rotation.T + fit.translation
+        residual = observed_px - to_pixels(posed, camera)
+        depth = -posed[:, 2:3] / camera.focal  # mm per px at each point
+        moved = np.concatenate([residual[:, :1] * depth, -residual[:, 1:] * depth, np.zeros_like(depth)], axis=1)
+        lifted.append(moved @ fit.rotation)  # camera space -> model space: R^T
+        rotations.append(fit.rotation)
+    with warnings.catch_warnings():  # a point unseen in every neutral frame: all-NaN, no offset
+        warnings.simplefilter("ignore", RuntimeWarning)
+        offsets = np.nanmedian(np.stack(lifted), axis=0)
+    offsets[sliding | ~np.isfinite(offsets).all(axis=1)] = 0.0
+    u, _, vt = np.linalg.svd(np.sum(rotations, axis=0))  # the rotations' chordal mean
+    mean = u @ np.diag([1.0, 1.0, np.linalg.det(u @ vt)]) @ vt
+    return NeutralOffsets(points, offsets, [frame.index for frame in near], mean)
 
 
 def lid_weights(names: list[str] | tuple[str, ...]) -> np.ndarray:

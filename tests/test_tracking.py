@@ -86,7 +86,8 @@ def test_facegeo_track_writes_a_take_the_live_link_reader_reads(tmp_path):
         writer.write(cv2.cvtColor(frame, cv2.COLOR_RGB2BGR))
     writer.release()
     out = tmp_path / "out"
-    done = subprocess.run([sys.executable, "-m", "facegeo.cli", "track", str(clip), "-o", str(out), "--keyframes", "3"],
+    done = subprocess.run([sys.executable, "-m", "facegeo.cli", "track", str(clip), "-o", str(out), "--keyframes", "3",
+                           "--neutral", "0.2"],
                           capture_output=True, text=True, timeout=600)
     assert done.returncode == 0, done.stderr[-3000:]
     assert f"tracked {clip}: {len(ROLLS)} frames (1 without a face)" in done.stdout
@@ -99,6 +100,9 @@ def test_facegeo_track_writes_a_take_the_live_link_reader_reads(tmp_path):
     assert [f["found"] for f in record["frames"]] == [k != NO_FACE for k in range(len(ROLLS))]
     assert record["frames_with_face"] == len(ROLLS) - 1 and record["fps"] == pytest.approx(10.0)
     assert record["blinks"]["shut_fraction"] > 0 and 0.5 < record["blinks"]["open_gap_over_model"]["left"] < 2.0
+    calibration = record["neutral_calibration"]  # the frames within 0.25 s of 0.2 s
+    assert calibration["time_s"] == 0.2 and calibration["frames"] == [0, 1, 2, 3, 4]
+    assert 0.0 < calibration["offsets_mm"]["landmarks_median"] <= calibration["offsets_mm"]["landmarks_max"] < 20.0
     # the frame without a face repeats its nearest tracked neighbour's values (flagged in track.json)
     np.testing.assert_array_equal(take.weights[NO_FACE], take.weights[NO_FACE - 1])
     assert {p.name for p in out.iterdir()} >= {"take.csv", "track.json", "asset", "face.glb", "face.usdz", "preview.png"}
@@ -357,31 +361,63 @@ def test_brows_weigh_less_as_the_head_turns_them_away_and_alike_on_both_sides(mo
                                atol=1e-9)
 
 
-def test_weights_measured_from_the_neutral_face():
-    """calibrated_to_neutral: the median of the frames within the window is the neutral; bounded
-    weights map n -> 0 and 1 -> 1 linearly (clipped), an unbounded one shifts; frames without a
-    face stay as they are; no face near the time is a clear error."""
+def _posed_observation(model, alpha, delta, rotation, bias, camera):
+    """The 88 landmarks of the model face (α, δ) posed by ``rotation`` 1 m from ``camera``, each
+    moved by ``bias`` (88, 3) mm in model space: a detector's bias that turns with the head."""
+    from facegeo.camera import project
+    from facegeo.fitting.photo_fit import PhotoObservation
+
+    points = model.shape_numpy(alpha, delta, np.asarray(model.landmark_indices)).astype(np.float64) + bias
+    pixels = project(points, rotation, np.array([0.0, 0.0, -1000.0]), camera)
+    blank = np.zeros((camera.height, camera.width, 3), np.uint8)
+    return PhotoObservation(blank, "<test>", blank, model, pixels, camera, None, None, None, {}, [])
+
+
+def test_the_points_at_rest_are_measured_and_taken_off(model):
+    """neutral_offsets on frames of the face at rest whose detector puts the brows 3 mm low (and
+    every other inner point up to 1 mm off): a frame with the brows raised 0.6, 2 degrees from the
+    rest pose, then reads as an unbiased detector's frame does (within 0.02), where as observed the
+    bias takes more than 0.1 off; the offsets turn with the head and fade from 3 to 12 degrees of
+    turn; no face near the time is a clear error."""
+    from facegeo.camera import Camera, rotation_from_euler
     from facegeo.errors import InputError
-    from facegeo.tracking import NEUTRAL_WINDOW_S, TrackedFrame, calibrated_to_neutral
+    from facegeo.observed_frames import ObservedFrame
+    from facegeo.tracking import NEUTRAL_FADE_DEG, ClipIdentity, neutral_offsets, solve_frame
 
-    def frame(k: int, smile: float, pca: float, found: bool = True) -> TrackedFrame:
-        if not found:
-            return TrackedFrame(k, k / 10, False, note="no face")
-        return TrackedFrame(k, k / 10, True, np.eye(3, dtype=np.float32), np.zeros(3, np.float32),
-                            np.array([smile, 0.95, pca], np.float32), 1.0, 1.0)
+    rng = np.random.default_rng(5)
+    alpha = rng.normal(0.0, 0.5, model.n_id)
+    camera = Camera(1000.0, 320.0, 240.0, 640, 480)
+    bias = rng.uniform(-1.0, 1.0, (88, 3))
+    bias[17:27, 1] -= 3.0  # the brows
+    bias[:17] = 0.0  # the jaw slides along the outline: no bias it keeps
+    rest = rotation_from_euler(0.0, 0.0, 0.0)
+    frames = [ObservedFrame(k, k / 30, _posed_observation(model, alpha, np.zeros(model.n_exp), rest, bias, camera)) for k in range(6)]
+    frames.append(ObservedFrame(40, 40 / 30, None, "no face"))
+    shared = ClipIdentity(camera, alpha, 0.02, [0], [])
+    offsets = neutral_offsets(model, frames, shared, 0.1)
+    assert offsets.frames == [0, 1, 2, 3, 4, 5] and offsets.points.shape == offsets.offsets.shape == (88, 3)
+    np.testing.assert_allclose(offsets.offsets[:17], 0.0)
+    assert np.degrees(np.arccos(np.clip((np.trace(offsets.rest_rotation) - 1) / 2, -1, 1))) < 1.0  # the bias tilts the pose a little
 
-    frames = [frame(0, 0.2, 1.0), frame(1, 0.1, 2.0), frame(2, 0.3, 3.0), frame(3, 0.0, 0.0, found=False), frame(9, 0.6, 5.0),
-              frame(10, 1.0, -1.0)]
-    lower, upper = np.array([0.0, 0.0, -np.inf]), np.array([1.0, 1.0, np.inf])
-    out, neutral, used = calibrated_to_neutral(frames, 0.1, lower, upper)
-    assert used == [0, 1, 2] and NEUTRAL_WINDOW_S >= 0.1
-    np.testing.assert_allclose(neutral, [0.2, 0.95, 2.0], atol=1e-6)
-    np.testing.assert_allclose(out[4].delta, [(0.6 - 0.2) / 0.8, 0.5, 3.0], atol=1e-6)  # 0.95 at rest: measured from the cap 0.9
-    np.testing.assert_allclose(out[5].delta, [1.0, 0.5, -3.0], atol=1e-6)
-    np.testing.assert_allclose(out[1].delta, [0.0, 0.5, 0.0], atol=1e-6)  # below the neutral: clipped at 0
-    assert out[3] is frames[3]
+    names = list(model.expression_names)
+    raised = np.zeros(model.n_exp)
+    raised[[names.index(n) for n in ("browInnerUp_L", "browInnerUp_R", "browOuterUp_L", "browOuterUp_R")]] = 0.6
+    brows = [names.index(n) for n in ("browInnerUp_L", "browInnerUp_R")]
+    turned = rotation_from_euler(2.0, 1.0, 0.0)
+    seen = _posed_observation(model, alpha, raised, turned, bias, camera)
+    measured = solve_frame(model, seen, camera, alpha, 0.02, offsets=offsets).fit.delta[brows]
+    as_observed = solve_frame(model, seen, camera, alpha, 0.02).fit.delta[brows]
+    unbiased = solve_frame(model, _posed_observation(model, alpha, raised, turned, np.zeros((88, 3)), camera), camera, alpha, 0.02)
+    unbiased = unbiased.fit.delta[brows]  # the prior's shrinkage at this noise: about 0.24
+    assert np.abs(measured - unbiased).max() < 0.02 and (unbiased - as_observed).min() > 0.1, (measured, as_observed, unbiased)
+
+    full, none = NEUTRAL_FADE_DEG
+    assert offsets.share(rotation_from_euler(full * 0.9, 0.0, 0.0) @ offsets.rest_rotation) == 1.0
+    assert offsets.share(rotation_from_euler(0.0, (full + none) / 2, 0.0) @ offsets.rest_rotation) == pytest.approx(0.5, abs=1e-6)
+    far = rotation_from_euler(none + 1, 0.0, 0.0) @ offsets.rest_rotation
+    assert offsets.share(far) == 0.0 and np.abs(offsets.shift(far, np.array([0.0, 0.0, -1000.0]), camera)).max() == 0.0
     with pytest.raises(InputError, match="--neutral.*no tracked face"):
-        calibrated_to_neutral(frames, 0.6, lower, upper)
+        neutral_offsets(model, frames, shared, 40 / 30)
     with pytest.raises(InputError, match="within the tracked range"):
         from facegeo.jobs import TrackOptions
 

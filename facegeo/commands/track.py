@@ -35,8 +35,8 @@ def _arguments(parser: argparse.ArgumentParser) -> None:
     group.add_argument("--keyframes", type=int, default=5, metavar="K",
                        help="frames spanning the head's turn that the identity is fitted to (default 5)")
     parser.add_argument("--neutral", type=float, default=None, metavar="S",
-                        help="seconds into the video at which the face is at rest: every expression is measured from it, "
-                             "as Live Link Face's calibration does (default: as fitted)")
+                        help="seconds into the video at which the face is at rest: the person's landmarks at rest are measured there "
+                             "and every expression from them, as Live Link Face's calibration (default: as observed)")
     parser.add_argument("--no-smooth", action="store_true",
                         help="write each frame's own fit (no smoothing of the pose and the weights over neighbouring frames)")
     parser.add_argument("--no-asset", action="store_true",
