@@ -808,7 +808,11 @@ def neutral_offsets(model: MorphableModel, observed: Sequence[ObservedFrame], sh
         rotation, translation = initial_pose(model, seen.landmarks, camera)
         start = SolveStart(rotation, translation, alpha, np.zeros(model.n_exp))
         fit = solve_landmarks(model, seen.landmarks, camera, None, (NEUTRAL_POSE_STAGE,), priors, start, seen.surface_points).fit
-        observed_px = seen.landmarks if dense is None else np.concatenate([seen.landmarks, seen.surface_points.targets])
+        if dense is None:
+            observed_px = seen.landmarks
+        else:  # a frame without the dense points measures none of them
+            targets = seen.surface_points.targets if seen.surface_points is not None else np.full((len(dense), 2), np.nan)
+            observed_px = np.concatenate([seen.landmarks, targets])
         posed = points @ fit.rotation.T + fit.translation
         residual = observed_px - to_pixels(posed, camera)
         depth = -posed[:, 2:3] / camera.focal  # mm per px at each point
