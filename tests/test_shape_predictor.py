@@ -132,6 +132,17 @@ def test_numpy_predictor_equals_dlib(ours, theirs):
     assert compared == 2 * 20 * len(_photos())
 
 
+def test_a_mirrored_read_equals_dlib_on_the_mirror_image(ours, theirs):
+    """``mirror=True`` reads the image as its mirror image without copying it: the points are
+    dlib's on the flipped copy, in the same box."""
+    rng = np.random.default_rng(31)
+    for image in _photos()[:3]:
+        flipped = np.ascontiguousarray(image[:, ::-1])
+        for box in _boxes(image, rng, 8):
+            expected = np.array([[p.x, p.y] for p in theirs(flipped, dlib.rectangle(*box)).parts()], dtype=np.float64)
+            np.testing.assert_allclose(ours(image, box, mirror=True), expected, atol=1e-3, rtol=0)
+
+
 def test_cache_is_memory_mapped_and_leaves_no_temporary_files(ours, cache, model_path):
     assert isinstance(ours.leaves.base, np.memmap) and not ours.leaves.flags.writeable
     assert ours.leaves.shape == (15, 500, 16, 136) and ours.mean.shape == (68, 2)

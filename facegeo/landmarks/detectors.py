@@ -10,6 +10,8 @@
   eyes' 12 points (iBUG 36-47) taken from it: dlib's and the v1 mesh's lids barely close on a shut
   eye (lid gap over eye width 0.35 open, 0.20-0.25 shut on the ground-truth take of
   ``benchmarks/bench_track_truth.py``), v2's do (0.36 open, 0.07-0.13 shut) and tell a wink.
+  Symmetric: the mesh and dlib's points are each the mean of those found on the face and, mapped
+  back, on its mirror image.
 
 Several faces: the largest is used and a note says so. No face: :class:`NoFaceError`.
 
@@ -23,6 +25,7 @@ inferences), detects on the turn where the face scores best (if it beats the pho
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass, field
 from typing import Protocol, runtime_checkable
 
@@ -34,7 +37,7 @@ from facegeo.landmarks.dense import face_mesh_mirror
 from facegeo.landmarks.dlib_detector import DlibLandmarker
 from facegeo.landmarks.mediapipe_mesh import MEDIAPIPE_LIPS20, MediaPipeFace, MediaPipeFaceMesh, ibug68_from_mesh
 from facegeo.photo import as_rgb_uint8
-from facegeo.landmarks.scheme import EYES, MOUTH
+from facegeo.landmarks.scheme import EYES, IBUG_MIRROR, MOUTH
 
 __all__ = [
     "FaceLandmarks",
@@ -232,15 +235,16 @@ class HybridDetector(_UprightSearch):
     name = "hybrid"
 
     def __init__(self, dlib: DlibDetector | None = None, mediapipe: MediaPipeDetector | None = None, eyes: str = "dlib",
-                 name: str = "hybrid"):
+                 name: str = "hybrid", symmetric: bool = False):
         """``eyes``: where the eyes' 12 points (iBUG 36-47) come from, ``"dlib"`` or ``"mesh"`` (the
         face mesh's, by :func:`~facegeo.landmarks.mediapipe_mesh.ibug68_from_mesh`; dlib's where
-        MediaPipe finds no face). ``name``: the detector's name in its results."""
+        MediaPipe finds no face). ``name``: the detector's name in its results. ``symmetric``:
+        every point the mean of the face's and its mirror image's (:meth:`_landmarks`)."""
         if eyes not in ("dlib", "mesh"):
             raise ValueError(f"eyes: expected 'dlib' or 'mesh', got {eyes!r}")
         self.dlib = dlib or DlibDetector()
         self.mediapipe = mediapipe or MediaPipeDetector()
-        self.eyes, self.name = eyes, name
+        self.eyes, self.name, self.symmetric = eyes, name, symmetric
 
     def _probe(self) -> MediaPipeFaceMesh:
         return self.mediapipe.mesh
@@ -258,16 +262,29 @@ class HybridDetector(_UprightSearch):
     def _landmarks(self, image: np.ndarray, face: MediaPipeFace, n_faces: int, spread: np.ndarray | None = None) -> FaceLandmarks:
         """The 88 points of MediaPipe's ``face`` in ``image``: dlib's predictor in the box HOG would
         give it, the mesh's lips (and eyes, with ``eyes="mesh"``), its dense points and their
-        spread (``spread`` (468,) px where given, else the mesh model's on this image)."""
+        spread (``spread`` (468,) px where given, else the mesh model's on this image). With
+        ``symmetric``, each is the mean of the points found on the crop and, mirrored back, on its
+        mirror image (the spread then always this image's)."""
+        mesh = self.mediapipe.mesh
+        if self.symmetric:
+            mirrored = mesh.mirrored_mesh(image, face, face_mesh_mirror())
+            spread = mesh.spread(image, face, face_mesh_mirror(), mirrored)
+            face = dataclasses.replace(face, mesh=((face.mesh + mirrored) / 2).astype(np.float32))
         ibug = ibug68_from_mesh(face.mesh)
         box = dlib_box_from_mediapipe(ibug)
         lips = _corner_origin(face.mesh[MEDIAPIPE_LIPS20, :2])
-        points = np.concatenate([self.dlib.landmarker.landmarks(image, box), lips])
+        dlib68 = self.dlib.landmarker.landmarks(image, box)
+        if self.symmetric:  # dlib on the mirror image in the mirrored box, mapped back and renumbered
+            width = image.shape[1]
+            flipped = self.dlib.landmarker.landmarks(image, np.array([width - 1 - box[2], box[1], width - 1 - box[0], box[3]]),
+                                                     mirror=True)
+            flipped[:, 0] = width - flipped[:, 0]  # corner-origin x
+            dlib68 = ((dlib68 + flipped[IBUG_MIRROR]) / 2).astype(np.float32)
+        points = np.concatenate([dlib68, lips])
         if self.eyes == "mesh":
             points[EYES] = _corner_origin(ibug[EYES])
         return FaceLandmarks(points, _corner_origin(face.box), n_faces, self.name, _several(n_faces),
-                             _corner_origin(face.mesh[:, :2]),
-                             self.mediapipe.mesh.spread(image, face, face_mesh_mirror()) if spread is None else spread)
+                             _corner_origin(face.mesh[:, :2]), mesh.spread(image, face, face_mesh_mirror()) if spread is None else spread)
 
     def follow(self, image: np.ndarray, previous: FaceLandmarks, source: str = "<array>",
                keep_spread: bool = False) -> FaceLandmarks | None:
@@ -285,8 +302,13 @@ class HybridDetector(_UprightSearch):
 
 def lids_detector() -> HybridDetector:
     """The ``lids`` detector (module docstring): the hybrid one with the Face Landmarker's mesh
-    (v2) and its eyes."""
-    return HybridDetector(mediapipe=MediaPipeDetector(MediaPipeFaceMesh(mesh_model="v2")), eyes="mesh", name="lids")
+    (v2) and its eyes, every point the mean of the face's and its mirror image's (``symmetric``:
+    a clip and its mirror image then give mirrored points, and each detector's own left-right
+    bias averages out), the mesh model on one thread (a clip is observed by two processes at once:
+    two threads each took 7.1 ms a pass against 5.9 ms with one; measured in benchmarks/RESULTS.md,
+    "symmetric landmarks")."""
+    return HybridDetector(mediapipe=MediaPipeDetector(MediaPipeFaceMesh(mesh_model="v2", num_threads=1)), eyes="mesh", name="lids",
+                          symmetric=True)
 
 
 DETECTORS = {"hybrid": HybridDetector, "dlib": DlibDetector, "mediapipe": MediaPipeDetector, "lids": lids_detector}

@@ -92,11 +92,12 @@ class DlibLandmarker:
             return confident
         return sorted(found, key=lambda f: -f[1])[:1]
 
-    def landmarks(self, image: np.ndarray, box: np.ndarray) -> np.ndarray:
+    def landmarks(self, image: np.ndarray, box: np.ndarray, mirror: bool = False) -> np.ndarray:
         """The 68 iBUG points (68, 2) float32 px inside ``box`` (x0, y0, x1, y1), in the
-        corner-origin pixel convention of :mod:`facegeo.camera` (dlib's integer pixel + 0.5)."""
+        corner-origin pixel convention of :mod:`facegeo.camera` (dlib's integer pixel + 0.5);
+        ``mirror``: of ``image``'s mirror image left-right (``box`` and the points in its pixels)."""
         x0, y0, x1, y1 = (int(round(float(v))) for v in box)
-        return (self.predictor()(image, (x0, y0, x1, y1)) + 0.5).astype(np.float32)
+        return (self.predictor()(image, (x0, y0, x1, y1), mirror) + 0.5).astype(np.float32)
 
     def __call__(self, image: np.ndarray) -> list[DlibFace]:
         """All confident faces, largest box first."""

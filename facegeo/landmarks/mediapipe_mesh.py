@@ -727,20 +727,13 @@ class MediaPipeFaceMesh:
         mesh = np.concatenate([xy, z[:, None]], axis=1).astype(np.float32)
         return mesh, presence
 
-    def spread(self, image: np.ndarray, face: MediaPipeFace, mirror: np.ndarray) -> np.ndarray:
-        """The mesh model's own uncertainty of each point on this photo: half the distance
-        between ``face.mesh`` and the mesh found on the mirror image of the same crop (points
-        renumbered by ``mirror``, the face mesh's left-right permutation). A network that has
-        learnt a point well puts it at the same place on a face and its mirror image; where it
-        guesses (an occluded cheek, a blurred jaw) the two disagree.
-
-        Args:
-            image: (H, W, 3) uint8 RGB photo the face was found in.
-            face: the face (its last ``roi`` is cropped again).
-            mirror: (468,) int permutation: point i of a face is point mirror[i] of its mirror image.
-        Returns:
-            (468,) float32 pixels.
-        """
+    def mirrored_mesh(self, image: np.ndarray, face: MediaPipeFace, mirror: np.ndarray) -> np.ndarray:
+        """The face's 468 points as the mesh model finds them on the mirror image of the same crop
+        (``face.roi``), mapped back to ``image`` and renumbered by ``mirror`` (the face mesh's
+        left-right permutation: point i of a face is point mirror[i] of its mirror image):
+        (468, 3) float64 x, y px (pixel-centre convention, as ``face.mesh``) and z (same scale).
+        A network that has learnt a point well puts it at the same place on a face and its mirror
+        image; where it guesses (an occluded cheek, a blurred jaw) the two disagree."""
         center, side, angle = face.roi[:2].astype(np.float64), float(face.roi[2]), float(face.roi[3])
         size = self.mesh_spec.size
         crop, to_image = roi_crop(image, center, side, angle, size)
@@ -749,7 +742,16 @@ class MediaPipeFaceMesh:
         raw[:, 0] = size - raw[:, 0]  # back from the mirror image (continuous crop coordinates)
         raw = raw[np.asarray(mirror)]
         xy = raw[:, :2] @ to_image[:, :2].T + to_image[:, 2] - 0.5
-        return (0.5 * np.linalg.norm(xy - face.mesh[:, :2], axis=1)).astype(np.float32)
+        return np.concatenate([xy, raw[:, 2:] * (side / size)], axis=1)
+
+    def spread(self, image: np.ndarray, face: MediaPipeFace, mirror: np.ndarray,
+               mirrored: np.ndarray | None = None) -> np.ndarray:
+        """The mesh model's own uncertainty of each point on this photo: half the distance between
+        ``face.mesh`` and :meth:`mirrored_mesh` (``mirrored`` where it was found already), (468,)
+        float32 pixels. ``image``: the (H, W, 3) uint8 RGB photo the face was found in."""
+        if mirrored is None:
+            mirrored = self.mirrored_mesh(image, face, mirror)
+        return (0.5 * np.linalg.norm(mirrored[:, :2] - face.mesh[:, :2], axis=1)).astype(np.float32)
 
     def face_from_detection(self, image: np.ndarray, detection: BlazeFaceDetection) -> MediaPipeFace:
         """The mesh for one detection (detection ROI, then ``refine_passes`` tracking ROIs)."""

@@ -51,6 +51,29 @@ _CHUNK = 4096  # bytes per lane of the speculative integer scan
 
 
 @dataclass(frozen=True)
+class _Plan:
+    """A :class:`ShapePredictor`'s arrays as :meth:`ShapePredictor.__call__` reads them: the mean
+    shape centred (P, 2) float64 and its spread; the feature offsets' x and y (C, F) float32; each
+    level's splits' two feature pixels (C, T·S) and thresholds (C, T·S); the first split (T,) and
+    the leaf row offset (T,) of each tree; the leaves (C, T·(S + 1), P·2)."""
+
+    mean_centred: np.ndarray
+    spread: float
+    delta_x: np.ndarray
+    delta_y: np.ndarray
+    first: np.ndarray
+    second: np.ndarray
+    thresh: np.ndarray
+    tree_splits: np.ndarray
+    tree_leaves: np.ndarray
+    leaves: np.ndarray
+
+
+#: Each predictor object's :class:`_Plan`, made on its first call.
+_PLANS: dict[int, tuple[ShapePredictor, _Plan]] = {}
+
+
+@dataclass(frozen=True)
 class ShapePredictor:
     """A converted dlib shape predictor (arrays possibly views of read-only memory maps).
 
@@ -69,13 +92,31 @@ class ShapePredictor:
     anchor: np.ndarray
     delta: np.ndarray
 
-    def __call__(self, image: np.ndarray, box: tuple[int, int, int, int]) -> np.ndarray:
+    def _plan(self) -> _Plan:
+        """The arrays :meth:`__call__` reads, laid out for it once per predictor object."""
+        plan = _PLANS.get(id(self))
+        if plan is None or plan[0] is not self:
+            levels, trees, splits = self.split_idx.shape[:3]
+            mean = self.mean.astype(np.float64)
+            mean_centred = mean - mean.mean(axis=0)
+            pairs = self.split_idx.reshape(levels, trees * splits, 2)
+            plan = (self, _Plan(mean_centred, float((mean_centred**2).sum()),
+                                np.ascontiguousarray(self.delta[..., 0]), np.ascontiguousarray(self.delta[..., 1]),
+                                np.ascontiguousarray(pairs[..., 0]).astype(np.intp), np.ascontiguousarray(pairs[..., 1]).astype(np.intp),
+                                self.split_thresh.reshape(levels, trees * splits), np.arange(trees) * splits,
+                                np.arange(trees) * (splits + 1) - splits,
+                                self.leaves.reshape(levels, trees * (splits + 1), -1)))
+            _PLANS[id(self)] = plan
+        return plan[1]
+
+    def __call__(self, image: np.ndarray, box: tuple[int, int, int, int], mirror: bool = False) -> np.ndarray:
         """The P points of the face in ``box`` as dlib's ``shape_predictor(image, rectangle)``
         gives them.
 
         image: (H, W, 3) uint8 RGB or (H, W) uint8 grey. box: (left, top, right, bottom) whole
         pixels, right/bottom inclusive (a ``dlib.rectangle``). Returns (P, 2) float64 whole-pixel
-        (x, y) coordinates, pixel centres at integers (dlib's convention).
+        (x, y) coordinates, pixel centres at integers (dlib's convention). ``mirror``: the image is
+        read as its mirror image left-right (``box`` and the points in its pixels), with no copy.
         """
         if image.dtype != np.uint8 or image.ndim not in (2, 3) or (image.ndim == 3 and image.shape[2] != 3):
             raise ValueError(f"shape predictor: expected an (H, W, 3) or (H, W) uint8 image, got {image.dtype} {image.shape}")
@@ -83,46 +124,42 @@ class ShapePredictor:
         origin = np.array([left, top], dtype=np.float64)
         size = np.array([right - left, bottom - top], dtype=np.float64)
         limit = np.array([image.shape[1] - 1, image.shape[0] - 1])
-        mean = self.mean.astype(np.float64)
-        mean_centred = mean - mean.mean(axis=0)
-        spread = float((mean_centred**2).sum())
-        levels, trees, splits = self.split_idx.shape[:3]
-        depth = int(np.log2(splits + 1))
-        tree_splits = np.arange(trees) * splits  # the first split of each tree in the flattened arrays
-        tree_leaves = np.arange(trees) * (splits + 1) - splits  # a leaf's node number -> its flat row
+        plan = self._plan()
+        levels, trees = self.split_idx.shape[:2]
+        depth = int(np.log2(self.split_idx.shape[2] + 1))
         shape = self.mean.reshape(-1).copy()
+        summed = np.empty((trees + 1, shape.size), np.float32)  # the shape, then each tree's increment
         for level in range(levels):
             points = shape.reshape(-1, 2)
             # Similarity transform (least squares, Umeyama) from the mean shape to the current
             # one: in 2-D its scaled rotation is [[p, -q], [q, p]] / spread of the mean shape.
             current = points.astype(np.float64)
-            cov = (current - current.mean(axis=0)).T @ mean_centred
-            p, q = (cov[0, 0] + cov[1, 1]) / spread, (cov[1, 0] - cov[0, 1]) / spread
-            rot = np.array([[p, -q], [q, p]]).astype(np.float32)
-            delta = self.delta[level]
+            cov = (current - current.mean(axis=0)).T @ plan.mean_centred
+            p, q = (cov[0, 0] + cov[1, 1]) / plan.spread, (cov[1, 0] - cov[0, 1]) / plan.spread
+            r00, r01, r10, r11 = np.float32(p), np.float32(-q), np.float32(q), np.float32(p)
+            dx, dy = plan.delta_x[level], plan.delta_y[level]
             anchored = points[self.anchor[level]]
-            fx = (rot[0, 0] * delta[:, 0] + rot[0, 1] * delta[:, 1]) + anchored[:, 0]  # float32, dlib's order
-            fy = (rot[1, 0] * delta[:, 0] + rot[1, 1] * delta[:, 1]) + anchored[:, 1]
-            pixel = np.floor(origin + size * np.stack([fx, fy], axis=1).astype(np.float64) + 0.5).astype(np.int64)
-            inside = np.all((pixel >= 0) & (pixel <= limit), axis=1)
-            x, y = pixel[inside, 0], pixel[inside, 1]
-            values = np.zeros(len(pixel), dtype=np.float32)
+            fx = (r00 * dx + r01 * dy) + anchored[:, 0]  # float32, dlib's order
+            fy = (r10 * dx + r11 * dy) + anchored[:, 1]
+            x = np.floor(origin[0] + size[0] * fx.astype(np.float64) + 0.5).astype(np.int64)
+            y = np.floor(origin[1] + size[1] * fy.astype(np.float64) + 0.5).astype(np.int64)
+            inside = (x >= 0) & (x <= limit[0]) & (y >= 0) & (y <= limit[1])
+            x, y = (limit[0] - x[inside] if mirror else x[inside]), y[inside]
+            values = np.zeros(len(inside), dtype=np.float32)
             if image.ndim == 3:
                 values[inside] = image[y, x].astype(np.uint16).sum(axis=1) // 3
             else:
                 values[inside] = image[y, x]
-            pairs = self.split_idx[level].reshape(-1, 2)
-            thresh = self.split_thresh[level].reshape(-1)
+            # every split of the level judged at once, then each tree walked down its decisions
+            right_branch = values[plan.first[level]] - values[plan.second[level]] <= plan.thresh[level]
             node = np.zeros(trees, dtype=np.int64)
             for _ in range(depth):
-                at = tree_splits + node
-                pair = pairs[at]
-                left_branch = values[pair[:, 0]] - values[pair[:, 1]] > thresh[at]
-                node = 2 * node + np.where(left_branch, 1, 2)
-            increments = self.leaves[level].reshape(trees * (splits + 1), -1)[tree_leaves + node]
+                node = 2 * node + 1 + right_branch[plan.tree_splits + node]
+            summed[0] = shape
+            np.take(plan.leaves[level], plan.tree_leaves + node, axis=0, out=summed[1:])
             # dlib adds the trees' increments one after the other in float32; a reduction over
             # the first axis does the same (NumPy sums pairwise only along the contiguous axis).
-            shape = np.add.reduce(np.concatenate([shape[None], increments]), axis=0, dtype=np.float32)
+            shape = np.add.reduce(summed, axis=0)
         final = origin + size * shape.reshape(-1, 2).astype(np.float64)
         return np.floor(final + 0.5)
 
