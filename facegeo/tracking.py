@@ -388,7 +388,8 @@ SAME_PERSON_FLOOR = 0.45
 #: A followed face's dense points keep the spread of the mesh model (its mirror pass,
 #: :meth:`~facegeo.landmarks.mediapipe_mesh.MediaPipeFaceMesh.spread`) found this many frames
 #: before at most: it follows the head's pose, which moves little in a few frames, and the pass
-#: was a sixth of a frame's observation.
+#: was a sixth of a frame's observation. A symmetric detector (``lids``, the default) makes that
+#: pass on every frame anyway and always gives this frame's spread.
 SPREAD_EVERY = 5
 
 
