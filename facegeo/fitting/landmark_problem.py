@@ -287,8 +287,9 @@ class LandmarkProblem:
         jac = np.empty((n, 2, 6 + n_id + n_exp))
         jac[:, :, :3] = -to_model @ skew  # X_c = R·exp([ω]×)·X: d X_c / d ω = −R·[X]×
         jac[:, :, 3:6] = t_unit * dproj
-        jac[:, :, 6 : 6 + n_id] = np.einsum("vaj,kvj->vak", to_model, self.id_lm[:n_id], optimize=False)
-        jac[:, :, 6 + n_id :] = np.einsum("vaj,kvj->vak", to_model, self.exp_lm[:n_exp], optimize=False)
+        # stacked (2, 3) @ (3, K) products: a fifth of einsum's time (the same sums, rounded in another order)
+        jac[:, :, 6 : 6 + n_id] = to_model @ self.id_lm[:n_id].transpose(1, 2, 0)
+        jac[:, :, 6 + n_id :] = to_model @ self.exp_lm[:n_exp].transpose(1, 2, 0)
         jac *= self.sqrt_w[:, None, None]
         return jac.reshape(2 * n, -1)
 
