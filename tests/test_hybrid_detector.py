@@ -69,7 +69,7 @@ def test_the_lids_detector_takes_the_eyes_from_the_face_landmarkers_mesh(photo):
     v2 = MediaPipeDetector(MediaPipeFaceMesh(mesh_model="v2", num_threads=1))
     plain = HybridDetector(mediapipe=v2, symmetric=True).detect(photo)
     face = v2.mesh(photo)[0]
-    mean = (face.mesh + v2.mesh.mirrored_mesh(photo, face, face_mesh_mirror())) / 2
+    mean = (face.mesh + v2.mesh.mirrored_mesh(photo, face, face_mesh_mirror())[0]) / 2
     assert found.detector == "lids" and found.points.shape == (88, 2)
     np.testing.assert_allclose(found.points[EYES], ibug68_from_mesh(mean)[EYES] + 0.5, atol=1e-4)
     others = np.setdiff1d(np.arange(88), EYES)

@@ -259,15 +259,18 @@ class HybridDetector(_UprightSearch):
             )
         return self._landmarks(image, mp_faces[0], len(mp_faces))
 
-    def _landmarks(self, image: np.ndarray, face: MediaPipeFace, n_faces: int, spread: np.ndarray | None = None) -> FaceLandmarks:
+    def _landmarks(self, image: np.ndarray, face: MediaPipeFace, n_faces: int, spread: np.ndarray | None = None,
+                   mirrored: np.ndarray | None = None) -> FaceLandmarks:
         """The 88 points of MediaPipe's ``face`` in ``image``: dlib's predictor in the box HOG would
         give it, the mesh's lips (and eyes, with ``eyes="mesh"``), its dense points and their
         spread (``spread`` (468,) px where given, else the mesh model's on this image). With
         ``symmetric``, each is the mean of the points found on the crop and, mirrored back, on its
-        mirror image (the spread then always this image's)."""
+        mirror image (``mirrored``, the mesh's, where that pass was made already; the spread then
+        always this image's)."""
         mesh = self.mediapipe.mesh
         if self.symmetric:
-            mirrored = mesh.mirrored_mesh(image, face, face_mesh_mirror())
+            if mirrored is None:
+                mirrored = mesh.mirrored_mesh(image, face, face_mesh_mirror())[0]
             spread = mesh.spread(image, face, face_mesh_mirror(), mirrored)
             face = dataclasses.replace(face, mesh=((face.mesh + mirrored) / 2).astype(np.float32))
         ibug = ibug68_from_mesh(face.mesh)
@@ -293,11 +296,20 @@ class HybridDetector(_UprightSearch):
         on the ROI of the previous frame's mesh (:meth:`MediaPipeFaceMesh.follow`). None where the
         face is lost (detect it again with :meth:`detect`) or ``previous`` has no mesh.
         ``keep_spread``: the dense points keep ``previous``'s spread (where it has one) instead of
-        the mesh model's mirror pass on this frame."""
+        the mesh model's mirror pass on this frame. A symmetric detector makes that pass anyway and
+        judges whether the face is lost by the mean of the two passes' presence."""
         if previous.dense is None:
             return None
-        face = self.mediapipe.mesh.follow(as_rgb_uint8(image, source), np.asarray(previous.dense, np.float64) - 0.5)
-        return None if face is None else self._landmarks(image, face, 1, previous.dense_spread if keep_spread else None)
+        image, mesh = as_rgb_uint8(image, source), self.mediapipe.mesh
+        if not self.symmetric:
+            face = mesh.follow(image, np.asarray(previous.dense, np.float64) - 0.5)
+            return None if face is None else self._landmarks(image, face, 1, previous.dense_spread if keep_spread else None)
+        # the face's presence, too, is the mean of the crop's and its mirror image's
+        face = mesh.follow(image, np.asarray(previous.dense, np.float64) - 0.5, min_presence=0.0)
+        mirrored, presence = mesh.mirrored_mesh(image, face, face_mesh_mirror())
+        if (face.presence + presence) / 2 < mesh.min_presence:
+            return None
+        return self._landmarks(image, face, 1, mirrored=mirrored)
 
 
 def lids_detector() -> HybridDetector:

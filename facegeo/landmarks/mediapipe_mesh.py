@@ -727,13 +727,14 @@ class MediaPipeFaceMesh:
         mesh = np.concatenate([xy, z[:, None]], axis=1).astype(np.float32)
         return mesh, presence
 
-    def mirrored_mesh(self, image: np.ndarray, face: MediaPipeFace, mirror: np.ndarray) -> np.ndarray:
+    def mirrored_mesh(self, image: np.ndarray, face: MediaPipeFace, mirror: np.ndarray) -> tuple[np.ndarray, float]:
         """The face's 468 points as the mesh model finds them on the mirror image of the same crop
         (``face.roi``), mapped back to ``image`` and renumbered by ``mirror`` (the face mesh's
         left-right permutation: point i of a face is point mirror[i] of its mirror image):
-        (468, 3) float64 x, y px (pixel-centre convention, as ``face.mesh``) and z (same scale).
-        A network that has learnt a point well puts it at the same place on a face and its mirror
-        image; where it guesses (an occluded cheek, a blurred jaw) the two disagree."""
+        (468, 3) float64 x, y px (pixel-centre convention, as ``face.mesh``) and z (same scale),
+        and the model's face presence on that crop. A network that has learnt a point well puts
+        it at the same place on a face and its mirror image; where it guesses (an occluded cheek,
+        a blurred jaw) the two disagree."""
         center, side, angle = face.roi[:2].astype(np.float64), float(face.roi[2]), float(face.roi[3])
         size = self.mesh_spec.size
         crop, to_image = roi_crop(image, center, side, angle, size)
@@ -742,7 +743,8 @@ class MediaPipeFaceMesh:
         raw[:, 0] = size - raw[:, 0]  # back from the mirror image (continuous crop coordinates)
         raw = raw[np.asarray(mirror)]
         xy = raw[:, :2] @ to_image[:, :2].T + to_image[:, 2] - 0.5
-        return np.concatenate([xy, raw[:, 2:] * (side / size)], axis=1)
+        presence = 1.0 / (1.0 + math.exp(-float(out["presence"].ravel()[0])))
+        return np.concatenate([xy, raw[:, 2:] * (side / size)], axis=1), presence
 
     def spread(self, image: np.ndarray, face: MediaPipeFace, mirror: np.ndarray,
                mirrored: np.ndarray | None = None) -> np.ndarray:
@@ -750,7 +752,7 @@ class MediaPipeFaceMesh:
         ``face.mesh`` and :meth:`mirrored_mesh` (``mirrored`` where it was found already), (468,)
         float32 pixels. ``image``: the (H, W, 3) uint8 RGB photo the face was found in."""
         if mirrored is None:
-            mirrored = self.mirrored_mesh(image, face, mirror)
+            mirrored = self.mirrored_mesh(image, face, mirror)[0]
         return (0.5 * np.linalg.norm(mirrored[:, :2] - face.mesh[:, :2], axis=1)).astype(np.float32)
 
     def face_from_detection(self, image: np.ndarray, detection: BlazeFaceDetection) -> MediaPipeFace:
@@ -768,15 +770,15 @@ class MediaPipeFaceMesh:
             presence=float(presence), keypoints=detection.keypoints.astype(np.float32),
             roi=np.array([center[0], center[1], side, angle], np.float32), irises=irises)
 
-    def follow(self, image: np.ndarray, previous: np.ndarray) -> MediaPipeFace | None:
+    def follow(self, image: np.ndarray, previous: np.ndarray, min_presence: float | None = None) -> MediaPipeFace | None:
         """The face whose mesh in the previous frame of a video was ``previous`` ((468, 2+) px,
         pixel-centre convention), found in ``image`` without the detector: one mesh pass on the
         tracking ROI of ``previous`` (MediaPipe's own video mode). None when the mesh model's
-        presence falls below ``min_presence`` (the face is lost: detect it again). The face's
-        ``box`` is its 68 points' bounding box and its ``score`` the presence."""
+        presence falls below ``min_presence`` (None: the object's; the face is lost: detect it
+        again). The face's ``box`` is its 68 points' bounding box and its ``score`` the presence."""
         center, side, angle = self.roi_from_mesh(np.asarray(previous, np.float64))
         mesh, presence = self.mesh_in_roi(image, center, side, angle)
-        if presence < self.min_presence:
+        if presence < (self.min_presence if min_presence is None else min_presence):
             return None
         points = ibug68_from_mesh(mesh[:N_MESH])
         box = np.concatenate([points.min(axis=0), points.max(axis=0)]).astype(np.float32)
