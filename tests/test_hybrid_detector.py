@@ -127,3 +127,21 @@ def test_a_face_is_followed_into_the_next_frame_without_the_detector(photo):
     noise = np.random.default_rng(0).integers(0, 256, photo.shape, dtype=np.uint8)
     assert lids.follow(noise, found) is None  # lost
     assert lids.follow(moved, HybridDetector(DlibDetector(), MediaPipeDetector(_NoFaceMesh())).detect(photo)) is None  # no mesh
+
+
+def test_the_symmetric_detector_keeps_a_followed_face_by_both_passes_presence(photo):
+    """A symmetric detector loses a followed face only where the mean of the crop's and the
+    mirror image's presence is under the limit (0.5): 0.3 and 0.9 keep it, 0.3 and 0.5 do not."""
+    from facegeo.landmarks.detectors import get_detector
+
+    lids = get_detector("lids")
+    found = lids.detect(photo)
+    mesh = lids.mediapipe.mesh
+    in_roi, mirrored = mesh.mesh_in_roi, mesh.mirrored_mesh
+    try:
+        for crop, mirror, kept in ((0.3, 0.9, True), (0.3, 0.5, False)):
+            mesh.mesh_in_roi = lambda *a, p=crop: (in_roi(*a)[0], p)
+            mesh.mirrored_mesh = lambda *a, p=mirror: (mirrored(*a)[0], p)
+            assert (lids.follow(photo, found) is not None) == kept, (crop, mirror)
+    finally:
+        mesh.mesh_in_roi, mesh.mirrored_mesh = in_roi, mirrored
