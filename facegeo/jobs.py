@@ -591,6 +591,7 @@ def track_into_folder(video: str | Path, output: str | Path, options: TrackOptio
     from facegeo.export.live_link import live_link_csv_lines
     from facegeo.staged_output import StagedOutput, locked_output
     from facegeo.landmarks.eyelids import SHUT_FRACTION
+    from facegeo.landmarks.scheme import N_LANDMARKS
     from facegeo.tracking import (NEUTRAL_FADE_DEG, POSE_WINDOW, SLOW_WEIGHT_WINDOW, WEIGHT_WINDOW, lid_weights, smooth_track,
                                   track_frames)
     from facegeo.video import open_video
@@ -614,8 +615,9 @@ def track_into_folder(video: str | Path, output: str | Path, options: TrackOptio
                                    "these frames (their offsets from the clip's identity with no expression, turning with the head), in "
                                    f"full within {NEUTRAL_FADE_DEG[0]:g} deg of the head's rotation there, none beyond "
                                    f"{NEUTRAL_FADE_DEG[1]:g} deg",
-                           "offsets_mm": {"landmarks_median": float(np.median(size[:88])), "landmarks_max": float(size[:88].max()),
-                                          "dense_median": float(np.median(size[88:])) if len(size) > 88 else None}}
+                           "offsets_mm": {"landmarks_median": float(np.median(size[:N_LANDMARKS])),
+                                          "landmarks_max": float(size[:N_LANDMARKS].max()),
+                                          "dense_median": float(np.median(size[N_LANDMARKS:])) if len(size) > N_LANDMARKS else None}}
         found = np.flatnonzero([f.found for f in track.frames])
         # each frame's nearest frame with a face (itself where it has one; the earlier on a tie)
         after = np.minimum(np.searchsorted(found, np.arange(len(track.frames))), len(found) - 1)

@@ -23,8 +23,8 @@ _SAMPLES = np.array(
 
 def _samples(corners: np.ndarray) -> np.ndarray:
     """(F, 7, 3) float64: :data:`_SAMPLES` of each triangle's (F, 3, 3) ``corners``, each written
-    out (the weights' zero terms left out): the same numbers as the weighted sums, in a quarter of
-    ``np.einsum``'s time."""
+    out in :data:`_SAMPLES`' order (the weights' zero terms left out): the same numbers as the
+    weighted sums, in a quarter of ``np.einsum``'s time."""
     a, b, c = corners[:, 0], corners[:, 1], corners[:, 2]
     out = np.empty((len(corners), len(_SAMPLES), corners.shape[2]))
     out[:, 0], out[:, 1], out[:, 2] = a, b, c
