@@ -713,19 +713,30 @@ class MediaPipeFaceMesh:
         side = float(max(hi - lo)) * ROI_SCALE
         return (lo + hi) / 2, side, angle
 
+    def _crop_pass(self, image: np.ndarray, center: np.ndarray, side: float, angle: float,
+                   mirror: bool = False) -> tuple[np.ndarray, np.ndarray, float]:
+        """The mesh model on a rotated square ROI (``mirror``: on the crop's mirror image):
+        ((n_points, 3) float64 points in the crop's continuous pixels, z in the crop's scale; the
+        (2, 3) crop-to-image affine of :func:`roi_crop`; the face presence)."""
+        crop, to_image = roi_crop(image, center, side, angle, self.mesh_spec.size)
+        if mirror:
+            crop = np.ascontiguousarray(crop[:, ::-1])
+        out = self.mesh_model((crop.astype(np.float32) / 255.0)[None])
+        raw = out["mesh"].reshape(self.mesh_spec.n_points, 3).astype(np.float64)
+        return raw, to_image, 1.0 / (1.0 + math.exp(-float(out["presence"].ravel()[0])))
+
+    def _in_image(self, raw: np.ndarray, to_image: np.ndarray, side: float) -> np.ndarray:
+        """(K, 3) float64: crop points of :meth:`_crop_pass` in the image's pixels (pixel-centre
+        convention), z at the image's scale."""
+        xy = raw[:, :2] @ to_image[:, :2].T + to_image[:, 2] - 0.5
+        return np.concatenate([xy, raw[:, 2:] * (side / self.mesh_spec.size)], axis=1)
+
     def mesh_in_roi(self, image: np.ndarray, center: np.ndarray, side: float,
                     angle: float) -> tuple[np.ndarray, float]:
         """Run the mesh model on a rotated square ROI; return ((n_points, 3) px mesh, presence):
         the 468 face-mesh points, then the model's extra points (v2: the two irises)."""
-        size, n_points = self.mesh_spec.size, self.mesh_spec.n_points
-        crop, to_image = roi_crop(image, center, side, angle, size)
-        out = self.mesh_model((crop.astype(np.float32) / 255.0)[None])
-        raw = out["mesh"].reshape(n_points, 3).astype(np.float64)
-        presence = 1.0 / (1.0 + math.exp(-float(out["presence"].ravel()[0])))
-        xy = raw[:, :2] @ to_image[:, :2].T + to_image[:, 2] - 0.5
-        z = raw[:, 2] * (side / size)
-        mesh = np.concatenate([xy, z[:, None]], axis=1).astype(np.float32)
-        return mesh, presence
+        raw, to_image, presence = self._crop_pass(image, center, side, angle)
+        return self._in_image(raw, to_image, side).astype(np.float32), presence
 
     def mirrored_mesh(self, image: np.ndarray, face: MediaPipeFace, mirror: np.ndarray) -> tuple[np.ndarray, float]:
         """The face's 468 points as the mesh model finds them on the mirror image of the same crop
@@ -736,15 +747,10 @@ class MediaPipeFaceMesh:
         it at the same place on a face and its mirror image; where it guesses (an occluded cheek,
         a blurred jaw) the two disagree."""
         center, side, angle = face.roi[:2].astype(np.float64), float(face.roi[2]), float(face.roi[3])
-        size = self.mesh_spec.size
-        crop, to_image = roi_crop(image, center, side, angle, size)
-        out = self.mesh_model((np.ascontiguousarray(crop[:, ::-1]).astype(np.float32) / 255.0)[None])
-        raw = out["mesh"].reshape(self.mesh_spec.n_points, 3)[:N_MESH].astype(np.float64)
-        raw[:, 0] = size - raw[:, 0]  # back from the mirror image (continuous crop coordinates)
-        raw = raw[np.asarray(mirror)]
-        xy = raw[:, :2] @ to_image[:, :2].T + to_image[:, 2] - 0.5
-        presence = 1.0 / (1.0 + math.exp(-float(out["presence"].ravel()[0])))
-        return np.concatenate([xy, raw[:, 2:] * (side / size)], axis=1), presence
+        raw, to_image, presence = self._crop_pass(image, center, side, angle, mirror=True)
+        raw = raw[:N_MESH]
+        raw[:, 0] = self.mesh_spec.size - raw[:, 0]  # back from the mirror image (continuous crop coordinates)
+        return self._in_image(raw[np.asarray(mirror)], to_image, side), presence
 
     def spread(self, image: np.ndarray, face: MediaPipeFace, mirror: np.ndarray,
                mirrored: np.ndarray | None = None) -> np.ndarray:

@@ -28,6 +28,7 @@ stream into integers with a vectorised speculative scan (:func:`_token_starts`),
 
 from __future__ import annotations
 
+import functools
 import hashlib
 import os
 import re
@@ -69,10 +70,6 @@ class _Plan:
     leaves: np.ndarray
 
 
-#: Each predictor object's :class:`_Plan`, made on its first call.
-_PLANS: dict[int, tuple[ShapePredictor, _Plan]] = {}
-
-
 @dataclass(frozen=True)
 class ShapePredictor:
     """A converted dlib shape predictor (arrays possibly views of read-only memory maps).
@@ -92,22 +89,20 @@ class ShapePredictor:
     anchor: np.ndarray
     delta: np.ndarray
 
+    @functools.cached_property
     def _plan(self) -> _Plan:
-        """The arrays :meth:`__call__` reads, laid out for it once per predictor object."""
-        plan = _PLANS.get(id(self))
-        if plan is None or plan[0] is not self:
-            levels, trees, splits = self.split_idx.shape[:3]
-            mean = self.mean.astype(np.float64)
-            mean_centred = mean - mean.mean(axis=0)
-            pairs = self.split_idx.reshape(levels, trees * splits, 2)
-            plan = (self, _Plan(mean_centred, float((mean_centred**2).sum()),
-                                np.ascontiguousarray(self.delta[..., 0]), np.ascontiguousarray(self.delta[..., 1]),
-                                np.ascontiguousarray(pairs[..., 0]).astype(np.intp), np.ascontiguousarray(pairs[..., 1]).astype(np.intp),
-                                self.split_thresh.reshape(levels, trees * splits), np.arange(trees) * splits,
-                                np.arange(trees) * (splits + 1) - splits,
-                                self.leaves.reshape(levels, trees * (splits + 1), -1)))
-            _PLANS[id(self)] = plan
-        return plan[1]
+        """The arrays :meth:`__call__` reads, laid out for it once per predictor object (the
+        frozen dataclass's ``__dict__`` keeps it: ``cached_property`` does not go through
+        ``__setattr__``)."""
+        levels, trees, splits = self.split_idx.shape[:3]
+        mean = self.mean.astype(np.float64)
+        mean_centred = mean - mean.mean(axis=0)
+        pairs = self.split_idx.reshape(levels, trees * splits, 2)
+        return _Plan(mean_centred, float((mean_centred**2).sum()),
+                     np.ascontiguousarray(self.delta[..., 0]), np.ascontiguousarray(self.delta[..., 1]),
+                     np.ascontiguousarray(pairs[..., 0]).astype(np.intp), np.ascontiguousarray(pairs[..., 1]).astype(np.intp),
+                     self.split_thresh.reshape(levels, trees * splits), np.arange(trees) * splits,
+                     np.arange(trees) * (splits + 1) - splits, self.leaves.reshape(levels, trees * (splits + 1), -1))
 
     def __call__(self, image: np.ndarray, box: tuple[int, int, int, int], mirror: bool = False) -> np.ndarray:
         """The P points of the face in ``box`` as dlib's ``shape_predictor(image, rectangle)``
@@ -124,7 +119,7 @@ class ShapePredictor:
         origin = np.array([left, top], dtype=np.float64)
         size = np.array([right - left, bottom - top], dtype=np.float64)
         limit = np.array([image.shape[1] - 1, image.shape[0] - 1])
-        plan = self._plan()
+        plan = self._plan
         levels, trees = self.split_idx.shape[:2]
         depth = int(np.log2(self.split_idx.shape[2] + 1))
         shape = self.mean.reshape(-1).copy()
