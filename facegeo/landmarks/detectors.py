@@ -250,9 +250,15 @@ class HybridDetector(_UprightSearch):
         return self.mediapipe.mesh
 
     def _detect(self, image: np.ndarray, source: str) -> FaceLandmarks:
-        mp_faces = self.mediapipe.mesh(image)
-        if not mp_faces:
+        mesh = self.mediapipe.mesh
+        mp_faces = mesh(image)
+        if not mp_faces:  # the short-range detector misses faces under ~60 px that HOG finds: the mesh on HOG's face
             result = self.dlib._detect(image, source)
+            face = mesh.face_from_points(image, result.points[:68] - 0.5)
+            if face.presence >= mesh.min_presence:
+                found = self._landmarks(image, face, result.n_faces)
+                return dataclasses.replace(found, notes=found.notes + ("MediaPipe's detector found no face: the face mesh "
+                                                                       "was placed on dlib's",))
             return FaceLandmarks(
                 result.points, result.box, result.n_faces, self.name,
                 result.notes + ("MediaPipe found no face: the lip points are dlib's",),

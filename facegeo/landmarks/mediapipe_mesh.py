@@ -86,7 +86,7 @@ from __future__ import annotations
 
 import math
 import os
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import cv2
@@ -763,7 +763,27 @@ class MediaPipeFaceMesh:
 
     def face_from_detection(self, image: np.ndarray, detection: BlazeFaceDetection) -> MediaPipeFace:
         """The mesh for one detection (detection ROI, then ``refine_passes`` tracking ROIs)."""
-        center, side, angle = self.roi_from_detection(detection)
+        return self._refined_face(image, *self.roi_from_detection(detection), detection.box, float(detection.score),
+                                  detection.keypoints)
+
+    def face_from_points(self, image: np.ndarray, points: np.ndarray) -> MediaPipeFace:
+        """The mesh of a face another detector found (dlib's HOG finds faces smaller than the
+        short-range detector's): its 68 iBUG points ((68, 2) px, pixel-centre convention) set the
+        first ROI (their bounding box's centre, its larger side × ``ROI_SCALE``, the eyes' outer
+        corners' angle), then ``refine_passes`` tracking ROIs as :meth:`face_from_detection`. The
+        face's ``box`` is the points' bounding box and its ``score`` the mesh model's presence
+        (check it against ``min_presence``)."""
+        points = np.asarray(points, np.float64)
+        lo, hi = points.min(axis=0), points.max(axis=0)
+        d = points[45] - points[36]  # the subject's left eye's outer corner minus the right's (iBUG numbering)
+        face = self._refined_face(image, (lo + hi) / 2, float(max(hi - lo)) * ROI_SCALE, math.atan2(float(d[1]), float(d[0])),
+                                  np.concatenate([lo, hi]), 0.0, np.zeros((6, 2), np.float32))
+        return replace(face, score=face.presence)
+
+    def _refined_face(self, image: np.ndarray, center: np.ndarray, side: float, angle: float, box: np.ndarray, score: float,
+                      keypoints: np.ndarray) -> MediaPipeFace:
+        """The mesh in the ROI (centre (2,) px, side px, angle rad), then ``refine_passes`` passes
+        on the ROI of its own points while its presence holds."""
         mesh, presence = self.mesh_in_roi(image, center, side, angle)
         for _ in range(self.refine_passes):
             if presence < self.min_presence:
@@ -772,8 +792,8 @@ class MediaPipeFaceMesh:
             mesh, presence = self.mesh_in_roi(image, center, side, angle)
         irises = mesh[N_MESH:].reshape(2, 5, 3) if len(mesh) == N_MESH + 10 else None
         return MediaPipeFace(
-            mesh=mesh[:N_MESH], box=detection.box.astype(np.float32), score=float(detection.score),
-            presence=float(presence), keypoints=detection.keypoints.astype(np.float32),
+            mesh=mesh[:N_MESH], box=np.asarray(box, np.float32), score=score, presence=float(presence),
+            keypoints=np.asarray(keypoints, np.float32),
             roi=np.array([center[0], center[1], side, angle], np.float32), irises=irises)
 
     def follow(self, image: np.ndarray, previous: np.ndarray, min_presence: float | None = None) -> MediaPipeFace | None:
