@@ -63,7 +63,7 @@ __all__ = ["TrackedFrame", "Track", "ClipIdentity", "track_frames", "observe_fra
            "turned_brow_weights", "TURNED_BROW_RAMP", "NeutralOffsets", "neutral_offsets", "NEUTRAL_POSE_STAGE", "NEUTRAL_WINDOW_S",
            "NEUTRAL_FADE_DEG",
            "TRACK_STAGE", "KEYFRAMES", "FOLLOW_MARGIN", "POSE_WINDOW", "WEIGHT_WINDOW", "SLOW_WEIGHT_WINDOW",
-           "IDENTITY_CHECK_EVERY"]
+           "IDENTITY_CHECK_EVERY", "HELD_FRAMES", "HELD_BYTES"]
 
 #: The per-frame solve: pose and expression, identity fixed (no identity columns), warm-started;
 #: the contours slid before its first 2 iterations (from the previous frame's pose they barely
@@ -218,7 +218,11 @@ def observe_frames(frames: Iterable[Any], model: MorphableModel, detector: str =
       :data:`IDENTITY_CHECK_EVERY`-th followed one, is compared
       with it by its face descriptor (:mod:`facegeo.landmarks.face_identity`); another person's
       face is not observed (the frame is flagged as showing another person, and the next frame
-      searched whole again).
+      searched whole again);
+    * frames where no face was found, or another person's, wait (up to :data:`HELD_FRAMES`) for
+      the next face found, which is then followed back into them
+      (:meth:`_FrameObserver.observe`): a face the detector misses but the face mesh follows, or
+      whose descriptor a hand or motion blur moved past the limit, is kept.
 
     ``rest``: opens the clip's frames that follow ``frames`` (its second part), which a forked
     child (:mod:`facegeo.forked_call`, where :func:`~facegeo.forked_call.can_fork`) observes on
@@ -235,7 +239,7 @@ def observe_frames(frames: Iterable[Any], model: MorphableModel, detector: str =
     pending = None
     frames = iter(frames)
     for frame in frames:  # until the clip's person is found (the child's part needs it)
-        observed.append(observer.observe(frame))
+        observed.extend(observer.observe(frame))
         if progress is not None:
             progress(len(observed))
         if rest is not None and observer.person is not None and can_fork():
@@ -245,16 +249,17 @@ def observe_frames(frames: Iterable[Any], model: MorphableModel, detector: str =
 
     def here() -> ObservedFrames:
         for frame in frames:
-            observed.append(observer.observe(frame))
+            observed.extend(observer.observe(frame))
             if progress is not None:
                 progress(len(observed) * (2 if pending is not None else 1))
-        return observed
+        return observed.extend(observer.flush())
 
     def instead() -> ObservedFrames:  # the rest here: no face to hand over, the child met another person first, or it was lost
         part = observer.store() if theirs is None else theirs.clear()
         if rest is not None:
-            part.extend(observer.observe(frame) for frame in rest())
-        return part
+            for frame in rest():
+                part.extend(observer.observe(frame))
+        return part.extend(observer.flush())
 
     observed = _beside_child(pending, here, instead, lambda count: None if count is None or theirs is None else theirs.sync(),
                              ObservedFrames.extend)
@@ -271,13 +276,15 @@ def _observe_rest(observer: _FrameObserver, rest: Callable[[], Iterable[Any]], s
     first face it finds is another person's (a clip with several people: the largest face is not
     always the clip's person, whom the caller then follows into this part)."""
     observer.forget_face()
+    observer.held = []  # the other part's frames
     faces = 0
     for frame in rest():
-        seen = observer.observe(frame)
+        decided = observer.observe(frame)
         if observer.stranger and not faces:
             return None
-        faces += seen.observation is not None
-        store.append(seen)
+        faces += sum(seen.observation is not None for seen in decided)
+        store.extend(decided)
+    store.extend(observer.flush())
     return len(store)
 
 
@@ -295,6 +302,7 @@ class _FrameObserver:
         self.size: tuple[int, int] | None = None
         self.person: np.ndarray | None = None  # the clip's person's face descriptor
         self.same_person: list[float] = []  # descriptor distances of the faces accepted as the person
+        self.held: list[_HeldFrame] = []  # the latest frames without a face, oldest first, not yet handed out
         self.forget_face()
 
     def same_person_limit(self) -> float:
@@ -322,17 +330,80 @@ class _FrameObserver:
         self.spread_age = SPREAD_EVERY  # frames since the mesh model's spread was found (the frame it was found counts 1)
         self.stranger = False  # whether another person's face was found since
 
-    def observe(self, frame: Any) -> ObservedFrame:
-        """One frame (``index``, ``time_s``, ``image`` (H, W, 3) uint8 RGB) observed."""
-        from facegeo.landmarks.face_identity import face_descriptor
+    def observe(self, frame: Any) -> list[ObservedFrame]:
+        """One frame (``index``, ``time_s``, ``image`` (H, W, 3) uint8 RGB) observed: the frames
+        it decides, in order. A frame without a face (or with a face rejected as another
+        person's) is held, its pixels kept, up to :data:`HELD_FRAMES` frames (and
+        :data:`HELD_BYTES`); the next face found is followed back into the held frames
+        (:meth:`_followed_back`) before they are handed out. :meth:`flush` hands out the rest."""
+        held = self._observe(frame)
+        if held.seen.observation is not None:
+            return self._followed_back(held) + [held.seen]
+        self.held.append(held)
+        out = []
+        while len(self.held) > HELD_FRAMES or sum(h.frame.image.nbytes for h in self.held) > HELD_BYTES:
+            out.append(self.held.pop(0).seen)
+        return out
 
+    def flush(self) -> list[ObservedFrame]:
+        """The held frames (:meth:`observe`), handed out without a face: no face came after them."""
+        out = [held.seen for held in self.held]
+        self.held = []
+        return out
+
+    def _followed_back(self, after: _HeldFrame) -> list[ObservedFrame]:
+        """The held frames, in order, the latest first followed back into from ``after`` (the
+        frame that follows them, with a face) as a face is followed forward. Where the face is
+        lost going back, that frame and those before it stay without a face. A face followed back
+        that jumped (:func:`_jumped`) is compared with the clip's person, as forward. In a frame
+        whose face was rejected as another person's, the face followed back is the person's
+        where it is that face in that place (not :func:`_jumped` from it) and its descriptor is
+        within the limit of the next frame's face's: the same person in two frames a moment
+        apart, alike in pose, blur and what covers the face (a hand, the motion blur of a fast
+        turn), which set the face apart from the clip's person."""
+        held, self.held = self.held, []
+        back: list[ObservedFrame] = []
+        image, face, descriptor = after.frame.image, after.seen.observation, None
+        while held and self.follow is not None and face is not None:
+            last = held[-1]
+            found = self.follow(last.frame.image, face.detection, self.source)
+            if found is None:
+                break
+            observation = _shifted(observe_photo(np.ascontiguousarray(last.frame.image), self.model, None, found, None,
+                                                 DEFAULT_DENSE), 0, 0)
+            if last.rejected is not None:
+                if _jumped(last.rejected.landmarks, observation.landmarks):
+                    break
+                descriptor = _face_descriptor(image, face) if descriptor is None else descriptor
+                mine = _face_descriptor(last.frame.image, observation)
+                if float(np.linalg.norm(mine - descriptor)) > self.same_person_limit():
+                    break
+                descriptor = mine
+            elif _jumped(face.landmarks, observation.landmarks):
+                mine = _face_descriptor(last.frame.image, observation)
+                if float(np.linalg.norm(mine - self.person)) > self.same_person_limit():
+                    break
+                descriptor = mine
+            else:
+                descriptor = None
+            held.pop()
+            back.append(ObservedFrame(last.frame.index, last.frame.time_s, observation, None,
+                                      self._lid_gaps(last.frame.image, observation)))
+            image, face = last.frame.image, observation
+        return [h.seen for h in held] + back[::-1]
+
+    def _lid_gaps(self, image: np.ndarray, observation: PhotoObservation | None) -> np.ndarray | None:
+        return None if observation is None or self.iris is None else eyelids.lid_gaps(image, observation.landmarks, self.iris)
+
+    def _observe(self, frame: Any) -> _HeldFrame:
+        """One frame observed on its own, going forward (:class:`_HeldFrame`)."""
         height, width = frame.image.shape[:2]
         if self.size is None:
             self.size = (width, height)
         elif self.size != (width, height):
             raise InputError(self.source, f"frame {frame.index}: frame size", f"{self.size[0]}x{self.size[1]} px as the first frame",
                              f"{width}x{height} px")
-        observation, why, searched_whole = None, None, False
+        observation, why, searched_whole, rejected = None, None, False, None
         if self.follow is not None and self.previous_detection is not None:
             keep = self.spread_age < SPREAD_EVERY
             found = self.follow(frame.image, self.previous_detection, self.source, keep_spread=keep)
@@ -352,12 +423,13 @@ class _FrameObserver:
                 why = f"{error.field}: {error.found or error.expected}"
         if observation is not None and (self.person is None or searched_whole or self.followed >= IDENTITY_CHECK_EVERY
                                         or _jumped(self.previous, observation.landmarks)):
-            descriptor = face_descriptor(frame.image, observation.landmarks)
+            descriptor = _face_descriptor(frame.image, observation)
             self.followed = 0
             if self.person is None:
                 self.person = descriptor
             elif (distance := float(np.linalg.norm(descriptor - self.person))) > (limit := self.same_person_limit()):
                 self.stranger = True
+                rejected = observation
                 observation, why = None, (f"another person (face descriptor {distance:.2f} from the clip's person's, more than "
                                           f"{limit:.2f})")
             else:
@@ -366,8 +438,8 @@ class _FrameObserver:
         self.previous = None if observation is None else observation.landmarks
         self.previous_detection = None if observation is None else observation.detection
         self.region = None if observation is None else follow_region(observation.landmarks, width, height)
-        gaps = None if observation is None or self.iris is None else eyelids.lid_gaps(frame.image, observation.landmarks, self.iris)
-        return ObservedFrame(frame.index, frame.time_s, observation, None if observation is not None else why, gaps)
+        return _HeldFrame(frame, ObservedFrame(frame.index, frame.time_s, observation, None if observation is not None else why,
+                                               self._lid_gaps(frame.image, observation)), rejected)
 
     def store(self) -> ObservedFrames:
         """An empty :class:`~facegeo.observed_frames.ObservedFrames` for this clip's frames."""
@@ -378,6 +450,23 @@ class _FrameObserver:
                                                                                            correspondence.barycentric))
 
 
+@dataclass(frozen=True)
+class _HeldFrame:
+    """A frame as :meth:`_FrameObserver._observe` observed it: the ``frame`` (its pixels), what
+    was observed of it (``seen``) and, where its descriptor was rejected as another person's,
+    the face (``rejected``; else None)."""
+
+    frame: Any
+    seen: ObservedFrame
+    rejected: PhotoObservation | None = None
+
+
+#: Frames without a face held for the next face to be followed back into (a face the detector
+#: misses on its own but the face mesh follows, the blurred frame whose descriptor passed the
+#: limit), at most this many (0.5 s at 30 frames/s) and this many bytes of pixels: the oldest is
+#: handed out without a face beyond either.
+HELD_FRAMES = 15
+HELD_BYTES = 256 * 2**20
 #: A followed face is compared with the clip's person every this many frames (a cut to another
 #: person in the same place); a face found by searching the whole frame always is.
 IDENTITY_CHECK_EVERY = 15
@@ -391,6 +480,14 @@ SAME_PERSON_FLOOR = 0.45
 #: was a sixth of a frame's observation. A symmetric detector (``lids``, the default) makes that
 #: pass on every frame anyway and always gives this frame's spread.
 SPREAD_EVERY = 5
+
+
+def _face_descriptor(image: np.ndarray, observation: PhotoObservation) -> np.ndarray:
+    """The face descriptor (:func:`facegeo.landmarks.face_identity.face_descriptor`) of the face
+    ``observation`` found in ``image`` (H, W, 3) uint8 RGB."""
+    from facegeo.landmarks.face_identity import face_descriptor
+
+    return face_descriptor(image, observation.landmarks)
 
 
 def _jumped(previous: np.ndarray | None, landmarks: np.ndarray) -> bool:
