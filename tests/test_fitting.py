@@ -200,6 +200,36 @@ def test_analytic_jacobian_matches_finite_differences(model):
     expected = np.stack([(residuals(h * e) - residuals(-h * e)) / (2 * h) for e in np.eye(n)], axis=1)
     actual = problem.jacobian(r0, t0, a0, d0, n_id, n_exp, unit)
     np.testing.assert_allclose(actual, expected, rtol=1e-6, atol=1e-9)
+    problem = LandmarkProblem(model, landmarks, CAMERA, LANDMARK_WEIGHTS, brow_along_noise=3.0)  # the brows' residuals turned
+    problem.slide_jaw(r0, t0, a0, d0)
+    expected = np.stack([(residuals(h * e) - residuals(-h * e)) / (2 * h) for e in np.eye(n)], axis=1)
+    np.testing.assert_allclose(problem.jacobian(r0, t0, a0, d0, n_id, n_exp, unit), expected, rtol=1e-6, atol=1e-9)
+
+
+def test_a_brow_residual_along_the_brow_weighs_less_and_across_it_the_same(model):
+    """along_curve_metric: on a straight polyline a residual across the line is kept and one along
+    it scaled; in the landmark problem a brow point moved along its brow costs 1/ratio² of one moved
+    across it, and every other point is as without the ratio."""
+    from facegeo.fitting.landmark_problem import LandmarkProblem, along_curve_metric
+    from facegeo.landmarks.scheme import BROWS, LANDMARK_WEIGHTS
+
+    line = np.array([[0.0, 0.0], [3.0, 4.0], [6.0, 8.0]])  # tangent (0.6, 0.8)
+    metric = along_curve_metric(line, 0.25)
+    np.testing.assert_allclose(metric @ np.array([0.6, 0.8]), np.full((3, 2), [0.15, 0.2]), atol=1e-12)
+    np.testing.assert_allclose(metric @ np.array([-0.8, 0.6]), np.full((3, 2), [-0.8, 0.6]), atol=1e-12)
+    rng = np.random.default_rng(3)
+    _, rotation, landmarks = synthetic(model, rng, 0.0)
+    plain = LandmarkProblem(model, landmarks, CAMERA, LANDMARK_WEIGHTS)
+    turned = LandmarkProblem(model, landmarks, CAMERA, LANDMARK_WEIGHTS, brow_along_noise=4.0)
+    args = (rotation_from_euler(0, 0, 0), np.array([0.0, 0.0, -600.0]), np.zeros(model.n_id), np.zeros(model.n_exp))
+    r_plain, r_turned = plain.residuals(*args).reshape(-1, 2), turned.residuals(*args).reshape(-1, 2)
+    others = np.setdiff1d(np.arange(len(r_plain)), BROWS)
+    np.testing.assert_array_equal(r_turned[others], r_plain[others])
+    brow = landmarks[BROWS[5:]]
+    tangent = (brow[3] - brow[1]) / np.linalg.norm(brow[3] - brow[1])  # of point 24, the left brow's middle
+    along = np.abs(r_turned[24] @ tangent) / np.abs(r_plain[24] @ tangent)
+    across = np.abs(r_turned[24] @ [-tangent[1], tangent[0]]) / np.abs(r_plain[24] @ [-tangent[1], tangent[0]])
+    assert along == pytest.approx(0.25, rel=1e-9) and across == pytest.approx(1.0, rel=1e-9)
 
 
 # ------------------------------------------------------------------ the MAP fit (issue 13)

@@ -305,7 +305,7 @@ def solve_landmarks(
         timings["pose_init"] = time.perf_counter() - t0
 
         t0 = time.perf_counter()
-        problem = LandmarkProblem(model, targets, camera, weights, surface_points)
+        problem = LandmarkProblem(model, targets, camera, weights, surface_points, priors.brow_along_noise)
         state = {
             "rotation": np.array(rotation, dtype=np.float64),
             "translation": np.array(translation, dtype=np.float64),

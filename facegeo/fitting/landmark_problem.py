@@ -12,10 +12,10 @@ import numpy as np
 
 from facegeo.camera import Camera, project
 from facegeo.fitting.silhouette import Silhouette
-from facegeo.landmarks.scheme import CHIN, N_LANDMARKS, inter_ocular_distance
+from facegeo.landmarks.scheme import BROWS, CHIN, N_LANDMARKS, inter_ocular_distance
 from facegeo.morphable_model import MorphableModel
 
-__all__ = ["LandmarkProblem", "SurfacePoints", "silhouette_of", "SubsetBases", "subset_bases"]
+__all__ = ["LandmarkProblem", "SurfacePoints", "silhouette_of", "SubsetBases", "subset_bases", "along_curve_metric"]
 
 _SILHOUETTES: dict[int, tuple[MorphableModel, Silhouette]] = {}
 
@@ -98,6 +98,16 @@ class SurfacePoints:
         return len(self.targets)
 
 
+def along_curve_metric(points: np.ndarray, along: float) -> np.ndarray:
+    """(K, 2, 2) float64: for each point of a polyline ``points`` (K, 2) px, the matrix that keeps
+    a residual's part across the line and scales its part along it by ``along``: n nᵀ + along·t tᵀ,
+    t the unit tangent (the central difference of the neighbours, one-sided at the ends), n ⟂ t."""
+    tangent = np.gradient(np.asarray(points, np.float64), axis=0)
+    tangent /= np.maximum(np.linalg.norm(tangent, axis=1, keepdims=True), 1e-12)
+    normal = np.stack([-tangent[:, 1], tangent[:, 0]], axis=1)
+    return normal[:, :, None] * normal[:, None, :] + along * tangent[:, :, None] * tangent[:, None, :]
+
+
 class LandmarkProblem:
     """Residuals of the landmark term, with the jaw points sliding along the contour (NumPy
     float64: Gauss–Newton squares the Jacobian, and float32 cannot tell the last sub-pixel
@@ -116,12 +126,16 @@ class LandmarkProblem:
     wider or narrower than the face is explained by the identity, never by puffed cheeks or a
     stretched mouth. The chin and every other point see all expressions.
 
+    With ``brow_along_noise`` (:attr:`FitPriors.brow_along_noise <facegeo.fitting.priors.FitPriors>`)
+    other than 1, a brow point's residual is taken in its detected brow's frame
+    (:func:`along_curve_metric`): across the brow as it is, along it divided by that ratio.
+
     Rows 0..87 are the 88 landmarks (:mod:`facegeo.landmarks.scheme`), rows 88.. the
     :class:`SurfacePoints`, if any. Residuals are in inter-ocular units of the 88 targets.
     """
 
     def __init__(self, model: MorphableModel, targets: np.ndarray, camera: Camera, weights: np.ndarray,
-                 extra: SurfacePoints | None = None):
+                 extra: SurfacePoints | None = None, brow_along_noise: float = 1.0):
         self.model, self.camera = model, camera
         extra = extra if extra is not None else SurfacePoints(np.zeros((0, 2)), np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0))
         n = N_LANDMARKS + len(extra)
@@ -172,6 +186,10 @@ class LandmarkProblem:
         self._bases = subset_bases(model, self.subset, {"contour": self.contour_vertex_rows, "silhouette": self.silhouette_subset_rows})
         self.mean, self.id_basis, self.exp_basis = self._bases.mean, self._bases.id_basis, self._bases.exp_basis
         self._update_bases(np.zeros(model.n_exp))
+        # each brow point's residual in its brow's frame: across the brow as it is, along it / brow_along_noise
+        self.metric_rows = np.zeros(0, np.int64) if brow_along_noise == 1.0 else BROWS
+        self.metric = np.concatenate([along_curve_metric(self.targets[row], 1.0 / brow_along_noise) for row in (BROWS[:5], BROWS[5:])]
+                                     ) if len(self.metric_rows) else np.zeros((0, 2, 2))
 
     def _blend(self, values: np.ndarray, rows: np.ndarray | slice) -> np.ndarray:
         """(..., K, 3) per subset vertex -> (..., len(rows), 3) at the observed points."""
@@ -260,6 +278,8 @@ class LandmarkProblem:
     def residuals(self, rotation: np.ndarray, translation: np.ndarray, alpha: np.ndarray, delta: np.ndarray) -> np.ndarray:
         """(2n,) weighted residuals in inter-ocular units; Σ r² = Σ w_i ‖r_i‖²."""
         diff = self.projected(rotation, translation, alpha, delta) - self.targets
+        if len(self.metric_rows):
+            diff[self.metric_rows] = (self.metric @ diff[self.metric_rows, :, None])[..., 0]
         return (diff * self.sqrt_w[:, None]).reshape(-1)
 
     def jacobian(self, rotation: np.ndarray, translation: np.ndarray, alpha: np.ndarray, delta: np.ndarray, n_id: int, n_exp: int,
@@ -290,6 +310,8 @@ class LandmarkProblem:
         # stacked (2, 3) @ (3, K) products: a fifth of einsum's time (the same sums, rounded in another order)
         jac[:, :, 6 : 6 + n_id] = to_model @ self.id_lm[:n_id].transpose(1, 2, 0)
         jac[:, :, 6 + n_id :] = to_model @ self.exp_lm[:n_exp].transpose(1, 2, 0)
+        if len(self.metric_rows):
+            jac[self.metric_rows] = self.metric @ jac[self.metric_rows]
         jac *= self.sqrt_w[:, None, None]
         return jac.reshape(2 * n, -1)
 

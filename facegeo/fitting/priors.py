@@ -75,9 +75,15 @@ class FitPriors:
     #: lacks are ignored; values are clipped into the model's range): a tracker's blinks read from
     #: the lids (:mod:`facegeo.landmarks.eyelids`).
     measured_expressions: tuple[tuple[str, float], ...] = ()
+    #: A brow landmark's noise along its brow over its noise across it (dlib's 17-21 and 22-26,
+    #: :class:`~facegeo.fitting.landmark_problem.LandmarkProblem`): a detector finds a brow, a
+    #: long edge, across it and spaces its points along it by its shape prior (the aperture
+    #: problem; on a lowered brow dlib's points move down as a row while the model's also close
+    #: in). 1: the same both ways.
+    brow_along_noise: float = 1.0
 
     def __post_init__(self) -> None:
-        for name in ("noise", "noise_floor", "expression_scale"):
+        for name in ("noise", "noise_floor", "expression_scale", "brow_along_noise"):
             value = getattr(self, name)
             if not (np.isfinite(value) and value > 0):
                 raise InputError("<priors>", name, "a finite number > 0", repr(value))
