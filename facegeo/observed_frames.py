@@ -42,7 +42,7 @@ __all__ = ["ObservedFrame", "ObservedFrames", "NOTE_BYTES"]
 NOTE_BYTES = 256
 #: The header's float64 fields: index, time, flags, focal, cx, cy, width, height, lid gap right, left.
 _HEADER = 10
-_HAS_FACE, _HAS_SURFACE, _HAS_WEIGHTS, _HAS_GAPS, _FOCAL_KNOWN = 1, 2, 4, 8, 16
+_HAS_FACE, _HAS_SURFACE, _HAS_WEIGHTS, _HAS_GAPS, _FOCAL_KNOWN, _FOLLOWED_BACK = 1, 2, 4, 8, 16, 32
 
 
 @dataclass(frozen=True)
@@ -52,13 +52,16 @@ class ObservedFrame:
     and ``note``, why; ``lid_gaps`` (2,) px, the subject's right and left eye's lid gap read by
     the iris model (:func:`facegeo.landmarks.eyelids.lid_gaps`; NaN for an eye it could not
     read), None without a face or for a model without
-    :data:`~facegeo.landmarks.eyelids.BLINK_NAMES`."""
+    :data:`~facegeo.landmarks.eyelids.BLINK_NAMES`; ``followed_back``: the face was lost going
+    forward and found by following the next frame's face back into this one (a hand or motion
+    blur over it: :meth:`facegeo.tracking._FrameObserver.observe`)."""
 
     index: int
     time_s: float
     observation: PhotoObservation | None
     note: str | None = None
     lid_gaps: np.ndarray | None = None
+    followed_back: bool = False
 
 
 class ObservedFrames(Sequence[ObservedFrame]):
@@ -158,6 +161,8 @@ class ObservedFrames(Sequence[ObservedFrame]):
         if frame.lid_gaps is not None:
             flags |= _HAS_GAPS
             values[8:10] = frame.lid_gaps
+        if frame.followed_back:
+            flags |= _FOLLOWED_BACK
         at = _HEADER
         if obs is not None:
             flags |= _HAS_FACE | (_FOCAL_KNOWN if obs.camera.focal_known else 0)
@@ -200,4 +205,4 @@ class ObservedFrames(Sequence[ObservedFrame]):
                 surface = SurfacePoints(dense[0:2].T.copy(), vertex_ids, barycentric, dense[2].copy(), dense[3] > 0.5, dense[4] > 0.5)
             empty = np.zeros((0, 0, 3), np.uint8)
             observation = PhotoObservation(empty, self.source, empty, self.model, landmarks, camera, None, weights, surface, {}, [])
-        return ObservedFrame(int(values[0]), float(values[1]), observation, note, gaps)
+        return ObservedFrame(int(values[0]), float(values[1]), observation, note, gaps, bool(flags & _FOLLOWED_BACK))

@@ -388,7 +388,7 @@ class _FrameObserver:
                 descriptor = None
             held.pop()
             back.append(ObservedFrame(last.frame.index, last.frame.time_s, observation, None,
-                                      self._lid_gaps(last.frame.image, observation)))
+                                      self._lid_gaps(last.frame.image, observation), followed_back=True))
             image, face = last.frame.image, observation
         return [h.seen for h in held] + back[::-1]
 
@@ -544,14 +544,19 @@ def _shifted(observation: PhotoObservation, x0: int, y0: int) -> PhotoObservatio
 def clip_identity(model: MorphableModel, observed: Sequence[ObservedFrame], size: tuple[int, int], focal: float | None = None,
                   keyframes: int = KEYFRAMES, source: str = "<video>") -> ClipIdentity:
     """The clip's camera and identity (module docstring, steps 2 and 3). ``size``: (width,
-    height) px of the frames. Raises :class:`NoFaceError` when no frame has a face."""
-    found, focals = [], []  # one pass over the frames, none of them kept (a long clip's are on disk)
+    height) px of the frames. The keyframes are chosen among the frames whose face was not
+    followed back into them (:attr:`ObservedFrame.followed_back`), where there are any. Raises
+    :class:`NoFaceError` when no frame has a face."""
+    found, focals, back = [], [], []  # one pass over the frames, none of them kept (a long clip's are on disk)
     for k, frame in enumerate(observed):
         if frame.observation is not None:
             found.append(k)
             focals.append(frame.observation.camera.focal)
+            back.append(frame.followed_back)
     if not found:
         raise NoFaceError(source, "face", "a face in at least one frame", f"none in {len(observed)} frames")
+    # a face followed back into a frame was lost there going forward (a hand, motion blur): not a keyframe
+    candidates = [k for k, followed_back in zip(found, back) if not followed_back] or found
     width, height = size
     notes = []
     if focal is None:
@@ -560,7 +565,7 @@ def clip_identity(model: MorphableModel, observed: Sequence[ObservedFrame], size
                      "the face 1.0 m from the camera (give --focal for a known lens)")
     else:
         camera = Camera(float(focal), width / 2.0, height / 2.0, width, height)
-    chosen = [found[j] for j in _keyframes(model, (observed[k].observation for k in found), len(found), camera, keyframes)]
+    chosen = [candidates[j] for j in _keyframes(model, (observed[k].observation for k in candidates), len(candidates), camera, keyframes)]
     views = [dataclasses.replace(LandmarkView.of(observed[k].observation, f"{source}, frame {observed[k].index}"), camera=camera)
              for k in chosen]
     solutions = solve_shared_identity(model, views)

@@ -38,11 +38,11 @@ def _frame(index: int, correspondence: tuple[np.ndarray, np.ndarray] | None, fac
     observation = PhotoObservation(empty, "<clip>", empty, None, rng.normal(size=(88, 2)) * 50 + 200,
                                    Camera(700.0 + index, 320.0, 240.5, 640, 480, index % 2 == 0), None,
                                    rng.random(88).astype(np.float32), surface, {}, [])
-    return ObservedFrame(index, index / 30, observation, note, rng.random(2) * 10)
+    return ObservedFrame(index, index / 30, observation, note, rng.random(2) * 10, followed_back=index % 3 == 2)
 
 
 def _assert_same(a: ObservedFrame, b: ObservedFrame) -> None:
-    assert (a.index, a.time_s, a.note) == (b.index, b.time_s, b.note)
+    assert (a.index, a.time_s, a.note, a.followed_back) == (b.index, b.time_s, b.note, b.followed_back)
     assert (a.lid_gaps is None) == (b.lid_gaps is None)
     if a.lid_gaps is not None:
         np.testing.assert_array_equal(a.lid_gaps, b.lid_gaps)

@@ -3,6 +3,7 @@ frames made from the bundled photo turned in the image plane by known angles, on
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import subprocess
 import sys
@@ -355,7 +356,23 @@ def test_frames_the_detector_misses_are_followed_back_from_the_next_face(model):
     centre = [float(np.mean(f.observation.landmarks[:, 0])) for f in frames[1:]]
     assert np.diff(centre) == pytest.approx([2.0, 2.0], abs=0.5)  # px: each frame's own face, not a copy of the next one's
     assert all(f.lid_gaps is not None for f in frames[1:])
+    assert [f.followed_back for f in frames] == [False, True, True, False]
     assert observer.flush() == []
+
+
+def test_a_frame_the_face_was_followed_back_into_is_not_a_keyframe(model):
+    """The keyframes of the clip's identity come from frames whose face was found going forward
+    (a face followed back was lost there: a hand over it, motion blur); a clip of such frames only
+    still gets its identity from them."""
+    from facegeo.tracking import clip_identity, observe_frames
+
+    face = load_photo(PHOTO).image
+    frames = [SimpleNamespace(index=k, time_s=k / 30, image=_panned(face, 2.0 * k)) for k in range(4)]
+    observed, size = observe_frames(frames, model)
+    marked = [dataclasses.replace(f, followed_back=k in (1, 2)) for k, f in enumerate(observed)]
+    assert clip_identity(model, marked, size, keyframes=2).keyframes == [0, 3]
+    only = [dataclasses.replace(f, followed_back=True) for f in observed]
+    assert len(clip_identity(model, only, size, keyframes=2).keyframes) == 2
 
 
 def test_held_frames_are_handed_out_in_order_beyond_the_limit(model, monkeypatch):
