@@ -95,7 +95,9 @@ class TrackedFrame:
     from the source's start; ``found``: whether a face was found and fitted; then (None when not
     found) ``rotation`` (3, 3) and ``translation`` (3,) mm (X_c = R·X + t), ``delta`` (n_exp,)
     float32 expression weights, ``landmark_rms_px`` and ``landmark_rms_percent_iod``;
-    ``keyframe``: used for the identity; ``note``: why no face (the detector's or the fit's words)."""
+    ``keyframe``: used for the identity; ``note``: why no face (the detector's or the fit's words);
+    ``followed_back``: the face was lost going forward and found by following the next frame's
+    face back (:attr:`~facegeo.observed_frames.ObservedFrame.followed_back`)."""
 
     index: int
     time_s: float
@@ -107,6 +109,7 @@ class TrackedFrame:
     landmark_rms_percent_iod: float | None = None
     keyframe: bool = False
     note: str | None = None
+    followed_back: bool = False
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready: pose as rotation, Euler angles (degrees) and translation (mm)."""
@@ -118,6 +121,8 @@ class TrackedFrame:
                        translation_mm=np.asarray(self.translation).tolist(), delta=np.asarray(self.delta).tolist())
         if self.note:
             out["note"] = self.note
+        if self.followed_back:
+            out["followed_back"] = True
         return out
 
 
@@ -665,7 +670,8 @@ def _track_part(model: MorphableModel, observed: Sequence[ObservedFrame], shared
         fit = solve_frame(model, obs, shared.camera, shared.alpha, shared.noise, previous, stage, measured, offsets).fit
         previous = SolveStart(fit.rotation, fit.translation, shared.alpha, fit.delta)
         out.append(TrackedFrame(frame.index, frame.time_s, True, fit.rotation, fit.translation, fit.delta,
-                                float(fit.landmark_rms_px), float(fit.landmark_rms_percent_iod), k in shared.keyframes))
+                                float(fit.landmark_rms_px), float(fit.landmark_rms_percent_iod), k in shared.keyframes,
+                                followed_back=frame.followed_back))
     return out
 
 

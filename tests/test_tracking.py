@@ -358,6 +358,10 @@ def test_frames_the_detector_misses_are_followed_back_from_the_next_face(model):
     assert all(f.lid_gaps is not None for f in frames[1:])
     assert [f.followed_back for f in frames] == [False, True, True, False]
     assert observer.flush() == []
+    from facegeo.tracking import TrackedFrame
+
+    assert TrackedFrame(1, 0.0, True, np.eye(3), np.zeros(3), np.zeros(2), 1.0, 1.0, followed_back=True).to_dict()["followed_back"]
+    assert "followed_back" not in TrackedFrame(1, 0.0, True, np.eye(3), np.zeros(3), np.zeros(2), 1.0, 1.0).to_dict()
 
 
 def test_a_frame_the_face_was_followed_back_into_is_not_a_keyframe(model):
