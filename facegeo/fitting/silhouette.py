@@ -72,6 +72,10 @@ class Silhouette:
             members = np.flatnonzero(np.abs(a - c) < BIN_DEGREES / 2)
             if len(members):
                 self.bins.append(members[np.argsort(r[members], kind="stable")])
+        # the bins as rows of one array, padded with -1, so that a pose's contour is a few array operations
+        self._rows = np.full((len(self.bins), max((len(b) for b in self.bins), default=0)), -1, np.int64)
+        for k, members in enumerate(self.bins):
+            self._rows[k, : len(members)] = members
 
     def contour(self, positions_cam: np.ndarray, rotation: np.ndarray) -> np.ndarray:
         """The contour vertex of every non-empty bin under a pose.
@@ -84,13 +88,10 @@ class Silhouette:
             temple, chin, left temple); bins whose vertices all face away are left out.
         """
         facing = ((self.normals @ rotation.T) * -positions_cam).sum(axis=1) > 0.0
-        picks = []
-        for members in self.bins:
-            f = facing[members]
-            if not f.any():
-                continue
-            start = int(np.argmax(f))  # the first facing vertex
-            first_away = np.flatnonzero(~f[start:])
-            end = start + (first_away[0] if len(first_away) else len(f) - start)  # facing to the bin's end: its last vertex
-            picks.append(members[end - 1])
-        return np.asarray(picks, dtype=np.int64)
+        rows = self._rows
+        f = (rows >= 0) & facing[rows]  # (B, L); the padding faces away
+        start = np.argmax(f, axis=1)  # each bin's first facing vertex
+        away = ~f & (np.arange(rows.shape[1]) >= start[:, None])
+        end = np.where(away.any(axis=1), np.argmax(away, axis=1), rows.shape[1])  # facing to the bin's end: its last vertex
+        kept = f.any(axis=1)
+        return rows[kept, end[kept] - 1].astype(np.int64)
