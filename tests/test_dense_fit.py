@@ -143,6 +143,26 @@ def test_a_bin_facing_the_camera_to_its_end_gives_its_last_vertex(model):
     assert picks.tolist() == expected
 
 
+def test_each_bins_contour_vertex_ends_its_first_facing_run(model):
+    """On random facing patterns: a bin with a vertex facing the camera gives the last vertex of
+    its first run of facing vertices (walking outwards); a bin facing away throughout gives none."""
+    silhouette = silhouette_of(model)
+    rng = np.random.default_rng(4)
+    for _ in range(20):
+        sign = np.where(rng.random(len(silhouette.vertices)) < rng.uniform(0.1, 0.9), 1.0, -1.0)
+        positions = -sign[:, None] * silhouette.normals  # facing iff n · (−X) > 0
+        expected = []
+        for members in silhouette.bins:
+            facing = sign[members] > 0
+            if facing.any():
+                start = int(np.argmax(facing))
+                run = start
+                while run + 1 < len(members) and facing[run + 1]:
+                    run += 1
+                expected.append(members[run])
+        assert silhouette.contour(positions, np.eye(3)).tolist() == expected
+
+
 def test_unknown_focal_puts_the_face_at_the_assumed_distance(model):
     """A camera of unknown focal gets f = d · iod_px / iod_mm; the fit then places the face near
     d; a known focal is kept as it is."""
