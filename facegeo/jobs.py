@@ -603,8 +603,12 @@ def track_into_folder(video: str | Path, output: str | Path, options: TrackOptio
         info, frames = open_video(video, options.start_s, options.end_s, options.every)
         frames, rest = _clip_parts(video, info, frames, options)
         report = None if progress is None else (lambda n: progress(n, n / max(time.perf_counter() - start, 1e-9)))
+        def frame_image(seen: Any) -> np.ndarray:  # a keyframe's pixels, decoded again
+            _, again = open_video(video, seen.time_s, None, 1)
+            return next(f for f in again if f.index == seen.index).image
+
         track = track_frames(frames, model, options.landmarks, options.focal, options.keyframes, report, str(video), rest,
-                             options.neutral_s)
+                             options.neutral_s, frame_image)
         if options.smooth:
             track.frames = smooth_track(track.frames, *model.expression_range, fast=lid_weights(model.expression_names))
         calibration = None
@@ -752,7 +756,7 @@ def _animated_asset(video: str | Path, options: TrackOptions, model: Any, track:
     from facegeo.pipeline import reconstruct_views
     from facegeo.skin_mask import skin_mask
     from facegeo.texturing.preview import clip_preview, relit_preview
-    from facegeo.tracking import SolveStart, follow_region, solve_frame
+    from facegeo.tracking import SolveStart, face_region_only, solve_frame
     from facegeo.video import open_video
 
     keys = [f for f in track.frames if f.keyframe]
@@ -765,18 +769,6 @@ def _animated_asset(video: str | Path, options: TrackOptions, model: Any, track:
     def inside(f: Any) -> bool:  # the face's 68 points within the frame (a face cut by the border loses texture)
         uv = landmarks_of(f)[:68]
         return bool(np.all((uv >= 0) & (uv <= [track.camera.width, track.camera.height])))
-
-    def alone(image: np.ndarray, key: Any) -> np.ndarray:
-        """The frame with everything outside the tracked face's region (``tracking``'s follow
-        region around its projected landmarks) grey: a detector finds the tracked person, not
-        the largest face in the frame; the face's own pixels are the frame's."""
-        region = follow_region(landmarks_of(key), image.shape[1], image.shape[0])
-        if region is None:
-            return image
-        x0, y0, x1, y1 = region
-        out = np.full_like(image, 128)
-        out[y0:y1, x0:x1] = image[y0:y1, x0:x1]
-        return out
 
     def frame_of(tracked: Any) -> Any:  # the video's frame of a tracked frame, decoded again
         _, frames = open_video(video, tracked.time_s, None, 1)
@@ -806,7 +798,9 @@ def _animated_asset(video: str | Path, options: TrackOptions, model: Any, track:
     photos, fits, skins, indices, notes = [], [], [], [], []
     for key in texture_frames():
         frame = frame_of(key)
-        photo = Photo(alone(frame.image, key), f"{video} (frame {frame.index})", 1.0, (frame.image.shape[1], frame.image.shape[0]))
+        # the tracked face's region only: a detector finds the tracked person, not the largest face in the frame
+        photo = Photo(face_region_only(frame.image, landmarks_of(key)), f"{video} (frame {frame.index})", 1.0,
+                      (frame.image.shape[1], frame.image.shape[0]))
         try:
             seen = observe_photo(photo, model, None, options.landmarks, track.camera)
             solution = solve_frame(model, seen, track.camera, alpha, track.noise, SolveStart(key.rotation, key.translation, alpha, key.delta))

@@ -364,6 +364,38 @@ def test_frames_the_detector_misses_are_followed_back_from_the_next_face(model):
     assert "followed_back" not in TrackedFrame(1, 0.0, True, np.eye(3), np.zeros(3), np.zeros(2), 1.0, 1.0).to_dict()
 
 
+def test_the_keyframes_are_observed_again_by_the_photos_detector_for_the_identity(model):
+    """With the frames' pixels at hand (``frame_image``), each keyframe is observed again by the
+    photos' detector (its face only: the rest of the frame grey) for the clip's identity; where
+    the pixels are not at hand (None), the tracked observation serves, as without the callback."""
+    import facegeo.tracking as tracking
+    from facegeo.tracking import clip_identity, observe_frames
+
+    face = load_photo(PHOTO).image
+    frames = [SimpleNamespace(index=k, time_s=k / 30, image=_panned(face, 3.0 * k)) for k in range(3)]
+    observed, size = observe_frames(frames, model)
+    asked = []
+    plain = clip_identity(model, observed, size, keyframes=2)
+    unavailable = clip_identity(model, observed, size, keyframes=2, frame_image=lambda seen: asked.append(seen.index))
+    assert sorted(asked) == plain.keyframes and np.array_equal(unavailable.alpha, plain.alpha)
+    images = {f.index: f.image for f in frames}
+    seen_by = []
+    detect = tracking.observe_photo
+
+    def observing(image, model_, landmarks, detector, *args):
+        seen_by.append((detector, float((image == 128).all(axis=-1).mean())))
+        return detect(image, model_, landmarks, detector, *args)
+
+    tracking.observe_photo = observing
+    try:
+        again = clip_identity(model, observed, size, keyframes=2, frame_image=lambda seen: images[seen.index])
+    finally:
+        tracking.observe_photo = detect
+    assert [d for d, _ in seen_by] == [tracking.IDENTITY_DETECTOR] * 2
+    assert all(grey > 0.3 for _, grey in seen_by)  # the frame outside the face's region is grey
+    assert again.keyframes == plain.keyframes and not np.array_equal(again.alpha, plain.alpha)
+
+
 def test_a_frame_the_face_was_followed_back_into_is_not_a_keyframe(model):
     """The keyframes of the clip's identity come from frames whose face was found going forward
     (a face followed back was lost there: a hand over it, motion blur); a clip of such frames only
