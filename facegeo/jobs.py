@@ -603,12 +603,8 @@ def track_into_folder(video: str | Path, output: str | Path, options: TrackOptio
         info, frames = open_video(video, options.start_s, options.end_s, options.every)
         frames, rest = _clip_parts(video, info, frames, options)
         report = None if progress is None else (lambda n: progress(n, n / max(time.perf_counter() - start, 1e-9)))
-        def frame_image(seen: Any) -> np.ndarray:  # a keyframe's pixels, decoded again
-            _, again = open_video(video, seen.time_s, None, 1)
-            return next(f for f in again if f.index == seen.index).image
-
         track = track_frames(frames, model, options.landmarks, options.focal, options.keyframes, report, str(video), rest,
-                             options.neutral_s, frame_image)
+                             options.neutral_s, lambda seen: _frame_again(video, seen).image)
         if options.smooth:
             track.frames = smooth_track(track.frames, *model.expression_range, fast=lid_weights(model.expression_names))
         calibration = None
@@ -732,6 +728,15 @@ def _clip_parts(video: str | Path, info: Any, frames: Iterator[Any], options: Tr
 PREVIEW_FRAMES = 6
 
 
+def _frame_again(video: str | Path, frame: Any) -> Any:
+    """The video's frame (:class:`facegeo.video.Frame`) of ``frame`` (its ``index`` and
+    ``time_s``: a tracked or observed frame), decoded again."""
+    from facegeo.video import open_video
+
+    _, frames = open_video(video, frame.time_s, None, 1)
+    return next(f for f in frames if f.index == frame.index)
+
+
 def _animated_asset(video: str | Path, options: TrackOptions, model: Any, track: Any, take: Any, stage: Any) -> dict[str, Any]:
     """The person's textured asset, animated by the take (:func:`track_into_folder`): the
     texture frames (the keyframes, each replaced by the frame nearest to it in yaw that shows the
@@ -757,7 +762,6 @@ def _animated_asset(video: str | Path, options: TrackOptions, model: Any, track:
     from facegeo.skin_mask import skin_mask
     from facegeo.texturing.preview import clip_preview, relit_preview
     from facegeo.tracking import SolveStart, face_region_only, solve_frame
-    from facegeo.video import open_video
 
     keys = [f for f in track.frames if f.keyframe]
 
@@ -769,10 +773,6 @@ def _animated_asset(video: str | Path, options: TrackOptions, model: Any, track:
     def inside(f: Any) -> bool:  # the face's 68 points within the frame (a face cut by the border loses texture)
         uv = landmarks_of(f)[:68]
         return bool(np.all((uv >= 0) & (uv <= [track.camera.width, track.camera.height])))
-
-    def frame_of(tracked: Any) -> Any:  # the video's frame of a tracked frame, decoded again
-        _, frames = open_video(video, tracked.time_s, None, 1)
-        return next(f for f in frames if f.index == tracked.index)
 
     def texture_frames() -> list[Any]:
         """Each keyframe where its face lies wholly inside the frame, else the frame nearest to it
@@ -797,7 +797,7 @@ def _animated_asset(video: str | Path, options: TrackOptions, model: Any, track:
     alpha = track.alpha.astype(np.float64)
     photos, fits, skins, indices, notes = [], [], [], [], []
     for key in texture_frames():
-        frame = frame_of(key)
+        frame = _frame_again(video, key)
         # the tracked face's region only: a detector finds the tracked person, not the largest face in the frame
         photo = Photo(face_region_only(frame.image, landmarks_of(key)), f"{video} (frame {frame.index})", 1.0,
                       (frame.image.shape[1], frame.image.shape[0]))
@@ -825,7 +825,7 @@ def _animated_asset(video: str | Path, options: TrackOptions, model: Any, track:
         found = [f for f in track.frames if f.found]
         shown = [found[k] for k in np.unique(np.linspace(0, len(found) - 1, PREVIEW_FRAMES).round().astype(int))]
         names = list(model.expression_names)
-        clip = clip_preview([(frame_of(f).image, f.rotation, f.translation, dict(zip(names, np.asarray(f.delta, float))),
+        clip = clip_preview([(_frame_again(video, f).image, f.rotation, f.translation, dict(zip(names, np.asarray(f.delta, float))),
                               landmarks_of(f)[:68]) for f in shown], asset, track.camera, panel=turntable.shape[1] // PREVIEW_FRAMES)
         strip = np.zeros((clip.shape[0], turntable.shape[1], 3), np.uint8)
         strip[:, : clip.shape[1]] = clip

@@ -93,7 +93,7 @@ import cv2
 import numpy as np
 
 from facegeo.errors import InputError, ModelFileError
-from facegeo.landmarks.scheme import IBUG_MIRROR, MOUTH
+from facegeo.landmarks.scheme import IBUG_MIRROR, MOUTH, OUTER_EYE_CORNERS
 from facegeo.native_stderr import silenced_native_stderr
 
 __all__ = [
@@ -775,7 +775,8 @@ class MediaPipeFaceMesh:
         (check it against ``min_presence``)."""
         points = np.asarray(points, np.float64)
         lo, hi = points.min(axis=0), points.max(axis=0)
-        d = points[45] - points[36]  # the subject's left eye's outer corner minus the right's (iBUG numbering)
+        right, left = points[OUTER_EYE_CORNERS]
+        d = left - right
         face = self._refined_face(image, (lo + hi) / 2, float(max(hi - lo)) * ROI_SCALE, math.atan2(float(d[1]), float(d[0])),
                                   np.concatenate([lo, hi]), 0.0, np.zeros((6, 2), np.float32))
         return replace(face, score=face.presence)
