@@ -377,8 +377,7 @@ class _FrameObserver:
             found = self.follow(last.frame.image, face.detection, self.source)
             if found is None:
                 break
-            observation = _shifted(observe_photo(np.ascontiguousarray(last.frame.image), self.model, None, found, None,
-                                                 DEFAULT_DENSE), 0, 0)
+            observation = _observe_region(last.frame.image, self.model, found)
             if last.rejected is not None:
                 if _jumped(last.rejected.landmarks, observation.landmarks):
                     break
@@ -417,13 +416,11 @@ class _FrameObserver:
             found = self.follow(frame.image, self.previous_detection, self.source, keep_spread=keep)
             if found is not None:
                 self.spread_age = self.spread_age + 1 if keep else 1
-                observation = _shifted(observe_photo(np.ascontiguousarray(frame.image), self.model, None, found, None, DEFAULT_DENSE),
-                                       0, 0)
+                observation = _observe_region(frame.image, self.model, found)
         regions = [] if observation is not None else ([self.region] if self.region is not None else []) + [(0, 0, width, height)]
         for x0, y0, x1, y1 in regions:
             try:
-                observation = _shifted(observe_photo(np.ascontiguousarray(frame.image[y0:y1, x0:x1]), self.model, None, self.det, None,
-                                                     DEFAULT_DENSE), x0, y0)
+                observation = _observe_region(frame.image, self.model, self.det, (x0, y0, x1, y1))
                 searched_whole = (x0, y0, x1, y1) == (0, 0, width, height)
                 self.spread_age = 1
                 break
@@ -550,6 +547,16 @@ def follow_region(landmarks: np.ndarray, width: int, height: int) -> tuple[int, 
     return x0, y0, x1, y1
 
 
+def _observe_region(image: np.ndarray, model: MorphableModel, detector: Any,
+                    region: tuple[int, int, int, int] | None = None) -> PhotoObservation:
+    """:func:`~facegeo.fitting.photo_fit.observe_photo` of a frame ``image`` (H, W, 3) uint8 RGB,
+    or of its ``region`` (x0, y0, x1, y1) px, with the dense points, by ``detector`` (a detector,
+    or a detection already made: a followed face), in the frame's pixels with its pixels dropped
+    (:func:`_shifted`). Raises :class:`NoFaceError` where the detector finds none."""
+    x0, y0, x1, y1 = (0, 0, image.shape[1], image.shape[0]) if region is None else region
+    return _shifted(observe_photo(np.ascontiguousarray(image[y0:y1, x0:x1]), model, None, detector, None, DEFAULT_DENSE), x0, y0)
+
+
 def _shifted(observation: PhotoObservation, x0: int, y0: int) -> PhotoObservation:
     """An observation made in a region whose top-left corner is (x0, y0) px of the frame, in the
     frame's pixels (its landmarks, surface points and detection), its pixels dropped (a clip's
@@ -599,6 +606,7 @@ def clip_identity(model: MorphableModel, observed: Sequence[ObservedFrame], size
     else:
         camera = Camera(float(focal), width / 2.0, height / 2.0, width, height)
     chosen = [candidates[j] for j in _keyframes(model, (observed[k].observation for k in candidates), len(candidates), camera, keyframes)]
+
     def view(k: int) -> LandmarkView:
         seen, name = observed[k].observation, f"{source}, frame {observed[k].index}"
         image = None if frame_image is None else frame_image(observed[k])
