@@ -585,7 +585,8 @@ def clip_identity(model: MorphableModel, observed: Sequence[ObservedFrame], size
     ``frame_image``: a keyframe's pixels (H, W, 3) uint8 RGB, decoded again (None where they are
     not at hand); each keyframe is then observed again by the photos' detector
     (:data:`IDENTITY_DETECTOR`) on its face's region (:func:`face_region_only`) for the identity,
-    its tracked observation where that finds no face. Raises :class:`NoFaceError` when no frame
+    its tracked observation where that finds no face, and the keyframes' colours refine the
+    identity (:mod:`facegeo.fitting.view_consistency`). Raises :class:`NoFaceError` when no frame
     has a face."""
     found, focals, back = [], [], []  # one pass over the frames, none of them kept (a long clip's are on disk)
     for k, frame in enumerate(observed):
@@ -615,7 +616,8 @@ def clip_identity(model: MorphableModel, observed: Sequence[ObservedFrame], size
                 seen = observe_photo(face_region_only(image, seen.landmarks), model, None, IDENTITY_DETECTOR, camera, DEFAULT_DENSE)
             except NoFaceError:
                 pass
-        return dataclasses.replace(LandmarkView.of(seen, name), camera=camera)
+        # the decoded frame for the views' colours (view_consistency), whichever detector observed it
+        return dataclasses.replace(LandmarkView.of(seen, name), camera=camera, pixels=image)
 
     views = [view(k) for k in chosen]
     solutions = solve_shared_identity(model, views)

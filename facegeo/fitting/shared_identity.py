@@ -23,8 +23,11 @@ from several views"), neutral shapes against the mean shape's error: c = 1 gives
 c = 5 0.78 and 1.01, where the mean of the five single-view identities gives 0.77 and 0.96 and
 the best single view 0.81 and 0.70. The joint fit is the right machinery (with independent
 landmark errors it beats every view and the average: tests/test_shared_identity.py), but with
-today's detectors the views' biases do not cancel, and it does not yet beat the average on real
-faces: what limits it is the landmarks' bias, not the solver.
+today's detectors the views' biases do not cancel, and the landmarks alone do not beat the
+average on real faces: what limits them is their bias, not the solver. Where every view has its
+pixels, the landmark fit is then refined by the views' colours, which agree only where the
+surface is the person's (:mod:`facegeo.fitting.view_consistency`: on the same renders 0.76 and
+0.65).
 
 It is minimised by the single-view fit's projected Levenberg–Marquardt over all parameters at
 once; the normal equations have an arrow structure (each view's pose and δ couple only with α),
@@ -53,6 +56,7 @@ from facegeo.fitting.dense_term import DEFAULT_DENSE, DenseSettings
 from facegeo.fitting.landmark_problem import LandmarkProblem, SurfacePoints
 from facegeo.fitting.photo_fit import PhotoObservation, finish_photo_fit, observe_photo
 from facegeo.fitting.priors import DEFAULT_PRIORS, LANDMARK_SCHEDULE, FitPriors
+from facegeo.fitting.view_consistency import DEFAULT_CONSISTENCY, ConsistencySettings, refine_identity
 from facegeo.landmarks.face_identity import SAME_PERSON_DISTANCE, face_descriptor, odd_ones_out
 from facegeo.model_files import load_model
 from facegeo.morphable_model import MorphableModel
@@ -69,23 +73,28 @@ __all__ = ["LandmarkView", "solve_shared_identity", "fit_photos"]
 class LandmarkView:
     """What one view contributes: ``landmarks`` (88, 2) px (NaN rows ignored), the view's
     ``camera``, ``weights`` (88,) relative precisions (None: the default), any dense
-    ``surface_points`` (:class:`SurfacePoints`) and the ``source`` its errors name (a photo's path)."""
+    ``surface_points`` (:class:`SurfacePoints`), the ``source`` its errors name (a photo's path)
+    and its ``pixels`` (H, W, 3) uint8 RGB (None: the views' colours are not compared,
+    :mod:`facegeo.fitting.view_consistency`)."""
 
     landmarks: np.ndarray
     camera: Camera
     weights: np.ndarray | None = None
     surface_points: SurfacePoints | None = None
     source: str = "<view>"
+    pixels: np.ndarray | None = None
 
     @classmethod
     def of(cls, seen: PhotoObservation, source: str | None = None) -> LandmarkView:
         """The view of an observed photo (:func:`~facegeo.fitting.photo_fit.observe_photo`): its
         landmarks, camera, weights and dense points; ``source`` (default: the photo's) for errors."""
-        return cls(seen.landmarks, seen.camera, seen.weights, seen.surface_points, seen.source if source is None else source)
+        return cls(seen.landmarks, seen.camera, seen.weights, seen.surface_points, seen.source if source is None else source,
+                   seen.pixels if seen.pixels.size else None)  # a tracked frame's observation keeps no pixels
 
 
 def solve_shared_identity(model: MorphableModel, views: Sequence[LandmarkView], priors: FitPriors = DEFAULT_PRIORS,
-                          iterations: int | None = None, identity_precision: float | None = None) -> list[LandmarkSolution]:
+                          iterations: int | None = None, identity_precision: float | None = None,
+                          consistency: ConsistencySettings | None = DEFAULT_CONSISTENCY) -> list[LandmarkSolution]:
     """Fit one identity α to several views of one face, pose and δ per view (module docstring).
 
     Args:
@@ -96,6 +105,9 @@ def solve_shared_identity(model: MorphableModel, views: Sequence[LandmarkView], 
             schedule's last stage's).
         identity_precision: c, the identity prior's precision (module docstring; None: the
             number of views).
+        consistency: the settings of the refinement by the views' colours
+            (:func:`~facegeo.fitting.view_consistency.refine_identity`), made when every view has
+            its ``pixels``; None: the landmark fit alone.
     Returns:
         One :class:`LandmarkSolution` per view, in order: their fits share ``alpha`` (and so
         ``shape_vertices`` up to the view's δ); each fit's ``info["shared_identity"]`` records the
@@ -138,6 +150,13 @@ def solve_shared_identity(model: MorphableModel, views: Sequence[LandmarkView], 
                 history.append(list(noises))
             alpha = _joint_levenberg_marquardt(problems, states, alpha, prior, noises,
                                                iterations if round_ == 0 else max(iterations // 2, 1), steps, identity_precision)
+        refined = None
+        if consistency is not None and all(view.pixels is not None for view in views):
+            for problem, state in zip(problems, states):
+                problem.slide(state["rotation"], state["translation"], alpha, state["delta"])
+            refined = refine_identity(model, [view.pixels for view in views], [view.camera for view in views], problems, states,
+                                      noises, identity_precision, consistency)
+            alpha = states[0]["alpha"]
         for problem, state in zip(problems, states):
             problem.slide(state["rotation"], state["translation"], alpha, state["delta"])
     seconds = time.perf_counter() - start
@@ -147,7 +166,8 @@ def solve_shared_identity(model: MorphableModel, views: Sequence[LandmarkView], 
         info["landmark_noise"] = {**info["landmark_noise"], "iod_fraction": noise, "px": noise * problem.scale}
         info["shared_identity"] = {"views": len(views), "view": k + 1, "joint_steps": steps, "identity_precision": identity_precision,
                                    "noise_iod_fraction": [float(n) for n in noises],
-                                   "noise_history_iod_fraction": [[float(n) for n in h] for h in history]}
+                                   "noise_history_iod_fraction": [[float(n) for n in h] for h in history],
+                                   "view_consistency": refined}
         info["single_view"] = {"landmark_rms_px": single.fit.landmark_rms_px,
                                "alpha_distance_sigma": float(np.linalg.norm(single.fit.alpha - alpha))}
         timings = {**single.fit.timings, "shared_identity": seconds}
