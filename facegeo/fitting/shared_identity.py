@@ -26,8 +26,8 @@ landmark errors it beats every view and the average: tests/test_shared_identity.
 today's detectors the views' biases do not cancel, and the landmarks alone do not beat the
 average on real faces: what limits them is their bias, not the solver. Where every view has its
 pixels, the landmark fit is then refined by the views' colours, which agree only where the
-surface is the person's (:mod:`facegeo.fitting.view_consistency`: on the same renders 0.76 and
-0.65).
+surface is the person's (:mod:`facegeo.fitting.view_consistency`: on the same renders 0.77 and
+0.66).
 
 It is minimised by the single-view fit's projected Levenberg–Marquardt over all parameters at
 once; the normal equations have an arrow structure (each view's pose and δ couple only with α),

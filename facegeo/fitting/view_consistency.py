@@ -31,8 +31,8 @@ no library fits a morphable model's coefficients to several photos' colour agree
 
 Measured on renders of two real head scans (benchmarks/RESULTS.md, "the views' colours"): from
 five views (yaw 0°, ±20°, ±40°) the neutral identity's error over the mean shape's goes from 0.78
-to 0.76 (James) and from 1.01 to 0.65 (Lee Perry-Smith); from a rendered head-turn clip's five
-keyframes from 0.73 to 0.82 and from 0.94 to 0.62. It costs about 1.3 s for five views.
+to 0.77 (James) and from 1.01 to 0.66 (Lee Perry-Smith); from a rendered head-turn clip's five
+keyframes from 0.73 to 0.80 and from 0.94 to 0.62. It costs about 0.8 s for five views.
 """
 
 from __future__ import annotations
@@ -76,7 +76,7 @@ class ConsistencySettings:
     iterations: int = 15
     min_facing: float = 0.3
     points: int = 2500
-    converged: float = 1e-3
+    converged: float = 1e-2
 
     def __post_init__(self) -> None:
         checks = {"weight": np.isfinite(self.weight) and self.weight > 0,
@@ -92,9 +92,10 @@ DEFAULT_CONSISTENCY = ConsistencySettings()
 #: The face's regions (:func:`facegeo.skin_mask.vertex_regions`) whose vertices are compared: the
 #: front of the face, not the eyes (an eye looks elsewhere in each photo, its lashes and the
 #: eyeball's shine move with the view) nor the head's sides (ears, hair, the jaw under a beard,
-#: where the model's surface is not the person's). On the scans' five views, with the eyes:
-#: 0.78 and 0.63 of the mean shape's error, without them 0.76 and 0.65; from the head-turn clip
-#: 0.89 and 0.58 with, 0.82 and 0.62 without (benchmarks/RESULTS.md, "the views' colours").
+#: where the model's surface is not the person's). Measured before the last speed-ups (three
+#: levels to 1e-4): on the scans' five views, with the eyes 0.78 and 0.63 of the mean shape's
+#: error, without them 0.76 and 0.65; from the head-turn clip 0.89 and 0.58 with, 0.82 and 0.62
+#: without (benchmarks/RESULTS.md, "the views' colours").
 REGIONS = ("forehead", "nose", "cheeks", "chin", "lips", "brows")
 
 
@@ -127,7 +128,7 @@ def refine_identity(model: MorphableModel, pixels: Sequence[np.ndarray], cameras
     mean = model.mean_shape[samples].astype(np.float64)
     id_basis = model.id_basis[:, samples].astype(np.float64)  # (n_id, n, 3)
     n_id = model.n_id
-    by_vertex = np.ascontiguousarray(id_basis.transpose(1, 2, 0))  # (n, 3, n_id)
+    by_vertex = np.ascontiguousarray(id_basis.transpose(1, 2, 0), dtype=np.float32)  # (n, 3, n_id)
     n_params = n_id + 6 * k_views
     expression = [model.shape_numpy(None, st["delta"], samples).astype(np.float64) - mean for st in states]
     alpha0 = states[0]["alpha"].copy()
@@ -169,10 +170,10 @@ def refine_identity(model: MorphableModel, pixels: Sequence[np.ndarray], cameras
                 cost += scale * float((np.sqrt(1.0 + x * x) - 1.0).sum())
                 if not jacobian:
                     continue
-                # d x / d (alpha, pose_i, pose_j), (m, 3, n_id + 12); float32: the Gauss–Newton
-                # matrix needs no more, and its products take half the time
-                jac = np.concatenate([gain[:, None] * views[i].d_alpha[points] - views[j].d_alpha[points],
-                                      gain[:, None] * views[i].d_pose[points], -views[j].d_pose[points]], axis=2, dtype=np.float32)
+                # d x / d (alpha, pose_i, pose_j), (m, 3, n_id + 12), in float32 as the derivatives
+                g = gain.astype(np.float32)[:, None]
+                jac = np.concatenate([g * views[i].d_alpha[points] - views[j].d_alpha[points],
+                                      g * views[i].d_pose[points], -views[j].d_pose[points]], axis=2)
                 jac = jac.reshape(-1, jac.shape[2]) / np.float32(spread)
                 w = 0.5 * scale / np.sqrt(1.0 + x.reshape(-1) ** 2)  # the reweighted Gauss–Newton weights of ρ
                 cols = np.r_[0:n_id, n_id + 6 * i:n_id + 6 * i + 6, n_id + 6 * j:n_id + 6 * j + 6]
@@ -304,14 +305,16 @@ class _Seen:
         self.colours = sample(blurred)
         if id_basis is None:
             return
-        grad = np.stack([sample(dx), sample(dy)], axis=-1)  # (n, 3, 2): d colour / d (u, v)
+        # the derivatives in float32: the Gauss–Newton matrix needs no more, and its products take half the time
+        grad = np.stack([sample(dx), sample(dy)], axis=-1).astype(np.float32)  # (n, 3, 2): d colour / d (u, v)
         depth = -posed[:, 2]
-        proj = np.zeros((len(posed), 2, 3))  # d (u, v) / d camera-space point
+        proj = np.zeros((len(posed), 2, 3), np.float32)  # d (u, v) / d camera-space point
         proj[:, 0, 0], proj[:, 0, 2] = scale, scale * posed[:, 0] / depth
         proj[:, 1, 1], proj[:, 1, 2] = -scale, -scale * posed[:, 1] / depth
         d_point = grad @ proj  # (n, 3, 3): d colour / d camera-space point
-        skew = np.zeros((len(shape), 3, 3))  # [X]_x of the model-space points
+        skew = np.zeros((len(shape), 3, 3), np.float32)  # [X]_x of the model-space points
         skew[:, 0, 1], skew[:, 0, 2], skew[:, 1, 2] = -shape[:, 2], shape[:, 1], -shape[:, 0]
         skew[:, 1, 0], skew[:, 2, 0], skew[:, 2, 1] = shape[:, 2], -shape[:, 1], shape[:, 0]
-        self.d_pose = np.concatenate([d_point @ (-rotation @ skew), d_point * T_UNIT_MM], axis=2)
-        self.d_alpha = (d_point @ rotation) @ id_basis  # (n, 3, 3) @ (n, 3, k)
+        rotation32 = rotation.astype(np.float32)
+        self.d_pose = np.concatenate([d_point @ (-rotation32 @ skew), d_point * np.float32(T_UNIT_MM)], axis=2)
+        self.d_alpha = (d_point @ rotation32) @ id_basis  # (n, 3, 3) @ (n, 3, k)
