@@ -49,6 +49,7 @@ import numpy as np
 from facegeo.camera import Camera
 from facegeo.concurrency import numpy_blas_threads
 from facegeo.errors import InputError, check_finite
+from facegeo.forked_call import ChildLost, can_fork, fork_call
 from facegeo.fitting.landmark_fit import (CONVERGED_RELATIVE_DECREASE, LANDMARK_FIT_THREADS, NOISE_TOLERANCE, T_UNIT_MM,
                                           LandmarkPrior, LandmarkSolution, assemble_fit, damped_step, estimate_noise,
                                           rotation_step, solve_landmarks)
@@ -178,6 +179,11 @@ def solve_shared_identity(model: MorphableModel, views: Sequence[LandmarkView], 
     return solutions
 
 
+def _descriptors(seen: Sequence[PhotoObservation]) -> list[np.ndarray]:
+    """Each observed photo's dlib face descriptor (128,) float32 (:func:`face_descriptor`)."""
+    return [face_descriptor(s.pixels, s.landmarks) for s in seen]
+
+
 def _joint_levenberg_marquardt(problems: list[LandmarkProblem], states: list[dict[str, np.ndarray]], alpha: np.ndarray,
                                prior: LandmarkPrior, noises: list[float], iterations: int, steps: list[int],
                                identity_precision: float) -> np.ndarray:
@@ -300,12 +306,34 @@ def fit_photos(
     model = load_model() if model is None else model
     seen = [observe_photo(image, model, None, detector, None if cameras is None else cameras[k], dense)
             for k, image in enumerate(images)]
-    odd = odd_ones_out([face_descriptor(s.pixels, s.landmarks) for s in seen]) if len(seen) > 1 else []
+    solutions = None
+    if len(seen) > 1:
+        # the photos' face descriptors in a forked child while this process fits all the photos
+        # jointly: with none of them someone else's (the usual case) that fit is the answer
+        pending = fork_call(_descriptors, seen) if can_fork() else None
+        try:
+            if pending is not None:
+                try:
+                    solutions = solve_shared_identity(model, [LandmarkView.of(s) for s in seen], priors)
+                except InputError:  # perhaps the photo of someone else: fitted again without the odd ones
+                    solutions = None
+            try:
+                descriptors = pending.result() if pending is not None else _descriptors(seen)
+            except ChildLost:
+                descriptors = _descriptors(seen)
+        except BaseException:
+            if pending is not None:
+                pending.abandon()
+            raise
+        odd = odd_ones_out(descriptors)
+    else:
+        odd = []
     left_out = [f"{seen[k].source}: another person (face descriptor {distance:.2f} from the others', more than "
                 f"{SAME_PERSON_DISTANCE:g}): left out" for k, distance in odd]
     others = {k for k, _ in odd}
     kept = [s for k, s in enumerate(seen) if k not in others]
-    solutions = solve_shared_identity(model, [LandmarkView.of(s) for s in kept], priors)
+    if solutions is None or odd:
+        solutions = solve_shared_identity(model, [LandmarkView.of(s) for s in kept], priors)
     fits = [finish_photo_fit(s, solution, photometric) for s, solution in zip(kept, solutions)]
     for fit in fits:
         fit.info.setdefault("shared_identity", {})["left_out"] = [seen[k].source for k, _ in odd]
