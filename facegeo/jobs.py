@@ -241,7 +241,7 @@ def fit_one_person_into_folder(photo_paths: list[str | Path], output: str | Path
     options = FitOptions() if options is None else options
     with locked_output(output):
         start = time.perf_counter()
-        model, photos, fits = _one_person_fits(photo_paths, options)
+        model, photos, fits, _ = _one_person_fits(photo_paths, options)
         seconds = time.perf_counter() - start
         document = _one_person_document(fits, model, {"total": seconds})
         notes = document["notes"]
@@ -259,11 +259,16 @@ def fit_one_person_into_folder(photo_paths: list[str | Path], output: str | Path
                          timings={"total": seconds}, files=list(FIT_FILES), notes=notes)
 
 
-def _one_person_fits(photo_paths: list[str | Path], options: FitOptions) -> tuple[Any, list[Any], list[Any]]:
-    """``(model, photos, fits)`` of the joint fit of several photos of one person
+def _one_person_fits(photo_paths: list[str | Path], options: FitOptions,
+                     beside: Callable[[list[Any]], Any] | None = None) -> tuple[Any, list[Any], list[Any], Any]:
+    """``(model, photos, fits, beside's answer)`` of the joint fit of several photos of one person
     (:func:`facegeo.fitting.fit_photos`), each photo with its own camera; the photos are those
-    of the kept fits, in order. Refuses fewer than two photos and a regressor."""
-    from facegeo.fitting import fit_photos
+    of the kept fits, in order. ``beside(observations)`` (None: nothing) runs on the photos'
+    observations while they are fitted, the fit in a forked child where that helps. Refuses
+    fewer than two photos and a regressor."""
+    from facegeo.fitting.photo_fit import observe_photo
+    from facegeo.fitting.shared_identity import fit_observed
+    from facegeo.forked_call import ChildLost, can_fork, fork_call
     from facegeo.photo import load_photo
 
     if len(photo_paths) < 2:
@@ -272,10 +277,29 @@ def _one_person_fits(photo_paths: list[str | Path], options: FitOptions) -> tupl
         raise InputError(_SOURCE, "regressor", "no regressor with several photos of one person (the joint fit)", str(options.regressor))
     model, _ = loaded_resources(options.model, None, False, options.landmarks)
     photos = [load_photo(p, max_side=options.max_side) for p in photo_paths]
-    cameras = [photo_camera(photo, options.focal, options.principal_point) for photo in photos]
-    fits = fit_photos(photos, model, options.landmarks, cameras, photometric=options.photometric)
+    seen = [observe_photo(photo, model, None, options.landmarks, photo_camera(photo, options.focal, options.principal_point))
+            for photo in photos]
+    pending = fork_call(fit_observed, seen, model, options.photometric) if beside is not None and can_fork() else None
+    try:
+        aside = beside(seen) if beside is not None else None
+        try:
+            fits = pending.result() if pending is not None else fit_observed(seen, model, options.photometric)
+        except ChildLost:  # the child was killed (e.g. out of memory): the same fit, here
+            fits = fit_observed(seen, model, options.photometric)
+    except BaseException:
+        if pending is not None:
+            pending.abandon()
+        raise
     by_source = {photo.path: photo for photo in photos}
-    return model, [by_source[fit.info["source"]] for fit in fits], fits
+    return model, [by_source[fit.info["source"]] for fit in fits], fits, aside
+
+
+def _skin_masks(seen: list[Any]) -> dict[str, Any]:
+    """Each observed photo's skin mask (:func:`facegeo.skin_mask.skin_mask`) by its source, on the
+    landmarks as its fit records them (float32), so the mask is the one the pipeline would make."""
+    from facegeo.skin_mask import skin_mask
+
+    return {str(s.source): skin_mask(s.pixels, np.asarray(s.landmarks, np.float64).astype(np.float32)) for s in seen}
 
 
 def _one_person_document(fits: list[Any], model: Any, timings: dict[str, float]) -> dict[str, Any]:
@@ -329,14 +353,16 @@ def reconstruct_one_person_into_folder(photo_paths: list[str | Path], output: st
         start = time.perf_counter()
         if progress is not None:
             progress("fit")
-        model, photos, fits = _one_person_fits(photo_paths, options)
+        # the photos' skin masks (they need the observed landmarks only) while the joint fit runs in a child
+        model, photos, fits, masks = _one_person_fits(photo_paths, options, beside=_skin_masks if fork else None)
+        skins = None if masks is None else [masks[str(fit.info["source"])] for fit in fits]
         timings = {"fit": time.perf_counter() - start}
         with StagedOutput(output, replace=True) as stage:
             jobs: list[ExportJob] = []
             plan = _export_plan(options, stage.staging_dir)
             try:  # the export begins on the reference's geometry, in a child where forking helps, while the photos are textured
                 asset, reference, _ = reconstruct_views(
-                    photos, fits, model, size=options.size, maps=options.maps, progress=progress, fork=fork,
+                    photos, fits, model, skins=skins, size=options.size, maps=options.maps, progress=progress, fork=fork,
                     geometry_ready=lambda geometry: jobs.append(ExportJob(geometry, plan, fork=fork and can_fork())))
                 timings.update(asset.metadata["timings_s"])
                 if progress is not None:

@@ -229,3 +229,25 @@ def test_a_greyscale_photo_among_colour_ones_is_left_out_of_the_texture(model, t
     assert report["notes"][0] == f"{grey}: a greyscale photo among colour ones: left out of the texture"
     albedo = asset.maps["albedo"]
     assert albedo.shape == (128, 128, 3) and np.ptp(albedo[..., 0] - albedo[..., 2]) > 0.05  # coloured, not grey
+
+
+def test_facegeo_reconstruct_one_person_forks_the_fit_beside_the_skin_masks(tmp_path):
+    # a fresh process (no torch): the joint fit in a forked child while the photos' skin masks are
+    # made; the kept photos' fits, the reference and the files as the command documents them
+    import json
+    import subprocess
+    import sys
+
+    import cv2
+
+    photo = asset_path("photos/astronaut.png")
+    mirrored = tmp_path / "mirrored.png"
+    cv2.imwrite(str(mirrored), cv2.imread(str(photo))[:, ::-1])
+    out = tmp_path / "out"
+    done = subprocess.run([sys.executable, "-m", "facegeo.cli", "reconstruct", "--one-person", str(photo), str(mirrored), "-o", str(out),
+                           "--size", "256", "--no-preview", "--format", "glb"], capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0, done.stderr[-3000:]
+    record = json.loads((out / "fit.json").read_text())
+    assert record["one_person"] and [p["photo"] for p in record["photos"]] == [str(photo), str(mirrored)]
+    assert record["reference"] in (str(photo), str(mirrored)) and record["photos"][0]["info"]["shared_identity"]["view_consistency"]["pairs"] == 1
+    assert {"fit.json", "face.glb", "albedo.png"} <= {p.name for p in out.iterdir()}

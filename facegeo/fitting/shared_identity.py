@@ -67,7 +67,7 @@ if TYPE_CHECKING:
     from facegeo.landmarks.detectors import LandmarkDetector
     from facegeo.photo import Photo
 
-__all__ = ["LandmarkView", "solve_shared_identity", "fit_photos"]
+__all__ = ["LandmarkView", "solve_shared_identity", "fit_photos", "fit_observed"]
 
 
 @dataclass(frozen=True)
@@ -306,6 +306,14 @@ def fit_photos(
     model = load_model() if model is None else model
     seen = [observe_photo(image, model, None, detector, None if cameras is None else cameras[k], dense)
             for k, image in enumerate(images)]
+    return fit_observed(seen, model, photometric, priors)
+
+
+def fit_observed(seen: Sequence[PhotoObservation], model: MorphableModel, photometric: bool = True,
+                 priors: FitPriors = DEFAULT_PRIORS) -> list[Fit]:
+    """:func:`fit_photos` of photos already observed (:func:`~facegeo.fitting.photo_fit.observe_photo`,
+    one :class:`PhotoObservation` each, in order): the other photos' people left out, the joint
+    fit, each photo's albedo, light and checks."""
     solutions = None
     if len(seen) > 1:
         # the photos' face descriptors in a forked child while this process fits all the photos
