@@ -11,7 +11,8 @@ here the surface is the model's, so the disagreement is minimised over its ident
 views' poses, with the views' landmark energy and the identity prior kept (the expressions δ
 stay as the landmark fit left them: free, they would absorb the disagreement per view).
 
-For every pair of views, every face vertex both see (facing each camera at ``min_facing`` or
+For every pair of views, each vertex of the front of the face (:data:`REGIONS`; ``points`` of
+them at random, the same in every view) that both see (facing each camera at ``min_facing`` or
 more, not hidden, at the landmark fit's pose) gives the difference of the two views' colours
 where it projects (bilinear, on the views' photos blurred by a Gaussian of σ inter-ocular
 distances; coarse to fine), over the pair's robust spread of that difference, under a
