@@ -146,7 +146,7 @@ def refine_identity(model: MorphableModel, pixels: Sequence[np.ndarray], cameras
             r = problem.residuals(st["rotation"], st["translation"], alpha, st["delta"]) / noise
             cost += float(r @ r)
             if jacobian:
-                jac = problem.jacobian(st["rotation"], st["translation"], alpha, st["delta"], n_id, model.n_exp, T_UNIT_MM) / noise
+                jac = problem.jacobian(st["rotation"], st["translation"], alpha, st["delta"], n_id, 0, T_UNIT_MM) / noise
                 blocks.append((r, jac[:, :6], jac[:, 6:6 + n_id]))
         return cost, blocks
 
