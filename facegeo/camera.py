@@ -31,6 +31,8 @@ __all__ = [
     "Camera",
     "project",
     "to_pixels",
+    "pixels_jacobian",
+    "cross_matrices",
     "rotation_from_axis_angle",
     "rotation_from_euler",
     "euler_from_rotation",
@@ -148,6 +150,28 @@ def to_pixels(points_cam: torch.Tensor | np.ndarray, camera: Camera) -> torch.Te
     xp = array_namespace(points_cam)
     scale = camera.focal / xp.clip(-points_cam[..., 2], 1e-6, None)  # pixels per mm at that depth
     return xp.stack([camera.cx + points_cam[..., 0] * scale, camera.cy - points_cam[..., 1] * scale], axis=-1)
+
+
+def pixels_jacobian(points_cam: np.ndarray, focal: float) -> np.ndarray:
+    """d(u, v) / d(x, y, z) of :func:`to_pixels` at (N, 3) camera-space points (mm): (N, 2, 3)
+    float64 px/mm, with the same depth clamp (for the fits' hand-written Jacobians)."""
+    depth = np.maximum(-points_cam[:, 2], 1e-6)
+    out = np.zeros((len(points_cam), 2, 3))
+    out[:, 0, 0] = focal / depth
+    out[:, 0, 2] = focal * points_cam[:, 0] / depth**2
+    out[:, 1, 1] = -focal / depth
+    out[:, 1, 2] = -focal * points_cam[:, 1] / depth**2
+    return out
+
+
+def cross_matrices(points: np.ndarray) -> np.ndarray:
+    """(N, 3, 3) [p]×, the matrices with [p]× v = p × v, of (N, 3) points, in their dtype: for a
+    pose R·exp([ω]×), d(R·exp([ω]×)·p) / dω = −R·[p]× at ω = 0."""
+    out = np.zeros((len(points), 3, 3), points.dtype)
+    px, py, pz = points.T
+    out[:, 0, 1], out[:, 0, 2], out[:, 1, 2] = -pz, py, -px
+    out[:, 1, 0], out[:, 2, 0], out[:, 2, 1] = pz, -py, px
+    return out
 
 
 def rotation_from_axis_angle(axis_angle: torch.Tensor) -> torch.Tensor:

@@ -121,3 +121,20 @@ def test_camera_for_image_and_scaling():
         Camera(100.0, float("nan"), 0, 10, 10)
     with pytest.raises(InputError, match="image size: expected a positive width and height in pixels, found 0x10"):
         Camera(100.0, 0, 0, 0, 10)
+
+
+def test_pixels_jacobian_is_the_projections_slope_and_cross_matrices_cross():
+    from facegeo.camera import cross_matrices, pixels_jacobian
+
+    rng = np.random.default_rng(0)
+    points = rng.normal(0, 60, (20, 3)) + np.array([0.0, 0.0, -700.0])
+    camera = Camera(focal=1200.0, cx=320.0, cy=240.0, width=640, height=480)
+    jac = pixels_jacobian(points, camera.focal)
+    for axis in range(3):
+        step = np.zeros(3)
+        step[axis] = 1e-4
+        numeric = (to_pixels(points + step, camera) - to_pixels(points - step, camera)) / 2e-4
+        assert np.allclose(jac[:, :, axis], numeric, rtol=1e-6, atol=1e-6)
+    other = rng.normal(0, 1, (20, 3))
+    assert np.allclose((cross_matrices(points) @ other[:, :, None])[..., 0], np.cross(points, other))
+    assert cross_matrices(points.astype(np.float32)).dtype == np.float32

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from facegeo.camera import Camera, project
+from facegeo.camera import Camera, cross_matrices, pixels_jacobian, project
 from facegeo.fitting.silhouette import Silhouette
 from facegeo.landmarks.scheme import BROWS, CHIN, N_LANDMARKS, inter_ocular_distance
 from facegeo.morphable_model import MorphableModel
@@ -291,21 +291,10 @@ class LandmarkProblem:
         central finite differences in float64."""
         n = self.n_points
         p_model = self.landmark_points(alpha, delta)  # (n, 3)
-        cam = p_model @ rotation.T + translation
-        depth = np.maximum(-cam[:, 2], 1e-6)
-        f = self.camera.focal
-        dproj = np.zeros((n, 2, 3))  # d(u, v) / d(x_c, y_c, z_c)
-        dproj[:, 0, 0] = f / depth
-        dproj[:, 0, 2] = f * cam[:, 0] / depth**2
-        dproj[:, 1, 1] = -f / depth
-        dproj[:, 1, 2] = -f * cam[:, 1] / depth**2
-        skew = np.zeros((n, 3, 3))
-        px, py, pz = p_model.T
-        skew[:, 0, 1], skew[:, 0, 2], skew[:, 1, 2] = -pz, py, -px
-        skew[:, 1, 0], skew[:, 2, 0], skew[:, 2, 1] = pz, -py, px
+        dproj = pixels_jacobian(p_model @ rotation.T + translation, self.camera.focal)  # d(u, v) / d(x_c, y_c, z_c)
         to_model = dproj @ rotation  # (n, 2, 3): d(u, v) / d(model-space point)
         jac = np.empty((n, 2, 6 + n_id + n_exp))
-        jac[:, :, :3] = -to_model @ skew  # X_c = R·exp([ω]×)·X: d X_c / d ω = −R·[X]×
+        jac[:, :, :3] = -to_model @ cross_matrices(p_model)  # X_c = R·exp([ω]×)·X: d X_c / d ω = −R·[X]×
         jac[:, :, 3:6] = t_unit * dproj
         # stacked (2, 3) @ (3, K) products: a fifth of einsum's time (the same sums, rounded in another order)
         jac[:, :, 6 : 6 + n_id] = to_model @ self.id_lm[:n_id].transpose(1, 2, 0)

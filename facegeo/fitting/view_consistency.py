@@ -45,7 +45,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from facegeo.camera import Camera
+from facegeo.camera import Camera, cross_matrices, pixels_jacobian, to_pixels
 from facegeo.fitting.landmark_fit import T_UNIT_MM, damped_step, rotation_step
 from facegeo.fitting.landmark_problem import LandmarkProblem
 from facegeo.morphable_model import MorphableModel
@@ -134,10 +134,14 @@ def refine_identity(model: MorphableModel, pixels: Sequence[np.ndarray], cameras
     expression = [model.shape_numpy(None, st["delta"], samples).astype(np.float64) - mean for st in states]
     alpha0 = states[0]["alpha"].copy()
 
+    def neutral(alpha: np.ndarray) -> np.ndarray:
+        """(n, 3) mm: the sampled vertices of α's neutral face (each view adds its ``expression``)."""
+        return mean + np.einsum("k,kvc->vc", alpha, id_basis)
+
     pairs, common = _pairs(model, samples, cameras, states, settings)
     if not pairs:
         return {"pairs": 0, "levels": [], "alpha_change": 0.0, "seconds": time.perf_counter() - start}
-    crops = [_face_crop(image, camera, mean + np.einsum("k,kvc->vc", st["alpha"], id_basis) + e, st, settings, problem.scale)
+    crops = [_face_crop(image, camera, neutral(alpha0) + e, st, settings, problem.scale)
              for image, camera, st, e, problem in zip(pixels, cameras, states, expression, problems)]
 
     def landmarks(sts: Sequence[dict[str, np.ndarray]], alpha: np.ndarray, jacobian: bool):
@@ -153,8 +157,8 @@ def refine_identity(model: MorphableModel, pixels: Sequence[np.ndarray], cameras
     levels = []
     for blur in settings.blur_iod:
         images = [crop.level(blur) for crop in crops]
-        seen = [_Seen(image, cameras[k], states[k], mean + np.einsum("k,kvc->vc", states[k]["alpha"], id_basis) + expression[k], None)
-                for k, image in enumerate(images)]
+        start_face = neutral(states[0]["alpha"])
+        seen = [_Seen(image, cameras[k], states[k], start_face + expression[k], None) for k, image in enumerate(images)]
         gains, spreads = [], []
         for (i, j), points in zip(pairs, common):
             ci, cj = seen[i].colours[points], seen[j].colours[points]
@@ -183,7 +187,7 @@ def refine_identity(model: MorphableModel, pixels: Sequence[np.ndarray], cameras
             return cost, hessian, gradient
 
         def energy(sts: Sequence[dict[str, np.ndarray]], alpha: np.ndarray, jacobian: bool):
-            base = mean + np.einsum("k,kvc->vc", alpha, id_basis)
+            base = neutral(alpha)
             views = [_Seen(images[k], cameras[k], sts[k], base + expression[k], by_vertex if jacobian else None) for k in range(k_views)]
             cost, hessian, gradient = pair_terms(views, jacobian)
             landmark_cost, blocks = landmarks(sts, alpha, jacobian)
@@ -269,8 +273,7 @@ def _face_crop(image: np.ndarray, camera: Camera, shape: np.ndarray, state: dict
                inter_ocular_px: float) -> _FaceCrop:
     """``image`` (H, W, 3) uint8 cut to the box of the face vertices ``shape`` (n, 3) mm posed by
     ``state``, with a margin of 4 coarsest σ."""
-    posed = shape @ state["rotation"].T + state["translation"]
-    u, v = _project(posed, camera)[:2]
+    u, v = to_pixels(shape @ state["rotation"].T + state["translation"], camera).T
     margin = 4.0 * max(settings.blur_iod) * inter_ocular_px + 4.0
     h, w = image.shape[:2]
     x0, x1 = int(max(np.floor(u.min() - margin), 0)), int(min(np.ceil(u.max() + margin), w))
@@ -278,13 +281,6 @@ def _face_crop(image: np.ndarray, camera: Camera, shape: np.ndarray, state: dict
     if x1 <= x0 or y1 <= y0:
         x0, y0, x1, y1 = 0, 0, w, h
     return _FaceCrop(image[y0:y1, x0:x1].astype(np.float32) / 255.0, (x0, y0), inter_ocular_px)
-
-
-def _project(points_cam: np.ndarray, camera: Camera) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(u, v) px and the pixels per mm at the depth of (n, 3) camera-space points (the pinhole of
-    :func:`facegeo.camera.to_pixels`)."""
-    scale = camera.focal / np.maximum(-points_cam[:, 2], 1e-6)
-    return camera.cx + points_cam[:, 0] * scale, camera.cy - points_cam[:, 1] * scale, scale
 
 
 class _Seen:
@@ -297,7 +293,7 @@ class _Seen:
         blurred, dx, dy, (x0, y0) = level
         rotation = state["rotation"]
         posed = shape @ rotation.T + state["translation"]
-        u, v, scale = _project(posed, camera)
+        u, v = to_pixels(posed, camera).T
         map_x, map_y = (u - x0).astype(np.float32), (v - y0).astype(np.float32)
 
         def sample(img: np.ndarray) -> np.ndarray:
@@ -308,14 +304,8 @@ class _Seen:
             return
         # the derivatives in float32: the Gauss–Newton matrix needs no more, and its products take half the time
         grad = np.stack([sample(dx), sample(dy)], axis=-1).astype(np.float32)  # (n, 3, 2): d colour / d (u, v)
-        depth = -posed[:, 2]
-        proj = np.zeros((len(posed), 2, 3), np.float32)  # d (u, v) / d camera-space point
-        proj[:, 0, 0], proj[:, 0, 2] = scale, scale * posed[:, 0] / depth
-        proj[:, 1, 1], proj[:, 1, 2] = -scale, -scale * posed[:, 1] / depth
-        d_point = grad @ proj  # (n, 3, 3): d colour / d camera-space point
-        skew = np.zeros((len(shape), 3, 3), np.float32)  # [X]_x of the model-space points
-        skew[:, 0, 1], skew[:, 0, 2], skew[:, 1, 2] = -shape[:, 2], shape[:, 1], -shape[:, 0]
-        skew[:, 1, 0], skew[:, 2, 0], skew[:, 2, 1] = shape[:, 2], -shape[:, 1], shape[:, 0]
+        d_point = grad @ pixels_jacobian(posed, camera.focal).astype(np.float32)  # (n, 3, 3): d colour / d camera-space point
         rotation32 = rotation.astype(np.float32)
+        skew = cross_matrices(shape.astype(np.float32))
         self.d_pose = np.concatenate([d_point @ (-rotation32 @ skew), d_point * np.float32(T_UNIT_MM)], axis=2)
         self.d_alpha = (d_point @ rotation32) @ id_basis  # (n, 3, 3) @ (n, 3, k)
