@@ -28,6 +28,8 @@ the fit's geometry and receives the maps when the texture stages end): the funct
 argument, ``receive``, that waits for the next object sent.
 os.fork by hand rather than a ProcessPoolExecutor: the executor's idle worker prints a traceback
 on Ctrl-C, and Python 3.11's executor cannot end a worker that is still working.
+:func:`beside_child` (:func:`beside_children`) is the pattern every caller follows: this process's part while the child
+works, then the child's answer, or the same work here where there is no child or it was lost.
 """
 
 from __future__ import annotations
@@ -41,11 +43,14 @@ import sys
 import threading
 import traceback
 from collections.abc import Callable
-from typing import Any
+from typing import Any, TypeVar
 
 from facegeo.errors import FacegeoError
 
-__all__ = ["can_fork", "fork_call", "PendingCall", "ChildLost"]
+__all__ = ["can_fork", "fork_call", "beside_child", "beside_children", "PendingCall", "ChildLost"]
+
+Here = TypeVar("Here")
+Theirs = TypeVar("Theirs")
 
 
 class ChildLost(RuntimeError):
@@ -231,3 +236,49 @@ def fork_call(function: Callable[..., Any], *args: Any, inbox: bool = False) -> 
         code = 0
     finally:
         os._exit(code)
+
+
+def beside_child(pending: PendingCall | None, here: Callable[[], Here], instead: Callable[[ChildLost | None], Theirs],
+                 answer: Callable[[Any], Theirs | None] | None = None) -> tuple[Here, Theirs]:
+    """``(here(), theirs)``: :func:`beside_children` with one child (``pending``; None: none) and
+    its ``instead(lost)``."""
+    mine, (theirs,) = beside_children([pending], here, lambda _, lost: instead(lost), answer)
+    return mine, theirs
+
+
+def beside_children(pendings: list[PendingCall | None], here: Callable[[], Here],
+                    instead: Callable[[int, ChildLost | None], Theirs],
+                    answer: Callable[[Any], Theirs | None] | None = None) -> tuple[Here, list[Theirs]]:
+    """``(here(), [theirs, ...])``: this process's part, run while the forked children of
+    ``pendings`` work (None entries: no child there), with this process's native pools at as many
+    threads fewer meanwhile (each child runs on one: :func:`facegeo.concurrency.native_threads`),
+    and each child's part, in order: its answer (``answer`` of what it returned, where given;
+    None refuses it), else ``instead(k, lost)``, the same work here, where there is no child
+    (``lost`` None), its answer was refused (None) or it ended without one (``lost`` the
+    :class:`ChildLost`, which says how). A child's own error is raised here; the children are
+    stopped if this process fails or is interrupted first."""
+    import contextlib
+
+    from facegeo.concurrency import native_threads, usable_threads
+
+    children = sum(pending is not None for pending in pendings)
+    try:
+        with native_threads(max(1, usable_threads() - children)) if children else contextlib.nullcontext():
+            mine = here()
+        parts = []
+        for k, pending in enumerate(pendings):
+            lost: ChildLost | None = None
+            theirs: Theirs | None = None
+            if pending is not None:
+                try:
+                    returned = pending.result()
+                    theirs = answer(returned) if answer is not None else returned
+                except ChildLost as error:
+                    lost = error
+            parts.append(instead(k, lost) if theirs is None else theirs)
+        return mine, parts
+    except BaseException:
+        for pending in pendings:
+            if pending is not None:
+                pending.abandon()
+        raise

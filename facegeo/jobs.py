@@ -268,7 +268,7 @@ def _one_person_fits(photo_paths: list[str | Path], options: FitOptions,
     fewer than two photos and a regressor."""
     from facegeo.fitting.photo_fit import observe_photo
     from facegeo.fitting.shared_identity import fit_observed
-    from facegeo.forked_call import ChildLost, can_fork, fork_call
+    from facegeo.forked_call import beside_child, can_fork, fork_call
     from facegeo.photo import load_photo
 
     if len(photo_paths) < 2:
@@ -280,16 +280,8 @@ def _one_person_fits(photo_paths: list[str | Path], options: FitOptions,
     seen = [observe_photo(photo, model, None, options.landmarks, photo_camera(photo, options.focal, options.principal_point))
             for photo in photos]
     pending = fork_call(fit_observed, seen, model, options.photometric) if beside is not None and can_fork() else None
-    try:
-        aside = beside(seen) if beside is not None else None
-        try:
-            fits = pending.result() if pending is not None else fit_observed(seen, model, options.photometric)
-        except ChildLost:  # the child was killed (e.g. out of memory): the same fit, here
-            fits = fit_observed(seen, model, options.photometric)
-    except BaseException:
-        if pending is not None:
-            pending.abandon()
-        raise
+    aside, fits = beside_child(pending, lambda: beside(seen) if beside is not None else None,
+                               lambda lost: fit_observed(seen, model, options.photometric))
     by_source = {photo.path: photo for photo in photos}
     return model, [by_source[fit.info["source"]] for fit in fits], fits, aside
 
@@ -420,7 +412,7 @@ def reconstruct_into_folder(photo_path: str | Path, output: str | Path, options:
         facegeo.errors.FacegeoError: bad photo or options, no face, failed fit checks, missing
             weights, an unwritable output, or another run writing into ``output``.
     """
-    from facegeo.forked_call import ChildLost, can_fork, fork_call
+    from facegeo.forked_call import ChildLost, beside_child, can_fork, fork_call
     from facegeo.photo import load_photo
     from facegeo.staged_output import StagedOutput, locked_output
     from facegeo.texturing.registry import BACKENDS
@@ -433,28 +425,35 @@ def reconstruct_into_folder(photo_path: str | Path, output: str | Path, options:
         photo = load_photo(photo_path, max_side=options.max_side)
         forking = fork and backend == "default" and predictor is None and can_fork()
         pending = fork_call(_fitted, photo, str(photo_path), options) if forking else None
-        try:  # while the child fits: the skin mask, the texture stages' imports, the UV raster and the layout priors
-            from facegeo.export_job import ExportJob
-            from facegeo.image_files import png_bytes
-            from facegeo.pipeline import reconstruct_with_fit
-            from facegeo.skin_mask import skin_mask_image
+
+        def meanwhile() -> Any:  # while the child fits: the skin mask, the texture stages' imports, the UV raster and the layout priors
+            import facegeo.export_job  # noqa: F401  (the modules below loaded now, from sys.modules then)
+            import facegeo.image_files  # noqa: F401
+            import facegeo.pipeline  # noqa: F401
             from facegeo.texturing.context import layout_priors
             from facegeo.uv import rasterize_uv
             if options.preview:
-                from facegeo.texturing.preview import relit_preview
+                import facegeo.texturing.preview  # noqa: F401
 
             skin = _photo_skin(photo, str(photo_path))
             if pending is not None:  # both depend on the model alone and are cached: the pipeline finds them
                 layout_priors(model, rasterize_uv(model, size=options.size))
-            try:
-                fitted, fit_seconds = pending.result() if pending is not None else _fitted(photo, str(photo_path), options)
-            except ChildLost as lost:  # the child was killed (e.g. out of memory): the same fit, here
-                fitted, fit_seconds = _fitted(photo, str(photo_path), options)
+            return skin
+
+        def fitted_here(lost: ChildLost | None) -> tuple[Any, float]:
+            fitted, seconds = _fitted(photo, str(photo_path), options)
+            if lost is not None:  # the child was killed (e.g. out of memory): the same fit, here
                 fitted.info.setdefault("notes", []).append(f"the forked fit ended {lost.how} without an answer; fitted again in the main process")
-        except BaseException:
-            if pending is not None:
-                pending.abandon()
-            raise
+            return fitted, seconds
+
+        skin, (fitted, fit_seconds) = beside_child(pending, meanwhile, fitted_here)
+        from facegeo.export_job import ExportJob
+        from facegeo.image_files import png_bytes
+        from facegeo.pipeline import reconstruct_with_fit
+        from facegeo.skin_mask import skin_mask_image
+        if options.preview:
+            from facegeo.texturing.preview import relit_preview
+
         with StagedOutput(output, replace=True) as stage:
             jobs: list[ExportJob] = []
             plan = _export_plan(options, stage.staging_dir)

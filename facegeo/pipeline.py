@@ -265,12 +265,38 @@ def _view_albedo(pixels: np.ndarray, fit_result: Fit, model: MorphableModel, ski
     return albedo, weight, ctx, skin
 
 
-def _other_view(pixels: np.ndarray, fit_result: Fit, model: MorphableModel, skin: SkinMask | None, size: int,
-                backend: str) -> tuple[np.ndarray, np.ndarray]:
-    """:func:`_view_albedo` of a photo other than the reference, with a fresh ``backend`` (by
-    name): ``(albedo, weight)`` (what a forked child sends back)."""
-    albedo, weight, _, _ = _view_albedo(pixels, fit_result, model, skin, size, BACKENDS[backend](), reference=False)
-    return albedo, weight
+def _other_views(pixels: list[np.ndarray], fits: list[Fit], model: MorphableModel, skins: list[SkinMask | None], size: int,
+                 backend: str, views: list[int]) -> list[tuple[np.ndarray, np.ndarray]]:
+    """:func:`_view_albedo` of the photos ``views`` (indices into the lists; not the reference),
+    one after another, each with a fresh ``backend`` (by name): ``[(albedo, weight), ...]`` in
+    that order (what a forked child sends back)."""
+    answers = []
+    for k in views:
+        albedo, weight, _, _ = _view_albedo(pixels[k], fits[k], model, skins[k], size, BACKENDS[backend](), reference=False)
+        answers.append((albedo, weight))
+    return answers
+
+
+#: What the reference's view costs over another's (it is completed by the backend's inpaint and
+#: homogenise; the others are only de-lit): 2.0 s against 1.1 s on James's renders at 1K, 2 cores.
+REFERENCE_VIEW_COST = 1.8
+
+
+def _view_shares(count: int, reference: int, workers: int) -> list[list[int]]:
+    """Which of ``count`` views each of ``workers`` processes textures: ``[this process's, each
+    child's, ...]``, the reference in this process's share, first; each other view in turn to the
+    least loaded (ties to a child), the reference weighing :data:`REFERENCE_VIEW_COST` others.
+    On 2 cores five photos split as the reference and one other here, three in a child. A child
+    a view, all at once, kept both cores as busy, with five processes each slowed by the others:
+    the views of five renders took 5.9 s so, 4.4-4.8 s now (``reconstruct --one-person``)."""
+    loads = [REFERENCE_VIEW_COST] + [0.0] * (workers - 1)
+    shares: list[list[int]] = [[reference]] + [[] for _ in range(workers - 1)]
+    for k in range(count):
+        if k != reference:
+            least = min(range(workers), key=lambda w: (loads[w], w == 0, w))
+            shares[least].append(k)
+            loads[least] += 1.0
+    return shares
 
 
 def _view_albedos(pixels: list[np.ndarray], fits: list[Fit], model: MorphableModel, skins: list[SkinMask | None], size: int,
@@ -278,46 +304,26 @@ def _view_albedos(pixels: list[np.ndarray], fits: list[Fit], model: MorphableMod
                   fork: bool) -> tuple[list[np.ndarray], list[np.ndarray], object, SkinMask]:
     """Every photo's albedo and weight (:func:`_view_albedo`), in order, and the reference's
     :class:`TextureContext` and skin mask: the reference's made here with ``main_backend``, the
-    others in forked children where ``fork`` and forking help, up to twice as many children at
-    work as :func:`usable_threads`, all started before the reference's view begins (an other
-    view costs about half the reference's CPU: started beside it they keep the second core busy
-    while this process works, without a scheduler thread that would have to fork from beside it;
-    with one fewer, the last waited for the reference and then ran alone on one core: five
-    frames' views took 6.3 s, now 5.5-5.9 s on 2 cores), each child's native pools on one thread."""
-    from collections import deque
+    others shared between this process and, where ``fork`` and forking help, forked children,
+    one fewer than :func:`usable_threads` (:func:`_view_shares`), all started before the
+    reference's view begins."""
+    from facegeo.forked_call import beside_children, can_fork, fork_call
 
-    from facegeo.forked_call import ChildLost, can_fork, fork_call
+    workers = max(1, usable_threads()) if fork and can_fork() else 1
+    shares = _view_shares(len(pixels), reference, workers)
+    pendings = [fork_call(_other_views, pixels, fits, model, skins, size, backend, share) if share else None
+                for share in shares[1:]]
 
-    results: dict[int, tuple[np.ndarray, np.ndarray]] = {}
-    waiting = deque(k for k in range(len(pixels)) if k != reference)
-    running: dict[int, object] = {}
-    slots = 2 * usable_threads() if fork and can_fork() else 0  # 0: every view here
-
-    def start(limit: int) -> None:
-        while waiting and len(running) < limit:
-            k = waiting.popleft()
-            running[k] = fork_call(_other_view, pixels[k], fits[k], model, skins[k], size, backend)
-
-    try:
-        start(slots)  # beside the reference's, here
+    def mine() -> tuple[dict[int, tuple[np.ndarray, np.ndarray]], object, SkinMask]:
         albedo, weight, ctx, skin = _view_albedo(pixels[reference], fits[reference], model, skins[reference], size, main_backend,
                                                  reference=True)
-        results[reference] = (albedo, weight)
-        while waiting or running:
-            start(slots)
-            if not running:
-                k = waiting.popleft()
-                results[k] = _other_view(pixels[k], fits[k], model, skins[k], size, backend)
-                continue
-            k = next(iter(running))
-            try:
-                results[k] = running.pop(k).result()
-            except ChildLost:  # killed (e.g. out of memory): the same view, here
-                results[k] = _other_view(pixels[k], fits[k], model, skins[k], size, backend)
-    except BaseException:
-        for pending in running.values():
-            pending.abandon()
-        raise
+        others = _other_views(pixels, fits, model, skins, size, backend, shares[0][1:])
+        return {reference: (albedo, weight), **dict(zip(shares[0][1:], others))}, ctx, skin
+
+    (results, ctx, skin), theirs = beside_children(
+        pendings, mine, lambda w, lost: _other_views(pixels, fits, model, skins, size, backend, shares[1 + w]))
+    for share, answers in zip(shares[1:], theirs):
+        results.update(zip(share, answers))
     return [results[k][0] for k in range(len(pixels))], [results[k][1] for k in range(len(pixels))], ctx, skin
 
 
@@ -355,9 +361,10 @@ def reconstruct_views(
         skins: each photo's :class:`facegeo.skin_mask.SkinMask` if already computed (None
             entries: computed here).
         parts, progress: as :func:`reconstruct_with_fit` (stages :data:`VIEW_STAGES`).
-        fork: texture the other photos in forked children beside the reference's, as many at a
-            time as the process may keep threads busy (:func:`facegeo.forked_call.can_fork`,
-            :func:`facegeo.concurrency.usable_threads`); the results are the same either way.
+        fork: texture the other photos in forked children beside the reference's, one fewer
+            than the threads the process may keep busy (:func:`_view_shares`,
+            :func:`facegeo.forked_call.can_fork`, :func:`facegeo.concurrency.usable_threads`);
+            the results are the same either way.
         geometry_ready: as :func:`reconstruct_with_fit`'s, called before the photos are textured.
     Returns:
         ``(asset, reference, report)``: the asset in model space (upright, mm; ``metadata``

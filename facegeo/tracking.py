@@ -33,14 +33,12 @@ points are measured from the person's own there (:func:`neutral_offsets`). What 
 
 from __future__ import annotations
 
-import contextlib
 import dataclasses
-import operator
 import time
 import warnings
 from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, field
-from typing import Any, TypeVar
+from typing import Any
 
 import numpy as np
 
@@ -86,8 +84,6 @@ WEIGHT_WINDOW = 5
 #: :data:`WEIGHT_WINDOW` frames (:func:`smooth_track`).
 SLOW_WEIGHT_WINDOW = 9
 
-#: A part of a clip, as observed or as solved (:func:`_beside_child`).
-Part = TypeVar("Part")
 
 
 @dataclass(frozen=True)
@@ -239,7 +235,7 @@ def observe_frames(frames: Iterable[Any], model: MorphableModel, detector: str =
     the number of frames this process observed, doubled while the child works.
 
     Raises :class:`InputError` (naming ``source``) for no frames or frames of different sizes."""
-    from facegeo.forked_call import can_fork, fork_call
+    from facegeo.forked_call import beside_child, can_fork, fork_call
 
     observer = _FrameObserver(model, detector, source)
     observed = observer.store()
@@ -269,8 +265,9 @@ def observe_frames(frames: Iterable[Any], model: MorphableModel, detector: str =
                 part.extend(observer.observe(frame))
         return part.extend(observer.flush())
 
-    observed = _beside_child(pending, here, instead, lambda count: None if count is None or theirs is None else theirs.sync(),
-                             ObservedFrames.extend)
+    mine, child_part = beside_child(pending, here, lambda lost: instead(),
+                                    lambda count: None if count is None or theirs is None else theirs.sync())
+    observed = mine.extend(child_part)
     if observer.size is None:
         raise InputError(source, "frames", "at least one frame", "none in the range")
     return observed, observer.size
@@ -648,41 +645,15 @@ def track_observed(model: MorphableModel, observed: Sequence[ObservedFrame], sha
     once, the second by a forked child (:mod:`facegeo.forked_call`, where it
     :func:`~facegeo.forked_call.can_fork`), which starts its first frame from solvePnP as after a
     frame without a face (the halves' solves are otherwise the same); 1: in this process alone."""
-    from facegeo.forked_call import can_fork, fork_call
+    from facegeo.forked_call import beside_child, can_fork, fork_call
 
     if stage.n_id != 0:
         raise InputError("<argument>", "stage", "a stage that leaves the identity out (n_id 0)", repr(stage.n_id))
     split = len(observed) // 2 if parts >= 2 and len(observed) >= 2 * MIN_PART_FRAMES and can_fork() else len(observed)
     pending = fork_call(_track_part, model, observed, shared, stage, split, len(observed), offsets) if split < len(observed) else None
-    return _beside_child(pending, lambda: _track_part(model, observed, shared, stage, 0, split, offsets),
-                         lambda: _track_part(model, observed, shared, stage, split, len(observed), offsets))
-
-
-def _beside_child(pending: Any, here: Callable[[], Part], instead: Callable[[], Part],
-                  answer: Callable[[Any], Part | None] = lambda part: part,
-                  join: Callable[[Part, Part], Part] = operator.add) -> Part:
-    """``here()`` (this process's part of a clip, its native pools at one thread while the forked
-    child of ``pending`` (:class:`facegeo.forked_call.PendingCall`, or None) has the other core),
-    joined with the child's part: ``answer`` of what the child returned, or ``instead()`` where
-    there is no child, that is None or the child was lost (killed, e.g. out of memory). The
-    child is stopped if this process fails first."""
-    from facegeo.concurrency import native_threads
-    from facegeo.forked_call import ChildLost
-
-    try:
-        with native_threads(1) if pending is not None else contextlib.nullcontext():
-            out = here()
-        theirs = None
-        if pending is not None:
-            try:
-                theirs = answer(pending.result())
-            except ChildLost:
-                pass
-        return join(out, instead() if theirs is None else theirs)
-    except BaseException:
-        if pending is not None:
-            pending.abandon()
-        raise
+    first, second = beside_child(pending, lambda: _track_part(model, observed, shared, stage, 0, split, offsets),
+                                 lambda lost: _track_part(model, observed, shared, stage, split, len(observed), offsets))
+    return first + second
 
 
 #: A clip is tracked in two parts at once (:func:`observe_frames`' ``rest``, :func:`track_observed`)

@@ -265,3 +265,46 @@ def test_ctrl_c_while_the_export_child_works_ends_all_with_one_line_and_no_files
     assert err.strip().splitlines() == ["facegeo: interrupted (SIGINT); no output written"]
     assert not any(Path(f"/proc/{pid}").exists() for pid in seen)
     assert not out.exists() and list(tmp_path.iterdir()) == []
+
+
+BESIDE = """
+import os, signal
+from facegeo.concurrency import usable_threads
+from facegeo.forked_call import beside_child, beside_children, fork_call
+import cv2
+
+def lost():
+    os.kill(os.getpid(), signal.SIGKILL)
+
+cv2.setNumThreads(2)
+pendings = [fork_call(lambda: "first"), fork_call(lost), None, fork_call(lambda: None)]
+seen = []
+mine, theirs = beside_children(pendings, lambda: seen.append(cv2.getNumThreads()) or "mine",
+                               lambda k, why: f"here {k} {why.how if why else None}")
+print(mine, theirs, seen == [max(1, usable_threads() - 3)], cv2.getNumThreads())
+print(beside_child(None, lambda: cv2.getNumThreads(), lambda why: why))
+print(beside_child(fork_call(lambda: 3), lambda: 1, lambda why: 0, answer=lambda n: n * 2))
+try:
+    beside_child(fork_call(lambda: 1 / 0), lambda: 1, lambda why: 0)
+except RuntimeError as error:
+    print("ZeroDivisionError" in str(error))
+"""
+
+
+def test_beside_children_takes_each_childs_answer_or_does_its_work_here():
+    said = _python(BESIDE).splitlines()
+    # the lost child's and the refused (None) answer's work is done here; this process's pools
+    # one thread fewer a child while they work, restored afterwards
+    assert said[0] == "mine ['first', 'here 1 by signal SIGKILL', 'here 2 None', 'here 3 None'] True 2", said
+    assert said[1:] == ["(2, None)", "(1, 6)", "True"], said
+
+
+def test_the_views_are_shared_so_that_no_process_waits_for_the_others():
+    from facegeo.pipeline import _view_shares
+
+    # two cores, five photos: the reference (weighing 1.8 others) and one other here, three in a child
+    assert _view_shares(5, 0, 2) == [[0, 3], [1, 2, 4]]
+    assert _view_shares(5, 3, 2) == [[3, 2], [0, 1, 4]]
+    assert _view_shares(2, 0, 2) == [[0], [1]]
+    assert _view_shares(5, 0, 1) == [[0, 1, 2, 3, 4]]  # no children: every view here
+    assert _view_shares(5, 0, 8) == [[0], [1], [2], [3], [4], [], [], []]  # a child each

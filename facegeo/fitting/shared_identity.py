@@ -49,7 +49,7 @@ import numpy as np
 from facegeo.camera import Camera
 from facegeo.concurrency import numpy_blas_threads
 from facegeo.errors import InputError, check_finite
-from facegeo.forked_call import ChildLost, can_fork, fork_call
+from facegeo.forked_call import beside_child, can_fork, fork_call
 from facegeo.fitting.landmark_fit import (CONVERGED_RELATIVE_DECREASE, LANDMARK_FIT_THREADS, NOISE_TOLERANCE, T_UNIT_MM,
                                           LandmarkPrior, LandmarkSolution, assemble_fit, damped_step, estimate_noise,
                                           rotation_step, solve_landmarks)
@@ -319,20 +319,16 @@ def fit_observed(seen: Sequence[PhotoObservation], model: MorphableModel, photom
         # the photos' face descriptors in a forked child while this process fits all the photos
         # jointly: with none of them someone else's (the usual case) that fit is the answer
         pending = fork_call(_descriptors, seen) if can_fork() else None
-        try:
-            if pending is not None:
-                try:
-                    solutions = solve_shared_identity(model, [LandmarkView.of(s) for s in seen], priors)
-                except InputError:  # perhaps the photo of someone else: fitted again without the odd ones
-                    solutions = None
+
+        def joint() -> list[LandmarkSolution] | None:
+            if pending is None:  # the descriptors first: a photo of someone else is not fitted
+                return None
             try:
-                descriptors = pending.result() if pending is not None else _descriptors(seen)
-            except ChildLost:
-                descriptors = _descriptors(seen)
-        except BaseException:
-            if pending is not None:
-                pending.abandon()
-            raise
+                return solve_shared_identity(model, [LandmarkView.of(s) for s in seen], priors)
+            except InputError:  # perhaps the photo of someone else: fitted again without the odd ones
+                return None
+
+        solutions, descriptors = beside_child(pending, joint, lambda lost: _descriptors(seen))
         odd = odd_ones_out(descriptors)
     else:
         odd = []
