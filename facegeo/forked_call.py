@@ -202,16 +202,21 @@ def fork_call(function: Callable[..., Any], *args: Any, inbox: bool = False) -> 
         for end in (read_end, write_end, inbox_read, inbox_write):
             if end is not None:
                 os.close(end)
-        pid = -1
-        raise
-    finally:
-        if pid != 0 and cv2 is not None:  # the caller (also after a failed fork): its count back
+        if cv2 is not None:  # the caller: its count back
             cv2.setNumThreads(cv2_threads)
+        raise
     if pid:
-        os.close(write_end)
-        if inbox_read is not None:
-            os.close(inbox_read)
-        return PendingCall(pid, read_end, inbox_write)
+        try:
+            if cv2 is not None:  # the caller: its count back
+                cv2.setNumThreads(cv2_threads)
+            os.close(write_end)
+            if inbox_read is not None:
+                os.close(inbox_read)
+            return PendingCall(pid, read_end, inbox_write)
+        except BaseException:  # interrupted before the caller holds the child: stop it here
+            os.kill(pid, signal.SIGKILL)
+            os.waitpid(pid, 0)
+            raise
     code = 1
     try:  # the child: never returns into the caller's code
         os.close(read_end)
@@ -238,31 +243,37 @@ def fork_call(function: Callable[..., Any], *args: Any, inbox: bool = False) -> 
         os._exit(code)
 
 
-def beside_child(pending: PendingCall | None, here: Callable[[], Here], instead: Callable[[ChildLost | None], Theirs],
+def beside_child(start: Callable[[], PendingCall | None], here: Callable[[], Here],
+                 instead: Callable[[ChildLost | None], Theirs],
                  answer: Callable[[Any], Theirs | None] | None = None) -> tuple[Here, Theirs]:
-    """``(here(), theirs)``: :func:`beside_children` with one child (``pending``; None: none) and
-    its ``instead(lost)``."""
-    mine, (theirs,) = beside_children([pending], here, lambda _, lost: instead(lost), answer)
+    """``(here(), theirs)``: :func:`beside_children` with one child, started by ``start`` (which
+    returns its :class:`PendingCall`, or None for none), and its ``instead(lost)``."""
+    mine, (theirs,) = beside_children([start], here, lambda _, lost: instead(lost), answer)
     return mine, theirs
 
 
-def beside_children(pendings: list[PendingCall | None], here: Callable[[], Here],
+def beside_children(starts: list[Callable[[], PendingCall | None]], here: Callable[[], Here],
                     instead: Callable[[int, ChildLost | None], Theirs],
                     answer: Callable[[Any], Theirs | None] | None = None) -> tuple[Here, list[Theirs]]:
-    """``(here(), [theirs, ...])``: this process's part, run while the forked children of
-    ``pendings`` work (None entries: no child there), with this process's native pools at as many
-    threads fewer meanwhile (each child runs on one: :func:`facegeo.concurrency.native_threads`),
-    and each child's part, in order: its answer (``answer`` of what it returned, where given;
-    None refuses it), else ``instead(k, lost)``, the same work here, where there is no child
-    (``lost`` None), its answer was refused (None) or it ended without one (``lost`` the
-    :class:`ChildLost`, which says how). A child's own error is raised here; the children are
-    stopped if this process fails or is interrupted first."""
+    """``(here(), [theirs, ...])``: this process's part, run while the children that ``starts``
+    fork work (each returns its :class:`PendingCall`, usually :func:`fork_call`'s, or None for
+    none there), with this process's native pools at as many threads fewer meanwhile (each child
+    runs on one: :func:`facegeo.concurrency.native_threads`), and each child's part, in order:
+    its answer (``answer`` of what it returned, where given; None refuses it), else
+    ``instead(k, lost)``, the same work here, where there is no child (``lost`` None), its answer
+    was refused (None) or it ended without one (``lost`` the :class:`ChildLost`, which says how).
+    A child's own error is raised here. The children are started here, so that every one started
+    is stopped if this process fails or is interrupted first (a Ctrl-C between a fork and the
+    caller's guard left the child behind)."""
     import contextlib
 
     from facegeo.concurrency import native_threads, usable_threads
 
-    children = sum(pending is not None for pending in pendings)
+    pendings: list[PendingCall | None] = []
     try:
+        for start in starts:
+            pendings.append(start())
+        children = sum(pending is not None for pending in pendings)
         with native_threads(max(1, usable_threads() - children)) if children else contextlib.nullcontext():
             mine = here()
         parts = []

@@ -279,8 +279,9 @@ def _one_person_fits(photo_paths: list[str | Path], options: FitOptions,
     photos = [load_photo(p, max_side=options.max_side) for p in photo_paths]
     seen = [observe_photo(photo, model, None, options.landmarks, photo_camera(photo, options.focal, options.principal_point))
             for photo in photos]
-    pending = fork_call(fit_observed, seen, model, options.photometric) if beside is not None and can_fork() else None
-    aside, fits = beside_child(pending, lambda: beside(seen) if beside is not None else None,
+    forking = beside is not None and can_fork()
+    aside, fits = beside_child(lambda: fork_call(fit_observed, seen, model, options.photometric) if forking else None,
+                               lambda: beside(seen) if beside is not None else None,
                                lambda lost: fit_observed(seen, model, options.photometric))
     by_source = {photo.path: photo for photo in photos}
     return model, [by_source[fit.info["source"]] for fit in fits], fits, aside
@@ -424,9 +425,8 @@ def reconstruct_into_folder(photo_path: str | Path, output: str | Path, options:
         model, predictor = loaded_resources(options.model, options.regressor, options.refine, options.landmarks)
         photo = load_photo(photo_path, max_side=options.max_side)
         forking = fork and backend == "default" and predictor is None and can_fork()
-        pending = fork_call(_fitted, photo, str(photo_path), options) if forking else None
 
-        def meanwhile() -> Any:  # while the child fits: the skin mask, the texture stages' imports, the UV raster and the layout priors
+        def meanwhile() -> None:  # while the child fits: the texture stages' imports, the UV raster and the layout priors
             import facegeo.export_job  # noqa: F401  (the modules below loaded now, from sys.modules then)
             import facegeo.image_files  # noqa: F401
             import facegeo.pipeline  # noqa: F401
@@ -435,18 +435,17 @@ def reconstruct_into_folder(photo_path: str | Path, output: str | Path, options:
             if options.preview:
                 import facegeo.texturing.preview  # noqa: F401
 
-            skin = _photo_skin(photo, str(photo_path))
-            if pending is not None:  # both depend on the model alone and are cached: the pipeline finds them
+            if forking:  # both depend on the model alone and are cached: the pipeline finds them
                 layout_priors(model, rasterize_uv(model, size=options.size))
-            return skin
 
-        def fitted_here(lost: ChildLost | None) -> tuple[Any, float]:
-            fitted, seconds = _fitted(photo, str(photo_path), options)
+        def fitted_here(lost: ChildLost | None) -> tuple[Any, float, Any]:
+            fitted, seconds, skin = _fitted_and_skin(photo, str(photo_path), options)
             if lost is not None:  # the child was killed (e.g. out of memory): the same fit, here
                 fitted.info.setdefault("notes", []).append(f"the forked fit ended {lost.how} without an answer; fitted again in the main process")
-            return fitted, seconds
+            return fitted, seconds, skin
 
-        skin, (fitted, fit_seconds) = beside_child(pending, meanwhile, fitted_here)
+        _, (fitted, fit_seconds, skin) = beside_child(
+            lambda: fork_call(_fitted_and_skin, photo, str(photo_path), options) if forking else None, meanwhile, fitted_here)
         from facegeo.export_job import ExportJob
         from facegeo.image_files import png_bytes
         from facegeo.pipeline import reconstruct_with_fit
@@ -527,6 +526,15 @@ def _fitted(photo: Any, source: str, options: FitOptions) -> tuple[Any, float]:
     result = (predictor or fit)(photo, model=model, detector=options.landmarks,
                                 camera=photo_camera(photo, options.focal, options.principal_point))
     return result, time.perf_counter() - start
+
+
+def _fitted_and_skin(photo: Any, source: str, options: FitOptions) -> tuple[Any, float, Any]:
+    """:func:`_fitted` and then :func:`_photo_skin`: ``(fit, seconds, skin mask or None)``. One
+    call, so that a forked child makes the mask on the MediaPipe models its fit has just loaded
+    while the caller imports the texture stages (the caller's imports took longer than the
+    child's fit: with the mask made there too, the caller waited for neither)."""
+    fitted, seconds = _fitted(photo, source, options)
+    return fitted, seconds, _photo_skin(photo, source)
 
 
 def _photo_skin(photo: Any, source: str) -> Any:

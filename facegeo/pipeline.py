@@ -311,8 +311,8 @@ def _view_albedos(pixels: list[np.ndarray], fits: list[Fit], model: MorphableMod
 
     workers = max(1, usable_threads()) if fork and can_fork() else 1
     shares = _view_shares(len(pixels), reference, workers)
-    pendings = [fork_call(_other_views, pixels, fits, model, skins, size, backend, share) if share else None
-                for share in shares[1:]]
+    starts = [lambda share=share: fork_call(_other_views, pixels, fits, model, skins, size, backend, share) if share else None
+              for share in shares[1:]]
 
     def mine() -> tuple[dict[int, tuple[np.ndarray, np.ndarray]], object, SkinMask]:
         albedo, weight, ctx, skin = _view_albedo(pixels[reference], fits[reference], model, skins[reference], size, main_backend,
@@ -321,7 +321,7 @@ def _view_albedos(pixels: list[np.ndarray], fits: list[Fit], model: MorphableMod
         return {reference: (albedo, weight), **dict(zip(shares[0][1:], others))}, ctx, skin
 
     (results, ctx, skin), theirs = beside_children(
-        pendings, mine, lambda w, lost: _other_views(pixels, fits, model, skins, size, backend, shares[1 + w]))
+        starts, mine, lambda w, lost: _other_views(pixels, fits, model, skins, size, backend, shares[1 + w]))
     for share, answers in zip(shares[1:], theirs):
         results.update(zip(share, answers))
     return [results[k][0] for k in range(len(pixels))], [results[k][1] for k in range(len(pixels))], ctx, skin

@@ -265,7 +265,7 @@ def observe_frames(frames: Iterable[Any], model: MorphableModel, detector: str =
                 part.extend(observer.observe(frame))
         return part.extend(observer.flush())
 
-    mine, child_part = beside_child(pending, here, lambda lost: instead(),
+    mine, child_part = beside_child(lambda: pending, here, lambda lost: instead(),
                                     lambda count: None if count is None or theirs is None else theirs.sync())
     observed = mine.extend(child_part)
     if observer.size is None:
@@ -650,9 +650,10 @@ def track_observed(model: MorphableModel, observed: Sequence[ObservedFrame], sha
     if stage.n_id != 0:
         raise InputError("<argument>", "stage", "a stage that leaves the identity out (n_id 0)", repr(stage.n_id))
     split = len(observed) // 2 if parts >= 2 and len(observed) >= 2 * MIN_PART_FRAMES and can_fork() else len(observed)
-    pending = fork_call(_track_part, model, observed, shared, stage, split, len(observed), offsets) if split < len(observed) else None
-    first, second = beside_child(pending, lambda: _track_part(model, observed, shared, stage, 0, split, offsets),
-                                 lambda lost: _track_part(model, observed, shared, stage, split, len(observed), offsets))
+    first, second = beside_child(
+        lambda: fork_call(_track_part, model, observed, shared, stage, split, len(observed), offsets) if split < len(observed) else None,
+        lambda: _track_part(model, observed, shared, stage, 0, split, offsets),
+        lambda lost: _track_part(model, observed, shared, stage, split, len(observed), offsets))
     return first + second
 
 

@@ -23,17 +23,21 @@ SAME_ANSWER = f"""
 import sys
 import numpy as np
 from facegeo.forked_call import can_fork, fork_call
-from facegeo.jobs import FitOptions, _fitted
+import dataclasses
+from facegeo.jobs import FitOptions, _fitted_and_skin
 from facegeo.photo import load_photo
 
 assert can_fork()
 photo = load_photo({PHOTO!r})
-forked, seconds = fork_call(_fitted, photo, "astronaut", FitOptions()).result()
+forked, seconds, forked_skin = fork_call(_fitted_and_skin, photo, "astronaut", FitOptions()).result()
 assert "torch" not in sys.modules and seconds > 0
-inline, _ = _fitted(photo, "astronaut", FitOptions())
+inline, _, skin = _fitted_and_skin(photo, "astronaut", FitOptions())
 for name in ("alpha", "delta", "beta", "gamma", "rotation", "translation", "vertices", "landmarks", "landmarks_fitted"):
     assert np.array_equal(getattr(forked, name), getattr(inline, name)), name
 assert forked.info == inline.info and forked.camera == inline.camera
+for field in dataclasses.fields(skin):  # the skin mask the child makes after its fit, as this process makes it
+    mine, theirs = getattr(skin, field.name), getattr(forked_skin, field.name)
+    assert np.array_equal(mine, theirs) if isinstance(mine, np.ndarray) else mine == theirs, field.name
 print("same")
 """
 
@@ -268,7 +272,7 @@ def test_ctrl_c_while_the_export_child_works_ends_all_with_one_line_and_no_files
 
 
 BESIDE = """
-import os, signal
+import os, signal, time
 from facegeo.concurrency import usable_threads
 from facegeo.forked_call import beside_child, beside_children, fork_call
 import cv2
@@ -277,17 +281,24 @@ def lost():
     os.kill(os.getpid(), signal.SIGKILL)
 
 cv2.setNumThreads(2)
-pendings = [fork_call(lambda: "first"), fork_call(lost), None, fork_call(lambda: None)]
+starts = [lambda: fork_call(lambda: "first"), lambda: fork_call(lost), lambda: None, lambda: fork_call(lambda: None)]
 seen = []
-mine, theirs = beside_children(pendings, lambda: seen.append(cv2.getNumThreads()) or "mine",
+mine, theirs = beside_children(starts, lambda: seen.append(cv2.getNumThreads()) or "mine",
                                lambda k, why: f"here {k} {why.how if why else None}")
 print(mine, theirs, seen == [max(1, usable_threads() - 3)], cv2.getNumThreads())
-print(beside_child(None, lambda: cv2.getNumThreads(), lambda why: why))
-print(beside_child(fork_call(lambda: 3), lambda: 1, lambda why: 0, answer=lambda n: n * 2))
+print(beside_child(lambda: None, lambda: cv2.getNumThreads(), lambda why: why))
+print(beside_child(lambda: fork_call(lambda: 3), lambda: 1, lambda why: 0, answer=lambda n: n * 2))
 try:
-    beside_child(fork_call(lambda: 1 / 0), lambda: 1, lambda why: 0)
+    beside_child(lambda: fork_call(lambda: 1 / 0), lambda: 1, lambda why: 0)
 except RuntimeError as error:
     print("ZeroDivisionError" in str(error))
+started = []
+def second_fails():
+    raise KeyboardInterrupt  # e.g. Ctrl-C while the second child is forked: the first is stopped, not left behind
+try:
+    beside_children([lambda: started.append(fork_call(time.sleep, 30)) or started[-1], second_fails], lambda: 1, lambda k, why: 0)
+except KeyboardInterrupt:
+    print(started[0]._reaped)
 """
 
 
@@ -296,7 +307,7 @@ def test_beside_children_takes_each_childs_answer_or_does_its_work_here():
     # the lost child's and the refused (None) answer's work is done here; this process's pools
     # one thread fewer a child while they work, restored afterwards
     assert said[0] == "mine ['first', 'here 1 by signal SIGKILL', 'here 2 None', 'here 3 None'] True 2", said
-    assert said[1:] == ["(2, None)", "(1, 6)", "True"], said
+    assert said[1:] == ["(2, None)", "(1, 6)", "True", "True"], said
 
 
 def test_the_views_are_shared_so_that_no_process_waits_for_the_others():

@@ -318,17 +318,18 @@ def fit_observed(seen: Sequence[PhotoObservation], model: MorphableModel, photom
     if len(seen) > 1:
         # the photos' face descriptors in a forked child while this process fits all the photos
         # jointly: with none of them someone else's (the usual case) that fit is the answer
-        pending = fork_call(_descriptors, seen) if can_fork() else None
+        forking = can_fork()
 
         def joint() -> list[LandmarkSolution] | None:
-            if pending is None:  # the descriptors first: a photo of someone else is not fitted
+            if not forking:  # the descriptors first: a photo of someone else is not fitted
                 return None
             try:
                 return solve_shared_identity(model, [LandmarkView.of(s) for s in seen], priors)
             except InputError:  # perhaps the photo of someone else: fitted again without the odd ones
                 return None
 
-        solutions, descriptors = beside_child(pending, joint, lambda lost: _descriptors(seen))
+        solutions, descriptors = beside_child(lambda: fork_call(_descriptors, seen) if forking else None, joint,
+                                              lambda lost: _descriptors(seen))
         odd = odd_ones_out(descriptors)
     else:
         odd = []
