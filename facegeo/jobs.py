@@ -740,7 +740,7 @@ def _clip_parts(video: str | Path, info: Any, frames: Iterator[Any], options: Tr
     if info.frame_count is None or not can_fork():
         return frames, None
     last = info.frame_count - 1
-    if options.end_s is not None:
+    if options.end_s is not None and math.isfinite(options.end_s * info.fps):
         last = min(last, math.ceil(options.end_s * info.fps) - 1)
     kept = len(range(first.index, last + 1, options.every))
     if kept < 2 * MIN_PART_FRAMES:

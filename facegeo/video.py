@@ -30,6 +30,7 @@ import math
 import os
 import re
 import statistics
+import sys
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Callable, Iterator
@@ -130,7 +131,8 @@ def open_video(path: str | os.PathLike[str], start_s: float | None = None, end_s
 
 
 def _check_range(source: str, start_s: Any, end_s: Any, every: Any, fps: Any) -> tuple[float, float, int, float | None]:
-    """(start, end, every, fps) checked: start in [0, inf), end in (start, inf], every >= 1."""
+    """(start, end, every, fps) checked: start in [0, inf), end in (start, inf) (inf where not
+    given), every >= 1."""
     def number(value: Any, field: str, expected: str) -> float:
         if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)):
             raise InputError(source, field, expected, repr(value))
@@ -143,7 +145,7 @@ def _check_range(source: str, start_s: Any, end_s: Any, every: Any, fps: Any) ->
     if not (math.isfinite(start) and start >= 0):
         raise InputError(source, "--start", "seconds >= 0", repr(start_s))
     end = math.inf if end_s is None else number(end_s, "--end", f"seconds > the start ({start:g} s)")
-    if not end > start:
+    if not (end > start and (end_s is None or math.isfinite(end))):
         raise InputError(source, "--end", f"seconds > the start ({start:g} s)", repr(end_s))
     if isinstance(every, bool) or not isinstance(every, (int, np.integer)) or every < 1:
         raise InputError(source, "--every", "a whole number of frames >= 1", repr(every))
@@ -157,11 +159,14 @@ def _check_range(source: str, start_s: Any, end_s: Any, every: Any, fps: Any) ->
 
 def _index_range(start: float, end: float, fps: float) -> tuple[int, int | None]:
     """(first, stop) frame indices with ``start <= i / fps < end`` (stop None: no end), exactly
-    as :class:`Frame` computes ``time_s``."""
+    as :class:`Frame` computes ``time_s``; a time beyond every index (``start * fps`` or
+    ``end * fps`` overflows) starts after any source's last frame, or has no end."""
+    if not math.isfinite(start * fps):
+        return sys.maxsize, sys.maxsize
     first = max(0, math.floor(start * fps) - 1)
     while first / fps < start:
         first += 1
-    if math.isinf(end):
+    if not math.isfinite(end * fps):
         return first, None
     stop = max(first, math.floor(end * fps) - 1)
     while stop / fps < end:
@@ -173,8 +178,8 @@ def _empty_range(source: str, start: float, end: float, fps: float, count: int |
     if count is not None and start >= count / fps:
         length = f"{count} frames, {count / fps:g} s at {fps:g} frames per second"
         return InputError(source, "--start", f"a time before the source's end ({length})", f"{start:g} s")
-    span = f"[{start:g}, {end:g}) s" if math.isfinite(end) else f"from {start:g} s"
-    return InputError(source, "--start/--end", f"a range holding at least one frame (frames every {1 / fps:g} s)", f"none in {span}")
+    span = f"in [{start:g}, {end:g}) s" if math.isfinite(end) else f"from {start:g} s on"
+    return InputError(source, "--start/--end", f"a range holding at least one frame (frames every {1 / fps:g} s)", f"no frame {span}")
 
 
 def _frames(first: Frame, rest: Iterator[tuple[int, np.ndarray]], fps: float, close: Callable[[], None]) -> Iterator[Frame]:

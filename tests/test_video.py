@@ -172,6 +172,8 @@ def test_missing_and_unreadable_sources(tmp_path):
     ({"start_s": 0.5, "end_s": 0.5}, "--end"),
     ({"start_s": 0.5, "end_s": 0.2}, "--end"),
     ({"end_s": math.nan}, "--end"),
+    ({"end_s": math.inf}, "--end"),  # no end is None; inf overflowed the frame arithmetic (a traceback from track)
+    ({"start_s": 1e308}, "--start"),  # start × fps overflows: after the clip's end, not an OpenCV failure
     ({"every": 0}, "--every"),
     ({"every": 1.5}, "--every"),
     ({"every": True}, "--every"),
@@ -181,6 +183,11 @@ def test_missing_and_unreadable_sources(tmp_path):
 def test_invalid_range(mp4, kwargs, field):
     with pytest.raises(InputError, match=rf"^{re.escape(str(mp4))}: {field}: expected"):
         open_video(mp4, **kwargs)
+
+
+def test_an_end_beyond_any_frame_keeps_every_frame(mp4):
+    _, frames = open_video(mp4, end_s=1e308)  # end × fps overflows to inf: no end
+    assert len(list(frames)) == 12
 
 
 def test_no_frames_in_range(mp4, tmp_path):
