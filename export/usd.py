@@ -58,7 +58,6 @@ from __future__ import annotations
 
 import os
 import re
-import tempfile
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Iterable
@@ -74,7 +73,7 @@ from facegeo.export.scene import SceneContents, scene_surfaces
 from facegeo.parts import EYEBALLS_PART, eyeball_centres
 from facegeo.export.textures import DEFAULT_ROUGHNESS, TextureFiles, encode_map
 from facegeo.image_files import png_bytes
-from facegeo.staged_output import WRITE_FAULTS, StagedOutput, atomic_write_bytes
+from facegeo.staged_output import WRITE_FAULTS, StagedOutput, atomic_write_bytes, scratch_folder
 
 __all__ = ["write_usd", "validate_usd", "check_usd", "skel_points", "UsdCheck", "USD_SUFFIXES", "WRITER_LIBRARIES"]
 
@@ -132,7 +131,8 @@ def write_usd(
     files = TextureFiles() if texture_files is None else texture_files
     if suffix == ".usdz":
         try:
-            with tempfile.TemporaryDirectory(prefix="facegeo-usdz-") as tmp:
+            target.parent.mkdir(parents=True, exist_ok=True)
+            with scratch_folder(target.parent) as tmp:  # not /tmp: a killed worker's is removed by the next run
                 root = Path(tmp) / f"{name}.usdc"
                 _write_layer(contents, parts, root, name, "textures", linear_bits, files, animation)
                 package = Path(tmp) / f"{name}.usdz"
@@ -141,13 +141,12 @@ def write_usd(
                 if not UsdUtils.CreateNewUsdzPackage(Sdf.AssetPath(str(root)), str(package)):  # pragma: no cover
                     raise RuntimeError(f"UsdUtils.CreateNewUsdzPackage failed for {root}")
                 data = package.read_bytes()
-        except OutputError as exc:  # the package is built in a temporary folder: name the target
+        except OutputError as exc:  # the package is built in a scratch folder: name the target
             raise OutputError(target, exc.problem) from None
         except OSError as exc:
             if exc.errno not in WRITE_FAULTS:
                 raise
             raise OutputError(target, WRITE_FAULTS[exc.errno]) from None
-        target.parent.mkdir(parents=True, exist_ok=True)
         atomic_write_bytes(target, data)
         return target
     with StagedOutput(target.parent) as stage:

@@ -54,13 +54,13 @@ class NoFaceError(InputError):
 
 class OutputError(FacegeoError):
     """Writing an output failed for a reason outside facegeo: ``OutputError(path, problem)``
-    (a full disk, the file size limit, a read-only or failing file system). Nothing partial is
-    left behind."""
+    (a full disk, the file size limit, a read-only or failing file system, a folder that does
+    not let this user write). Nothing partial is left behind."""
 
     def __init__(self, path: str | Path, problem: str):
         self.path = str(path)
         self.problem = problem
-        super().__init__(f"{self.path}: output file: expected room to write it, found {problem}")
+        super().__init__(f"{self.path}: output file: expected to be able to write it, found {problem}")
 
     def __reduce__(self) -> tuple[Any, ...]:
         """Pickled with its two fields."""

@@ -69,7 +69,7 @@ from facegeo.errors import InputError, OutputError
 from facegeo.output_lock import LOCK_PREFIX, OutputLock, host_name, make_parents, remove_created_parents, remove_stale_lock_file
 
 __all__ = ["StagedOutput", "locked_output", "atomic_write_bytes", "atomic_write_text", "check_output_location",
-           "remove_stale_temporaries", "remove_other_temporaries", "TEMP_PREFIX", "MANIFEST", "OUTPUT_MARKERS",
+           "scratch_folder", "remove_stale_temporaries", "remove_other_temporaries", "TEMP_PREFIX", "MANIFEST", "OUTPUT_MARKERS",
            "WRITE_FAULTS"]
 
 #: Name prefix of the hidden staging folders (and of atomic-write temporary files).
@@ -86,6 +86,9 @@ _OWNER = re.compile(re.escape(TEMP_PREFIX) + r"(\d+)-(?:h([0-9a-f]{8})-)?")
 #: errno values of writes that fail for want of room or of a working file system.
 WRITE_FAULTS = {errno.ENOSPC: "no space left on the device", errno.EFBIG: "file too large for the file system or the process's file size limit",
                 errno.EDQUOT: "disk quota exceeded", errno.EROFS: "read-only file system", errno.EIO: "input/output error"}
+#: Faults that are the output's only on the output's own paths (a read elsewhere may raise them too).
+OUTPUT_PATH_FAULTS = {errno.EACCES: "permission denied",
+                      errno.EPERM: "the operation not permitted (an immutable or protected file or folder)"}
 
 
 @contextlib.contextmanager
@@ -231,6 +234,11 @@ class StagedOutput:
         if self.replace:
             with contextlib.suppress(FileNotFoundError):
                 (tmp / MANIFEST).unlink()  # a copied manifest (a batch's files sent back): written anew below
+        for left in sorted(tmp.rglob(TEMP_PREFIX + "*"), reverse=True):  # a killed writer's scratch: never an output
+            if left.is_dir() and not left.is_symlink():
+                shutil.rmtree(left, ignore_errors=True)
+            else:
+                left.unlink(missing_ok=True)
         files = sorted(p.relative_to(tmp).as_posix() for p in tmp.rglob("*") if p.is_file() and not p.is_symlink())
         for f in files:
             _fsync(tmp / f)
@@ -361,6 +369,20 @@ def _remove_temporaries(folder: str | os.PathLike[str], doomed: Callable[[str], 
 def _stale(name: str) -> bool:
     match = _OWNER.match(name)
     return match is not None and match.group(2) in (None, _host()) and not _process_alive(int(match.group(1)))
+
+
+@contextlib.contextmanager
+def scratch_folder(parent: str | os.PathLike[str]) -> Iterator[Path]:
+    """A new hidden folder in ``parent`` (``.facegeo-tmp-<pid>-h<host>-XXXXXXXX``) for files made on
+    the way to an output, removed on exit. Beside the output rather than in the system's temporary
+    folder: a process killed before its exit leaves it where the next run's
+    :func:`remove_stale_temporaries` (or the staging folder's roll-back) removes it, and a staging
+    folder's commit never moves it into the output."""
+    folder = _make_hidden_dir(Path(parent))
+    try:
+        yield folder
+    finally:
+        shutil.rmtree(folder, ignore_errors=True)
 
 
 def remove_stale_temporaries(folder: str | os.PathLike[str]) -> list[Path]:
@@ -599,6 +621,9 @@ def _as_output_error(exc: BaseException | None, out: Path, staging: Path | None 
         path, problem = Path(exc.path), exc.problem
     elif isinstance(exc, OSError) and exc.errno in WRITE_FAULTS:
         path, problem = Path(exc.filename or out), WRITE_FAULTS[exc.errno]
+    elif (isinstance(exc, OSError) and exc.errno in OUTPUT_PATH_FAULTS and exc.filename is not None
+          and any(_within(Path(exc.filename), folder) for folder in (out, staging) if folder is not None)):
+        path, problem = Path(exc.filename), OUTPUT_PATH_FAULTS[exc.errno]
     else:
         return None
     if staging is not None:
@@ -607,6 +632,12 @@ def _as_output_error(exc: BaseException | None, out: Path, staging: Path | None 
         except ValueError:
             pass
     return OutputError(path, problem)
+
+
+def _within(path: Path, folder: Path) -> bool:
+    """Whether ``path`` is ``folder`` or lies inside it (both resolved as far as they exist)."""
+    path, folder = Path(os.path.realpath(path)), Path(os.path.realpath(folder))
+    return path == folder or folder in path.parents
 
 
 def _process_alive(pid: int) -> bool:

@@ -153,6 +153,33 @@ def test_unwritable_parent_simulated(tmp_path, monkeypatch):
     assert list(tmp_path.iterdir()) == []  # the created parent "new" was removed again
 
 
+def test_a_permission_fault_on_the_outputs_own_files_names_the_output_file(tmp_path, monkeypatch):
+    """An existing output folder this user may not write (chmod 555, or chattr +i even for root):
+    the move of a staged file fails with EPERM/EACCES; the user gets the output's own path, not the
+    staging one, and nothing is left. The same fault on another path (an input) stays what it is."""
+    out = tmp_path / "out"
+    out.mkdir()
+    (out / "fit.json").write_text("{}")  # an earlier output
+    real_replace = os.replace
+
+    def deny(src, dst, *args, **kwargs):
+        if os.fspath(dst).startswith(os.fspath(out)) and TEMP_PREFIX + "commit" not in os.fspath(src):  # not the roll-back's
+            raise PermissionError(1, "Operation not permitted", os.fspath(src))
+        return real_replace(src, dst, *args, **kwargs)
+
+    monkeypatch.setattr(os, "replace", deny)
+    with pytest.raises(OutputError) as ei:
+        with StagedOutput(out, replace=True) as stage:
+            stage.path("fit.json").write_text('{"new": 1}')
+    assert str(ei.value) == f"{out / 'fit.json'}: output file: expected to be able to write it, found the operation not permitted " \
+                            "(an immutable or protected file or folder)"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["out"] and (out / "fit.json").read_text() == "{}"
+    elsewhere = tmp_path / "weights.safetensors"
+    with pytest.raises(PermissionError):
+        with StagedOutput(tmp_path / "other"):
+            raise PermissionError(13, "Permission denied", str(elsewhere))
+
+
 def test_stage_path_rejects_escapes(tmp_path):
     with StagedOutput(tmp_path / "out") as stage:
         for bad in ["../x", "/abs/x", "a/../../x", ""]:
@@ -279,3 +306,22 @@ def test_other_temporaries_are_removed_and_this_processs_kept(tmp_path):
     others[2].write_text("half")
     assert sorted(remove_other_temporaries(tmp_path)) == sorted(others)
     assert own.is_dir() and keep.is_dir()
+
+
+def test_a_scratch_folder_is_removed_and_a_left_one_is_never_committed(tmp_path):
+    """The usdz package is built in a scratch folder beside its target (inside the staging folder
+    during a reconstruction): removed on exit; one left by a writer killed outright (here: made
+    by hand) is not moved into the output, and the next run removes it once its process is gone."""
+    from facegeo.staged_output import scratch_folder
+
+    with scratch_folder(tmp_path) as scratch:
+        (scratch / "face.usdc").write_bytes(b"x")
+        assert scratch.parent == tmp_path and scratch.name.startswith(TEMP_PREFIX)
+    assert list(tmp_path.iterdir()) == []
+    out = tmp_path / "out"
+    with StagedOutput(out) as stage:
+        stage.path("face.usdz").write_bytes(b"usdz")
+        left = stage.staging_dir / f"{TEMP_PREFIX}999999999-h00000000-deadbeef"
+        left.mkdir()
+        (left / "face.usdc").write_bytes(b"half")
+    assert listing(out) == ["face.usdz"]
