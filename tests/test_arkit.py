@@ -215,6 +215,28 @@ def test_animate_command(saved, tmp_path, capsys):
         assert ("no eyeballs; the eye rotations are not written" in printed) == (parts == "head")
 
 
+def test_animate_reads_the_rate_of_a_take_that_facegeo_track_wrote(saved, tmp_path, capsys):
+    # track's take.csv counts the Timecode's frames at the clip's rate (30 here), which the CSV does
+    # not say: read at Live Link Face's 60 it played twice as fast, jumping at each second
+    import json
+
+    csv = tmp_path / "take.csv"
+    write_take(csv, frames=45, fps=30)
+    out = tmp_path / "anim.glb"
+    (tmp_path / "track.json").write_text(json.dumps({"source": "clip.mp4", "fps": 30.0, "frames_tracked": 45}))
+    assert main(["animate", str(saved), "--arkit-csv", str(csv), "-o", str(out)]) == 0, capsys.readouterr().err
+    printed = capsys.readouterr().out
+    assert "45 frames, 1.47 s at 30 fps time code" in printed and "time code rate 30 fps, the tracked clip's" in printed
+    assert main(["animate", str(saved), "--arkit-csv", str(csv), "-o", str(out), "--fps", "60"]) == 0  # the option wins
+    assert "at 60 fps time code" in capsys.readouterr().out
+    (tmp_path / "track.json").write_text(json.dumps({"fps": 0, "frames_tracked": 45}))
+    assert main(["animate", str(saved), "--arkit-csv", str(csv), "-o", str(out)]) == 2
+    assert "track.json: fps: expected the tracked clip's frames per second (> 0), found 0" in capsys.readouterr().err
+    (tmp_path / "track.json").write_text("{}")  # not facegeo track's: Live Link Face's default
+    assert main(["animate", str(saved), "--arkit-csv", str(csv), "-o", str(out)]) == 0
+    assert "at 60 fps time code" in capsys.readouterr().out
+
+
 def test_animate_command_errors_leave_nothing(saved, tmp_path, capsys):
     csv = _bad(tmp_path, lambda ls: _cell(ls, 3, "JawOpen", "x"))
     out = tmp_path / "anim.glb"

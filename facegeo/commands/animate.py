@@ -30,8 +30,9 @@ def _arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("-o", "--output", type=Path, required=True, metavar="FILE",
                         help=f"the animated file; its suffix picks the format: {', '.join('.' + f for f in ANIMATION_FORMATS)}")
     parser.add_argument("--fps", type=float, default=None, metavar="FPS",
-                        help="the take's time code rate, frames per second of the Timecode's frame field (default 60, "
-                        "Live Link Face's; the take's JSON file records it)")
+                        help="the take's time code rate, frames per second of the Timecode's frame field (default: the "
+                        "clip's rate where facegeo track's track.json lies beside the CSV, else 60, Live Link Face's; the "
+                        "app's take JSON records it)")
     parser.add_argument("--clamp", action="store_true", help="clamp weights outside [0, 1] (with a note) instead of refusing the take")
     parser.add_argument("--subdiv", type=int, choices=[0, 1, 2, 3], default=0, help="Loop subdivision levels (default 0)")
     add_parts_argument(parser)
@@ -55,7 +56,8 @@ def _run(args: argparse.Namespace) -> None:
     if fmt not in ANIMATION_FORMATS:
         raise InputError(out, "file name", f"a suffix among {', '.join('.' + f for f in ANIMATION_FORMATS)}", out.suffix or "none")
     check_output_location(out, folder=False, extra_names=[out.stem + "_textures"] if fmt in ("usda", "usdc") else [])
-    take = read_live_link_csv(args.arkit_csv, fps=DEFAULT_FPS if args.fps is None else args.fps, clamp=args.clamp)
+    fps, rate_note = (args.fps, None) if args.fps is not None else _track_rate(Path(args.arkit_csv), DEFAULT_FPS)
+    take = read_live_link_csv(args.arkit_csv, fps=fps, clamp=args.clamp)
     asset = load_asset(args.asset_dir).select(args.parts)
     if asset.blendshapes is None:
         raise InputError(Path(args.asset_dir) / "asset.json", "blendshapes",
@@ -63,7 +65,7 @@ def _run(args: argparse.Namespace) -> None:
     naming = target_naming(asset.blendshapes.names, args.blendshape_names)
     with StagedOutput(out.parent) as stage:
         export_asset(asset, stage.path(out.name), format=fmt, level=args.subdiv, blendshapes=args.blendshape_names, animation=take)
-    notes = list(take.notes)
+    notes = ([rate_note] if rate_note else []) + list(take.notes)
     for name in naming.missing:
         column = ARKIT_NAMES.index(name)
         used = int(np.count_nonzero(take.weights[:, column]))
@@ -91,3 +93,24 @@ COMMANDS = (
         run=_run,
     ),
 )
+
+
+def _track_rate(csv: Path, default: float) -> tuple[float, str | None]:
+    """The time code rate of a take that ``facegeo track`` wrote (``take.csv`` at the clip's
+    rate, ``track.json`` beside it with ``fps``) and a note saying so; ``(default, None)`` where
+    no track.json of facegeo's lies beside the CSV. A track.json whose ``fps`` is not a rate > 0
+    is an error naming it."""
+    import json
+    import math
+
+    record_path = csv.parent / "track.json"
+    try:
+        record = json.loads(record_path.read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError, ValueError):
+        return default, None
+    if not (isinstance(record, dict) and "frames_tracked" in record and "fps" in record):
+        return default, None  # someone else's file of that name
+    fps = record["fps"]
+    if isinstance(fps, bool) or not isinstance(fps, (int, float)) or not (math.isfinite(fps) and fps > 0):
+        raise InputError(record_path, "fps", "the tracked clip's frames per second (> 0)", repr(fps))
+    return float(fps), f"time code rate {fps:g} fps, the tracked clip's ({record_path}; --fps to override)"
