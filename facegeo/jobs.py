@@ -277,14 +277,34 @@ def _one_person_fits(photo_paths: list[str | Path], options: FitOptions,
         raise InputError(_SOURCE, "regressor", "no regressor with several photos of one person (the joint fit)", str(options.regressor))
     model, _ = loaded_resources(options.model, None, False, options.landmarks)
     photos = [load_photo(p, max_side=options.max_side) for p in photo_paths]
+    _refuse_repeated_photos(photos)
     seen = [observe_photo(photo, model, None, options.landmarks, photo_camera(photo, options.focal, options.principal_point))
             for photo in photos]
     forking = beside is not None and can_fork()
     aside, fits = beside_child(lambda: fork_call(fit_observed, seen, model, options.photometric) if forking else None,
                                lambda: beside(seen) if beside is not None else None,
                                lambda lost: fit_observed(seen, model, options.photometric))
+    if len(fits) < 2:  # the others were someone else: no second view of this person
+        others = ", ".join(fits[0].info["shared_identity"]["left_out"])
+        raise InputError(_SOURCE, "one person", "two or more photos of one person",
+                         f"one of the person ({fits[0].info['source']}), the rest of someone else by their face descriptors ({others})")
     by_source = {photo.path: photo for photo in photos}
     return model, [by_source[fit.info["source"]] for fit in fits], fits, aside
+
+
+def _refuse_repeated_photos(photos: list[Any]) -> None:
+    """Raise :class:`InputError` for a photo given twice (the same file by two names, or a file
+    with the same pixels): a second view that is the first one again adds nothing to the joint
+    fit but its weight."""
+    import hashlib
+
+    first: dict[tuple[str, ...], Any] = {}
+    for photo in photos:
+        key = (str(photo.image.shape), hashlib.blake2b(photo.image.tobytes(), digest_size=16).hexdigest())
+        if key in first:
+            raise InputError(photo.path, "one person", "each photo of the person once",
+                             f"the same picture as {first[key].path}")
+        first[key] = photo
 
 
 def _skin_masks(seen: list[Any]) -> dict[str, Any]:

@@ -4,6 +4,8 @@ the view, and two real photos of one person."""
 
 from __future__ import annotations
 
+import re
+
 import numpy as np
 import pytest
 import torch
@@ -174,6 +176,24 @@ def test_facegeo_fit_one_person_writes_one_record(tmp_path):
                          capture_output=True, text=True, timeout=300)
     assert one.returncode == 2 and one.stderr.strip().splitlines() == [
         f"facegeo: error: <command line>: --one-person: expected two or more photo files of the person, found {photo}"]
+
+
+def test_one_person_refuses_a_photo_given_twice_and_two_people_one_photo_each(tmp_path):
+    import shutil
+
+    from facegeo.jobs import FitOptions, fit_one_person_into_folder
+
+    photo = asset_path("photos/astronaut.png")
+    copy = tmp_path / "copy.png"
+    shutil.copy(photo, copy)  # another file, the same picture: no second view
+    with pytest.raises(InputError, match=rf"^{re.escape(str(copy))}: one person: expected each photo of the person once, "
+                                         rf"found the same picture as {re.escape(str(photo))}$"):
+        fit_one_person_into_folder([photo, copy], tmp_path / "out", FitOptions(photometric=False))
+    with pytest.raises(InputError, match=r"one person: expected two or more photos of one person, found one of the person "
+                                         rf"\({re.escape(str(photo))}\), the rest of someone else by their face descriptors "
+                                         rf"\({re.escape(str(_grace_hopper()))}\)$"):
+        fit_one_person_into_folder([photo, _grace_hopper()], tmp_path / "out", FitOptions(photometric=False))
+    assert not (tmp_path / "out").exists()
 
 
 def test_facegeo_reconstruct_one_person_fuses_one_texture_from_the_photos(tmp_path):
