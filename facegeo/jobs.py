@@ -587,6 +587,8 @@ class TrackOptions:
         neutral_s: seconds into the video at which the face is at rest: every frame's points are
             then measured from the person's own there (:func:`facegeo.tracking.neutral_offsets`,
             what Live Link Face's calibration is for); None: as observed.
+        fps: the frames' rate (frames per second) where the source records none (a folder of
+            frames) or records it wrong; None: the source's, else 30 with a note.
     """
 
     model: Path | None = None
@@ -599,6 +601,7 @@ class TrackOptions:
     asset: bool = True
     smooth: bool = True
     neutral_s: float | None = None
+    fps: float | None = None
 
     def __post_init__(self) -> None:
         from facegeo.landmarks import DETECTORS
@@ -653,11 +656,11 @@ def track_into_folder(video: str | Path, output: str | Path, options: TrackOptio
     with locked_output(output):
         start = time.perf_counter()
         model, _ = loaded_resources(options.model, None, False, options.landmarks)
-        info, frames = open_video(video, options.start_s, options.end_s, options.every)
+        info, frames = open_video(video, options.start_s, options.end_s, options.every, options.fps)
         frames, rest = _clip_parts(video, info, frames, options)
         report = None if progress is None else (lambda n: progress(n, n / max(time.perf_counter() - start, 1e-9)))
         track = track_frames(frames, model, options.landmarks, options.focal, options.keyframes, report, str(video), rest,
-                             options.neutral_s, lambda seen: _frame_again(video, seen).image)
+                             options.neutral_s, lambda seen: _frame_again(video, seen, options.fps).image)
         if options.smooth:
             track.frames = smooth_track(track.frames, *model.expression_range, fast=lid_weights(model.expression_names))
         calibration = None
@@ -706,7 +709,7 @@ def track_into_folder(video: str | Path, output: str | Path, options: TrackOptio
                               "shut_fraction": SHUT_FRACTION}
                              if track.open_lids is not None else {"read_from": "the fit (no lid reading)"}),
                   "neutral_calibration": calibration,
-                  "notes": track.notes + [f"{n}: no shape in the model, written as 0" for n in naming.missing],
+                  "notes": list(info.notes) + track.notes + [f"{n}: no shape in the model, written as 0" for n in naming.missing],
                   "frames": _FRAMES_HERE}
         with StagedOutput(output, replace=True) as stage:
             with open(stage.path("take.csv"), "w", encoding="utf-8", newline="") as handle:
@@ -769,7 +772,7 @@ def _clip_parts(video: str | Path, info: Any, frames: Iterator[Any], options: Tr
 
     def rest() -> Iterator[Any]:
         try:
-            second = open_video(video, (middle - 0.5) / info.fps, options.end_s, options.every)[1]
+            second = open_video(video, (middle - 0.5) / info.fps, options.end_s, options.every, options.fps)[1]
         except InputError:  # the container's frame count overstated the clip: no second half
             return
         yield from second
@@ -781,12 +784,12 @@ def _clip_parts(video: str | Path, info: Any, frames: Iterator[Any], options: Tr
 PREVIEW_FRAMES = 6
 
 
-def _frame_again(video: str | Path, frame: Any) -> Any:
+def _frame_again(video: str | Path, frame: Any, fps: float | None = None) -> Any:
     """The video's frame (:class:`facegeo.video.Frame`) of ``frame`` (its ``index`` and
-    ``time_s``: a tracked or observed frame), decoded again."""
+    ``time_s``: a tracked or observed frame; ``fps`` as the track opened the video with), decoded again."""
     from facegeo.video import open_video
 
-    _, frames = open_video(video, frame.time_s, None, 1)
+    _, frames = open_video(video, frame.time_s, None, 1, fps)
     return next(f for f in frames if f.index == frame.index)
 
 
@@ -850,7 +853,7 @@ def _animated_asset(video: str | Path, options: TrackOptions, model: Any, track:
     alpha = track.alpha.astype(np.float64)
     photos, fits, skins, indices, notes = [], [], [], [], []
     for key in texture_frames():
-        frame = _frame_again(video, key)
+        frame = _frame_again(video, key, options.fps)
         # the tracked face's region only: a detector finds the tracked person, not the largest face in the frame
         photo = Photo(face_region_only(frame.image, landmarks_of(key)), f"{video} (frame {frame.index})", 1.0,
                       (frame.image.shape[1], frame.image.shape[0]))
@@ -878,7 +881,7 @@ def _animated_asset(video: str | Path, options: TrackOptions, model: Any, track:
         found = [f for f in track.frames if f.found]
         shown = [found[k] for k in np.unique(np.linspace(0, len(found) - 1, PREVIEW_FRAMES).round().astype(int))]
         names = list(model.expression_names)
-        clip = clip_preview([(_frame_again(video, f).image, f.rotation, f.translation, dict(zip(names, np.asarray(f.delta, float))),
+        clip = clip_preview([(_frame_again(video, f, options.fps).image, f.rotation, f.translation, dict(zip(names, np.asarray(f.delta, float))),
                               landmarks_of(f)[:68]) for f in shown], asset, track.camera, panel=turntable.shape[1] // PREVIEW_FRAMES)
         strip = np.zeros((clip.shape[0], turntable.shape[1], 3), np.uint8)
         strip[:, : clip.shape[1]] = clip

@@ -64,6 +64,8 @@ class VideoInfo:
             figure, which may be an estimate), else None.
         width: pixels of a frame's row.
         height: rows of a frame, pixels.
+        notes: what the user should know of how the source was read (a rate assumed, gaps in a
+            folder's numbering).
     """
 
     source: str
@@ -71,6 +73,7 @@ class VideoInfo:
     frame_count: int | None
     width: int
     height: int
+    notes: tuple[str, ...] = ()
 
 
 @dataclass(frozen=True, eq=False)
@@ -174,6 +177,10 @@ def _index_range(start: float, end: float, fps: float) -> tuple[int, int | None]
     return first, stop
 
 
+def _assumed_rate(why: str) -> str:
+    return f"{why}: {DEFAULT_FPS:g} frames per second assumed (--fps gives the rate)"
+
+
 def _empty_range(source: str, start: float, end: float, fps: float, count: int | None) -> InputError:
     if count is not None and start >= count / fps:
         length = f"{count} frames, {count / fps:g} s at {fps:g} frames per second"
@@ -245,7 +252,8 @@ def _open_capture(source: str, p: Path, start: float, end: float, every: int,
         cap.release()
         raise _empty_range(source, start, end, fps, frame_count)
     height, width = image.shape[:2]
-    info = VideoInfo(source, float(fps), frame_count, int(width), int(height))
+    assumed = () if rate or (math.isfinite(native_fps) and native_fps > 0) else (_assumed_rate("the video records no frame rate"),)
+    info = VideoInfo(source, float(fps), frame_count, int(width), int(height), assumed)
 
     def rest() -> Iterator[tuple[int, np.ndarray]]:
         index = first
@@ -392,7 +400,13 @@ def _open_folder(source: str, p: Path, start: float, end: float, every: int,
         raise _empty_range(source, start, end, fps, len(files))
     image = load_photo(files[first], max_side=_NO_DOWNSCALE).image
     height, width = image.shape[:2]
-    info = VideoInfo(source, float(fps), len(files), int(width), int(height))
+    numbers = sorted(numbered)
+    gaps = [(a + 1, b - 1) for a, b in zip(numbers, numbers[1:]) if b > a + 1]
+    notes = () if rate else (_assumed_rate("a folder of frames records no frame rate"),)
+    if gaps:
+        shown = ", ".join(f"{a}" if a == b else f"{a}-{b}" for a, b in gaps[:3]) + (f" and {len(gaps) - 3} more gaps" if len(gaps) > 3 else "")
+        notes += (f"frame numbers {shown} missing: the frames are timed one after another, as if none were missing",)
+    info = VideoInfo(source, float(fps), len(files), int(width), int(height), notes)
 
     def rest() -> Iterator[tuple[int, np.ndarray]]:
         last = len(files) if stop is None else min(len(files), stop)

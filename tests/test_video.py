@@ -114,7 +114,9 @@ def test_folder_of_frames(tmp_path):
     (folder / "notes.txt").write_text("not a frame")
     (folder / "cover.png").write_bytes(b"no number: not a frame")
     info, frames = open_video(folder)
-    assert info == VideoInfo(str(folder), 30.0, 10, W, H)
+    assert info == VideoInfo(str(folder), 30.0, 10, W, H, ("a folder of frames records no frame rate: 30 frames per second "
+                                                           "assumed (--fps gives the rate)",))
+    assert open_video(folder, fps=24)[0] == VideoInfo(str(folder), 24.0, 10, W, H)  # given: nothing assumed
     frames = list(frames)
     assert [f.index for f in frames] == list(range(10))
     assert [read_index(f) for f in frames] == list(range(10))
@@ -124,6 +126,16 @@ def test_folder_of_frames(tmp_path):
     assert [(f.index, read_index(f)) for f in frames] == [(1, 1)]
     _, frames = open_video(folder, start_s=0.1, every=3, fps=10)
     assert [f.index for f in frames] == [1, 4, 7]
+
+
+def test_a_gap_in_a_folders_numbering_is_told(tmp_path):
+    folder = tmp_path / "frames"
+    folder.mkdir()
+    for n in [*range(0, 10), *range(15, 20), 22]:  # 10-14, 20 and 21 missing
+        Image.fromarray(coloured(n % 10)).save(folder / f"frame_{n:04d}.png")
+    info, frames = open_video(folder, fps=30)
+    assert info.notes == ("frame numbers 10-14, 20-21 missing: the frames are timed one after another, as if none were missing",)
+    assert [f.index for f in frames] == list(range(16))
 
 
 def test_folder_frame_of_another_size(tmp_path):

@@ -25,6 +25,9 @@ def _arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--start", type=float, default=None, metavar="S", help="first second to track (default: the start)")
     parser.add_argument("--end", type=float, default=None, metavar="S", help="track up to this second (default: the end)")
     parser.add_argument("--every", type=int, default=1, metavar="N", help="track every N-th frame (default 1: all)")
+    parser.add_argument("--fps", type=float, default=None, metavar="FPS",
+                        help="the frames' rate, for a folder of frames or a video that records none or a wrong one "
+                             "(default: the video's, else 30)")
     group = parser.add_argument_group("fitting")
     add_model_argument(group)
     group.add_argument("--landmarks", choices=DETECTOR_NAMES, default="lids", metavar="NAME",
@@ -46,13 +49,13 @@ def _arguments(parser: argparse.ArgumentParser) -> None:
 def _run(args: argparse.Namespace) -> None:
     from facegeo.jobs import TrackOptions, track_into_folder
 
-    if args.keyframes < 1:  # (--start, --end and --every are checked by facegeo.video.open_video, naming the video)
+    if args.keyframes < 1:  # (--start, --end, --every and --fps are checked by facegeo.video.open_video, naming the video)
         raise InputError(COMMAND_LINE, "--keyframes", "an integer >= 1", str(args.keyframes))
     if args.neutral is not None and not (math.isfinite(args.neutral) and args.neutral >= 0):
         raise InputError(COMMAND_LINE, "--neutral", "a time in seconds >= 0", str(args.neutral))
     options = TrackOptions(model=args.model, landmarks=args.landmarks, focal=args.focal, start_s=args.start, end_s=args.end,
                            every=args.every, keyframes=args.keyframes, asset=not args.no_asset,
-                           smooth=not args.no_smooth, neutral_s=args.neutral)
+                           smooth=not args.no_smooth, neutral_s=args.neutral, fps=args.fps)
     live = sys.stderr.isatty()
 
     def progress(frames: int, rate: float) -> None:
