@@ -62,6 +62,7 @@ import io
 import logging
 import os
 import shutil
+import signal
 import sys
 import tempfile
 import time
@@ -275,6 +276,14 @@ def _quiet_dask() -> Iterator[None]:
             lg.setLevel(level)
 
 
+def dask_setup(worker: Any) -> None:
+    """Dask's preload hook, run in each worker process of the embedded cluster as it starts: the
+    worker ignores SIGINT. A terminal's Ctrl-C reaches every process of its group; this process
+    alone answers it (the batch cancelled, the reports written, the cluster closed), where each
+    worker used to die on its own with a KeyboardInterrupt traceback and the nanny's errors."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+
+
 def _import_distributed() -> Any:
     try:
         import distributed
@@ -321,7 +330,8 @@ def dask_client(client: Any = None, scheduler: str | None = None, workers: int |
         with dask.config.set({"distributed.scheduler.allowed-failures": int(allowed_failures)}):
             cluster = distributed.LocalCluster(n_workers=n, threads_per_worker=1, processes=True, dashboard_address=None,
                                                scheduler_kwargs={"dashboard_address": "127.0.0.1:0"},  # its HTTP routes on a free port
-                                               silence_logs=logging.ERROR, memory_limit=memory_limit or "auto")
+                                               silence_logs=logging.ERROR, memory_limit=memory_limit or "auto",
+                                               preload=[__name__])  # dask_setup below, in each worker process
         try:
             local = distributed.Client(cluster)
             try:
