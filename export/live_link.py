@@ -143,6 +143,9 @@ def _columns(source: Path, header: list[str]) -> dict[str, int]:
     code, the count and the 52 shapes present, each rotation group complete or absent."""
     known = set(LIVE_LINK_COLUMNS)
     columns: dict[str, int] = {}
+    for separator in (";", "\t"):
+        if len(header) == 1 and separator in header[0]:  # a spreadsheet's export with another separator
+            raise InputError(source, "row 1", "comma-separated columns", f"{separator!r}-separated ones")
     for c, name in enumerate(header):
         if name not in known:
             hint = next((k for k in LIVE_LINK_COLUMNS if k.lower() == name.lower()), None)
@@ -151,9 +154,11 @@ def _columns(source: Path, header: list[str]) -> dict[str, int]:
         if name in columns:
             raise InputError(source, f"row 1, column {c + 1}", "each column once", f"a second {name!r}")
         columns[name] = c
-    for name in ("Timecode", "BlendShapeCount", *_SHAPE_COLUMNS):
-        if name not in columns:
-            raise InputError(source, f"row 1, column {name}", "every Live Link Face blendshape column", "none")
+    missing = [name for name in ("Timecode", "BlendShapeCount", *_SHAPE_COLUMNS) if name not in columns]
+    if missing:
+        shown = ", ".join(missing[:5]) + (f" and {len(missing) - 5} more" if len(missing) > 5 else "")
+        raise InputError(source, f"row 1, column {missing[0]}", "Timecode, BlendShapeCount and every Live Link Face blendshape column",
+                         f"{len(missing)} missing: {shown}")
     for names in ROTATION_GROUPS.values():
         present = [n for n in names if n in columns]
         if present and len(present) != len(names):

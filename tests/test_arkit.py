@@ -147,6 +147,7 @@ def _cell(lines, row, column, value):
     (lambda ls: ls[:1], "row 2"),
     (lambda ls: [], "row 1"),
     (lambda ls: [ls[0].replace(",RightEyeRoll", "")] + [l.rsplit(",", 1)[0] for l in ls[1:]], "row 1, column RightEyeRoll"),
+    (lambda ls: [line.replace(",", ";") for line in ls], "row 1"),
 ])
 def test_bad_takes_name_the_file_row_and_column(tmp_path, edit, where):
     csv = _bad(tmp_path, edit)
@@ -179,6 +180,18 @@ def test_rotation_signs():
     np.testing.assert_allclose(q[2], [0, 0, 0, 1], atol=1e-12)
     up = Rotation.from_quat(q[3]).apply([0.0, 1.0, 0.0])
     assert up[0] > 0.24  # roll: the top of the head towards the subject's left
+
+
+def test_a_missing_column_and_another_separator_are_said_as_such(tmp_path):
+    def drop(lines):  # the two columns taken out of every row
+        header = lines[0].split(",")
+        return [",".join(c for c, name in zip(line.split(","), header) if name not in ("JawOpen", "MouthClose")) for line in lines]
+
+    with pytest.raises(InputError, match=r": row 1, column JawOpen: expected Timecode, BlendShapeCount and every Live Link Face "
+                                         r"blendshape column, found 2 missing: JawOpen, MouthClose$"):
+        read_live_link_csv(_bad(tmp_path, drop))
+    with pytest.raises(InputError, match=r": row 1: expected comma-separated columns, found ';'-separated ones$"):
+        read_live_link_csv(_bad(tmp_path, lambda ls: [line.replace(",", ";") for line in ls]))
 
 
 def test_take_weights_to_targets(model, tmp_path):
