@@ -424,8 +424,8 @@ def reconstruct_into_folder(photo_path: str | Path, output: str | Path, options:
         progress: called with each stage's name as it starts (the pipeline's ``STAGES``, then
             ``export`` and ``preview``, which start together).
         fork: where that helps (:func:`facegeo.forked_call.can_fork`, the default backend, no
-            regressor; the single-photo command's choice), fit in a forked child while this
-            process makes the skin mask, imports the texture stages and loads the model's UV
+            regressor; the single-photo command's choice), fit and make the skin mask in a
+            forked child while this process imports the texture stages and loads the model's UV
             raster and layout priors, and write the export in another, begun on the fit's
             geometry while the texture stages run (:mod:`facegeo.forked_call`); the results are
             the same either way.
