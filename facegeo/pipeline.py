@@ -309,7 +309,7 @@ def _view_albedos(pixels: list[np.ndarray], fits: list[Fit], model: MorphableMod
     reference's view begins."""
     from facegeo.forked_call import beside_children, can_fork, fork_call
 
-    workers = max(1, usable_threads()) if fork and can_fork() else 1
+    workers = usable_threads() if fork and can_fork() else 1
     shares = _view_shares(len(pixels), reference, workers)
     starts = [lambda share=share: fork_call(_other_views, pixels, fits, model, skins, size, backend, share) if share else None
               for share in shares[1:]]

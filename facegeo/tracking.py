@@ -85,7 +85,6 @@ WEIGHT_WINDOW = 5
 SLOW_WEIGHT_WINDOW = 9
 
 
-
 @dataclass(frozen=True)
 class TrackedFrame:
     """One frame of a :class:`Track`. ``index``: its number in the source; ``time_s``: seconds
@@ -240,22 +239,28 @@ def observe_frames(frames: Iterable[Any], model: MorphableModel, detector: str =
     observer = _FrameObserver(model, detector, source)
     observed = observer.store()
     theirs: ObservedFrames | None = None  # the child's part, filled by the child
-    pending = None
+    forking = False
     frames = iter(frames)
     for frame in frames:  # until the clip's person is found (the child's part needs it)
         observed.extend(observer.observe(frame))
         if progress is not None:
             progress(len(observed))
         if rest is not None and observer.person is not None and can_fork():
-            theirs = observer.store()
-            pending = fork_call(_observe_rest, observer, rest, theirs)
+            forking = True
             break
+
+    def start() -> Any:  # the child, forked by beside_child inside the guard that stops it
+        nonlocal theirs
+        if not forking:
+            return None
+        theirs = observer.store()
+        return fork_call(_observe_rest, observer, rest, theirs)
 
     def here() -> ObservedFrames:
         for frame in frames:
             observed.extend(observer.observe(frame))
             if progress is not None:
-                progress(len(observed) * (2 if pending is not None else 1))
+                progress(len(observed) * (2 if forking else 1))
         return observed.extend(observer.flush())
 
     def instead() -> ObservedFrames:  # the rest here: no face to hand over, the child met another person first, or it was lost
@@ -265,7 +270,7 @@ def observe_frames(frames: Iterable[Any], model: MorphableModel, detector: str =
                 part.extend(observer.observe(frame))
         return part.extend(observer.flush())
 
-    mine, child_part = beside_child(lambda: pending, here, lambda lost: instead(),
+    mine, child_part = beside_child(start, here, lambda lost: instead(),
                                     lambda count: None if count is None or theirs is None else theirs.sync())
     observed = mine.extend(child_part)
     if observer.size is None:

@@ -232,8 +232,9 @@ def _open_capture(source: str, p: Path, start: float, end: float, every: int,
             opened = cap.isOpened()
             if opened:
                 native_fps = float(cap.get(cv2.CAP_PROP_FPS) or 0.0)
+                recorded = math.isfinite(native_fps) and native_fps > 0
                 count = int(cap.get(cv2.CAP_PROP_FRAME_COUNT) or 0)
-                fps = rate or (native_fps if math.isfinite(native_fps) and native_fps > 0 else DEFAULT_FPS)
+                fps = rate or (native_fps if recorded else DEFAULT_FPS)
                 frame_count = count if count > 0 else None
                 first, stop = _index_range(start, end, fps)
                 image = None
@@ -252,7 +253,7 @@ def _open_capture(source: str, p: Path, start: float, end: float, every: int,
         cap.release()
         raise _empty_range(source, start, end, fps, frame_count)
     height, width = image.shape[:2]
-    assumed = () if rate or (math.isfinite(native_fps) and native_fps > 0) else (_assumed_rate("the video records no frame rate"),)
+    assumed = () if rate or recorded else (_assumed_rate("the video records no frame rate"),)
     info = VideoInfo(source, float(fps), frame_count, int(width), int(height), assumed)
 
     def rest() -> Iterator[tuple[int, np.ndarray]]:
@@ -393,14 +394,14 @@ def _open_folder(source: str, p: Path, start: float, end: float, every: int,
     if not numbered:
         raise InputError(source, "frames", f"{_EXPECTED_VIDEO} (image files {', '.join(FRAME_SUFFIXES)} "
                          "with a number in the name, e.g. frame_0001.png)", "no numbered image files")
-    files = [p / numbered[k] for k in sorted(numbered)]
+    numbers = sorted(numbered)
+    files = [p / numbered[k] for k in numbers]
     fps = rate or DEFAULT_FPS
     first, stop = _index_range(start, end, fps)
     if first >= len(files) or (stop is not None and first >= stop):
         raise _empty_range(source, start, end, fps, len(files))
     image = load_photo(files[first], max_side=_NO_DOWNSCALE).image
     height, width = image.shape[:2]
-    numbers = sorted(numbered)
     gaps = [(a + 1, b - 1) for a, b in zip(numbers, numbers[1:]) if b > a + 1]
     notes = () if rate else (_assumed_rate("a folder of frames records no frame rate"),)
     if gaps:
