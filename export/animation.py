@@ -84,9 +84,14 @@ def target_weights(take: ArkitTake, naming: TargetNaming) -> np.ndarray:
 def head_angles(rotation: np.ndarray) -> np.ndarray:
     """(N, 3, 3) rotations in the model's axes (a fit's head rotation, model to camera) -> (N, 3)
     float64 Live Link Face yaw, pitch, roll in radians: the inverse of :func:`rotations`."""
-    from scipy.spatial.transform import Rotation
-
-    a, b, c = Rotation.from_matrix(np.asarray(rotation, dtype=np.float64).reshape(-1, 3, 3)).as_euler("YXZ").T
+    # R = R_y(a) · R_x(b) · R_z(c) read off its entries (SciPy's as_euler("YXZ"), whose import,
+    # scipy.spatial's, costs 0.3 s of facegeo track's serial tail); at b = ±90° (the head looking
+    # straight up or down) only a − c or a + c is defined: c is taken as 0, as SciPy does
+    r = np.asarray(rotation, dtype=np.float64).reshape(-1, 3, 3)
+    b = np.arcsin(np.clip(-r[:, 1, 2], -1.0, 1.0))
+    locked = np.hypot(r[:, 1, 0], r[:, 1, 1]) < 1e-9
+    a = np.where(locked, np.arctan2(-r[:, 2, 0], r[:, 0, 0]), np.arctan2(r[:, 0, 2], r[:, 2, 2]))
+    c = np.where(locked, 0.0, np.arctan2(r[:, 1, 0], r[:, 1, 1]))
     return np.stack([-a, b, -c], axis=1)
 
 

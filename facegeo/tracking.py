@@ -40,6 +40,7 @@ from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
+import cv2
 import numpy as np
 
 from facegeo.camera import Camera, euler_from_rotation, to_pixels
@@ -1001,9 +1002,7 @@ def smooth_track(frames: list[TrackedFrame], lower: np.ndarray, upper: np.ndarra
     frame-to-frame change from 0.4–0.8° to about 0.1°, the most jittery weight's from 0.08 to 0.04
     (the Savitzky–Golay filter of 5 frames alone).
     """
-    from scipy.ndimage import median_filter
-    from scipy.signal import savgol_filter
-    from scipy.spatial.transform import Rotation
+    from facegeo.running_filters import running_median, savitzky_golay
 
     out = list(frames)
     k = 0
@@ -1016,21 +1015,19 @@ def smooth_track(frames: list[TrackedFrame], lower: np.ndarray, upper: np.ndarra
             end += 1
         run = frames[k:end]
         if len(run) >= POSE_WINDOW:
-            reference = Rotation.from_matrix(np.asarray(run[len(run) // 2].rotation, np.float64))
-            vectors = (reference.inv() * Rotation.from_matrix(np.stack([np.asarray(f.rotation, np.float64) for f in run]))).as_rotvec()
-            vectors = median_filter(vectors, size=(POSE_WINDOW, 1), mode="nearest")
-            rotations = (reference * Rotation.from_rotvec(vectors)).as_matrix().astype(np.float32)
-            translations = median_filter(np.stack([np.asarray(f.translation, np.float64) for f in run]), size=(POSE_WINDOW, 1),
-                                         mode="nearest").astype(np.float32)
+            reference = np.asarray(run[len(run) // 2].rotation, np.float64)
+            vectors = running_median(np.stack([cv2.Rodrigues(reference.T @ np.asarray(f.rotation, np.float64))[0][:, 0] for f in run]),
+                                     POSE_WINDOW)
+            rotations = np.stack([reference @ cv2.Rodrigues(v)[0] for v in vectors]).astype(np.float32)
+            translations = running_median(np.stack([np.asarray(f.translation, np.float64) for f in run]), POSE_WINDOW).astype(np.float32)
             for j in range(len(run)):
                 out[k + j] = dataclasses.replace(out[k + j], rotation=rotations[j], translation=translations[j])
         if len(run) >= WEIGHT_WINDOW:
             raw = np.stack([np.asarray(f.delta, np.float64) for f in run])
-            weights = savgol_filter(raw, WEIGHT_WINDOW, 2, axis=0, mode="interp")
+            weights = savitzky_golay(raw, WEIGHT_WINDOW, 2)
             slow = np.zeros(raw.shape[1], bool) if fast is None else ~np.asarray(fast, bool)
             if slow.any() and len(run) >= SLOW_WEIGHT_WINDOW:
-                steady = median_filter(raw[:, slow], size=(WEIGHT_WINDOW, 1), mode="nearest")
-                weights[:, slow] = savgol_filter(steady, SLOW_WEIGHT_WINDOW, 2, axis=0, mode="interp")
+                weights[:, slow] = savitzky_golay(running_median(raw[:, slow], WEIGHT_WINDOW), SLOW_WEIGHT_WINDOW, 2)
             weights = np.clip(weights, lower, upper).astype(np.float32)
             for j in range(len(run)):
                 out[k + j] = dataclasses.replace(out[k + j], delta=weights[j])
