@@ -327,7 +327,13 @@ def dask_client(client: Any = None, scheduler: str | None = None, workers: int |
         n = workers if workers is not None else len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
         if n < 1:
             raise InputError(_COMMAND_LINE, "--workers", "a positive number of worker processes", str(n))
-        with dask.config.set({"distributed.scheduler.allowed-failures": int(allowed_failures)}):
+        # Dask starts its workers with MALLOC_TRIM_THRESHOLD_=65536 (glibc then hands freed memory
+        # back at once and stops adapting its mmap threshold): an item's large arrays were mapped
+        # and faulted in again and again, 2.2-2.9 s of system time a photo (benchmarks/RESULTS.md)
+        environ = {key: value for key, value in dask.config.get("distributed.nanny.pre-spawn-environ", {}).items()
+                   if key != "MALLOC_TRIM_THRESHOLD_"}
+        with dask.config.set({"distributed.scheduler.allowed-failures": int(allowed_failures),
+                              "distributed.nanny.pre-spawn-environ": environ}):
             cluster = distributed.LocalCluster(n_workers=n, threads_per_worker=1, processes=True, dashboard_address=None,
                                                scheduler_kwargs={"dashboard_address": "127.0.0.1:0"},  # its HTTP routes on a free port
                                                silence_logs=logging.ERROR, memory_limit=memory_limit or "auto",
