@@ -797,11 +797,12 @@ def test_a_clipped_channel_is_restored_from_the_skins_colour_around_it():
     assert restore_clipped(dim, valid, size) is dim
 
 
-def test_clipped_texels_are_left_out_of_the_light_fit(face_context):
+def test_clipped_texels_are_restored_or_left_out_of_the_light_fit(face_context):
     """The same hard light over-exposed 5×: half the seen skin has a channel at the 8-bit ceiling,
-    where the photo gives only a lower bound. Left out of the fit, the light comes back (ambient /
-    light 0.08, direction within 2°); taken as measurements (clipped_level out of reach) they
-    flatten the lit side's shading and the fit puts the difference into the ambient and the angle."""
+    where the photo gives only a lower bound. Restored from the other channels where some are
+    not clipped and left out of the fit where all are, the light comes back (ambient / light
+    0.08, direction within 2°); taken as measurements (clipped_level out of reach) they flatten
+    the lit side's shading and the fit puts the difference into the ambient and the angle."""
     ctx = face_context
     cover = ctx.coverage
     light, lit = _hard_side_light(ctx)
@@ -821,6 +822,38 @@ def test_clipped_texels_are_left_out_of_the_light_fit(face_context):
     assert ambient == pytest.approx(0.08, abs=0.01) and angle < 2.0
     ambient, angle, clipped = fitted(replace(DIFFUSE, clipped_level=2.0))
     assert clipped == 0.0 and (abs(ambient - 0.08) > 0.03 or angle > 4.0)
+
+
+def test_an_exposure_that_clips_red_gives_the_albedo_of_one_that_does_not(face_context):
+    """A key (the hard light) and a fill light, the photo at an exposure and at twice it, where red
+    clips on 28 % of the skin, the key-lit side (green and blue do not): the red channel restored
+    before the analysis, the lit skin is fitted as the skin it is, and the de-lit albedo's
+    luminance on the clipped skin and on the rest keep the ratio they have at the lower exposure.
+    (Left out of the fits, the clipped skin took the key light's contrast out of the SH fit: the lit
+    side came out 5 % brighter than the rest, at 3 × the exposure twice as bright.)"""
+    from facegeo.colour import luminance
+
+    ctx = face_context
+    cover = ctx.coverage
+    light, lit = _hard_side_light(ctx)
+    fill = np.array([-0.7, 0.1, 0.7]) / np.linalg.norm([-0.7, 0.1, 0.7])
+    shading = 0.05 + 0.3 * np.maximum(ctx.normal_camera @ fill, 0.0) + np.maximum(ctx.normal_camera @ light, 0.0) * lit
+    albedo = np.array([0.45, 0.3, 0.24], np.float32)
+    seen = np.ones(cover.shape, np.float32)
+
+    def photo(exposure: float) -> np.ndarray:
+        return linear_to_srgb(np.clip(np.where(cover[..., None], exposure * albedo * shading[..., None], 0.0), 0.0, 1.0)).astype(np.float32)
+
+    low, high = photo(1.2), photo(2.4)
+    red_clipped = (high[..., 0] >= DIFFUSE.clipped_level) & cover
+    assert 0.2 < red_clipped[ctx.skin > 0.5].mean() and not (high[..., 1:] >= DIFFUSE.clipped_level).any()
+    ratios = []
+    for image in (low, high):
+        delit, reliable = DefaultBackend().delight(image, seen, ctx)
+        y = luminance(delit)
+        trusted = (reliable > 0.5) & (ctx.skin > 0.5)
+        ratios.append(np.median(y[trusted & red_clipped]) / np.median(y[trusted & ~red_clipped]))
+    assert ratios[1] == pytest.approx(ratios[0], rel=0.02)
 
 
 def test_a_misplaced_shadow_edge_is_taken_out_and_a_beard_far_from_one_kept(face_context):

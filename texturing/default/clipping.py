@@ -1,7 +1,8 @@
 """Clipped texels: a channel at ``settings.clipped_level`` (over-exposed skin) is a lower bound, not a
-measurement. Such texels are left out of every fit; where only some channels are clipped, those
-are raised to what the others and the surrounding skin's colour ratios imply
-(:func:`restore_clipped`).
+measurement. Where only some channels are clipped, those are raised to what the others and the
+surrounding skin's colour ratios imply (:func:`restore_clipped`), before the analysis, and the
+texel is then used as any other; a texel with every channel clipped stays a lower bound and is
+left out of every fit.
 """
 
 from __future__ import annotations

@@ -83,7 +83,8 @@ class Analysis:
 def analyse(T_inc: np.ndarray, lin: np.ndarray, M_vis: np.ndarray, ctx: TextureContext, constants: Mapping[str, float],
             settings: DefaultSettings) -> tuple[Analysis, dict[str, Any] | None, dict[str, Any]]:
     """Shading, highlights and kept weight of the photo texture ``T_inc`` (S, S, 3) sRGB, already
-    linearised as ``lin`` (S, S, 3) float32 linear RGB, seen with visibility ``M_vis`` (S, S) in
+    linearised as ``lin`` (S, S, 3) float32 linear RGB with its clipped channels restored
+    (:func:`~facegeo.texturing.default.clipping.restore_clipped`), seen with visibility ``M_vis`` (S, S) in
     [0, 1] (module docstring); ``constants``: the backend's roughness and specular of generic
     skin (the sheen's GGX). Returns the :class:`Analysis`, the directional light model's report
     (direction, ambient; None where the model is not used) and the analysis's statistics (the
@@ -94,8 +95,11 @@ def analyse(T_inc: np.ndarray, lin: np.ndarray, M_vis: np.ndarray, ctx: TextureC
     # the fit trusts only reliable skin: facing the camera, away from silhouettes and occluders
     # (at a silhouette the photo mixes in the background: a white wall made grazing skin "lit")
     inner = inner_distance(w > 0.5, ctx)
-    clipped = (channel_max(lin)[..., 0] >= clipped_ceiling(settings)) & cover
-    fit_mask = skin_texels(ctx) & (reliability(w, inner, ctx, settings) > 0.5) & (lum > 1e-4) & ~clipped
+    # (``lin`` has its clipped channels restored, never lowered: a texel with some channel at the
+    # ceiling was clipped; one with all three could not be restored and is a lower bound only)
+    ceiling = clipped_ceiling(settings)
+    clipped = (channel_max(lin)[..., 0] >= ceiling) & cover
+    fit_mask = skin_texels(ctx) & (reliability(w, inner, ctx, settings) > 0.5) & (lum > 1e-4) & ~(clipped & (lin.min(axis=-1) >= ceiling))
     normals = ctx.normal_camera
     shading = np.ones(cover.shape, np.float32)
     n_fit = int(fit_mask.sum())

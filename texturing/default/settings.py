@@ -137,8 +137,10 @@ class DefaultSettings:
     highlight_white_share: tuple[float, float] = (0.2, 0.5)
     # ---- clipped texels: clipping.py
     #: A photo texel with a channel at or above this sRGB level is clipped (the sensor's or the grade's
-    #: ceiling): its brightness and chroma are lower bounds, not measurements, and it is left out of
-    #: the light fits (and of the sheen's and the fringe's reference skin). bench_albedo_scans' hard
+    #: ceiling): its brightness and chroma are lower bounds, not measurements. Its clipped channels
+    #: are restored from the others (below) before the analysis; where every channel is clipped it
+    #: is left out of the light fits (and of the sheen's and the fringe's reference skin). (Before
+    #: the restoration came first, every clipped texel was left out.) bench_albedo_scans' hard
     #: side light clips 37 % and 13 % of Lee Perry-Smith's seen skin at 0° and +40°: seen ΔE2000 2.44 →
     #: 2.18 and 3.02 → 2.69 (0.98 → 0.87 of the flat colour's), filled +0.1. Its de-lit value is kept
     #: as the albedo there: filled instead, 0° went to 3.51 (the fill is further off than a value a
