@@ -87,17 +87,17 @@ class DefaultBackend:
     # ---------------------------------------------------------------------------------- analysis
     def analyse(self, T_inc: np.ndarray, M_vis: np.ndarray, ctx: TextureContext) -> Analysis:
         """Shading, highlights and kept weight of a photo texture ``T_inc`` (S, S, 3) sRGB seen
-        with visibility ``M_vis`` (S, S) (:func:`~facegeo.texturing.default.delighting.analyse`);
-        cached for ``ctx`` until the next call."""
+        with visibility ``M_vis`` (S, S), its clipped channels restored first (:meth:`_linear`;
+        :func:`~facegeo.texturing.default.delighting.analyse`); cached for ``ctx`` until the next call."""
         return self._analyse(T_inc, self._linear(T_inc, M_vis, ctx), M_vis, ctx)
 
     def _linear(self, T_inc: np.ndarray, M_vis: np.ndarray, ctx: TextureContext) -> np.ndarray:
         """(S, S, 3) float32 linear RGB of the photo texture ``T_inc`` (S, S, 3) sRGB, its clipped
         channels restored from the seen skin's (``M_vis`` (S, S) > 0.5) colour ratios
         (:func:`~facegeo.texturing.default.clipping.restore_clipped`) before any analysis: a
-        key-lit cheek clipped in red is then fitted as the skin it is, not left out (the light
-        fits saw only the fill side: +1 EV came out 3.6 ΔE00 from 0 EV on Lee Perry-Smith, 1.1
-        now; benchmarks/RESULTS.md)."""
+        key-lit cheek clipped in red is then fitted as the skin it is. (Left out, the light fits
+        saw only the fill side: Lee Perry-Smith's key + fill render at +1 EV came out 3.6 ΔE00
+        from 0 EV, against 1.1 restored first; benchmarks/RESULTS.md.)"""
         return restore_clipped(srgb_to_linear(T_inc), (M_vis > 0.5) & skin_texels(ctx) & ctx.coverage, ctx.size,
                                settings=self.settings)
 
