@@ -91,7 +91,7 @@ def material_inputs(asset: Asset, maps: Iterable[str] | None = None) -> dict[str
         else:
             array = asset.maps[name]
             flat = array.reshape(-1, MAP_CHANNELS[name])
-            if np.all(flat.max(axis=0) - flat.min(axis=0) <= _FLAT_TOLERANCE[name]):
+            if _uniform(flat, _FLAT_TOLERANCE[name]):
                 mean = flat.mean(axis=0)
                 item = MaterialInput(name, value=float(mean[0]) if MAP_CHANNELS[name] == 1 else tuple(float(x) for x in mean))
             else:
@@ -103,6 +103,17 @@ def material_inputs(asset: Asset, maps: Iterable[str] | None = None) -> dict[str
             item = MaterialInput(name, texture=np.broadcast_to(np.asarray(item.value, np.float32), (4, 4, 3)).copy())
         out[name] = item
     return out
+
+
+def _uniform(flat: np.ndarray, tolerance: float) -> bool:
+    """Whether each channel of the (N, C) texels ``flat`` spans at most ``tolerance``: judged
+    first on every 64th texel (a span found there is in the whole; a textured map, the usual
+    case, is told from it at once: a channel's min and max over a whole 1K map took 11 ms each,
+    for every map of every scene), then on all."""
+    sample = flat[::64]
+    if np.any(sample.max(axis=0) - sample.min(axis=0) > tolerance):
+        return False
+    return bool(np.all(flat.max(axis=0) - flat.min(axis=0) <= tolerance))
 
 
 def encode_map(name: str, array: np.ndarray, bits: int | None = None) -> tuple[np.ndarray, dict[str, Any]]:

@@ -169,3 +169,22 @@ def test_loaded_assets_keep_their_pixels(tmp_path):
     plain, offered = load_asset(folder), load_asset(folder, texture_files=TextureFiles())
     assert plain.maps.keys() == offered.maps.keys()
     assert all(np.array_equal(plain.maps[k], offered.maps[k]) for k in plain.maps)
+
+
+@pytest.mark.parametrize("odd", [None, 0, 1, 63, 64, 511 * 512 + 7])
+def test_a_map_is_a_value_only_where_every_texel_is_within_its_tolerance(odd):
+    """``material_inputs``' uniformity check judges a sample first: a single texel off the
+    sample's grid (or on it) still makes the map a texture; a uniform one becomes its value."""
+    from dataclasses import replace
+
+    from facegeo.export.textures import material_inputs
+
+    asset = ict_asset()
+    roughness = np.full((512, 512), 0.4, np.float32)
+    if odd is not None:
+        roughness.reshape(-1)[odd] = 0.41
+    inputs = material_inputs(replace(asset, maps={**asset.maps, "roughness": roughness},
+                                     constants={k: v for k, v in asset.constants.items() if k != "roughness"}), ["roughness"])
+    assert inputs["roughness"].is_texture == (odd is not None)
+    if odd is None:
+        assert inputs["roughness"].value == pytest.approx(0.4)
