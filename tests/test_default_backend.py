@@ -856,6 +856,37 @@ def test_an_exposure_that_clips_red_gives_the_albedo_of_one_that_does_not(face_c
     assert ratios[1] == pytest.approx(ratios[0], rel=0.02)
 
 
+def test_the_light_model_at_a_vanishing_strength_de_lights_as_none(face_context):
+    """The directional light model switches on at any de-lighting strength above 0; what it
+    changes (the shadow dips, the gains' bounds, the environment's sheen) weighs by the strength,
+    so a photo just over the SH fit's threshold is de-lit as one just under it (James's even
+    render at strength 4e-5: its lips went from 1.09 to 2.19 ΔE00 when its dips and bounds
+    switched whole)."""
+    from facegeo.colour import luminance
+
+    ctx = face_context
+    cover = ctx.coverage
+    light, lit = _hard_side_light(ctx)
+    shading = 0.5 + 0.5 * np.maximum(ctx.normal_camera @ light, 0.0) * lit
+    albedo = np.array([0.45, 0.3, 0.24], np.float32)
+    photo = linear_to_srgb(np.clip(np.where(cover[..., None], albedo * shading[..., None], 0.0), 0.0, 1.0)).astype(np.float32)
+    seen = np.ones(cover.shape, np.float32)
+    probe = DefaultBackend()
+    probe.analyse(photo, seen, ctx)
+    contrast = probe.report["analyse"]["irradiance_contrast"]
+    off = replace(DEFAULT_SETTINGS, directional_range=(5.0, 6.0), contrast_range=(contrast + 1.0, contrast + 2.0))
+    barely = replace(off, contrast_range=(contrast - 1e-3, contrast + 99.0))
+    results = []
+    for settings in (off, barely):
+        backend = DefaultBackend(settings=settings)
+        delit, reliable = backend.delight(photo, seen, ctx)
+        results.append((luminance(delit), backend.report["analyse"]["delighting_strength"], "light" in backend.report))
+    (y_off, s_off, light_off), (y_on, s_on, light_on) = results
+    assert s_off == 0.0 and not light_off and 0.0 < s_on < 1e-4 and light_on
+    skin = cover & (ctx.skin > 0.5)
+    assert np.abs(y_on[skin] / y_off[skin] - 1.0).max() < 0.01
+
+
 def test_a_misplaced_shadow_edge_is_taken_out_and_a_beard_far_from_one_kept(face_context):
     """The hard light's cast shadows rendered 2 texels (~3 mm) off from where the posed mesh puts
     them, and a dark patch (−0.6 in log albedo: a beard) on lit skin far from any shadow's edge:

@@ -13,7 +13,9 @@ Every step works on linear RGB; the shading is one scalar per texel (luminance o
   one): under an even light the fit finds only albedo that correlates with the normals and leaves
   it alone. Where the strength is above 0 and the context has the posed mesh, a directional light
   with its cast shadows replaces the SH shading
-  (:mod:`~facegeo.texturing.default.directional_light`).
+  (:mod:`~facegeo.texturing.default.directional_light`); what else it changes (the dips below, the
+  gains' bounds, the environment's sheen) weighs by the strength, so that a photo just over the
+  threshold is de-lit as one just under it.
 * **Cast shadows and occlusion** that SH cannot explain (:func:`shadow_dips`): dips of the de-lit
   log-luminance at ~S/128 texels below the brighter of its ~S/12 and ~S/5 neighbourhoods (~25 and
   ~60 mm; broad shadows such as the jaw's on the neck), deeper than ``settings.shadow_tolerance``;
@@ -121,13 +123,21 @@ def analyse(T_inc: np.ndarray, lin: np.ndarray, M_vis: np.ndarray, ctx: TextureC
             e = e.reshape(cover.shape)
         ref = float(np.median(e[fit_mask]))
         shading = np.where(cover, np.maximum(e / max(ref, 1e-6), 1e-3) ** strength, 1.0).astype(np.float32)
-        shading = shading * np.exp(np.where(cover, shadow_dips(lum, shading, fit_mask, cast, ctx, settings), 0.0))
+        dips = shadow_dips(lum, shading, fit_mask, cast, ctx, settings)
+        if cast is not None and strength < 1.0:  # the light model's dips weigh by its strength (continuous at 0)
+            dips = strength * dips + (1.0 - strength) * shadow_dips(lum, shading, fit_mask, None, ctx, settings)
+        shading = shading * np.exp(np.where(cover, dips, 0.0))
     facing = np.clip(normals[..., 2] / 0.5, 0.0, 1.0)
-    grazing, most = (settings.grazing_gain, settings.max_gain) if light is None else settings.light_gain
+    grazing, most = settings.grazing_gain, settings.max_gain
+    if light is not None:  # the light model's bounds, geometrically by its strength (its own at 1, the SH fit's at 0)
+        grazing = grazing ** (1.0 - strength) * settings.light_gain[0] ** strength
+        most = most ** (1.0 - strength) * settings.light_gain[1] ** strength
     bound = grazing + (most - grazing) * facing
     shading = np.where(cover, np.clip(shading, 1.0 / bound, bound), 1.0).astype(np.float32)
     delit_lum = lum / shading
-    specular = environment_specular(delit_lum, fit_mask if n_fit else (w > 0), w > 0, ctx, ambient_share, constants, settings)
+    # under the light model only its ambient part reflects the even environment, by its strength
+    env_share = None if ambient_share is None else ambient_share + (1.0 - strength) * (1.0 - ambient_share)
+    specular = environment_specular(delit_lum, fit_mask if n_fit else (w > 0), w > 0, ctx, env_share, constants, settings)
     specular_share = float(specular[fit_mask].sum() / max(float(delit_lum[fit_mask].sum()), 1e-12)) if n_fit else 0.0
     delit_lum = without_specular(delit_lum, specular, settings)
     seen = (w > 0.5) & cover

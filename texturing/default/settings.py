@@ -74,7 +74,8 @@ class DefaultSettings:
     #: (grazing, facing) largest de-lighting gains (as :attr:`grazing_gain`, :attr:`max_gain`) where
     #: the directional light model is used: it is a physical model, and the shadowed side of a face
     #: under a hard light is 5–15× darker than the lit side (bench_albedo_scans, hard side 0°: seen
-    #: ΔE2000 7.45 with (8, 16), 7.84 with (8, 8), 9.33 with (4, 4)).
+    #: ΔE2000 7.45 with (8, 16), 7.84 with (8, 8), 9.33 with (4, 4)). At a de-lighting strength s
+    #: below 1, the bounds are these^s × the SH fit's^(1 − s).
     light_gain: tuple[float, float] = (8.0, 16.0)
     # ---- cast shadows and occlusion: delighting.py
     #: Log-luminance dips (local vs neighbourhood) shallower than this are albedo, deeper ones shadow.
