@@ -48,7 +48,7 @@ from typing import Any
 import cv2
 import numpy as np
 
-from facegeo.colour import channel_max, is_greyscale, luminance
+from facegeo.colour import channel_max, channel_min, is_greyscale, luminance
 from facegeo.lighting import sh_basis
 from facegeo.texturing.backend import TextureContext
 from facegeo.texturing.default.clipping import clipped_ceiling
@@ -101,7 +101,7 @@ def analyse(T_inc: np.ndarray, lin: np.ndarray, M_vis: np.ndarray, ctx: TextureC
     # ceiling was clipped; one with all three could not be restored and is a lower bound only)
     ceiling = clipped_ceiling(settings)
     clipped = (channel_max(lin)[..., 0] >= ceiling) & cover
-    fit_mask = skin_texels(ctx) & (reliability(w, inner, ctx, settings) > 0.5) & (lum > 1e-4) & ~(clipped & (lin.min(axis=-1) >= ceiling))
+    fit_mask = skin_texels(ctx) & (reliability(w, inner, ctx, settings) > 0.5) & (lum > 1e-4) & ~(clipped & (channel_min(lin) >= ceiling))
     normals = ctx.normal_camera
     shading = np.ones(cover.shape, np.float32)
     n_fit = int(fit_mask.sum())
