@@ -14,25 +14,22 @@ from facegeo.camera import Camera, to_pixels
 
 __all__ = ["vertex_visibility"]
 
-# Barycentric samples per triangle: the three vertices, the centroid and the edge midpoints.
-_SAMPLES = np.array(
-    [[1, 0, 0], [0, 1, 0], [0, 0, 1], [1 / 3, 1 / 3, 1 / 3], [0.5, 0.5, 0], [0, 0.5, 0.5], [0.5, 0, 0.5]],
-    dtype=np.float64,
-)
-
-
-def _samples(corners: np.ndarray) -> np.ndarray:
-    """(F, 7, 3) float64: :data:`_SAMPLES` of each triangle's (F, 3, 3) ``corners``, each written
-    out in :data:`_SAMPLES`' order (the weights' zero terms left out): the same numbers as the
-    weighted sums, in a quarter of ``np.einsum``'s time."""
-    a, b, c = corners[:, 0], corners[:, 1], corners[:, 2]
-    out = np.empty((len(corners), len(_SAMPLES), corners.shape[2]))
-    out[:, 0], out[:, 1], out[:, 2] = a, b, c
-    third = _SAMPLES[3, 0]
-    out[:, 3] = (third * a + third * b) + third * c
-    out[:, 4] = 0.5 * a + 0.5 * b
-    out[:, 5] = 0.5 * b + 0.5 * c
-    out[:, 6] = 0.5 * a + 0.5 * c
+def _splat_points(values: np.ndarray, tri: np.ndarray, used: np.ndarray) -> np.ndarray:
+    """(N,) float64: the splatted samples of per-vertex ``values`` (V,) float64 on the triangles
+    ``tri`` (F, 3): each ``used`` (V,) bool vertex once (a corner shared by several triangles
+    splats the same number), then each triangle's centroid and edge midpoints, one row of F per
+    kind. Each coordinate is built alone, so the rows are contiguous copies, not strided writes
+    into an (F, 7, 3) array."""
+    a, b, c = values[tri[:, 0]], values[tri[:, 1]], values[tri[:, 2]]
+    out = np.empty(int(used.sum()) + 4 * len(tri))
+    n = len(out) - 4 * len(tri)
+    out[:n] = values[used]
+    rows = out[n:].reshape(4, len(tri))
+    third = 1 / 3
+    rows[0] = (third * a + third * b) + third * c
+    rows[1] = 0.5 * a + 0.5 * b
+    rows[2] = 0.5 * b + 0.5 * c
+    rows[3] = 0.5 * a + 0.5 * c
     return out
 
 
@@ -67,12 +64,15 @@ def vertex_visibility(
     tri = np.asarray(triangles)
     tri_ok = in_front[tri].all(axis=1)
     tri = tri[tri_ok]
-    pts = np.stack([u, r, depth], axis=1)[tri]  # (F, 3 corners, 3)
-    samples = _samples(pts).reshape(-1, 3)
-    cols, rows = np.floor(samples[:, 0]).astype(np.int64), np.floor(samples[:, 1]).astype(np.int64)
+    # Each in-front triangle's corners, centroid and edge midpoints, splatted (the minimum over
+    # a pixel's samples does not depend on their order or on a corner counted once or thrice).
+    used = np.zeros(len(v), dtype=bool)
+    used[tri] = True
+    cols = np.floor(_splat_points(u, tri, used)).astype(np.int64)
+    rows = np.floor(_splat_points(r, tri, used)).astype(np.int64)
     inside = (cols >= 0) & (cols < w) & (rows >= 0) & (rows < h)
     zbuf = np.full(h * w, np.inf)
-    np.minimum.at(zbuf, rows[inside] * w + cols[inside], samples[inside, 2])
+    np.minimum.at(zbuf, rows[inside] * w + cols[inside], _splat_points(depth, tri, used)[inside])
 
     vc, vr = np.floor(u).astype(np.int64), np.floor(r).astype(np.int64)
     in_image = in_front & (vc >= 0) & (vc < w) & (vr >= 0) & (vr < h)
