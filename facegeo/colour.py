@@ -15,7 +15,7 @@ import numpy as np
 if TYPE_CHECKING:
     import torch
 
-__all__ = ["is_greyscale", "srgb_to_linear", "linear_to_srgb", "srgb_to_linear_slope", "srgb_to_linear_torch", "linear_to_srgb_torch",
+__all__ = ["is_greyscale", "srgb_to_linear", "srgb8_to_linear", "linear_to_srgb", "srgb_to_linear_slope", "srgb_to_linear_torch", "linear_to_srgb_torch",
            "luminance", "channel_max", "channel_min", "channel_sum"]
 
 
@@ -25,10 +25,24 @@ def srgb_to_linear(srgb: np.ndarray) -> np.ndarray:
     return np.where(s <= 0.04045, s / 12.92, ((np.maximum(s, 0.0) + 0.055) / 1.055) ** 2.4).astype(np.float32)
 
 
+def srgb8_to_linear(codes: np.ndarray) -> np.ndarray:
+    """Decode 8-bit sRGB codes (uint8, any shape) to linear RGB (float32, same shape) through a
+    256-entry table: the numbers of ``srgb_to_linear(codes.astype(np.float32) / 255)``, without a
+    power per pixel (a 512² photo: about a tenth of the time)."""
+    if codes.dtype != np.uint8:
+        raise TypeError(f"srgb8_to_linear: expected uint8 codes, got {codes.dtype}")
+    return np.take(_SRGB8_TABLE, codes)
+
+
 def linear_to_srgb(linear: np.ndarray) -> np.ndarray:
     """Encode linear RGB (values ≥ 0; clipped to [0, 1]) to sRGB in [0, 1] (float32)."""
     x = np.clip(np.asarray(linear, dtype=np.float32), 0.0, 1.0)
     return np.where(x <= 0.0031308, 12.92 * x, 1.055 * x ** (1 / 2.4) - 0.055).astype(np.float32)
+
+
+#: The linear value of each 8-bit sRGB code (:func:`srgb8_to_linear`).
+_SRGB8_TABLE = srgb_to_linear(np.arange(256, dtype=np.float32) / 255.0)
+_SRGB8_TABLE.setflags(write=False)
 
 
 def srgb_to_linear_slope(srgb: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

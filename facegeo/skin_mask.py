@@ -76,7 +76,7 @@ from typing import TYPE_CHECKING
 import cv2
 import numpy as np
 
-from facegeo.colour import is_greyscale, luminance, srgb_to_linear
+from facegeo.colour import is_greyscale, luminance, srgb8_to_linear
 from facegeo.errors import NoFaceError
 from facegeo.hands import Hand, default_hand_detector, hand_mask
 from facegeo.landmarks import scheme as ibug
@@ -370,7 +370,7 @@ def skin_mask(image: np.ndarray, landmarks: np.ndarray | None = None, *, regions
             raise NoFaceError(source, "face", "a face for the skin mask (MediaPipe found none)")
     H, W = rgb.shape[:2]
     iod = max(regions.interocular, 4.0)
-    linear = srgb_to_linear(rgb.astype(np.float32) / 255.0)
+    linear = srgb8_to_linear(rgb)
     lum = luminance(linear)
 
     oval = _fill((H, W), [regions.oval])

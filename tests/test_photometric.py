@@ -7,7 +7,7 @@ import torch
 
 from facegeo import Camera, load_model, project
 from facegeo.camera import rotation_from_euler
-from facegeo.colour import (channel_max, channel_min, channel_sum, linear_to_srgb, linear_to_srgb_torch, srgb_to_linear,
+from facegeo.colour import (channel_max, channel_min, channel_sum, linear_to_srgb, linear_to_srgb_torch, srgb8_to_linear, srgb_to_linear,
                             srgb_to_linear_slope, srgb_to_linear_torch)
 from facegeo.fitting import fit_landmarks
 from facegeo.fitting.photometric import fit_photometric
@@ -34,6 +34,17 @@ def test_srgb_round_trip_and_known_values():
     # sRGB 0.5 is linear 0.2140; linear 0.0031308 is the knee at sRGB 0.04045
     assert float(srgb_to_linear(np.float32(0.5))) == pytest.approx(0.21404, abs=1e-5)
     assert float(linear_to_srgb(np.float32(0.0031308))) == pytest.approx(0.04045, abs=1e-5)
+
+
+def test_8_bit_codes_decode_by_table_to_the_curves_numbers():
+    codes = np.random.default_rng(3).integers(0, 256, (37, 41, 3)).astype(np.uint8)
+    codes.reshape(-1)[:256] = np.arange(256)  # every code at least once
+    table = srgb8_to_linear(codes)
+    assert table.dtype == np.float32 and table.shape == codes.shape
+    np.testing.assert_array_equal(table.view(np.uint32), srgb_to_linear(codes.astype(np.float32) / 255.0).view(np.uint32))
+    assert float(srgb8_to_linear(np.array([128], np.uint8))[0]) == pytest.approx(0.21586, abs=1e-5)  # 128/255 = 0.50196
+    with pytest.raises(TypeError, match="uint8"):
+        srgb8_to_linear(codes.astype(np.uint16))
 
 
 def test_srgb_twins_agree_with_the_numpy_curves():

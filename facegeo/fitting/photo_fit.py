@@ -12,7 +12,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from facegeo.camera import Camera
-from facegeo.colour import srgb_to_linear
+from facegeo.colour import srgb8_to_linear
 from facegeo.fitting.camera_estimate import camera_for_face
 from facegeo.fitting.checks import (FOLLOWED_SHARE, MAX_LANDMARK_ERROR_PERCENT, check_fit, frontal_inter_ocular_distance,
                                      landmark_error_percent)
@@ -85,7 +85,7 @@ def finish_photo_fit(seen: PhotoObservation, solution: LandmarkSolution, photome
     result = replace(solution.fit, timings={**seen.timings, **solution.fit.timings})
     if photometric or shading is not None:
         t0 = time.perf_counter()
-        linear = srgb_to_linear(pixels.astype(np.float32) / 255.0)
+        linear = srgb8_to_linear(pixels)
         result = fit_photometric(model, result, linear)
         result.timings["photometric"] = time.perf_counter() - t0
         if shading is not None and "skipped" not in result.info.get("photometric", {}):

@@ -45,7 +45,7 @@ import hashlib
 import numpy as np
 
 from facegeo.camera import Camera, to_pixels
-from facegeo.colour import srgb_to_linear
+from facegeo.colour import srgb8_to_linear, srgb_to_linear
 from facegeo.errors import InputError
 from facegeo.uv.maps import GeometryMaps, texel_geometry
 from facegeo.uv.raster import UVRaster, rasterize_uv
@@ -400,14 +400,15 @@ def _edge_adjacency(triangles: np.ndarray) -> np.ndarray:
 
 def _photo(image, camera: Camera, colour_space: str) -> np.ndarray:
     pixels = getattr(image, "image", image)
-    img = _as_float_image(pixels, "image")
+    by_table = colour_space == "linear" and isinstance(pixels, np.ndarray) and pixels.dtype == np.uint8
+    img = srgb8_to_linear(pixels) if by_table else _as_float_image(pixels, "image")
     if img.ndim == 2:
         img = np.repeat(img[..., None], 3, axis=2)
     if img.shape[:2] != (camera.height, camera.width) or img.shape[2] not in (3, 4):
         raise InputError("<array>", "image", f"a {camera.width}x{camera.height} RGB image (the fit camera's size)",
                          f"shape {img.shape}")
     img = np.ascontiguousarray(img[..., :3])
-    if colour_space == "linear":
+    if colour_space == "linear" and not by_table:
         img = srgb_to_linear(img)
     return img
 
