@@ -463,10 +463,13 @@ def skin_vertex_mask(model: MorphableModel) -> np.ndarray:
     around 17–26) and lips (8 mm around 48–67), measured on the mean shape."""
     mean = model.mean_shape
     keep = model.face_mask.copy()
+    x, y, z = (np.ascontiguousarray(c) for c in mean.T)
     for points, radius in ((ibug.EYES, 14.0), (ibug.BROWS, 9.0), (ibug.MOUTH, 8.0)):
         centres = mean[model.landmark_indices[points]]
-        d2 = ((mean[:, None, :] - centres[None]) ** 2).sum(-1).min(axis=1)
-        keep &= d2 > radius * radius
+        dx, dy, dz = x[:, None] - centres[:, 0], y[:, None] - centres[:, 1], z[:, None] - centres[:, 2]
+        # (V, K) squared distances, the bits of summing the squared (V, K, 3) differences over
+        # the last axis, in a tenth of the time that reduction of length 3 takes
+        keep &= ((dx * dx + dy * dy) + dz * dz).min(axis=1) > radius * radius
     return keep
 
 
