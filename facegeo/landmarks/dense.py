@@ -188,8 +188,10 @@ def face_mesh_mirror() -> np.ndarray:
         from facegeo.assets import asset_path
 
         canonical = _read_npz(asset_path(DENSE_ASSET))["canonical_vertices"].astype(np.float64)
-        mirrored = canonical * np.array([-1.0, 1.0, 1.0])  # 468² distances: no tree needed (nor scipy's import)
-        mirror = np.argmin(((mirrored[:, None, :] - canonical[None, :, :]) ** 2).sum(axis=2), axis=1)
+        # 468² distances (no tree needed, nor scipy's import), from per-axis squares: the bits of
+        # summing the (468, 468, 3) squared differences, in a fifth of that reduction's time
+        dx, dy, dz = (np.subtract.outer(sign * a, a) for sign, a in zip((-1.0, 1.0, 1.0), canonical.T))
+        mirror = np.argmin((dx * dx + dy * dy) + dz * dz, axis=1)
         if not np.array_equal(mirror[mirror], np.arange(len(mirror))):
             raise ModelFileError(DENSE_ASSET, "canonical_vertices", "a face mesh symmetric about x = 0", "no left-right pairing")
         _MIRROR = mirror.astype(np.int64)
