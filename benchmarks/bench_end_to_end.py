@@ -7,8 +7,8 @@ Each command runs in a fresh process (interpreter start, imports, model loading,
 included) with the same interpreter and the same installed packages. Each version is first
 installed as a user gets it (``pip install --no-deps --target``: a wheel's layout, with
 ``facegeo.texturing``, ``.export``, ``.eval`` and ``.assets`` inside ``facegeo/``) into a folder
-of its own, which ``PYTHONPATH`` puts first, so the two versions differ only in facegeo's own
-code: a checkout on ``PYTHONPATH`` beside this environment's editable install would take those
+of its own, which ``PYTHONPATH`` puts first, with a layout cache of its own
+(``FACEGEO_LAYOUT_CACHE``), so the two versions differ only in facegeo's own code: a checkout on ``PYTHONPATH`` beside this environment's editable install would take those
 four packages from the editable install's checkout. Byte-code is written on the first run (as
 an installed package has it), whatever ``PYTHONDONTWRITEBYTECODE`` says here. The two versions alternate
 (this checkout, then the baseline, ``--repeats`` times, after one warm-up run of each that fills
@@ -79,6 +79,9 @@ def run_once(site: Path, args: list[str], output: Path) -> tuple[float, float, d
     shutil.rmtree(output, ignore_errors=True)
     env = {key: value for key, value in os.environ.items() if key != "PYTHONDONTWRITEBYTECODE"}
     env["PYTHONPATH"] = str(site)
+    # each version its own layout cache, as one installed version has: versions whose cached code
+    # differs would otherwise remove each other's entries on every run (facegeo.layout_cache)
+    env["FACEGEO_LAYOUT_CACHE"] = str(site.with_name(site.name + "-layout-cache"))
     before = resource.getrusage(resource.RUSAGE_CHILDREN)
     t0 = time.perf_counter()
     done = subprocess.run([sys.executable, "-m", "facegeo.cli", *args, "-o", str(output)], cwd=output.parent, env=env,
