@@ -189,9 +189,15 @@ def face_mesh_mirror() -> np.ndarray:
 
         canonical = _read_npz(asset_path(DENSE_ASSET))["canonical_vertices"].astype(np.float64)
         # 468² distances (no tree needed, nor scipy's import), from per-axis squares: the bits of
-        # summing the (468, 468, 3) squared differences, in a fifth of that reduction's time
-        dx, dy, dz = (np.subtract.outer(sign * a, a) for sign, a in zip((-1.0, 1.0, 1.0), canonical.T))
-        mirror = np.argmin((dx * dx + dy * dy) + dz * dz, axis=1)
+        # summing the (468, 468, 3) squared differences, 32 rows at a time (small temporaries that
+        # are reused: a fresh process pays 2 ms instead of 7 ms, most of it page faults)
+        mirrored = canonical * np.array([-1.0, 1.0, 1.0])
+        x, y, z = canonical.T
+        mirror = np.empty(len(canonical), dtype=np.int64)
+        for i in range(0, len(canonical), 32):
+            rows = mirrored[i:i + 32]
+            dx, dy, dz = rows[:, :1] - x, rows[:, 1:2] - y, rows[:, 2:] - z
+            mirror[i:i + 32] = np.argmin((dx * dx + dy * dy) + dz * dz, axis=1)
         if not np.array_equal(mirror[mirror], np.arange(len(mirror))):
             raise ModelFileError(DENSE_ASSET, "canonical_vertices", "a face mesh symmetric about x = 0", "no left-right pairing")
         _MIRROR = mirror.astype(np.int64)
