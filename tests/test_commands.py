@@ -10,7 +10,7 @@ import sys
 import pytest
 
 from facegeo.assets import asset_path
-from facegeo.commands import COMMAND_MODULES, build_parser, main
+from facegeo.commands import COMMAND_MODULES, COMMAND_OWNERS, build_parser, main
 from facegeo.jobs import FitOptions, JobRecord
 
 PHOTO = str(asset_path("photos/astronaut.png"))
@@ -86,6 +86,22 @@ def test_the_subcommands_are_those_of_the_command_modules():
 
     declared = [c.name for m in COMMAND_MODULES for c in import_module(f"facegeo.commands.{m}").COMMANDS]
     assert list(_subparsers()) == declared and len(declared) == 11
+
+
+def test_a_commands_own_parser_is_the_whole_parsers_part():
+    """Each subcommand's owner is the module declaring it; the parser built for it alone has the
+    same help and parses its command lines as the whole parser does."""
+    from importlib import import_module
+
+    assert COMMAND_OWNERS == {c.name: m for m in COMMAND_MODULES for c in import_module(f"facegeo.commands.{m}").COMMANDS}
+    whole = _subparsers()
+    for name in COMMAND_OWNERS:
+        parser = build_parser(name)
+        (sub,) = [a for a in parser._actions if a.dest == "command"]
+        assert list(sub.choices) == [name]
+        assert sub.choices[name].format_help() == whole[name].format_help()
+    line = ["fit", PHOTO, "-o", "out", "--focal", "800", "--landmarks", "dlib"]
+    assert vars(build_parser("fit").parse_args(line)) == vars(build_parser().parse_args(line))
 
 
 def test_building_the_parser_imports_nothing_heavy():
