@@ -1,6 +1,7 @@
 """The on-disk cache of what depends only on a UV layout, a model and a map size: the UV raster
 (:func:`facegeo.uv.rasterize_uv`) and the layout priors (:func:`facegeo.texturing.context.layout_priors`),
-and the default model's arrays as loaded (:func:`facegeo.model_files.load_model`).
+the default model's arrays as loaded (:func:`facegeo.model_files.load_model`), and the OBJ text
+of a mesh's UV layout (its ``vt`` and ``f`` lines, :func:`facegeo.mesh_io.obj_text`).
 
 Computing the first two for the bundled model at S = 1024 takes ~0.7 s, reading the model ~0.1 s;
 loading them from here takes milliseconds, since the arrays are memory-mapped read-only (``np.load(..., mmap_mode="r")``),
@@ -54,7 +55,7 @@ LAYOUT_CACHE_ENV = "FACEGEO_LAYOUT_CACHE"
 #: The modules whose code computes or stores the cached arrays: the rasteriser and its texel
 #: geometry, the layout priors (mirror map, surface operators), the region and skin masks and the
 #: iBUG indices they use, the sRGB encoding of the mean texture, the model's reading and
-#: validation, and this module (the format).
+#: validation, the OBJ writer, and this module (the format).
 CODE_MODULES = (
     "facegeo.uv.raster",
     "facegeo.uv._triangles",
@@ -65,6 +66,7 @@ CODE_MODULES = (
     "facegeo.colour",
     "facegeo.model_files",
     "facegeo.morphable_model",
+    "facegeo.mesh_io",
     "facegeo.layout_cache",
 )
 _MANIFEST = "manifest.json"

@@ -204,3 +204,24 @@ def test_the_default_model_is_stored_once_and_loaded_as_read(cache, monkeypatch)
     monkeypatch.setattr(model_files, "_default_cache", {})
     again = load_model()
     assert np.array_equal(again.id_basis, read.id_basis) and load_entry(entry) is not None
+
+
+def test_an_obj_layouts_lines_are_stored_once_and_read_back_the_same(model, cache):
+    """The ``vt`` and ``f`` lines of a mesh's UV layout are made once, kept under a key of the
+    three arrays, and read back as the same text; another layout gets its own entry, and a damaged
+    entry is made again."""
+    from facegeo.mesh_io import obj_text
+
+    def layout_entries() -> list[Path]:
+        return sorted(p for p in (cache / code_version()).iterdir() if p.name.startswith("obj-layout-")) if cache.exists() else []
+
+    v, t, uv, ut = model.mean_shape, model.triangles, model.uv, model.uv_triangles
+    made = obj_text(v, t, uv, ut)
+    [entry] = layout_entries()
+    assert obj_text(v + 1.0, t, uv, ut).split("vt ", 1)[1] == made.split("vt ", 1)[1]  # other vertices, the same layout lines
+    assert obj_text(v, t, uv, ut) == made and layout_entries() == [entry]
+    flipped = obj_text(v, t, uv[:, ::-1], ut)
+    assert len(layout_entries()) == 2 and flipped != made
+    assert flipped.replace("\nvt ", "\n").splitlines()[len(v) + 1].split() == [f"{uv[0, 1]:.6f}", f"{uv[0, 0]:.6f}"]
+    (entry / "text.npy").write_bytes(b"\x93NUMPY damaged")
+    assert obj_text(v, t, uv, ut) == made and load_entry(entry) is not None
