@@ -39,6 +39,18 @@ def _edges(triangles: np.ndarray) -> np.ndarray:
     return np.concatenate([triangles[:, [0, 1]], triangles[:, [1, 2]], triangles[:, [2, 0]]])
 
 
+def _face_normals(v: np.ndarray, f: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The x, y and z components ((F,) float64 each) of ``(b − a) × (c − a)`` for the (F, 3)
+    triangles ``f`` of the (V, 3) float64 vertices ``v``: ``np.cross``'s products and differences
+    (the same bits), on contiguous per-component arrays instead of its (F, 3) temporaries (half
+    the time; a third in a fresh process, whose every new page is a fault)."""
+    x, y, z = v[:, 0], v[:, 1], v[:, 2]
+    a, b, c = f[:, 0], f[:, 1], f[:, 2]
+    ux, uy, uz = x[b] - x[a], y[b] - y[a], z[b] - z[a]
+    wx, wy, wz = x[c] - x[a], y[c] - y[a], z[c] - z[a]
+    return uy * wz - uz * wy, uz * wx - ux * wz, ux * wy - uy * wx
+
+
 def vertex_normals(vertices: np.ndarray, triangles: np.ndarray) -> np.ndarray:
     """Unit vertex normals by the module's rule.
 
@@ -53,9 +65,9 @@ def vertex_normals(vertices: np.ndarray, triangles: np.ndarray) -> np.ndarray:
     f = np.asarray(triangles, dtype=np.int64).reshape(-1, 3)
     if v.ndim == 3:
         return _batched_vertex_normals(v, f)
-    face_n = np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]])  # 2 × area × unit normal
+    face_n = _face_normals(v, f)  # 2 × area × unit normal, one (F,) array a component
     corners = f.ravel()
-    n = np.stack([np.bincount(corners, weights=np.repeat(face_n[:, c], 3), minlength=len(v)) for c in range(3)], axis=1)
+    n = np.stack([np.bincount(corners, weights=np.repeat(component, 3), minlength=len(v)) for component in face_n], axis=1)
     length = np.linalg.norm(n, axis=1)
     scale = np.max(length) if len(length) else 0.0
     bad = length <= _RELATIVE_EPS * max(scale, 1e-300)
