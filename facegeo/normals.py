@@ -44,11 +44,26 @@ def _face_normals(v: np.ndarray, f: np.ndarray) -> tuple[np.ndarray, np.ndarray,
     triangles ``f`` of the (V, 3) float64 vertices ``v``: ``np.cross``'s products and differences
     (the same bits), on contiguous per-component arrays instead of its (F, 3) temporaries (half
     the time; a third in a fresh process, whose every new page is a fault)."""
-    x, y, z = v[:, 0], v[:, 1], v[:, 2]
+    return _face_normals_of([v[:, 0], v[:, 1], v[:, 2]], f)
+
+
+def _face_normals_of(planes: list[np.ndarray], f: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`_face_normals` from the vertices' x, y and z ``planes``, each (V,) or (V, B) (B
+    meshes on the same triangles): three (F,) or (F, B) float64 arrays."""
     a, b, c = f[:, 0], f[:, 1], f[:, 2]
-    ux, uy, uz = x[b] - x[a], y[b] - y[a], z[b] - z[a]
-    wx, wy, wz = x[c] - x[a], y[c] - y[a], z[c] - z[a]
-    return uy * wz - uz * wy, uz * wx - ux * wz, ux * wy - uy * wx
+    edges = []
+    for plane in planes:  # the edges b − a and c − a: each corner gathered once, differences in place
+        first, u, w = plane[a], plane[b], plane[c]
+        u -= first
+        w -= first
+        edges.append((u, w))
+    (ux, wx), (uy, wy), (uz, wz) = edges
+    normal = []
+    for p, q, r, t in ((uy, wz, uz, wy), (uz, wx, ux, wz), (ux, wy, uy, wx)):  # p·q − r·t
+        product = p * q
+        product -= r * t
+        normal.append(product)
+    return normal[0], normal[1], normal[2]
 
 
 def vertex_normals(vertices: np.ndarray, triangles: np.ndarray) -> np.ndarray:
@@ -99,14 +114,13 @@ def _batched_vertex_normals(v: np.ndarray, f: np.ndarray) -> np.ndarray:
     import scipy.sparse as sp
 
     b, n = v.shape[:2]
-    rows = np.ascontiguousarray(v.transpose(1, 0, 2))  # (V, B, 3): a triangle's corners gather whole rows
-    e1, e2 = rows[f[:, 1]] - rows[f[:, 0]], rows[f[:, 2]] - rows[f[:, 0]]
-    face_n = np.empty_like(e1)  # (F, B, 3) cross products
-    face_n[..., 0] = e1[..., 1] * e2[..., 2] - e1[..., 2] * e2[..., 1]
-    face_n[..., 1] = e1[..., 2] * e2[..., 0] - e1[..., 0] * e2[..., 2]
-    face_n[..., 2] = e1[..., 0] * e2[..., 1] - e1[..., 1] * e2[..., 0]
+    # the cross products per component as (F, B) arrays: the columns a triangle's corners gather
+    # are whole contiguous rows of each (V, B) plane, not strided thirds of (F, B, 3) ones
+    planes = [np.ascontiguousarray(v[..., k].T) for k in range(3)]
+    face_n = _face_normals_of(planes, f)
     incidence = sp.csr_matrix((np.ones(f.size), (f.ravel(), np.repeat(np.arange(len(f)), 3))), shape=(n, len(f)))
-    sums = (incidence @ face_n.reshape(len(f), 3 * b)).reshape(n, b, 3).transpose(1, 0, 2)
+    # each vertex's sum over its triangles, in the CSR order, whatever the columns: (V, B, 3) as before
+    sums = np.stack([incidence @ component for component in face_n], axis=-1).transpose(1, 0, 2)
     length = np.sqrt(np.einsum("bvc,bvc->bv", sums, sums))
     scale = length.max(axis=1, keepdims=True) if n else length
     bad = length <= _RELATIVE_EPS * np.maximum(scale, 1e-300)
