@@ -72,7 +72,12 @@ least-squares scaled onto the truth's over the seen skin; chroma is not fitted):
 * **off-skin**: share of skin texels whose albedo colour the real skin map never takes: Lab
   Mahalanobis distance > :data:`OFF_SKIN_SIGMAS` from a robust Gaussian (median, MAD-scaled
   covariance) of the truth's colours over the skin texels (glasses, background, hair, dark cast
-  shadows or blotches left in).
+  shadows or blotches left in);
+* **the light's colour**: the rendered light's chroma as the seen skin shows it (the photo's
+  (log R/G, log B/G) less the albedo pass's, median over the seen skin texels) against the new
+  backend's estimate of it, and whether it used a white reference. The scans' eyes are not white
+  (James's scanned scleras are yellow, Lee Perry-Smith has skin for eyes: RESULTS.md), so this
+  separates an error of the light's estimate from one of the skin's own colour.
 
 Per region (:data:`REGIONS`: mouth (the lips), eyes, nose, cheeks, forehead; the layout's
 :func:`facegeo.skin_mask.vertex_regions` > 0.5): the seen texels' ΔE2000 median (photo-pixel
@@ -122,6 +127,7 @@ from facegeo.texturing.context import build_context, surface_operators  # noqa: 
 from facegeo.texturing.default import DEFAULT_SETTINGS, DefaultBackend  # noqa: E402
 from facegeo.texturing.default.fill import fill_base, with_mirror_tone  # noqa: E402
 from facegeo.texturing.default.texels import mirror_index  # noqa: E402
+from facegeo.texturing.illuminant import PLANCKIAN, chroma  # noqa: E402
 from facegeo.texturing.image_filters import masked_blur  # noqa: E402
 from facegeo.uv import Unwrapped, geometry_maps, rasterize_uv, unwrap_details  # noqa: E402
 from facegeo.uv.texels import sample_bilinear  # noqa: E402
@@ -397,7 +403,15 @@ def evaluate(scan: str, name: str, render: str, light: str, model, raster, skin_
     via_fill = srgb_to_linear(through.homogenise(through.inpaint(t_truth, m_vis, ctx), ctx))
     g_via = gradient(lab(masked_blur(via_fill * exposure(via_fill[seen_skin], truth_seen[seen_skin]), skin, blur)), skin)
     through_fill = [float(np.nanmean(g_via[m]) / np.nanmean(g_truth[m])) if m.any() else float("nan") for m in (skin, seen_skin, filled_skin)]
-    out = {"scan": scan, "view": name, "light": light, "truth_through_fill_gradient": through_fill, "seen_texels": int(seen_skin.sum()), "filled_texels": int(filled_skin.sum()),
+    # the light as rendered, as the skin shows it: the photo's chroma less the albedo pass's, median
+    # over the seen skin texels neither clipped nor black; against the new backend's estimate (its
+    # mean light, after the shrinkage towards neutral), which the albedo's colour depends on
+    lit = seen_skin & np.all((t_inc > 0.01) & (t_inc < 0.98), axis=-1) & np.all(truth_seen > 0.01, axis=-1)
+    rendered = np.median(chroma(t_inc[lit]) - chroma(truth_seen[lit]), axis=0) if lit.any() else np.full(2, np.nan)
+    illuminant = new_backend.report["illuminant"]
+    light_chroma = {"rendered": rendered.tolist(), "estimated": list(illuminant.get("light_chroma", [np.nan, np.nan])),
+                    "white_used": bool(illuminant.get("white_used", False)), "white_chroma": illuminant.get("white_chroma")}
+    out = {"scan": scan, "view": name, "light": light, "light_chroma": light_chroma, "truth_through_fill_gradient": through_fill, "seen_texels": int(seen_skin.sum()), "filled_texels": int(filled_skin.sum()),
            "truth_seam": seam(g_truth), "blur_texels": blur, "fit_rms_px": fit.landmark_rms_px, "methods": {},
            "mirror_asymmetry": new_backend.report["inpaint"].get("mirror_asymmetry"),
            "mirror_tone": new_backend.report["inpaint"].get("mirror_tone"),
@@ -521,6 +535,25 @@ def view_tables(rows: list[dict]) -> list[str]:
     return lines
 
 
+def light_colour_table(rows: list[dict]) -> list[str]:
+    """Per view: the rendered light's chroma (log R/G, log B/G) as the seen skin shows it (the photo
+    over the albedo pass), the new backend's estimate, the difference's length and its part along
+    the Planckian direction (> 0: the estimate warmer than the light), and whether a white
+    reference (sclera, teeth) was used."""
+    lines = ["", "The light's colour per view: rendered (the photo's chroma less the albedo pass's, median over the "
+             "seen skin) against the new backend's estimate (its mean light), chroma (log R/G, log B/G); the error's "
+             "length and its part along the Planckian direction (> 0: estimated warmer than rendered):", "",
+             "| scan | view | rendered | estimated | error | warmer by | white reference |", "|---|---|---|---|---|---|---|"]
+    for row in rows:
+        lc = row["light_chroma"]
+        rendered, estimated = np.asarray(lc["rendered"]), np.asarray(lc["estimated"])
+        error = estimated - rendered
+        pair = lambda c: f"({c[0]:+.2f}, {c[1]:+.2f})"  # noqa: E731
+        lines.append(f"| {SCAN_LABELS[row['scan']]} | {row['view']}{mark(row['light'])} | {pair(rendered)} | {pair(estimated)} | "
+                     f"{np.linalg.norm(error):.2f} | {float(error @ PLANCKIAN):+.2f} | {'used' if lc['white_used'] else 'not used'} |")
+    return lines
+
+
 def light_tables(rows: list[dict]) -> list[str]:
     """Per scan and light (its views' median): the seen skin's ΔE2000 of the methods and the new
     backend's worst ratio to the flat colour's; then the new backend's seen ΔE2000 per region."""
@@ -601,7 +634,7 @@ def exposure_table(series: list[dict]) -> list[str]:
 
 def report(rows: list[dict], series: list[dict]) -> list[str]:
     """The markdown tables: the views, the lights and regions, the bars and the exposure series."""
-    return view_tables(rows) + light_tables(rows) + bar_table(rows) + exposure_table(series)
+    return view_tables(rows) + light_colour_table(rows) + light_tables(rows) + bar_table(rows) + exposure_table(series)
 
 
 def time_stages(rounds: int, photo_name: str | None = None) -> list[str]:
