@@ -120,3 +120,37 @@ def test_greyscale_detection_allows_jpeg_noise_but_not_colour():
     assert is_greyscale(grey) and is_greyscale(noisy)
     skin = grey * np.array([1.0, 0.8, 0.7])
     assert not is_greyscale(skin) and not is_greyscale(np.zeros((0, 3)))
+
+
+def test_a_white_reference_in_shade_is_read_at_the_eyes_ambient_share():
+    """A sun and a cooler sky: the skin's light moves with its ambient share, and the sclera sits
+    where that share is high (its socket in the sun's shadow). Read at the skin's mean share it
+    would make the whole light as cool as the sky; read at the eyes' share, the mean light is found."""
+    from types import SimpleNamespace
+
+    from facegeo.texturing.default.light_colour import ambient_trend, light_colour, light_colour_map
+
+    size = 64
+    share = np.broadcast_to(np.linspace(0.1, 0.9, size, dtype=np.float32), (size, size)).copy()  # ambient share, left to right
+    eyes = np.zeros((size, size), bool)
+    eyes[20:26, 52:58] = True  # where the face is mostly in the sun's shadow
+    weight = (~eyes).astype(np.float32)
+    light = 0.4 * PLANCKIAN  # the mean light: warm (beyond the shrinkage towards neutral)
+    sky = -0.5 * PLANCKIAN  # the chroma per unit of ambient share: the sky is cooler
+    mean_share = float(np.average(share, weights=weight))
+    c = SKIN_CHROMA + light + (share[..., None] - mean_share) * sky
+    free = np.stack([np.exp(c[..., 0]), np.ones((size, size)), np.exp(c[..., 1])], axis=-1).astype(np.float32) * 0.3
+    white_chroma = SCLERA_CHROMA + light + (share[eyes].mean() - mean_share) * sky
+    ctx = SimpleNamespace(white_reference=np.array([np.exp(white_chroma[0]), 1.0, np.exp(white_chroma[1])]) * 0.5,
+                          regions={"eyes": eyes.astype(np.float32)}, coverage=np.ones((size, size), bool))
+    trend = ambient_trend(free, share, weight)
+    np.testing.assert_allclose(trend.delta, sky, atol=1e-6)
+    found, report = light_colour(free, weight, ctx, trend)
+    naive, _ = light_colour(free, weight, ctx)  # the reference read at the mean share
+    assert report["white_used"] and np.linalg.norm(found - light) < 0.02
+    assert np.linalg.norm(naive - light) > 0.1 and float((naive - light) @ PLANCKIAN) < 0  # taken for a cooler light
+    np.testing.assert_allclose(report["white_ambient_shift"], (share[eyes].mean() - mean_share) * sky, atol=1e-6)
+    # the light map: the mean light plus the trend, and the trend's figures reported
+    per_texel = light_colour_map(found, trend, report)
+    np.testing.assert_allclose(per_texel[:, 32] - found, (share[:, 32, None] - trend.mean) * sky, atol=1e-5)
+    assert report["ambient_chroma"] == pytest.approx(list(sky))

@@ -31,7 +31,7 @@ from facegeo.texturing.default.albedo_level import albedo_level
 from facegeo.texturing.default.clipping import restore_clipped
 from facegeo.texturing.default.delighting import Analysis, analyse
 from facegeo.texturing.default.fill import fill
-from facegeo.texturing.default.light_colour import light_colour, light_colour_map
+from facegeo.texturing.default.light_colour import ambient_trend, light_colour, light_colour_map
 from facegeo.texturing.default.materials import materials as pbr_maps
 from facegeo.texturing.default.reliability import inner_distance, reliability, shading_confidence
 from facegeo.texturing.default.settings import DEFAULT_SETTINGS, DefaultSettings
@@ -204,10 +204,12 @@ class DefaultBackend:
         illuminant_report: dict[str, Any] = {"greyscale": greyscale}
         if not greyscale and skin_weight.sum() >= 10:
             free = without_specular(delit, an.specular[..., None], settings)  # the light's colour is judged without the sheen
-            light, illuminant_report = light_colour(free, skin_weight, ctx)
+            # two lights: the ambient term's colour told apart (and the white reference lit at its share)
+            trend = None if an.ambient_dependence is None else ambient_trend(free, an.ambient_dependence, skin_weight)
+            light, illuminant_report = light_colour(free, skin_weight, ctx, trend)
             illuminant_report["greyscale"] = False
-            if an.ambient_dependence is not None:  # two lights: the ambient term's colour told apart
-                light = light_colour_map(light, free, an.ambient_dependence, skin_weight, illuminant_report)
+            if trend is not None:
+                light = light_colour_map(light, trend, illuminant_report)
             delit = remove_cast(delit, light)
         elif greyscale:
             delit = np.repeat(luminance(delit)[..., None], 3, axis=-1)
