@@ -16,8 +16,9 @@ Colour textures are sRGB in [0, 1], float32, S × S, image-style rows (see
 * **Highlights** (:mod:`.highlights`), **clipped texels** (:mod:`.clipping`) and **an occluder's
   fringe** (:mod:`.occluders`): left out of every fit and filled.
 * **The light's colour** (:mod:`.light_colour`): from the skin locus and the photo's white
-  references, divided out; a greyscale photo gets a generic skin chroma, and ``report["notes"]``
-  says so (the pipeline copies the notes into ``fit.json``).
+  references, divided out; under a sun and a sky of two colours, per texel by its ambient share,
+  and the white reference read as lit at the eyes' share. A greyscale photo gets a generic skin
+  chroma, and ``report["notes"]`` says so (the pipeline copies the notes into ``fit.json``).
 * **The albedo's level** (:mod:`.albedo_level`): one factor from a skin-reflectance prior (the
   skin's place on the skin locus) and the white references (sclera, teeth), so that the albedo
   does not follow the photo's exposure; the relit texture keeps the photo's level.
