@@ -39,17 +39,12 @@ def _edges(triangles: np.ndarray) -> np.ndarray:
     return np.concatenate([triangles[:, [0, 1]], triangles[:, [1, 2]], triangles[:, [2, 0]]])
 
 
-def _face_normals(v: np.ndarray, f: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """The x, y and z components ((F,) float64 each) of ``(b − a) × (c − a)`` for the (F, 3)
-    triangles ``f`` of the (V, 3) float64 vertices ``v``: ``np.cross``'s products and differences
+def _face_normals(planes: list[np.ndarray], f: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The x, y and z components of ``(b − a) × (c − a)`` for the (F, 3) triangles ``f`` of
+    vertices given as their x, y and z ``planes``, each (V,) or (V, B) float64 (B meshes on the
+    same triangles): three (F,) or (F, B) float64 arrays. ``np.cross``'s products and differences
     (the same bits), on contiguous per-component arrays instead of its (F, 3) temporaries (half
     the time; a third in a fresh process, whose every new page is a fault)."""
-    return _face_normals_of([v[:, 0], v[:, 1], v[:, 2]], f)
-
-
-def _face_normals_of(planes: list[np.ndarray], f: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """:func:`_face_normals` from the vertices' x, y and z ``planes``, each (V,) or (V, B) (B
-    meshes on the same triangles): three (F,) or (F, B) float64 arrays."""
     a, b, c = f[:, 0], f[:, 1], f[:, 2]
     edges = []
     for plane in planes:  # the edges b − a and c − a: each corner gathered once, differences in place
@@ -80,7 +75,7 @@ def vertex_normals(vertices: np.ndarray, triangles: np.ndarray) -> np.ndarray:
     f = np.asarray(triangles, dtype=np.int64).reshape(-1, 3)
     if v.ndim == 3:
         return _batched_vertex_normals(v, f)
-    face_n = _face_normals(v, f)  # 2 × area × unit normal, one (F,) array a component
+    face_n = _face_normals([v[:, 0], v[:, 1], v[:, 2]], f)  # 2 × area × unit normal, one (F,) array a component
     corners = f.ravel()
     n = np.stack([np.bincount(corners, weights=np.repeat(component, 3), minlength=len(v)) for component in face_n], axis=1)
     length = np.linalg.norm(n, axis=1)
@@ -117,7 +112,7 @@ def _batched_vertex_normals(v: np.ndarray, f: np.ndarray) -> np.ndarray:
     # the cross products per component as (F, B) arrays: the columns a triangle's corners gather
     # are whole contiguous rows of each (V, B) plane, not strided thirds of (F, B, 3) ones
     planes = [np.ascontiguousarray(v[..., k].T) for k in range(3)]
-    face_n = _face_normals_of(planes, f)
+    face_n = _face_normals(planes, f)
     incidence = sp.csr_matrix((np.ones(f.size), (f.ravel(), np.repeat(np.arange(len(f)), 3))), shape=(n, len(f)))
     # each vertex's sum over its triangles, in the CSR order, whatever the columns: (V, B, 3) as before
     sums = np.stack([incidence @ component for component in face_n], axis=-1).transpose(1, 0, 2)
