@@ -13,7 +13,9 @@ metadata (:meth:`ExportJob.complete` sends them) and writes the rest: each map's
 all outputs (:class:`facegeo.export.textures.TextureFiles`), the scenes and ``asset.json``, on
 :data:`facegeo.concurrency.EXPORT_WORKERS` threads, while the caller makes the preview. Where a
 fork does not help or work (:func:`facegeo.forked_call.can_fork`, a batch worker) the same work
-runs in the caller, beside the preview, as one set of tasks. The files are the same either way.
+runs in the caller, beside the preview, as one set of tasks on as many threads as the process may
+keep busy (:func:`facegeo.concurrency.usable_threads`: one in a batch worker, whose neighbours
+use the other cores). The files are the same either way.
 
 The child writes only into the caller's staging folder (:class:`facegeo.staged_output.StagedOutput`),
 which the caller commits or removes; a caller that fails first stops the child
@@ -151,7 +153,7 @@ class ExportJob:
         metadata), running the ``beside`` tasks (name, work) in this process meanwhile (the
         preview); returns the spans of every piece of work, the ``beside`` ones included.
         Raises what the export raised (a :class:`facegeo.errors.FacegeoError` as itself)."""
-        from facegeo.concurrency import EXPORT_WORKERS, run_concurrently
+        from facegeo.concurrency import EXPORT_WORKERS, run_concurrently, usable_threads
         from facegeo.forked_call import ChildLost
 
         spans: Spans = {}
@@ -173,7 +175,7 @@ class ExportJob:
             own = []  # done above
         prepared = _Prepared(self.geometry, self.plan)
         spans.update(prepared.spans)
-        run_concurrently(_finish_tasks(asset, self.plan, prepared, spans) + own, EXPORT_WORKERS)
+        run_concurrently(_finish_tasks(asset, self.plan, prepared, spans) + own, min(EXPORT_WORKERS, usable_threads()))
         return spans
 
     def abandon(self) -> None:

@@ -133,3 +133,25 @@ def test_scene_geometries_made_before_the_maps_give_the_same_scenes(tmp_path):
     [write] = scene_writers(asset, [(second, None)], level=1, maps=maps, geometries=geometries)
     write()
     assert first.read_bytes() == second.read_bytes()
+
+
+def test_the_export_in_the_caller_uses_the_threads_the_process_may_keep_busy(tmp_path, monkeypatch):
+    """A batch worker (one usable thread: its neighbours hold the other cores) writes its files
+    and makes its preview one after the other on its own thread; a process that may use two
+    spreads them over a pool."""
+    import threading
+
+    from arkit_support import shaped_asset
+    from facegeo.export_job import ExportJob, ExportPlan
+    from test_export_support import synthetic_maps
+
+    asset = shaped_asset(maps=synthetic_maps(64))[0]
+    for threads in (1, 2):
+        monkeypatch.setattr("facegeo.concurrency.usable_threads", lambda threads=threads: threads)
+        folder = tmp_path / str(threads)
+        folder.mkdir()
+        plan = ExportPlan(folder, ("glb",), "full", 0, False, None)
+        ran_on: list[int] = []
+        ExportJob(asset, plan, fork=False).complete(asset, [("preview", lambda: ran_on.append(threading.get_ident()))])
+        assert (folder / "face.glb").is_file() and (folder / "asset.json").is_file()
+        assert (ran_on == [threading.get_ident()]) == (threads == 1), threads
