@@ -43,6 +43,7 @@ from typing import Any
 import cv2
 import numpy as np
 
+from facegeo.arkit import arkit_name
 from facegeo.camera import Camera, euler_from_rotation, to_pixels
 from facegeo.errors import InputError, NoFaceError
 from facegeo.fitting.dense_term import DEFAULT_DENSE
@@ -713,7 +714,10 @@ def solve_frame(model: MorphableModel, seen: PhotoObservation, camera: Camera, a
     (:data:`~facegeo.landmarks.eyelids.LID_POINTS`) then weigh nothing (they would pull the eyes
     open or shut again through the other lid shapes) and the eye corners their single-photo
     weight. None (or NaN): the lids are fitted, the eyes' 12 points weighed ×:data:`EYE_WEIGHT`.
-    The brows weigh less as the head turns them away (:func:`turned_brow_weights`). ``offsets``:
+    The brows weigh less as the head turns them away (:func:`turned_brow_weights`), and so do
+    the dense points of the brows' region (:data:`BROW_REGION_MM`), by the brows' mean factor: the
+    Face Landmarker also puts a brow that turns away on the outline (on the ground-truth take the
+    far brow's dense points alone read as browDown 0.2-0.3 in the ±35° turns). ``offsets``:
     the person's points at rest (:func:`neutral_offsets`), taken off the observed points in the
     start's pose; None: the points as observed."""
     if start is None:
@@ -730,10 +734,17 @@ def solve_frame(model: MorphableModel, seen: PhotoObservation, camera: Camera, a
         weights[np.ravel(eyelids.LID_POINTS)] = 0.0
     else:
         weights[EYES] *= EYE_WEIGHT
-    weights[BROWS] *= turned_brow_weights(model, start)
+    brows = turned_brow_weights(model, start)
+    weights[BROWS] *= brows
+    surface = seen.surface_points
+    if surface is not None:  # the dense points of the brows' region weigh as dlib's brows do, on average
+        region = _brow_ring(model).region[surface.vertex_ids].any(axis=1)
+        surface = SurfacePoints(surface.targets, surface.vertex_ids, surface.barycentric,
+                                np.where(region, surface.weights * float(brows.mean()), surface.weights),
+                                surface.contour, surface.expressive)
     priors = dataclasses.replace(DEFAULT_PRIORS, noise=noise, noise_rounds=0, held_expressions=gaze, measured_expressions=measured,
                                  brow_along_noise=BROW_ALONG_NOISE)
-    return solve_landmarks(model, seen.landmarks, camera, weights, (stage,), priors, start, seen.surface_points)
+    return solve_landmarks(model, seen.landmarks, camera, weights, (stage,), priors, start, surface)
 
 
 #: A brow point's noise along its brow over its noise across it in the per-frame solve
@@ -746,6 +757,10 @@ BROW_ALONG_NOISE = 3.0
 #: The brows' weights in the per-frame solve fall from 1 to 0 as a brow point's facing ratio
 #: (:func:`turned_brow_weights`) goes from the second to the first of these, squared.
 TURNED_BROW_RAMP = (0.4, 0.9)
+#: A model vertex is in the brows' region where one of the model's brow blendshapes (those whose
+#: ARKit name starts with ``brow``) moves it by more than this many mm at weight 1 (ICT-FaceKit:
+#: the brows, the forehead above them and the upper lids' skin; 130 of the 468 dense points).
+BROW_REGION_MM = 1.0
 
 
 def turned_brow_weights(model: MorphableModel, start: SolveStart) -> np.ndarray:
@@ -776,11 +791,14 @@ def turned_brow_weights(model: MorphableModel, start: SolveStart) -> np.ndarray:
 class _BrowRing:
     """The model's triangles around the brows' landmark vertices: the U ``vertices`` (U,) they
     use, the ``triangles`` (T, 3) indexing into them and the brow vertices' ``rows`` (10,) among
-    them (each brow vertex's normal over its whole ring is its normal on the whole mesh)."""
+    them (each brow vertex's normal over its whole ring is its normal on the whole mesh); and
+    the brows' ``region`` (V,) bool over all the model's vertices (:data:`BROW_REGION_MM`; none
+    for a model without brow blendshapes)."""
 
     vertices: np.ndarray
     triangles: np.ndarray
     rows: np.ndarray
+    region: np.ndarray
 
 
 _BROW_RINGS: dict[int, tuple[MorphableModel, _BrowRing]] = {}
@@ -794,7 +812,11 @@ def _brow_ring(model: MorphableModel) -> _BrowRing:
         triangles = np.asarray(model.triangles, np.int64)
         around = triangles[np.isin(triangles, brows).any(axis=1)]
         vertices, local = np.unique(around, return_inverse=True)
-        kept = (model, _BrowRing(vertices, local.reshape(-1, 3), np.searchsorted(vertices, brows)))
+        shapes = [k for k, name in enumerate(model.expression_names) if (arkit_name(name) or "").startswith("brow")]
+        region = np.zeros(model.n_vertices, bool)
+        if shapes and model.expression_kind == "blendshape":
+            region = (np.linalg.norm(model.exp_basis[shapes], axis=2) > BROW_REGION_MM).any(axis=0)
+        kept = (model, _BrowRing(vertices, local.reshape(-1, 3), np.searchsorted(vertices, brows), region))
         _BROW_RINGS[id(model)] = kept
     return kept[1]
 

@@ -527,6 +527,51 @@ def test_brows_weigh_less_as_the_head_turns_them_away_and_alike_on_both_sides(mo
                                atol=1e-9)
 
 
+def test_the_dense_points_of_a_turned_away_brow_weigh_as_the_brows_do(model):
+    """At 36 degrees of yaw a detector puts the far brow on the head's outline: the model face's
+    own 88 points and dense points, with the far brow's landmarks and brow-region dense points 6 px
+    low, read a frown under 0.2 (the region's points weigh as the mostly turned-away brows: 0.49
+    when they weighed as the rest of the face), while frontal, where a brow faces the camera,
+    both brows 6 px low read one above 0.1. The region holds the
+    ten brow landmarks' vertices and none of the lips'."""
+    from facegeo.camera import Camera, project, rotation_from_euler
+    from facegeo.fitting.landmark_problem import SurfacePoints
+    from facegeo.fitting.photo_fit import PhotoObservation
+    from facegeo.landmarks.dense import load_dense_correspondence, points_on_mesh
+    from facegeo.landmarks.scheme import BROWS
+    from facegeo.tracking import SolveStart, _brow_ring, solve_frame
+
+    region = _brow_ring(model).region
+    indices = np.asarray(model.landmark_indices)
+    assert region[indices[BROWS]].all() and not region[indices[48:68]].any()
+    corr = load_dense_correspondence(model)
+    camera = Camera(1000.0, 320.0, 240.0, 640, 480)
+    alpha, delta = np.zeros(model.n_id), np.zeros(model.n_exp)
+    shape = model.shape_numpy(alpha, delta).astype(np.float64)
+    names = list(model.expression_names)
+    frown = [names.index("browDown_L"), names.index("browDown_R")]
+    on_region = region[corr.vertex_ids].any(axis=1)
+    LOW_PX = 6.0
+    readings = {}
+    for yaw in (36.0, 0.0):
+        rotation = rotation_from_euler(yaw, 0.0, 0.0)
+        translation = np.array([0.0, 0.0, -1000.0])
+        on_mesh = points_on_mesh(shape, corr).astype(np.float64)
+        dense = project(on_mesh, rotation, translation, camera)
+        depth = (on_mesh @ rotation.T)[:, 2]  # the far brow is the one further from the camera
+        far = on_region & (depth < np.median(depth[on_region]) if yaw else True)
+        dense[far, 1] += LOW_PX
+        surface = SurfacePoints(dense, corr.vertex_ids, corr.barycentric, np.full(len(dense), 0.25))
+        landmarks = project(shape[indices], rotation, translation, camera)
+        brow_depth = (shape[indices[BROWS]] @ rotation.T)[:, 2]
+        landmarks[np.asarray(BROWS)[brow_depth < np.median(brow_depth) if yaw else slice(None)], 1] += LOW_PX
+        blank = np.zeros((camera.height, camera.width, 3), np.uint8)
+        seen = PhotoObservation(blank, "<test>", blank, model, landmarks, camera, None, None, surface, {}, [])
+        start = SolveStart(rotation, translation, alpha, delta)
+        readings[yaw] = solve_frame(model, seen, camera, alpha, 0.02, start, blinks=np.zeros(2)).fit.delta[frown]
+    assert readings[36.0].max() < 0.2 and readings[0.0].min() > 0.1, readings
+
+
 def _posed_observation(model, alpha, delta, rotation, bias, camera):
     """The 88 landmarks of the model face (α, δ) posed by ``rotation`` 1 m from ``camera``, each
     moved by ``bias`` (88, 3) mm in model space: a detector's bias that turns with the head."""
