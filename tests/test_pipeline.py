@@ -217,6 +217,7 @@ def test_two_export_workers_write_what_one_writes(tmp_path, monkeypatch, fitted_
     from facegeo.jobs import ReconstructOptions, reconstruct_into_folder
 
     options = ReconstructOptions(formats=("usdz", "glb", "usda"))
+    monkeypatch.setattr("facegeo.concurrency.usable_threads", lambda: 2)  # whatever an earlier test left torch's pool at
     reconstruct_into_folder(PHOTO, tmp_path / "two", options)
     monkeypatch.setattr("facegeo.concurrency.EXPORT_WORKERS", 1)
     record = reconstruct_into_folder(PHOTO, tmp_path / "one", options)
@@ -262,6 +263,7 @@ def test_a_signal_during_the_export_leaves_nothing(tmp_path, capsys, monkeypatch
 
     monkeypatch.setattr(asset_io, "write_asset_files", write_then_signal)
     monkeypatch.setattr("facegeo.forked_call.can_fork", lambda: False)  # the export's threads in this process (the forked export: test_forked_call)
+    monkeypatch.setattr("facegeo.concurrency.usable_threads", lambda: 2)  # two of them, whatever an earlier test left torch's pool at
     code = main(["reconstruct", str(PHOTO), "-o", str(tmp_path / "out")])
     _, err = capsys.readouterr()
     assert code == 128 + getattr(signal, signum) and "interrupted" in err and err.count("\n") == 1
