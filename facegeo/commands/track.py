@@ -68,7 +68,8 @@ def _run(args: argparse.Namespace) -> None:
     for note in record["notes"]:
         print(f"note: {note}")
     lost = record["frames_tracked"] - record["frames_with_face"]
-    print(f"tracked {args.video}: {record['frames_tracked']} frames ({lost} without a face), keyframes {record['keyframes']}, "
+    count = record["frames_tracked"]
+    print(f"tracked {args.video}: {count} frame{'' if count == 1 else 's'} ({lost} without a face), keyframes {record['keyframes']}, "
           f"{record['frames_per_second']:.1f} frames/s")
     extra = "" if args.no_asset else ", asset/, face.glb, face.usdz, preview.png"
     print(f"wrote {args.output}/take.csv, track.json{extra}")
