@@ -1290,6 +1290,43 @@ def test_delight_is_inpaints_first_half_on_the_reliably_seen_texels():
         DefaultBackend().seen_reliability(ctx)
 
 
+def test_the_lips_fill_takes_the_lips_own_chroma_not_the_skins():
+    """region_chroma: over a region of its own colour (the lips), what the texels did not take from
+    the photo (the unseen ones, and the untrusted share of the seen ones) gets the region's own
+    seen chroma instead of the skin-coloured fill's, in proportion to the region's mask; the
+    luminance (the log's channel mean) is untouched; texels outside the region, and a region with
+    too few trusted texels, are unchanged."""
+    from facegeo.texturing.default.fill import region_chroma
+    from facegeo.texturing.default.settings import DefaultSettings
+
+    chroma = lambda x: x - x.mean(-1, keepdims=True)  # noqa: E731
+    lips = np.log(np.float32([0.40, 0.15, 0.14]))
+    skin = np.log(np.float32([0.45, 0.30, 0.25]))
+    S = 64
+    region = np.zeros((S, S), np.float32)
+    region[20:30, 10:50] = 1.0
+    region[30:32, 10:50] = 0.5  # the soft border
+    seen = np.zeros((S, S), bool)
+    seen[20:26, 10:50] = True  # the upper lip seen, the lower one not
+    confidence = np.ones((S, S), np.float32)
+    reliable = np.where(seen, 0.4, 0.0).astype(np.float32)  # seen, but trusted at 0.4 only
+    log_seen = np.where(seen[..., None], lips, 0.0).astype(np.float32)
+    own = reliable[..., None]
+    out_log = (own * lips + (1 - own) * skin).astype(np.float32)  # the blend: own chroma by the reliability
+    settings = DefaultSettings()
+    out = region_chroma(out_log, log_seen, seen, reliable, confidence, region, settings)
+    np.testing.assert_allclose(out.mean(-1), out_log.mean(-1), atol=1e-5)  # the luminance is the blend's
+    np.testing.assert_allclose(chroma(out[22, 30]), chroma(lips), atol=0.02)  # seen at 0.4: all the lips' chroma now
+    np.testing.assert_allclose(chroma(out[28, 30]), chroma(lips), atol=0.02)  # unseen lip: the lips' chroma
+    half = chroma(out[31, 30])  # the border at 0.5: half way
+    np.testing.assert_allclose(half, 0.5 * (chroma(lips) + chroma(out_log[31, 30])), atol=0.02)
+    np.testing.assert_array_equal(out[region == 0], out_log[region == 0])
+    few = np.zeros((S, S), bool)
+    few[20, 10:12] = True  # 2 trusted texels: below the minimum, nothing moves
+    np.testing.assert_array_equal(region_chroma(out_log, log_seen, few, np.where(few, 0.4, 0.0), confidence, region, settings), out_log)
+    assert region_chroma(out_log, log_seen, seen, reliable, confidence, None, settings) is out_log
+
+
 def test_a_texel_whose_shading_is_in_doubt_keeps_its_own_chroma():
     """own_chroma: where only the shading's confidence made the fill take over (reliable =
     reliability × confidence), the texel's chroma is its own by its reliability alone and its

@@ -23,7 +23,9 @@ fill would take its tone from it). The result's tone is r · (log seen − D_own
 M), M the seen texel's own band from D's scale to ``settings.own_mid_band_coarsest`` × S (its
 mottling, :func:`own_mottling`) less B's, where its colour is trusted (kept weight × shading
 confidence) away from the seen edge, and the texel's own chroma by its reliability without the
-shading's confidence (:func:`own_chroma`: a scalar shading puts only the luminance in doubt); its
+shading's confidence (:func:`own_chroma`: a scalar shading puts only the luminance in doubt), and
+over the lips the chroma they did not take from the photo their own seen texels' (:func:`region_chroma`:
+the base is the skin's around them); its
 detail the texel's own D_own and the fill's other detail
 D_fill mixed with weights a = r + (1 − r) · (the own detail's share of D) and 1 − a, divided by
 √(a² + (1 − a)²) (:func:`mix_keeping_contrast`: two independent layers mixed linearly lose up to
@@ -56,7 +58,7 @@ from facegeo.texturing.default.texels import mirror_index, skin_texels, smoothst
 from facegeo.texturing.image_filters import euclidean_distance, gaussian_blur, masked_blur, push_pull
 
 __all__ = ["Fill", "detail_contrast", "fill", "fill_base", "fill_detail", "mix_keeping_contrast", "own_chroma", "own_mottling",
-           "specks", "with_mirror_tone"]
+           "region_chroma", "specks", "with_mirror_tone"]
 
 
 @dataclass
@@ -100,7 +102,9 @@ def fill(log_seen: np.ndarray, seen: np.ndarray, kept: np.ndarray, inner: np.nda
     # contrast (mixed linearly, a band of smoother skin along the seen edge)
     r = reliable[..., None]
     out_log = r * (log_seen - own_detail) + (1 - r) * (base + mottling) + mix_keeping_contrast(r + (1 - r) * own, own_detail, other)
-    return Fill(own_chroma(out_log, log_seen, seen & cover, reliable, confidence), via_mirror, asymmetry, trust, amp)
+    out_log = own_chroma(out_log, log_seen, seen & cover, reliable, confidence)
+    return Fill(region_chroma(out_log, log_seen, seen & cover, reliable, confidence, ctx.regions.get("lips"), settings),
+                via_mirror, asymmetry, trust, amp)
 
 
 def own_chroma(out_log: np.ndarray, log_seen: np.ndarray, seen: np.ndarray, reliable: np.ndarray,
@@ -119,6 +123,39 @@ def own_chroma(out_log: np.ndarray, log_seen: np.ndarray, seen: np.ndarray, reli
     chroma_seen = log_seen - log_seen.mean(axis=-1, keepdims=True)
     chroma_out = out_log - out_log.mean(axis=-1, keepdims=True)
     return (out_log + extra * (chroma_seen - chroma_out)).astype(np.float32)
+
+
+def region_chroma(out_log: np.ndarray, log_seen: np.ndarray, seen: np.ndarray, reliable: np.ndarray, confidence: np.ndarray,
+                  region: np.ndarray | None, settings: DefaultSettings) -> np.ndarray:
+    """``out_log`` (S, S, 3) log linear RGB (:func:`own_chroma`'s) with, over a ``region`` (S,
+    S) soft mask in [0, 1] of a colour of its own (the lips; None: unchanged), the chroma that
+    its texels did not take from the photo moved to the region's own: the fill's base comes from
+    the skin around, so a lip texel trusted at 0.3 (thin, its shading steep, near the mouth's
+    edge) would be 70 % skin-coloured and the lips lose their red. The region's chroma is the
+    mean of its ``seen`` (S, S) bool texels' own (``log_seen`` (S, S, 3) less its channel mean),
+    weighted by region × their own chroma's trust c = ``reliable`` / ``confidence`` (S, S each;
+    :func:`own_chroma`); each region texel's chroma moves by region × (1 − c) × (that mean − the
+    mean chroma the fill gave the region: its chroma less c × its own, over region × (1 − c)).
+    Where the region's trusted texels weigh less than ``settings.region_chroma_min_share`` of the
+    map, unchanged. float32; the input is not changed."""
+    if region is None:
+        return out_log
+    at = np.flatnonzero(region.reshape(-1) > 0)  # the region's texels only (the lips: ~1 % of the map)
+    weight = region.reshape(-1)[at].astype(np.float64)
+    conf = confidence.reshape(-1)[at]
+    own = np.where(seen.reshape(-1)[at], np.clip(np.where(conf > 1e-6, reliable.reshape(-1)[at] / np.maximum(conf, 1e-6), 0.0), 0.0, 1.0), 0.0)
+    trusted, untrusted = weight * own, weight * (1.0 - own)
+    if float(trusted.sum()) < settings.region_chroma_min_share * region.size or float(untrusted.sum()) <= 0.0:
+        return out_log
+    flat_seen, flat_out = log_seen.reshape(-1, 3)[at].astype(np.float64), out_log.reshape(-1, 3)[at].astype(np.float64)
+    chroma_seen = flat_seen - flat_seen.mean(axis=-1, keepdims=True)
+    chroma_out = flat_out - flat_out.mean(axis=-1, keepdims=True)
+    target = trusted @ chroma_seen / float(trusted.sum())
+    # the fill's share of a texel's chroma is chroma_out − own · chroma_seen (own_chroma's blend)
+    given = weight @ (chroma_out - own[:, None] * chroma_seen) / float(untrusted.sum())
+    out = np.array(out_log, dtype=np.float32)
+    out.reshape(-1, 3)[at] = (flat_out + untrusted[:, None] * (target - given)).astype(np.float32)
+    return out
 
 
 def fill_detail(log_seen: np.ndarray, seen: np.ndarray, inner: np.ndarray, reliable: np.ndarray, ctx: TextureContext,

@@ -222,6 +222,10 @@ class DefaultSettings:
     #: Fine detail beyond this many robust σ of the seen skin's is a mark (a mole, a speck, a lash):
     #: it is not mirrored onto the other side of the face (the Lee Perry-Smith scan's cheek mole was).
     speck_sigmas: float = 4.0
+    #: The lips' own chroma for what the fill gives them (:func:`~facegeo.texturing.default.fill.region_chroma`)
+    #: needs their trusted seen texels to weigh at least this share of the S × S map (210 texels at
+    #: 1K; the bundled photo's lips weigh ~1,100).
+    region_chroma_min_share: float = 2e-4
     # ---- quilting: quilting.py
     #: Side of the blocks of seen skin detail that the fill's detail is quilted from, as a fraction of
     #: S (16 texels, ~6 mm at 1K: a few pores). bench_albedo_scans, the filled skin's gradient ratio
