@@ -716,8 +716,8 @@ def solve_frame(model: MorphableModel, seen: PhotoObservation, camera: Camera, a
     weight. None (or NaN): the lids are fitted, the eyes' 12 points weighed ×:data:`EYE_WEIGHT`.
     The brows weigh less as the head turns them away (:func:`turned_brow_weights`), and so do
     the dense points of the brows' region (:data:`BROW_REGION_MM`), by the brows' mean factor: the
-    Face Landmarker also puts a brow that turns away on the outline (on the ground-truth take the
-    far brow's dense points alone read as browDown 0.2-0.3 in the ±35° turns). ``offsets``:
+    Face Landmarker also puts a brow that turns away on the outline (the ground-truth take's PNG
+    frames with ``--neutral``: browDown's r 0.41 / 0.48 → 0.85 / 0.82, benchmarks/RESULTS.md). ``offsets``:
     the person's points at rest (:func:`neutral_offsets`), taken off the observed points in the
     start's pose; None: the points as observed."""
     if start is None:
