@@ -57,7 +57,7 @@ from facegeo.texturing.default.settings import DefaultSettings
 from facegeo.texturing.default.texels import mirror_index, skin_texels, smoothstep
 from facegeo.texturing.image_filters import euclidean_distance, gaussian_blur, masked_blur, push_pull
 
-__all__ = ["Fill", "detail_contrast", "fill", "fill_base", "fill_detail", "mix_keeping_contrast", "own_chroma", "own_mottling",
+__all__ = ["Fill", "chroma_trust", "detail_contrast", "fill", "fill_base", "fill_detail", "mix_keeping_contrast", "own_chroma", "own_mottling",
            "region_chroma", "specks", "with_mirror_tone"]
 
 
@@ -107,6 +107,13 @@ def fill(log_seen: np.ndarray, seen: np.ndarray, kept: np.ndarray, inner: np.nda
                 via_mirror, asymmetry, trust, amp)
 
 
+def chroma_trust(reliable: np.ndarray, confidence: np.ndarray) -> np.ndarray:
+    """How far a seen texel's own chroma is trusted: its ``reliable`` (reliability × the shading's
+    ``confidence``, same shape) without the ``confidence`` (a scalar shading puts only the
+    luminance in doubt); 0 where the confidence is 0. Same shape, float."""
+    return np.where(confidence > 1e-6, reliable / np.maximum(confidence, 1e-6), 0.0)
+
+
 def own_chroma(out_log: np.ndarray, log_seen: np.ndarray, seen: np.ndarray, reliable: np.ndarray,
                confidence: np.ndarray) -> np.ndarray:
     """``out_log`` (S, S, 3) log linear RGB, the blend of the fill, with the chroma of each
@@ -116,7 +123,7 @@ def own_chroma(out_log: np.ndarray, log_seen: np.ndarray, seen: np.ndarray, reli
     under a key light) only the de-lit luminance is in doubt, not the colour. The chroma is the
     log RGB less its channel mean; the texel's own chroma gets the weight r_c = reliable /
     confidence in all (the blend gave it ``reliable``). float32."""
-    r_c = np.where(confidence > 1e-6, reliable / np.maximum(confidence, 1e-6), 0.0)
+    r_c = chroma_trust(reliable, confidence)
     extra = np.where(seen, np.clip((r_c - reliable) / np.maximum(1.0 - reliable, 1e-6), 0.0, 1.0), 0.0)[..., None]
     if not extra.any():
         return out_log
@@ -133,17 +140,18 @@ def region_chroma(out_log: np.ndarray, log_seen: np.ndarray, seen: np.ndarray, r
     the skin around, so a lip texel trusted at 0.3 (thin, its shading steep, near the mouth's
     edge) would be 70 % skin-coloured and the lips lose their red. The region's chroma is the
     mean of its ``seen`` (S, S) bool texels' own (``log_seen`` (S, S, 3) less its channel mean),
-    weighted by region × their own chroma's trust c = ``reliable`` / ``confidence`` (S, S each;
-    :func:`own_chroma`); each region texel's chroma moves by region × (1 − c) × (that mean − the
-    mean chroma the fill gave the region: its chroma less c × its own, over region × (1 − c)).
+    weighted by region × their own chroma's trust c (:func:`chroma_trust` of ``reliable`` and
+    ``confidence``, (S, S) each, as :func:`own_chroma` weighs it); each region texel's chroma
+    moves by region × (1 − c) × (that mean − the mean chroma the fill gave the region: its
+    chroma less c × its own, over region × (1 − c)).
     Where the region's trusted texels weigh less than ``settings.region_chroma_min_share`` of the
     map, unchanged. float32; the input is not changed."""
     if region is None:
         return out_log
     at = np.flatnonzero(region.reshape(-1) > 0)  # the region's texels only (the lips: ~1 % of the map)
     weight = region.reshape(-1)[at].astype(np.float64)
-    conf = confidence.reshape(-1)[at]
-    own = np.where(seen.reshape(-1)[at], np.clip(np.where(conf > 1e-6, reliable.reshape(-1)[at] / np.maximum(conf, 1e-6), 0.0), 0.0, 1.0), 0.0)
+    trust = chroma_trust(reliable.reshape(-1)[at], confidence.reshape(-1)[at])
+    own = np.where(seen.reshape(-1)[at], np.clip(trust, 0.0, 1.0), 0.0)
     trusted, untrusted = weight * own, weight * (1.0 - own)
     if float(trusted.sum()) < settings.region_chroma_min_share * region.size or float(untrusted.sum()) <= 0.0:
         return out_log
