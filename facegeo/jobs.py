@@ -586,7 +586,10 @@ class TrackOptions:
             (:func:`facegeo.tracking.smooth_track`).
         neutral_s: seconds into the video at which the face is at rest: every frame's points are
             then measured from the person's own there (:func:`facegeo.tracking.neutral_offsets`,
-            what Live Link Face's calibration is for); None: as observed.
+            what Live Link Face's calibration is for); None: see ``find_rest``.
+        find_rest: without ``neutral_s``, measure them from the clip's most typical still
+            stretch where it is typical enough to be the face at rest
+            (:func:`facegeo.tracking.rest_stretch`); False: as observed.
         fps: the frames' rate (frames per second) where the source records none (a folder of
             frames) or records it wrong; None: the source's, else 30 with a note.
     """
@@ -602,6 +605,7 @@ class TrackOptions:
     smooth: bool = True
     neutral_s: float | None = None
     fps: float | None = None
+    find_rest: bool = True
 
     def __post_init__(self) -> None:
         from facegeo.landmarks import DETECTORS
@@ -628,7 +632,8 @@ def track_into_folder(video: str | Path, output: str | Path, options: TrackOptio
     * ``track.json``: the source, frame rate, camera, identity α, per frame whether a face was
       found, its landmark RMS (px, % of the inter-ocular distance; of the frame's own fit), pose,
       ICT weights (smoothed with ``options.smooth``, as in the take) and whether it was a
-      keyframe; the smoothing, the neutral calibration (``options.neutral_s``; None without one),
+      keyframe; the smoothing, the neutral calibration (given by ``options.neutral_s`` or found,
+      ``options.find_rest``; None without one),
       keyframes, timings and notes;
     * with ``options.asset``: the person's textured asset (``asset/``), ``face.glb`` and
       ``face.usdz`` animated by the take, and ``preview.png`` (:func:`_animated_asset`).
@@ -660,13 +665,15 @@ def track_into_folder(video: str | Path, output: str | Path, options: TrackOptio
         frames, rest = _clip_parts(video, info, frames, options)
         report = None if progress is None else (lambda n: progress(n, n / max(time.perf_counter() - start, 1e-9)))
         track = track_frames(frames, model, options.landmarks, options.focal, options.keyframes, report, str(video), rest,
-                             options.neutral_s, lambda seen: _frame_again(video, seen, options.fps).image)
+                             options.neutral_s, lambda seen: _frame_again(video, seen, options.fps).image, options.find_rest)
         if options.smooth:
             track.frames = smooth_track(track.frames, *model.expression_range, fast=lid_weights(model.expression_names))
         calibration = None
         if track.neutral is not None:
             size = np.linalg.norm(track.neutral.offsets, axis=1)
-            calibration = {"time_s": options.neutral_s, "frames": track.neutral.frames,
+            calibration = {"time_s": track.neutral.time_s, "frames": track.neutral.frames,
+                           "chosen": "given" if options.neutral_s is not None else "the clip's most typical still stretch",
+                           "distance_from_median_expression": None if track.rest is None else track.rest.distance,
                            "rule": "each frame's landmarks and dense points measured from where the detector put the person's at rest in "
                                    "these frames (their offsets from the clip's identity with no expression, turning with the head), in "
                                    f"full within {NEUTRAL_FADE_DEG[0]:g} deg of the head's rotation there, none beyond "

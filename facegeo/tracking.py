@@ -26,9 +26,10 @@ where it is lost). A clip long enough is observed and solved in two halves at on
 in a forked process (:data:`MIN_PART_FRAMES`). What was observed waits for the identity in an
 unnamed temporary file (:class:`~facegeo.observed_frames.ObservedFrames`), not in memory. :func:`smooth_track`
 takes the frame-to-frame jitter out afterwards; a cut to another person is told by the face
-descriptor (:func:`observe_frames`). Given a time at which the face is at rest, every frame's
-points are measured from the person's own there (:func:`neutral_offsets`). What is not done yet
-(issue 48): gaze (eye rotations).
+descriptor (:func:`observe_frames`). Every frame's points are measured from the person's own at
+rest (:func:`neutral_offsets`), at a given time, or, where none is given, at the clip's most
+typical still stretch (:func:`rest_stretch`) when it is typical enough to be the face at rest (the
+frames are then solved again). What is not done yet (issue 48): gaze (eye rotations).
 """
 
 from __future__ import annotations
@@ -62,7 +63,7 @@ from facegeo.observed_frames import ObservedFrame, ObservedFrames
 __all__ = ["TrackedFrame", "Track", "ClipIdentity", "track_frames", "observe_frames", "clip_identity",
            "follow_region", "spanning_frames", "lid_weights", "track_observed", "solve_frame", "smooth_track", "SolveStart",
            "turned_brow_weights", "TURNED_BROW_RAMP", "NeutralOffsets", "neutral_offsets", "NEUTRAL_POSE_STAGE", "NEUTRAL_WINDOW_S",
-           "NEUTRAL_FADE_DEG",
+           "NEUTRAL_FADE_DEG", "RestStretch", "rest_stretch", "REST_DISTANCE", "REST_TURN_DEG",
            "TRACK_STAGE", "KEYFRAMES", "FOLLOW_MARGIN", "POSE_WINDOW", "WEIGHT_WINDOW", "SLOW_WEIGHT_WINDOW",
            "IDENTITY_CHECK_EVERY", "HELD_FRAMES", "HELD_BYTES", "BROW_ALONG_NOISE", "IDENTITY_DETECTOR", "face_region_only"]
 
@@ -131,7 +132,8 @@ class Track:
     in order, ``timings`` (s by stage), ``notes`` and ``open_lids`` (2,), the lid reader's open
     gap over the model's per eye (:class:`ClipIdentity`; None where the blinks were fitted);
     ``neutral``, the person's points at rest every frame was measured from (:func:`neutral_offsets`;
-    None: none given)."""
+    None: as observed); ``rest``, the clip's most typical still stretch where it was looked for
+    (:func:`rest_stretch`; also when it was not typical enough to be taken as the face at rest)."""
 
     alpha: np.ndarray
     camera: Camera
@@ -141,6 +143,7 @@ class Track:
     notes: list[str] = field(default_factory=list)
     open_lids: np.ndarray | None = None
     neutral: NeutralOffsets | None = None
+    rest: RestStretch | None = None
 
     @property
     def keyframes(self) -> list[int]:
@@ -167,7 +170,7 @@ class ClipIdentity:
 def track_frames(frames: Iterable[Any], model: MorphableModel, detector: str = "lids", focal: float | None = None,
                  keyframes: int = KEYFRAMES, progress: Callable[[int], None] | None = None, source: str = "<video>",
                  rest: Callable[[], Iterable[Any]] | None = None, neutral_s: float | None = None,
-                 frame_image: Callable[[ObservedFrame], np.ndarray | None] | None = None) -> Track:
+                 frame_image: Callable[[ObservedFrame], np.ndarray | None] | None = None, find_rest: bool = True) -> Track:
     """Track the face through ``frames`` (module docstring): :func:`observe_frames`, then
     :func:`clip_identity`, then :func:`track_observed`.
 
@@ -182,8 +185,13 @@ def track_frames(frames: Iterable[Any], model: MorphableModel, detector: str = "
         source: the video's name, for errors.
         rest: opens the frames after ``frames``, observed beside them (:func:`observe_frames`).
         neutral_s: seconds (the frames' clock) at which the face is at rest: every frame's points
-            are measured from the person's own there (:func:`neutral_offsets`); None: as observed.
+            are measured from the person's own there (:func:`neutral_offsets`); None: see
+            ``find_rest``.
         frame_image: a keyframe's pixels decoded again, for its identity view (:func:`clip_identity`).
+        find_rest: without ``neutral_s``, look for the face at rest (:func:`rest_stretch`): where
+            the clip's most typical still stretch is within :data:`REST_DISTANCE` of its median
+            expression, every frame is solved again measured from the person's points there;
+            otherwise (and with False) as observed, with a note.
     Returns:
         The :class:`Track`.
     Raises:
@@ -201,8 +209,22 @@ def track_frames(frames: Iterable[Any], model: MorphableModel, detector: str = "
     start = time.perf_counter()
     tracked = track_observed(model, observed, shared, offsets=offsets)
     timings["track"] = time.perf_counter() - start
-    return Track(shared.alpha.astype(np.float32), shared.camera, shared.noise, tracked, timings, shared.notes, shared.open_lids,
-                 offsets)
+    notes, found_rest = list(shared.notes), None
+    if neutral_s is None and find_rest:
+        start = time.perf_counter()
+        found_rest = rest_stretch(model, tracked)
+        if found_rest is not None and found_rest.distance <= REST_DISTANCE:
+            offsets = neutral_offsets(model, observed, shared, found_rest.time_s, source)
+            tracked = track_observed(model, observed, shared, offsets=offsets)
+            notes.append(f"expressions measured from the face at rest at {found_rest.time_s:.2f} s (the clip's most typical still "
+                         f"stretch; --neutral S to choose the time, --neutral none for the points as observed)")
+        else:
+            notes.append("expressions measured from the points as observed: no stretch of the clip holds its typical face "
+                         f"still{'' if found_rest is None else f' (the closest: {found_rest.distance:.2f} at {found_rest.time_s:.2f} s)'}; "
+                         "--neutral S gives a time at which the face is at rest")
+        timings["rest"] = time.perf_counter() - start
+    return Track(shared.alpha.astype(np.float32), shared.camera, shared.noise, tracked, timings, notes, shared.open_lids,
+                 offsets, found_rest)
 
 
 def observe_frames(frames: Iterable[Any], model: MorphableModel, detector: str = "lids",
@@ -895,13 +917,14 @@ class NeutralOffsets:
     the 88 landmarks' and the K dense points' places on that neutral face in model space;
     ``offsets`` (88 + K, 3) mm, model space, what the detector adds to them; ``frames``, the
     source indices of the neutral frames they were measured on; ``rest_rotation`` (3, 3), the
-    head's rotation there (their mean). A detector's bias depends on the view: measured in one,
+    head's rotation there (their mean); ``time_s``, the time they were measured at. A detector's bias depends on the view: measured in one,
     the offsets hold near it and fade as the head turns away from it (:meth:`share`)."""
 
     points: np.ndarray
     offsets: np.ndarray
     frames: list[int]
     rest_rotation: np.ndarray
+    time_s: float
 
     def shift(self, rotation: np.ndarray, translation: np.ndarray, camera: Camera) -> np.ndarray:
         """(88 + K, 2) px: how far the offsets move the points' images with the head posed by
@@ -989,7 +1012,80 @@ def neutral_offsets(model: MorphableModel, observed: Sequence[ObservedFrame], sh
     offsets[sliding | ~np.isfinite(offsets).all(axis=1)] = 0.0
     u, _, vt = np.linalg.svd(np.sum(rotations, axis=0))  # the rotations' chordal mean
     mean = u @ np.diag([1.0, 1.0, np.linalg.det(u @ vt)]) @ vt
-    return NeutralOffsets(points, offsets, [frame.index for frame in near], mean)
+    return NeutralOffsets(points, offsets, [frame.index for frame in near], mean, float(time_s))
+
+
+#: A stretch of the clip is the face at rest (:func:`rest_stretch`, :func:`track_frames`) when
+#: its mean distance from the clip's median expression is at most this (the L1 distance of the
+#: ICT weights other than the eyes'). Measured (benchmarks/RESULTS.md, "the face at rest found in
+#: the clip"): the ground-truth take, at rest half of its 23.7 s, 0.17; three real clips of people
+#: talking and smiling throughout 0.61, 0.89 and 0.93 (no rest found, the points as observed).
+REST_DISTANCE = 0.3
+#: :func:`rest_stretch` looks for the face at rest within this many degrees of the clip's typical
+#: head rotation (the points at rest hold in full only near the view they were measured in,
+#: :data:`NEUTRAL_FADE_DEG`).
+REST_TURN_DEG = 10.0
+
+
+@dataclass(frozen=True)
+class RestStretch:
+    """The clip's most typical still stretch (:func:`rest_stretch`): ``time_s``, its middle
+    (seconds, the frames' clock); ``distance``, its frames' mean L1 distance from the clip's
+    median expression (the ICT weights other than the eyes')."""
+
+    time_s: float
+    distance: float
+
+
+def _angles_deg(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """The angles (degrees) between rotations ``a`` (N, 3, 3) and ``b`` (3, 3) or (N, 3, 3)."""
+    trace = np.einsum("kij,kij->k", a, np.broadcast_to(b, a.shape))
+    return np.degrees(np.arccos(np.clip((trace - 1.0) / 2.0, -1.0, 1.0)))
+
+
+def rest_stretch(model: MorphableModel, frames: Sequence[TrackedFrame]) -> RestStretch | None:
+    """The stretch of :data:`NEUTRAL_WINDOW_S` either side of a frame (at least 3 frames with a
+    face, each within :data:`REST_TURN_DEG` of the clip's typical head rotation, the frame whose
+    rotation is nearest the others' by the median chordal distance, and within the first of
+    :data:`NEUTRAL_FADE_DEG` of the middle frame's: the head still, where the offsets measured
+    there hold in full) whose frames' expressions
+    (the weights other than the eyes': the lids blink at rest) are nearest the clip's median
+    expression, per weight: the face the clip shows most, which in a take that holds the face
+    still at rest for a good part of it is the face at rest (a detector's bias for this person's
+    face at rest, explained by the model as an expression, is in every frame and so in the median;
+    a smile explains the same points with less weight, so the smallest weights would not find the
+    rest). None where no stretch qualifies. Pass 1 of :func:`track_frames`'s tracked ``frames``.
+
+    A person who talks or smiles throughout has no such stretch near the median: its distance
+    tells (:data:`REST_DISTANCE`)."""
+    found = [f for f in frames if f.found]
+    if len(found) < 3:
+        return None
+    expressive = ~lid_weights(model.expression_names)
+    weights = np.stack([np.asarray(f.delta, np.float64)[expressive] for f in found])
+    distance = np.abs(weights - np.median(weights, axis=0)).sum(axis=1)
+    rotations = np.stack([np.asarray(f.rotation, np.float64) for f in found])
+    sample = rotations[:: max(1, len(found) // 200)]  # the typical rotation among at most ~200 frames
+    typical = sample[np.argmin(np.median(np.linalg.norm(sample[:, None] - sample[None], axis=(2, 3)), axis=1))]
+    turn = _angles_deg(rotations, typical)
+    times = np.array([f.time_s for f in found])
+    first = np.searchsorted(times, times - NEUTRAL_WINDOW_S, "left")
+    last = np.searchsorted(times, times + NEUTRAL_WINDOW_S, "right")
+    summed = np.concatenate([[0.0], np.cumsum(distance)])
+    turned = np.concatenate([[0], np.cumsum(turn > REST_TURN_DEG)])
+    count = last - first
+    usable = (count >= 3) & (turned[last] == turned[first])
+    middle = np.arange(len(found))
+    for shift in range(1, int(max((middle - first).max(), (last - 1 - middle).max())) + 1):  # the head still in the stretch
+        for other in (middle - shift, middle + shift):
+            inside = (other >= first) & (other < last)
+            moved = _angles_deg(rotations[np.clip(other, 0, len(found) - 1)], rotations) > NEUTRAL_FADE_DEG[0]
+            usable &= ~(inside & moved)
+    if not usable.any():
+        return None
+    mean = np.where(usable, (summed[last] - summed[first]) / np.maximum(count, 1), np.inf)
+    best = int(np.argmin(mean))
+    return RestStretch(float(times[best]), float(mean[best]))
 
 
 def lid_weights(names: list[str] | tuple[str, ...]) -> np.ndarray:

@@ -115,7 +115,7 @@ def test_facegeo_track_writes_a_take_the_live_link_reader_reads(tmp_path):
     assert record["frames_with_face"] == len(ROLLS) - 1 and record["fps"] == pytest.approx(10.0)
     assert record["blinks"]["shut_fraction"] > 0 and 0.5 < record["blinks"]["open_gap_over_model"]["left"] < 2.0
     calibration = record["neutral_calibration"]  # the frames within 0.25 s of 0.2 s
-    assert calibration["time_s"] == 0.2 and calibration["frames"] == [0, 1, 2, 3, 4]
+    assert calibration["time_s"] == 0.2 and calibration["frames"] == [0, 1, 2, 3, 4] and calibration["chosen"] == "given"
     assert 0.0 < calibration["offsets_mm"]["landmarks_median"] <= calibration["offsets_mm"]["landmarks_max"] < 20.0
     # the frame without a face repeats its nearest tracked neighbour's values (flagged in track.json)
     np.testing.assert_array_equal(take.weights[NO_FACE], take.weights[NO_FACE - 1])
@@ -160,6 +160,14 @@ def test_a_video_without_any_face_is_one_line(tmp_path):
     assert done.returncode == 2
     assert done.stderr.strip().splitlines() == [f"facegeo: error: {clip}: face: expected a face in at least one frame, found none in 3 frames"]
     assert not (tmp_path / "out").exists()
+
+
+def test_a_neutral_that_is_no_time_is_one_line(tmp_path):
+    done = subprocess.run([sys.executable, "-m", "facegeo.cli", "track", str(tmp_path / "clip.mp4"), "-o", str(tmp_path / "out"),
+                           "--neutral", "soon"], capture_output=True, text=True, timeout=300)
+    assert done.returncode == 2
+    assert done.stderr.strip().splitlines() == ["facegeo: error: <command line>: --neutral: expected a time in seconds >= 0, auto or none, "
+                                                "found soon"]
 
 
 def test_the_same_person_is_followed_when_a_larger_face_comes_into_the_frame(model):
@@ -283,7 +291,7 @@ from facegeo.jobs import TrackOptions, track_into_folder
 clip, out = sys.argv[1], sys.argv[2]
 forks, fork_call = [], forked.fork_call
 forked.fork_call = lambda function, *args, **kwargs: forks.append(function.__name__) or fork_call(function, *args, **kwargs)
-options = TrackOptions(asset=False, smooth=False, keyframes=3, every=int(sys.argv[3]))
+options = TrackOptions(asset=False, smooth=False, keyframes=3, every=int(sys.argv[3]), find_rest=False)  # one pass of the solve
 two = track_into_folder(clip, out + "/two", options)
 forked.can_fork = lambda: False
 one = track_into_folder(clip, out + "/one", options)
@@ -582,6 +590,47 @@ def _posed_observation(model, alpha, delta, rotation, bias, camera):
     pixels = project(points, rotation, np.array([0.0, 0.0, -1000.0]), camera)
     blank = np.zeros((camera.height, camera.width, 3), np.uint8)
     return PhotoObservation(blank, "<test>", blank, model, pixels, camera, None, None, None, {}, [])
+
+
+def _clip_frames(model, deltas: np.ndarray, yaws: np.ndarray, fps: float = 30.0) -> list:
+    """Tracked frames (no images) with these expression weights (N, n_exp) and head yaws (N,) degrees."""
+    from facegeo.camera import rotation_from_euler
+    from facegeo.tracking import TrackedFrame
+
+    return [TrackedFrame(k, k / fps, True, rotation_from_euler(float(yaw), 0.0, 0.0), np.array([0.0, 0.0, -600.0]),
+                         d.astype(np.float32)) for k, (d, yaw) in enumerate(zip(deltas, yaws))]
+
+
+def test_the_face_at_rest_is_the_clips_most_typical_still_stretch_not_its_smallest_weights(model):
+    """A take at rest for most of its 3 s, whose detector bias reads as a stretch, a press and
+    the jaw forward at rest (0.7 in all), with a smile that explains its frames with less weight
+    (0.6): the rest is found, not the smile, and not in the first half second, where the face at
+    rest is turned 25 degrees from the clip's typical view; its frames are at the clip's median
+    (distance 0 <= REST_DISTANCE). A person who talks throughout has no such stretch, and a head
+    that never holds still (4 degrees between frames) none at all."""
+    from facegeo.tracking import NEUTRAL_WINDOW_S, REST_DISTANCE, REST_TURN_DEG, rest_stretch
+
+    names = list(model.expression_names)
+    at_rest = np.zeros(model.n_exp)
+    at_rest[[names.index(n) for n in ("mouthStretch_L", "mouthStretch_R")]] = 0.2
+    at_rest[[names.index(n) for n in ("mouthPress_L", "jawForward")]] = 0.15
+    smile = np.zeros(model.n_exp)
+    smile[[names.index(n) for n in ("mouthSmile_L", "mouthSmile_R")]] = 0.3
+    deltas = np.array([at_rest] * 60 + [smile] * 30)
+    deltas[:, names.index("eyeBlink_L")] = np.where(np.arange(90) % 20 < 2, 1.0, 0.0)  # blinks at rest count for nothing
+    yaws = np.where(np.arange(90) < 15, REST_TURN_DEG + 15.0, 0.0)
+    found = rest_stretch(model, _clip_frames(model, deltas, yaws))
+    assert found is not None and abs(found.distance) < 1e-6
+    assert 14 / 30 < found.time_s - NEUTRAL_WINDOW_S and found.time_s + NEUTRAL_WINDOW_S < 60 / 30, found  # its frames: 15-59
+
+    rng = np.random.default_rng(3)
+    talking = np.zeros((90, model.n_exp))
+    for name in ("jawOpen", "mouthSmile_L", "mouthSmile_R", "mouthFunnel", "mouthRollLower"):
+        talking[:, names.index(name)] = np.clip(0.3 + 0.25 * np.sin(np.arange(90) * rng.uniform(0.5, 1.5) + rng.uniform(0, 6)), 0, 1)
+    found = rest_stretch(model, _clip_frames(model, talking, np.zeros(90)))
+    assert found is not None and found.distance > REST_DISTANCE
+    assert rest_stretch(model, _clip_frames(model, deltas, np.full(90, 40.0))[:2]) is None  # too few frames
+    assert rest_stretch(model, _clip_frames(model, deltas, np.where(np.arange(90) % 2, 4.0, 0.0))) is None  # the head never still
 
 
 def test_the_points_at_rest_are_measured_and_taken_off(model):

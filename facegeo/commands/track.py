@@ -37,9 +37,11 @@ def _arguments(parser: argparse.ArgumentParser) -> None:
                        help="focal length in pixels of the frames; default: one focal for the clip, estimated from the face")
     group.add_argument("--keyframes", type=int, default=5, metavar="K",
                        help="frames spanning the head's turn that the identity is fitted to (default 5)")
-    parser.add_argument("--neutral", type=float, default=None, metavar="S",
+    parser.add_argument("--neutral", default="auto", metavar="S|auto|none",
                         help="seconds into the video at which the face is at rest: the person's landmarks at rest are measured there "
-                             "and every expression from them, as Live Link Face's calibration (default: as observed)")
+                             "and every expression from them, as Live Link Face's calibration; auto (the default): at the clip's "
+                             "most typical still stretch where it holds the face at rest (a note says where, or that none does); "
+                             "none: the points as observed")
     parser.add_argument("--no-smooth", action="store_true",
                         help="write each frame's own fit (no smoothing of the pose and the weights over neighbouring frames)")
     parser.add_argument("--no-asset", action="store_true",
@@ -51,11 +53,17 @@ def _run(args: argparse.Namespace) -> None:
 
     if args.keyframes < 1:  # (--start, --end, --every and --fps are checked by facegeo.video.open_video, naming the video)
         raise InputError(COMMAND_LINE, "--keyframes", "an integer >= 1", str(args.keyframes))
-    if args.neutral is not None and not (math.isfinite(args.neutral) and args.neutral >= 0):
-        raise InputError(COMMAND_LINE, "--neutral", "a time in seconds >= 0", str(args.neutral))
+    neutral_s = None
+    if args.neutral not in ("auto", "none"):
+        try:
+            neutral_s = float(args.neutral)
+        except ValueError:
+            neutral_s = math.nan
+        if not (math.isfinite(neutral_s) and neutral_s >= 0):
+            raise InputError(COMMAND_LINE, "--neutral", "a time in seconds >= 0, auto or none", args.neutral)
     options = TrackOptions(model=args.model, landmarks=args.landmarks, focal=args.focal, start_s=args.start, end_s=args.end,
                            every=args.every, keyframes=args.keyframes, asset=not args.no_asset,
-                           smooth=not args.no_smooth, neutral_s=args.neutral, fps=args.fps)
+                           smooth=not args.no_smooth, neutral_s=neutral_s, fps=args.fps, find_rest=args.neutral == "auto")
     live = sys.stderr.isatty()
 
     def progress(frames: int, rate: float) -> None:
