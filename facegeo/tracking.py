@@ -917,8 +917,9 @@ class NeutralOffsets:
     the 88 landmarks' and the K dense points' places on that neutral face in model space;
     ``offsets`` (88 + K, 3) mm, model space, what the detector adds to them; ``frames``, the
     source indices of the neutral frames they were measured on; ``rest_rotation`` (3, 3), the
-    head's rotation there (their mean); ``time_s``, the time they were measured at. A detector's bias depends on the view: measured in one,
-    the offsets hold near it and fade as the head turns away from it (:meth:`share`)."""
+    head's rotation there (their mean); ``time_s``, the time they were measured at. A detector's
+    bias depends on the view: measured in one, the offsets hold near it and fade as the head turns
+    away from it (:meth:`share`)."""
 
     points: np.ndarray
     offsets: np.ndarray
@@ -937,8 +938,7 @@ class NeutralOffsets:
         """The share of the offsets that holds with the head turned by ``rotation`` (3, 3): 1
         within the first of :data:`NEUTRAL_FADE_DEG` of :attr:`rest_rotation`, 0 beyond the
         second, linear between."""
-        cos = (np.trace(np.asarray(rotation, np.float64) @ self.rest_rotation.T) - 1.0) / 2.0
-        angle = np.degrees(np.arccos(np.clip(cos, -1.0, 1.0)))
+        angle = float(_angles_deg(np.asarray(rotation, np.float64)[None], self.rest_rotation)[0])
         full, none = NEUTRAL_FADE_DEG
         return float(np.clip((none - angle) / (none - full), 0.0, 1.0))
 
