@@ -653,8 +653,8 @@ def track_into_folder(video: str | Path, output: str | Path, options: TrackOptio
     from facegeo.staged_output import StagedOutput, locked_output
     from facegeo.landmarks.eyelids import SHUT_FRACTION
     from facegeo.landmarks.scheme import N_LANDMARKS
-    from facegeo.tracking import (NEUTRAL_FADE_DEG, POSE_WINDOW, SLOW_WEIGHT_WINDOW, WEIGHT_WINDOW, lid_weights, smooth_track,
-                                  track_frames)
+    from facegeo.tracking import (BROW_FLOW_RETURN_PX, BROW_FLOW_WEIGHT, NEUTRAL_FADE_DEG, POSE_WINDOW, SLOW_WEIGHT_WINDOW,
+                                  WEIGHT_WINDOW, lid_weights, smooth_track, track_frames)
     from facegeo.video import open_video
 
     options = TrackOptions() if options is None else options
@@ -665,7 +665,8 @@ def track_into_folder(video: str | Path, output: str | Path, options: TrackOptio
         frames, rest = _clip_parts(video, info, frames, options)
         report = None if progress is None else (lambda n: progress(n, n / max(time.perf_counter() - start, 1e-9)))
         track = track_frames(frames, model, options.landmarks, options.focal, options.keyframes, report, str(video), rest,
-                             options.neutral_s, lambda seen: _frame_again(video, seen, options.fps).image, options.find_rest)
+                             options.neutral_s, lambda seen: _frame_again(video, seen, options.fps).image, options.find_rest,
+                             lambda time_s: open_video(video, time_s, options.end_s, 1, options.fps)[1])
         if options.smooth:
             track.frames = smooth_track(track.frames, *model.expression_range, fast=lid_weights(model.expression_names))
         calibration = None
@@ -678,6 +679,10 @@ def track_into_folder(video: str | Path, output: str | Path, options: TrackOptio
                                    "these frames (their offsets from the clip's identity with no expression, turning with the head), in "
                                    f"full within {NEUTRAL_FADE_DEG[0]:g} deg of the head's rotation there, none beyond "
                                    f"{NEUTRAL_FADE_DEG[1]:g} deg",
+                           "brow_flow": ({"points": track.brow_flow, "weight": BROW_FLOW_WEIGHT,
+                                          "rule": "the brows' region points of the middle frame at rest carried into each frame the "
+                                                  "offsets reach by pyramidal Lucas-Kanade optical flow (kept where the flow back returns "
+                                                  f"within {BROW_FLOW_RETURN_PX:g} px)"} if track.brow_flow else None),
                            "offsets_mm": {"landmarks_median": float(np.median(size[:N_LANDMARKS])),
                                           "landmarks_max": float(size[:N_LANDMARKS].max()),
                                           "dense_median": float(np.median(size[N_LANDMARKS:])) if len(size) > N_LANDMARKS else None}}

@@ -29,7 +29,9 @@ takes the frame-to-frame jitter out afterwards; a cut to another person is told 
 descriptor (:func:`observe_frames`). Every frame's points are measured from the person's own at
 rest (:func:`neutral_offsets`), at a given time, or, where none is given, at the clip's most
 typical still stretch (:func:`rest_stretch`) when it is typical enough to be the face at rest (the
-frames are then solved again). What is not done yet (issue 48): gaze (eye rotations).
+frames are then solved again); where the frames can be decoded again, the brows' region of the
+face at rest is then carried into each frame by optical flow (:class:`BrowFlow`). What is not done
+yet (issue 48): gaze (eye rotations).
 """
 
 from __future__ import annotations
@@ -63,7 +65,8 @@ from facegeo.observed_frames import ObservedFrame, ObservedFrames
 __all__ = ["TrackedFrame", "Track", "ClipIdentity", "track_frames", "observe_frames", "clip_identity",
            "follow_region", "spanning_frames", "lid_weights", "track_observed", "solve_frame", "smooth_track", "SolveStart",
            "turned_brow_weights", "TURNED_BROW_RAMP", "NeutralOffsets", "neutral_offsets", "NEUTRAL_POSE_STAGE", "NEUTRAL_WINDOW_S",
-           "NEUTRAL_FADE_DEG", "RestStretch", "rest_stretch", "REST_DISTANCE", "REST_TURN_DEG",
+           "NEUTRAL_FADE_DEG", "RestStretch", "rest_stretch", "REST_DISTANCE", "REST_TURN_DEG", "BrowFlow", "brow_flow",
+           "BROW_FLOW_WEIGHT", "BROW_FLOW_RETURN_PX", "BROW_FLOW_WINDOW", "BROW_FLOW_LEVELS",
            "TRACK_STAGE", "KEYFRAMES", "FOLLOW_MARGIN", "POSE_WINDOW", "WEIGHT_WINDOW", "SLOW_WEIGHT_WINDOW",
            "IDENTITY_CHECK_EVERY", "HELD_FRAMES", "HELD_BYTES", "BROW_ALONG_NOISE", "IDENTITY_DETECTOR", "face_region_only"]
 
@@ -133,7 +136,9 @@ class Track:
     gap over the model's per eye (:class:`ClipIdentity`; None where the blinks were fitted);
     ``neutral``, the person's points at rest every frame was measured from (:func:`neutral_offsets`;
     None: as observed); ``rest``, the clip's most typical still stretch where it was looked for
-    (:func:`rest_stretch`; also when it was not typical enough to be taken as the face at rest)."""
+    (:func:`rest_stretch`; also when it was not typical enough to be taken as the face at rest);
+    ``brow_flow``, the number of brow points carried by optical flow from the face at rest
+    (:class:`BrowFlow`; 0 without)."""
 
     alpha: np.ndarray
     camera: Camera
@@ -144,6 +149,7 @@ class Track:
     open_lids: np.ndarray | None = None
     neutral: NeutralOffsets | None = None
     rest: RestStretch | None = None
+    brow_flow: int = 0
 
     @property
     def keyframes(self) -> list[int]:
@@ -170,7 +176,8 @@ class ClipIdentity:
 def track_frames(frames: Iterable[Any], model: MorphableModel, detector: str = "lids", focal: float | None = None,
                  keyframes: int = KEYFRAMES, progress: Callable[[int], None] | None = None, source: str = "<video>",
                  rest: Callable[[], Iterable[Any]] | None = None, neutral_s: float | None = None,
-                 frame_image: Callable[[ObservedFrame], np.ndarray | None] | None = None, find_rest: bool = True) -> Track:
+                 frame_image: Callable[[ObservedFrame], np.ndarray | None] | None = None, find_rest: bool = True,
+                 frames_again: Callable[[float], Iterable[Any]] | None = None) -> Track:
     """Track the face through ``frames`` (module docstring): :func:`observe_frames`, then
     :func:`clip_identity`, then :func:`track_observed`.
 
@@ -192,6 +199,9 @@ def track_frames(frames: Iterable[Any], model: MorphableModel, detector: str = "
             the clip's most typical still stretch is within :data:`REST_DISTANCE` of its median
             expression, every frame is solved again measured from the person's points there;
             otherwise (and with False) as observed, with a note.
+        frames_again: opens the frames again from a time (s, the frames' clock; they may begin
+            before it): with the person's points at rest, the brows' region of the frame at rest is
+            carried into each frame by optical flow (:class:`BrowFlow`); None: not.
     Returns:
         The :class:`Track`.
     Raises:
@@ -205,9 +215,10 @@ def track_frames(frames: Iterable[Any], model: MorphableModel, detector: str = "
     start = time.perf_counter()
     shared = clip_identity(model, observed, size, focal, keyframes, source, frame_image)
     offsets = None if neutral_s is None else neutral_offsets(model, observed, shared, neutral_s, source)
+    flow = None if offsets is None or frames_again is None else brow_flow(model, observed, offsets, frames_again)
     timings["identity"] = time.perf_counter() - start
     start = time.perf_counter()
-    tracked = track_observed(model, observed, shared, offsets=offsets)
+    tracked = track_observed(model, observed, shared, offsets=offsets, flow=flow)
     timings["track"] = time.perf_counter() - start
     notes, found_rest = list(shared.notes), None
     if neutral_s is None and find_rest:
@@ -215,7 +226,8 @@ def track_frames(frames: Iterable[Any], model: MorphableModel, detector: str = "
         found_rest = rest_stretch(model, tracked)
         if found_rest is not None and found_rest.distance <= REST_DISTANCE:
             offsets = neutral_offsets(model, observed, shared, found_rest.time_s, source)
-            tracked = track_observed(model, observed, shared, offsets=offsets)
+            flow = None if frames_again is None else brow_flow(model, observed, offsets, frames_again)
+            tracked = track_observed(model, observed, shared, offsets=offsets, flow=flow)
             notes.append(f"expressions measured from the face at rest at {found_rest.time_s:.2f} s (the clip's most typical still "
                          f"stretch; --neutral S to choose the time, --neutral none for the points as observed)")
         else:
@@ -224,7 +236,7 @@ def track_frames(frames: Iterable[Any], model: MorphableModel, detector: str = "
                          "--neutral S gives a time at which the face is at rest")
         timings["rest"] = time.perf_counter() - start
     return Track(shared.alpha.astype(np.float32), shared.camera, shared.noise, tracked, timings, notes, shared.open_lids,
-                 offsets, found_rest)
+                 offsets, found_rest, 0 if flow is None else len(flow.rows))
 
 
 def observe_frames(frames: Iterable[Any], model: MorphableModel, detector: str = "lids",
@@ -665,10 +677,13 @@ def _without_lids(model: MorphableModel, delta: np.ndarray) -> np.ndarray:
 
 
 def track_observed(model: MorphableModel, observed: Sequence[ObservedFrame], shared: ClipIdentity,
-                   stage: LandmarkStage = TRACK_STAGE, parts: int = 2, offsets: NeutralOffsets | None = None) -> list[TrackedFrame]:
+                   stage: LandmarkStage = TRACK_STAGE, parts: int = 2, offsets: NeutralOffsets | None = None,
+                   flow: BrowFlow | None = None) -> list[TrackedFrame]:
     """Every observed frame's pose and expression with the clip's identity fixed (module
     docstring, step 4), ``stage`` the per-frame solve (its ``n_id`` must be 0: the identity stays),
-    the points measured from the person's at rest where ``offsets`` are given (:func:`solve_frame`).
+    the points measured from the person's at rest where ``offsets`` are given (:func:`solve_frame`),
+    and with ``flow`` (which needs them) the brows' region of the face at rest carried into each
+    frame the offsets reach (:meth:`BrowFlow.carried`).
 
     ``parts`` 2: a clip of at least 2 × :data:`MIN_PART_FRAMES` frames is solved in two halves at
     once, the second by a forked child (:mod:`facegeo.forked_call`, where it
@@ -680,9 +695,9 @@ def track_observed(model: MorphableModel, observed: Sequence[ObservedFrame], sha
         raise InputError("<argument>", "stage", "a stage that leaves the identity out (n_id 0)", repr(stage.n_id))
     split = len(observed) // 2 if parts >= 2 and len(observed) >= 2 * MIN_PART_FRAMES and can_fork() else len(observed)
     first, second = beside_child(
-        lambda: fork_call(_track_part, model, observed, shared, stage, split, len(observed), offsets) if split < len(observed) else None,
-        lambda: _track_part(model, observed, shared, stage, 0, split, offsets),
-        lambda lost: _track_part(model, observed, shared, stage, split, len(observed), offsets))
+        lambda: fork_call(_track_part, model, observed, shared, stage, split, len(observed), offsets, flow) if split < len(observed) else None,
+        lambda: _track_part(model, observed, shared, stage, 0, split, offsets, flow),
+        lambda lost: _track_part(model, observed, shared, stage, split, len(observed), offsets, flow))
     return first + second
 
 
@@ -693,10 +708,11 @@ MIN_PART_FRAMES = 30
 
 
 def _track_part(model: MorphableModel, observed: Sequence[ObservedFrame], shared: ClipIdentity, stage: LandmarkStage, first: int,
-                end: int, offsets: NeutralOffsets | None = None) -> list[TrackedFrame]:
+                end: int, offsets: NeutralOffsets | None = None, flow: BrowFlow | None = None) -> list[TrackedFrame]:
     """:func:`track_observed` on ``observed[first:end]``, the first from solvePnP."""
     out: list[TrackedFrame] = []
     previous = None
+    images = None if flow is None or offsets is None or first >= end else _FramesInOrder(flow.frames_again(observed[first].time_s))
     for k in range(first, end):
         frame = observed[k]
         obs = frame.observation
@@ -715,6 +731,11 @@ def _track_part(model: MorphableModel, observed: Sequence[ObservedFrame], shared
             open_gaps = shared.open_lids * eyelids.model_lid_gaps(model, shared.alpha, _without_lids(model, delta), rotation, translation,
                                                           shared.camera)
             measured = eyelids.blinks(frame.lid_gaps, open_gaps, rotation)
+        if images is not None and obs.surface_points is not None:  # the brows' flow, where the offsets reach
+            turn = previous.rotation if previous is not None else initial_pose(model, obs.landmarks, shared.camera)[0]
+            image = images.at(frame.index) if offsets.share(turn) > 0.0 else None
+            if image is not None:
+                obs = flow.carried(obs, image)
         fit = solve_frame(model, obs, shared.camera, shared.alpha, shared.noise, previous, stage, measured, offsets).fit
         previous = SolveStart(fit.rotation, fit.translation, shared.alpha, fit.delta)
         out.append(TrackedFrame(frame.index, frame.time_s, True, fit.rotation, fit.translation, fit.delta,
@@ -1035,6 +1056,105 @@ class RestStretch:
 
     time_s: float
     distance: float
+
+
+#: A brow point carried by the optical flow from the face at rest (:class:`BrowFlow`) weighs this
+#: many times the dense point it replaces. On the ground-truth take (benchmarks/RESULTS.md, "the
+#: brows carried from the face at rest"), curves passing of 14, mp4 / PNG: 3: 12 / 13, 5: 13 / 13,
+#: 8: 13 / 13, 16: 13 / 13; the head's median error 1.24, 1.32, 1.41, 1.55°.
+BROW_FLOW_WEIGHT = 5.0
+#: A carried point is kept where the flow back from the frame lands within this many pixels of
+#: where it started (the forward-backward check: an occluded or changed patch does not return).
+BROW_FLOW_RETURN_PX = 0.3
+#: Pyramidal Lucas–Kanade's window (px, square) and pyramid levels for the brows' flow.
+BROW_FLOW_WINDOW = 21
+BROW_FLOW_LEVELS = 3
+
+
+@dataclass(frozen=True)
+class BrowFlow:
+    """The brows' region of the face at rest, carried into other frames by optical flow
+    (:meth:`carried`): a 2-D detector spaces its brow points along the brow by its own shape
+    prior and misses the brow's motion along itself (the model's browDown moves the brow 2-5 mm
+    inwards and 1-4 mm down), where the skin's and the hairs' pixels show it.
+
+    ``image`` (H, W) uint8, the frame at rest in grey; ``points``, its observed dense points;
+    ``rows`` (K,) int, the brows' region's among them (:data:`BROW_REGION_MM`; measured there, not
+    on the outline); ``frames_again`` opens the clip's frames again from a time (s). The carried
+    points keep the detector's place at rest, which the person's offsets at rest
+    (:class:`NeutralOffsets`, measured on the same frames) take off. (By hand over OpenCV's
+    pyramidal Lucas–Kanade: no library tracks a face mesh's points from a reference frame.)"""
+
+    image: np.ndarray
+    points: SurfacePoints
+    rows: np.ndarray
+    frames_again: Callable[[float], Iterable[Any]]
+
+    def carried(self, seen: PhotoObservation, image: np.ndarray) -> PhotoObservation:
+        """``seen`` with its dense points of :attr:`rows` moved to where the flow from the face at
+        rest puts them in ``image`` (H, W, 3) uint8 RGB, the frame's own (its detected places the
+        flow's first guess), weighted ×:data:`BROW_FLOW_WEIGHT`; a point whose flow does not
+        return (:data:`BROW_FLOW_RETURN_PX`) keeps its detected place and weight. ``seen``
+        unchanged where its dense points are not the face at rest's (another count)."""
+        surface = seen.surface_points
+        if surface is None or len(surface) != len(self.points) or not len(self.rows):
+            return seen
+        grey = cv2.cvtColor(image, cv2.COLOR_RGB2GRAY)
+        if grey.shape != self.image.shape:
+            return seen
+        start = self.points.targets[self.rows].astype(np.float32).reshape(-1, 1, 2)
+        detected = surface.targets[self.rows].astype(np.float32).reshape(-1, 1, 2)
+        guess = np.where(np.isfinite(detected), detected, start)
+        lk = {"winSize": (BROW_FLOW_WINDOW, BROW_FLOW_WINDOW), "maxLevel": BROW_FLOW_LEVELS, "flags": cv2.OPTFLOW_USE_INITIAL_FLOW}
+        moved, found, _ = cv2.calcOpticalFlowPyrLK(self.image, grey, start, guess.copy(), **lk)
+        back, returned, _ = cv2.calcOpticalFlowPyrLK(grey, self.image, moved, start.copy(), **lk)
+        good = (found[:, 0] == 1) & (returned[:, 0] == 1) & (np.linalg.norm((back - start).reshape(-1, 2), axis=1) < BROW_FLOW_RETURN_PX)
+        rows = self.rows[good]
+        targets, weights = surface.targets.copy(), surface.weights.copy()
+        targets[rows] = moved.reshape(-1, 2)[good]
+        weights[rows] *= BROW_FLOW_WEIGHT
+        return dataclasses.replace(seen, surface_points=SurfacePoints(targets, surface.vertex_ids, surface.barycentric, weights,
+                                                                      surface.contour, surface.expressive))
+
+
+def brow_flow(model: MorphableModel, observed: Sequence[ObservedFrame], offsets: NeutralOffsets,
+              frames_again: Callable[[float], Iterable[Any]]) -> BrowFlow | None:
+    """The :class:`BrowFlow` of the face at rest: the middle one of the frames ``offsets`` were
+    measured on, decoded again by ``frames_again``; None where that frame has no dense points or
+    is not found again."""
+    at_rest = {frame.index: frame for frame in observed if frame.observation is not None}
+    frame = at_rest.get(offsets.frames[len(offsets.frames) // 2])
+    if frame is None or frame.observation.surface_points is None:
+        return None
+    image = _FramesInOrder(frames_again(frame.time_s)).at(frame.index)
+    if image is None:
+        return None
+    points = frame.observation.surface_points
+    region = _brow_ring(model).region[points.vertex_ids].any(axis=1) & ~points.contour & np.isfinite(points.targets).all(axis=1)
+    return BrowFlow(cv2.cvtColor(image, cv2.COLOR_RGB2GRAY), points, np.flatnonzero(region), frames_again)
+
+
+class _FramesInOrder:
+    """The images of frames (``index``, ``image``) read in order from an iterable, asked for by
+    increasing index (:meth:`at`)."""
+
+    def __init__(self, frames: Iterable[Any]):
+        self._frames = iter(frames)
+        self._next: Any = None
+
+    def at(self, index: int) -> np.ndarray | None:
+        """The image (H, W, 3) uint8 RGB of the frame numbered ``index``; None where the frames
+        pass it (or end) without it."""
+        while True:
+            if self._next is None:
+                self._next = next(self._frames, None)
+                if self._next is None:
+                    return None
+            if self._next.index == index:
+                return self._next.image
+            if self._next.index > index:
+                return None
+            self._next = None
 
 
 def _angles_deg(a: np.ndarray, b: np.ndarray) -> np.ndarray:

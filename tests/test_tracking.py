@@ -682,3 +682,48 @@ def test_the_points_at_rest_are_measured_and_taken_off(model):
         from facegeo.jobs import TrackOptions
 
         TrackOptions(start_s=1.0, end_s=2.0, neutral_s=2.5)
+
+
+def test_the_brows_of_the_face_at_rest_are_carried_by_the_flow_where_it_returns():
+    """BrowFlow.carried on a textured frame moved by (2.6, -1.4) px, whose detector left its points
+    where they were at rest: the carried points land on the moved texture within 0.05 px and weigh
+    BROW_FLOW_WEIGHT times more; where the frame's patch is another texture (an occluder), the flow
+    does not return and the points keep their detected place and weight; points outside ``rows``
+    are not touched. Frames read again are found by index, in order."""
+    from facegeo.camera import Camera
+    from facegeo.fitting.landmark_problem import SurfacePoints
+    from facegeo.fitting.photo_fit import PhotoObservation
+    from facegeo.tracking import BROW_FLOW_WEIGHT, BrowFlow, _FramesInOrder
+
+    rng = np.random.default_rng(7)
+    texture = cv2.GaussianBlur(rng.uniform(0, 255, (240, 320)).astype(np.float32), (0, 0), 2.0)
+    texture = cv2.normalize(texture, None, 0, 255, cv2.NORM_MINMAX).astype(np.uint8)
+    shift = np.array([2.6, -1.4])
+    moved = cv2.warpAffine(texture, np.float32([[1, 0, shift[0]], [0, 1, shift[1]]]), (320, 240), flags=cv2.INTER_CUBIC,
+                           borderMode=cv2.BORDER_REFLECT)
+    occluder = rng.uniform(0, 255, (60, 60)).astype(np.uint8)
+    moved[150:210, 220:280] = cv2.GaussianBlur(occluder, (0, 0), 2.0)
+    points = np.array([[x, y] for y in (60.0, 100.0, 180.0) for x in (60.0, 110.0, 160.0, 250.0)])  # 12; (250, 180) occluded
+    k = len(points)
+    rest = SurfacePoints(points, np.zeros((k, 3)), np.tile([1.0, 0.0, 0.0], (k, 1)), np.ones(k))
+    rows = np.array([0, 1, 2, 4, 5, 6, 11])  # 3, 7, 8, 9, 10 are not the brows'
+    flow = BrowFlow(texture, rest, rows, lambda time_s: [])
+    detected = points.copy()
+    detected[1] = np.nan  # a point the detector did not place: the flow starts from where it was at rest
+    camera = Camera(300.0, 160.0, 120.0, 320, 240)
+    seen = PhotoObservation(np.zeros((240, 320, 3), np.uint8), "<test>", np.zeros((240, 320, 3), np.uint8), None,
+                            np.zeros((88, 2)), camera, None, None, SurfacePoints(detected, rest.vertex_ids, rest.barycentric, np.ones(k)),
+                            {}, [])
+    carried = flow.carried(seen, cv2.cvtColor(moved, cv2.COLOR_GRAY2RGB)).surface_points
+    kept = np.array([0, 1, 2, 4, 5, 6])
+    assert np.abs(carried.targets[kept] - (points[kept] + shift)).max() < 0.05
+    np.testing.assert_array_equal(carried.weights[kept], BROW_FLOW_WEIGHT)
+    np.testing.assert_array_equal(carried.targets[11], points[11])  # under the occluder: no return
+    assert carried.weights[11] == 1.0
+    others = np.setdiff1d(np.arange(k), rows)
+    np.testing.assert_array_equal(carried.targets[others], detected[others])
+    np.testing.assert_array_equal(carried.weights[others], 1.0)
+
+    frames = [SimpleNamespace(index=i, image=np.full((2, 2, 3), i, np.uint8)) for i in (3, 5, 6, 9)]
+    reader = _FramesInOrder(frames)
+    assert reader.at(5)[0, 0, 0] == 5 and reader.at(7) is None and reader.at(9)[0, 0, 0] == 9 and reader.at(12) is None
