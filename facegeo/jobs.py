@@ -670,6 +670,7 @@ def track_into_folder(video: str | Path, output: str | Path, options: TrackOptio
         if options.smooth:
             track.frames = smooth_track(track.frames, *model.expression_range, fast=lid_weights(model.expression_names))
         calibration = None
+        flowed = [f.brow_flow for f in track.frames if f.brow_flow is not None]
         if track.neutral is not None:
             size = np.linalg.norm(track.neutral.offsets, axis=1)
             calibration = {"time_s": track.neutral.time_s, "frames": track.neutral.frames,
@@ -680,6 +681,8 @@ def track_into_folder(video: str | Path, output: str | Path, options: TrackOptio
                                    f"full within {NEUTRAL_FADE_DEG[0]:g} deg of the head's rotation there, none beyond "
                                    f"{NEUTRAL_FADE_DEG[1]:g} deg",
                            "brow_flow": ({"points": track.brow_flow, "weight": BROW_FLOW_WEIGHT,
+                                          "frames": len(flowed),
+                                          "carried_median": float(np.median(flowed)) if flowed else None,
                                           "rule": "the brows' region points of the middle frame at rest carried into each frame the "
                                                   "offsets reach by pyramidal Lucas-Kanade optical flow (kept where the flow back returns "
                                                   f"within {BROW_FLOW_RETURN_PX:g} px)"} if track.brow_flow else None),

@@ -99,7 +99,9 @@ class TrackedFrame:
     float32 expression weights, ``landmark_rms_px`` and ``landmark_rms_percent_iod``;
     ``keyframe``: used for the identity; ``note``: why no face (the detector's or the fit's words);
     ``followed_back``: the face was lost going forward and found by following the next frame's
-    face back (:attr:`~facegeo.observed_frames.ObservedFrame.followed_back`)."""
+    face back (:attr:`~facegeo.observed_frames.ObservedFrame.followed_back`); ``brow_flow``, how
+    many brow points the optical flow from the face at rest carried into this frame
+    (:meth:`BrowFlow.carried`; None where it was not tried)."""
 
     index: int
     time_s: float
@@ -112,6 +114,7 @@ class TrackedFrame:
     keyframe: bool = False
     note: str | None = None
     followed_back: bool = False
+    brow_flow: int | None = None
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready: pose as rotation, Euler angles (degrees) and translation (mm)."""
@@ -125,6 +128,8 @@ class TrackedFrame:
             out["note"] = self.note
         if self.followed_back:
             out["followed_back"] = True
+        if self.brow_flow is not None:
+            out["brow_flow_points"] = self.brow_flow
         return out
 
 
@@ -720,7 +725,7 @@ def _track_part(model: MorphableModel, observed: Sequence[ObservedFrame], shared
             out.append(TrackedFrame(frame.index, frame.time_s, False, note=frame.note))
             previous = None
             continue
-        measured = None
+        measured, carried = None, None
         if shared.open_lids is not None and frame.lid_gaps is not None:
             # the eye's open gap in this frame's pose: the previous frame's (1/30 s ago) or solvePnP's
             if previous is None:
@@ -735,12 +740,12 @@ def _track_part(model: MorphableModel, observed: Sequence[ObservedFrame], shared
             turn = previous.rotation if previous is not None else initial_pose(model, obs.landmarks, shared.camera)[0]
             image = images.at(frame.index) if offsets.share(turn) > 0.0 else None
             if image is not None:
-                obs = flow.carried(obs, image)
+                obs, carried = flow.carried(obs, image)
         fit = solve_frame(model, obs, shared.camera, shared.alpha, shared.noise, previous, stage, measured, offsets).fit
         previous = SolveStart(fit.rotation, fit.translation, shared.alpha, fit.delta)
         out.append(TrackedFrame(frame.index, frame.time_s, True, fit.rotation, fit.translation, fit.delta,
                                 float(fit.landmark_rms_px), float(fit.landmark_rms_percent_iod), k in shared.keyframes,
-                                followed_back=frame.followed_back))
+                                followed_back=frame.followed_back, brow_flow=carried))
     return out
 
 
@@ -1090,18 +1095,19 @@ class BrowFlow:
     rows: np.ndarray
     frames_again: Callable[[float], Iterable[Any]]
 
-    def carried(self, seen: PhotoObservation, image: np.ndarray) -> PhotoObservation:
+    def carried(self, seen: PhotoObservation, image: np.ndarray) -> tuple[PhotoObservation, int]:
         """``seen`` with its dense points of :attr:`rows` moved to where the flow from the face at
         rest puts them in ``image`` (H, W, 3) uint8 RGB, the frame's own (its detected places the
         flow's first guess), weighted ×:data:`BROW_FLOW_WEIGHT`; a point whose flow does not
-        return (:data:`BROW_FLOW_RETURN_PX`) keeps its detected place and weight. ``seen``
-        unchanged where its dense points are not the face at rest's (another count)."""
+        return (:data:`BROW_FLOW_RETURN_PX`) keeps its detected place and weight. Also how many
+        were carried. ``seen`` unchanged (0 carried) where its dense points are not the face at
+        rest's (another count) or the image is another size."""
         surface = seen.surface_points
         if surface is None or len(surface) != len(self.points) or not len(self.rows):
-            return seen
+            return seen, 0
         grey = cv2.cvtColor(image, cv2.COLOR_RGB2GRAY)
         if grey.shape != self.image.shape:
-            return seen
+            return seen, 0
         start = self.points.targets[self.rows].astype(np.float32).reshape(-1, 1, 2)
         detected = surface.targets[self.rows].astype(np.float32).reshape(-1, 1, 2)
         guess = np.where(np.isfinite(detected), detected, start)
@@ -1114,7 +1120,7 @@ class BrowFlow:
         targets[rows] = moved.reshape(-1, 2)[good]
         weights[rows] *= BROW_FLOW_WEIGHT
         return dataclasses.replace(seen, surface_points=SurfacePoints(targets, surface.vertex_ids, surface.barycentric, weights,
-                                                                      surface.contour, surface.expressive))
+                                                                      surface.contour, surface.expressive)), int(good.sum())
 
 
 def brow_flow(model: MorphableModel, observed: Sequence[ObservedFrame], offsets: NeutralOffsets,

@@ -714,7 +714,9 @@ def test_the_brows_of_the_face_at_rest_are_carried_by_the_flow_where_it_returns(
     seen = PhotoObservation(np.zeros((240, 320, 3), np.uint8), "<test>", np.zeros((240, 320, 3), np.uint8), None,
                             np.zeros((88, 2)), camera, None, None, SurfacePoints(detected, rest.vertex_ids, rest.barycentric, np.ones(k)),
                             {}, [])
-    carried = flow.carried(seen, cv2.cvtColor(moved, cv2.COLOR_GRAY2RGB)).surface_points
+    carried, count = flow.carried(seen, cv2.cvtColor(moved, cv2.COLOR_GRAY2RGB))
+    carried = carried.surface_points
+    assert count == 6
     kept = np.array([0, 1, 2, 4, 5, 6])
     assert np.abs(carried.targets[kept] - (points[kept] + shift)).max() < 0.05
     np.testing.assert_array_equal(carried.weights[kept], BROW_FLOW_WEIGHT)
