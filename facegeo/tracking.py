@@ -39,7 +39,7 @@ from __future__ import annotations
 import dataclasses
 import time
 import warnings
-from collections.abc import Callable, Iterable, Sequence
+from collections.abc import Callable, Iterable, Iterator, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -717,7 +717,7 @@ def _track_part(model: MorphableModel, observed: Sequence[ObservedFrame], shared
     """:func:`track_observed` on ``observed[first:end]``, the first from solvePnP."""
     out: list[TrackedFrame] = []
     previous = None
-    images = None if flow is None or offsets is None or first >= end else _FramesInOrder(flow.frames_again(observed[first].time_s))
+    images = None if flow is None or offsets is None or first >= end else _FramesInOrder(lambda: flow.frames_again(observed[first].time_s))
     for k in range(first, end):
         frame = observed[k]
         obs = frame.observation
@@ -1132,7 +1132,7 @@ def brow_flow(model: MorphableModel, observed: Sequence[ObservedFrame], offsets:
     frame = at_rest.get(offsets.frames[len(offsets.frames) // 2])
     if frame is None or frame.observation.surface_points is None:
         return None
-    image = _FramesInOrder(frames_again(frame.time_s)).at(frame.index)
+    image = _FramesInOrder(lambda: frames_again(frame.time_s)).at(frame.index)
     if image is None:
         return None
     points = frame.observation.surface_points
@@ -1141,19 +1141,26 @@ def brow_flow(model: MorphableModel, observed: Sequence[ObservedFrame], offsets:
 
 
 class _FramesInOrder:
-    """The images of frames (``index``, ``image``) read in order from an iterable, asked for by
-    increasing index (:meth:`at`)."""
+    """The images of frames (``index``, ``image``) read in order from what ``opened`` opens, asked
+    for by increasing index (:meth:`at`). A video that cannot be opened or read again here (it was
+    read once) gives no more images, not an error: the brows' flow is a refinement."""
 
-    def __init__(self, frames: Iterable[Any]):
-        self._frames = iter(frames)
+    def __init__(self, opened: Callable[[], Iterable[Any]]):
+        try:
+            self._frames: Iterator[Any] = iter(opened())
+        except InputError:
+            self._frames = iter(())
         self._next: Any = None
 
     def at(self, index: int) -> np.ndarray | None:
         """The image (H, W, 3) uint8 RGB of the frame numbered ``index``; None where the frames
-        pass it (or end) without it."""
+        pass it (or end, or fail) without it."""
         while True:
             if self._next is None:
-                self._next = next(self._frames, None)
+                try:
+                    self._next = next(self._frames, None)
+                except InputError:
+                    self._next, self._frames = None, iter(())
                 if self._next is None:
                     return None
             if self._next.index == index:

@@ -689,10 +689,12 @@ def test_the_brows_of_the_face_at_rest_are_carried_by_the_flow_where_it_returns(
     where they were at rest: the carried points land on the moved texture within 0.05 px and weigh
     BROW_FLOW_WEIGHT times more; where the frame's patch is another texture (an occluder), the flow
     does not return and the points keep their detected place and weight; points outside ``rows``
-    are not touched. Frames read again are found by index, in order."""
+    are not touched. Frames read again are found by index, in order; a video that fails to open
+    or to read again gives no more images, not an error."""
     from facegeo.camera import Camera
     from facegeo.fitting.landmark_problem import SurfacePoints
     from facegeo.fitting.photo_fit import PhotoObservation
+    from facegeo.errors import InputError
     from facegeo.tracking import BROW_FLOW_WEIGHT, BrowFlow, _FramesInOrder
 
     rng = np.random.default_rng(7)
@@ -727,5 +729,16 @@ def test_the_brows_of_the_face_at_rest_are_carried_by_the_flow_where_it_returns(
     np.testing.assert_array_equal(carried.weights[others], 1.0)
 
     frames = [SimpleNamespace(index=i, image=np.full((2, 2, 3), i, np.uint8)) for i in (3, 5, 6, 9)]
-    reader = _FramesInOrder(frames)
+    reader = _FramesInOrder(lambda: frames)
     assert reader.at(5)[0, 0, 0] == 5 and reader.at(7) is None and reader.at(9)[0, 0, 0] == 9 and reader.at(12) is None
+
+    def unreadable():
+        yield frames[0]
+        raise InputError("clip.mp4", "frames", "a readable frame", "a broken packet")
+
+    def unopenable():
+        raise InputError("clip.mp4", "video", "a video", "nothing")
+
+    reader = _FramesInOrder(unreadable)
+    assert reader.at(3) is not None and reader.at(5) is None and reader.at(6) is None  # read again, it fails: no more images
+    assert _FramesInOrder(unopenable).at(0) is None
