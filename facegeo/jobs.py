@@ -631,9 +631,10 @@ def track_into_folder(video: str | Path, output: str | Path, options: TrackOptio
       a frame without a face repeats the nearest tracked frame's values (``track.json`` flags it);
     * ``track.json``: the source, frame rate, camera, identity α, per frame whether a face was
       found, its landmark RMS (px, % of the inter-ocular distance; of the frame's own fit), pose,
-      ICT weights (smoothed with ``options.smooth``, as in the take) and whether it was a
-      keyframe; the smoothing, the neutral calibration (given by ``options.neutral_s`` or found,
-      ``options.find_rest``; None without one),
+      ICT weights (smoothed with ``options.smooth``, as in the take), whether it was a keyframe
+      and, where the brows' flow was tried, how many brow points it carried
+      (:class:`facegeo.tracking.BrowFlow`); the smoothing, the neutral calibration (given by
+      ``options.neutral_s`` or found, ``options.find_rest``; None without one),
       keyframes, timings and notes;
     * with ``options.asset``: the person's textured asset (``asset/``), ``face.glb`` and
       ``face.usdz`` animated by the take, and ``preview.png`` (:func:`_animated_asset`).
