@@ -725,23 +725,22 @@ def _track_part(model: MorphableModel, observed: Sequence[ObservedFrame], shared
             out.append(TrackedFrame(frame.index, frame.time_s, False, note=frame.note))
             previous = None
             continue
+        # where the solve starts: the previous frame's fit (1/30 s ago), or solvePnP's pose with no expression
+        if previous is None:
+            rotation, translation = initial_pose(model, obs.landmarks, shared.camera)
+            start = SolveStart(rotation, translation, np.asarray(shared.alpha, np.float64), np.zeros(model.n_exp))
+        else:
+            start = previous
         measured, carried = None, None
-        if shared.open_lids is not None and frame.lid_gaps is not None:
-            # the eye's open gap in this frame's pose: the previous frame's (1/30 s ago) or solvePnP's
-            if previous is None:
-                rotation, translation = initial_pose(model, obs.landmarks, shared.camera)
-                delta = np.zeros(model.n_exp)
-            else:
-                rotation, translation, delta = previous.rotation, previous.translation, previous.delta
-            open_gaps = shared.open_lids * eyelids.model_lid_gaps(model, shared.alpha, _without_lids(model, delta), rotation, translation,
-                                                          shared.camera)
-            measured = eyelids.blinks(frame.lid_gaps, open_gaps, rotation)
+        if shared.open_lids is not None and frame.lid_gaps is not None:  # the eye's open gap in that pose
+            open_gaps = shared.open_lids * eyelids.model_lid_gaps(model, shared.alpha, _without_lids(model, start.delta), start.rotation,
+                                                          start.translation, shared.camera)
+            measured = eyelids.blinks(frame.lid_gaps, open_gaps, start.rotation)
         if images is not None and obs.surface_points is not None:  # the brows' flow, where the offsets reach
-            turn = previous.rotation if previous is not None else initial_pose(model, obs.landmarks, shared.camera)[0]
-            image = images.at(frame.index) if offsets.share(turn) > 0.0 else None
+            image = images.at(frame.index) if offsets.share(start.rotation) > 0.0 else None
             if image is not None:
                 obs, carried = flow.carried(obs, image)
-        fit = solve_frame(model, obs, shared.camera, shared.alpha, shared.noise, previous, stage, measured, offsets).fit
+        fit = solve_frame(model, obs, shared.camera, shared.alpha, shared.noise, start, stage, measured, offsets).fit
         previous = SolveStart(fit.rotation, fit.translation, shared.alpha, fit.delta)
         out.append(TrackedFrame(frame.index, frame.time_s, True, fit.rotation, fit.translation, fit.delta,
                                 float(fit.landmark_rms_px), float(fit.landmark_rms_percent_iod), k in shared.keyframes,
