@@ -785,7 +785,7 @@ def solve_frame(model: MorphableModel, seen: PhotoObservation, camera: Camera, a
     weights[BROWS] *= brows
     surface = seen.surface_points
     if surface is not None:  # the dense points of the brows' region weigh as dlib's brows do, on average
-        region = _brow_ring(model).region[surface.vertex_ids].any(axis=1)
+        region = _brow_ring(model).in_region(surface)
         surface = SurfacePoints(surface.targets, surface.vertex_ids, surface.barycentric,
                                 np.where(region, surface.weights * float(brows.mean()), surface.weights),
                                 surface.contour, surface.expressive)
@@ -846,6 +846,10 @@ class _BrowRing:
     triangles: np.ndarray
     rows: np.ndarray
     region: np.ndarray
+
+    def in_region(self, points: SurfacePoints) -> np.ndarray:
+        """(K,) bool: the dense ``points`` on a triangle with a vertex in the brows' :attr:`region`."""
+        return self.region[points.vertex_ids].any(axis=1)
 
 
 _BROW_RINGS: dict[int, tuple[MorphableModel, _BrowRing]] = {}
@@ -1135,7 +1139,7 @@ def brow_flow(model: MorphableModel, observed: Sequence[ObservedFrame], offsets:
     if image is None:
         return None
     points = frame.observation.surface_points
-    region = _brow_ring(model).region[points.vertex_ids].any(axis=1) & ~points.contour & np.isfinite(points.targets).all(axis=1)
+    region = _brow_ring(model).in_region(points) & ~points.contour & np.isfinite(points.targets).all(axis=1)
     return BrowFlow(cv2.cvtColor(image, cv2.COLOR_RGB2GRAY), points, np.flatnonzero(region), frames_again)
 
 
