@@ -65,7 +65,7 @@ from facegeo.observed_frames import ObservedFrame, ObservedFrames
 __all__ = ["TrackedFrame", "Track", "ClipIdentity", "track_frames", "observe_frames", "clip_identity",
            "follow_region", "spanning_frames", "lid_weights", "track_observed", "solve_frame", "smooth_track", "SolveStart",
            "turned_brow_weights", "TURNED_BROW_RAMP", "NeutralOffsets", "neutral_offsets", "NEUTRAL_POSE_STAGE", "NEUTRAL_WINDOW_S",
-           "NEUTRAL_FADE_DEG", "RestStretch", "rest_stretch", "REST_DISTANCE", "REST_TURN_DEG", "BrowFlow", "brow_flow",
+           "NEUTRAL_FADE_DEG", "RestStretch", "rest_stretch", "REST_DISTANCE", "REST_STRONGEST", "REST_TURN_DEG", "BrowFlow", "brow_flow",
            "BROW_FLOW_WEIGHT", "BROW_FLOW_RETURN_PX", "BROW_FLOW_WINDOW", "BROW_FLOW_LEVELS",
            "TRACK_STAGE", "KEYFRAMES", "FOLLOW_MARGIN", "POSE_WINDOW", "WEIGHT_WINDOW", "SLOW_WEIGHT_WINDOW",
            "IDENTITY_CHECK_EVERY", "HELD_FRAMES", "HELD_BYTES", "BROW_ALONG_NOISE", "IDENTITY_DETECTOR", "face_region_only"]
@@ -202,8 +202,9 @@ def track_frames(frames: Iterable[Any], model: MorphableModel, detector: str = "
         frame_image: a keyframe's pixels decoded again, for its identity view (:func:`clip_identity`).
         find_rest: without ``neutral_s``, look for the face at rest (:func:`rest_stretch`): where
             the clip's most typical still stretch is within :data:`REST_DISTANCE` of its median
-            expression, every frame is solved again measured from the person's points there;
-            otherwise (and with False) as observed, with a note.
+            expression and holds no expression (:data:`REST_STRONGEST`), every frame is solved
+            again measured from the person's points there; otherwise (and with False) as
+            observed, with a note.
         frames_again: opens the frames again from a time (s, the frames' clock; they may begin
             before it): with the person's points at rest, the brows' region of the frame at rest is
             carried into each frame by optical flow (:class:`BrowFlow`); None: not.
@@ -229,12 +230,17 @@ def track_frames(frames: Iterable[Any], model: MorphableModel, detector: str = "
     if neutral_s is None and find_rest:
         start = time.perf_counter()
         found_rest = rest_stretch(model, tracked)
-        if found_rest is not None and found_rest.distance <= REST_DISTANCE:
+        if found_rest is not None and found_rest.at_rest:
             offsets = neutral_offsets(model, observed, shared, found_rest.time_s, source)
             flow = None if frames_again is None else brow_flow(model, observed, offsets, frames_again)
             tracked = track_observed(model, observed, shared, offsets=offsets, flow=flow)
             notes.append(f"expressions measured from the face at rest at {found_rest.time_s:.2f} s (the clip's most typical still "
                          f"stretch; --neutral S to choose the time, --neutral none for the points as observed)")
+        elif found_rest is not None and found_rest.distance <= REST_DISTANCE:
+            name, weight = found_rest.strongest
+            notes.append(f"expressions measured from the points as observed: the clip's most typical still stretch (at "
+                         f"{found_rest.time_s:.2f} s) holds an expression ({arkit_name(name) or name} {weight:.2f}), not the face at "
+                         "rest; --neutral S gives a time at which the face is at rest")
         else:
             notes.append("expressions measured from the points as observed: no stretch of the clip holds its typical face "
                          f"still{'' if found_rest is None else f' (the closest: {found_rest.distance:.2f} at {found_rest.time_s:.2f} s)'}; "
@@ -1050,6 +1056,13 @@ def neutral_offsets(model: MorphableModel, observed: Sequence[ObservedFrame], sh
 #: the clip"): the ground-truth take, at rest half of its 23.7 s, 0.17; three real clips of people
 #: talking and smiling throughout 0.61, 0.89 and 0.93 (no rest found, the points as observed).
 REST_DISTANCE = 0.3
+#: ... and when none of its mean weights (the same weights) is above this: the clip's most typical
+#: face is the face at rest only where the person does not hold an expression throughout (a clip
+#: of a held smile would be measured from the smile, which then reads 0). The ground-truth take
+#: at rest, as observed: at most 0.29 (mouthStretch_R, the detector's bias); its held smile of 0.9
+#: tracked as a clip of its own: 0.52-0.54 (mouthSmile_L/R) (benchmarks/RESULTS.md, "a held
+#: expression is not the face at rest"). A lighter expression held throughout is still taken.
+REST_STRONGEST = 0.45
 #: :func:`rest_stretch` looks for the face at rest within this many degrees of the clip's typical
 #: head rotation (the points at rest hold in full only near the view they were measured in,
 #: :data:`NEUTRAL_FADE_DEG`).
@@ -1060,10 +1073,18 @@ REST_TURN_DEG = 10.0
 class RestStretch:
     """The clip's most typical still stretch (:func:`rest_stretch`): ``time_s``, its middle
     (seconds, the frames' clock); ``distance``, its frames' mean L1 distance from the clip's
-    median expression (the ICT weights other than the eyes')."""
+    median expression (the ICT weights other than the eyes'); ``strongest``, the largest of its
+    frames' mean weights (the same weights) and the model's name for it."""
 
     time_s: float
     distance: float
+    strongest: tuple[str, float] = ("", 0.0)
+
+    @property
+    def at_rest(self) -> bool:
+        """Whether the stretch is taken as the face at rest: near the clip's median expression
+        (:data:`REST_DISTANCE`) and holding no expression (:data:`REST_STRONGEST`)."""
+        return self.distance <= REST_DISTANCE and self.strongest[1] <= REST_STRONGEST
 
 
 #: A brow point carried by the optical flow from the face at rest (:class:`BrowFlow`) weighs this
@@ -1221,7 +1242,9 @@ def rest_stretch(model: MorphableModel, frames: Sequence[TrackedFrame]) -> RestS
         return None
     mean = np.where(usable, (summed[last] - summed[first]) / np.maximum(count, 1), np.inf)
     best = int(np.argmin(mean))
-    return RestStretch(float(times[best]), float(mean[best]))
+    held = weights[first[best]:last[best]].mean(axis=0)
+    names = np.asarray(model.expression_names)[expressive]
+    return RestStretch(float(times[best]), float(mean[best]), (str(names[np.argmax(held)]), float(held.max())))
 
 
 def lid_weights(names: list[str] | tuple[str, ...]) -> np.ndarray:

@@ -606,9 +606,10 @@ def test_the_face_at_rest_is_the_clips_most_typical_still_stretch_not_its_smalle
     the jaw forward at rest (0.7 in all), with a smile that explains its frames with less weight
     (0.6): the rest is found, not the smile, and not in the first half second, where the face at
     rest is turned 25 degrees from the clip's typical view; its frames are at the clip's median
-    (distance 0 <= REST_DISTANCE). A person who talks throughout has no such stretch, and a head
-    that never holds still (4 degrees between frames) none at all."""
-    from facegeo.tracking import NEUTRAL_WINDOW_S, REST_DISTANCE, REST_TURN_DEG, rest_stretch
+    (distance 0 <= REST_DISTANCE). A clip of a held smile (0.6) has its smile there, which is not
+    taken for the face at rest (REST_STRONGEST). A person who talks throughout has no such
+    stretch, and a head that never holds still (4 degrees between frames) none at all."""
+    from facegeo.tracking import NEUTRAL_WINDOW_S, REST_DISTANCE, REST_STRONGEST, REST_TURN_DEG, rest_stretch
 
     names = list(model.expression_names)
     at_rest = np.zeros(model.n_exp)
@@ -620,8 +621,15 @@ def test_the_face_at_rest_is_the_clips_most_typical_still_stretch_not_its_smalle
     deltas[:, names.index("eyeBlink_L")] = np.where(np.arange(90) % 20 < 2, 1.0, 0.0)  # blinks at rest count for nothing
     yaws = np.where(np.arange(90) < 15, REST_TURN_DEG + 15.0, 0.0)
     found = rest_stretch(model, _clip_frames(model, deltas, yaws))
-    assert found is not None and abs(found.distance) < 1e-6
+    assert found is not None and abs(found.distance) < 1e-6 and found.at_rest
     assert 14 / 30 < found.time_s - NEUTRAL_WINDOW_S and found.time_s + NEUTRAL_WINDOW_S < 60 / 30, found  # its frames: 15-59
+    assert found.strongest[0] in ("mouthStretch_L", "mouthStretch_R") and abs(found.strongest[1] - 0.2) < 1e-6
+
+    # a clip of a held smile: its most typical stretch is the smile, which is not the face at rest
+    held = np.array([at_rest + 2 * smile] * 90)
+    found = rest_stretch(model, _clip_frames(model, held, np.zeros(90)))
+    assert found is not None and found.distance < REST_DISTANCE and not found.at_rest
+    assert found.strongest[0] in ("mouthSmile_L", "mouthSmile_R") and abs(found.strongest[1] - 0.6) < 1e-6 and 0.6 > REST_STRONGEST
 
     rng = np.random.default_rng(3)
     talking = np.zeros((90, model.n_exp))
