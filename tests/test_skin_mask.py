@@ -170,6 +170,32 @@ def test_greyscale_photo_keeps_only_the_face_oval(synthetic):
     assert skin_mask(colour, regions=regions, person=person, hands=[]).occlusion[249:, 116:140].max() < 0.05
 
 
+def test_a_white_collar_below_a_dark_face_is_masked_where_the_colour_model_keeps_it(synthetic):
+    """A dark face whose pixels' chroma is as spread as a small, compressed face's (the colour
+    model then keeps a warm white): a white collar below the chin, outside the oval, 4× as bright
+    as the skin and a fifth as saturated, is masked; the same brightness on the face's own lit
+    skin (its chroma kept) and the shaded cheeks stay skin."""
+    _, regions, _ = synthetic
+    H = W = 256
+    yy, xx = np.mgrid[0:H, 0:W].astype(np.float32)
+    rng = np.random.default_rng(5)
+    img = np.full((H, W, 3), [60, 70, 90], np.float32)
+    face = ((xx - 128) / 80) ** 2 + ((yy - 130) / 105) ** 2 < 1
+    jitter = np.exp(rng.normal(0.0, 0.3, (H, W, 2))).astype(np.float32)  # chroma spread: R and B against G
+    skin = np.stack([115 * jitter[..., 0], np.full((H, W), 70, np.float32), 50 * jitter[..., 1]], axis=-1)
+    img[face] = skin[face]
+    lit = face & ((xx - 165) ** 2 + (yy - 150) ** 2 < 12 ** 2)  # the lit side of a cheek: bright, its own chroma
+    img[lit] = skin[lit] * 2.2
+    collar = (yy >= 240) & (xx > 106) & (xx < 150)  # below the chin: outside the oval, within 0.3 IOD of it
+    img[collar] = [235, 222, 200]
+    rgb = np.clip(img, 0, 255).astype(np.uint8)
+    m = skin_mask(rgb, regions=regions, person=np.ones((H, W), np.float32), hands=[])
+    assert m.skin_probability[collar].mean() > 0.5  # the colour model alone takes it for skin
+    assert m.occlusion[collar].min() > 0.95
+    assert m.occlusion[lit & ((xx - 165) ** 2 + (yy - 150) ** 2 < 8 ** 2)].max() < 0.05
+    assert m.occlusion[140:165, 70:100].max() < 0.05
+
+
 def test_person_segmentation_finds_the_bundled_photos_subject():
     from facegeo.person_segmentation import default_person_segmenter
 
