@@ -744,6 +744,30 @@ def test_directional_light_and_its_cast_shadows_are_fitted_and_removed(face_cont
     assert abs(np.median(np.log(lum[shadowed])) - np.median(np.log(lum[skin & lit]))) < 0.15
 
 
+def test_no_light_from_below_is_fitted(face_context):
+    """Shading that a light from below would make (y −0.9): the light model keeps its direction
+    at or above light_min_y (30° below the horizon), where a face as small as a few pixels of
+    shading otherwise took one from straight below (RESULTS.md, "a white collar below a dark or
+    small face"); under a light from above the same fit finds it within 3°."""
+    ctx = face_context
+    cover = ctx.coverage
+    albedo = np.array([0.45, 0.3, 0.24], np.float32)
+    angle = lambda a, b: np.degrees(np.arccos(np.clip(a @ b, -1, 1)))  # noqa: E731
+    found = {}
+    for name, light, settings in (("below", np.array([0.2, -0.9, 0.4]), DIFFUSE),
+                                  ("below, any direction", np.array([0.2, -0.9, 0.4]), replace(DIFFUSE, light_min_y=-1.0)),
+                                  ("above", np.array([0.3, 0.6, 0.74]), DIFFUSE)):
+        light = light / np.linalg.norm(light)
+        shading = 0.08 + np.maximum(ctx.normal_camera @ light, 0.0)
+        photo = linear_to_srgb(np.where(cover[..., None], albedo * shading[..., None], 0.0)).astype(np.float32)
+        backend = DefaultBackend(settings=settings)
+        backend.homogenise(photo, ctx)
+        found[name] = (light, np.array(backend.report["light"]["direction"]))
+    assert DEFAULT_SETTINGS.light_min_y == -0.5 and found["below"][1][1] >= -0.5 - 1e-9
+    assert angle(*found["below, any direction"]) < 3.0  # the scene is one of a light from below
+    assert angle(*found["above"]) < 3.0
+
+
 def test_a_warm_sun_and_a_blue_sky_are_both_taken_out(face_context):
     """A constant albedo under a warm sun (cast shadows included) and a blue sky as the ambient
     term: in the photo the shadowed skin's chroma is 0.5 from the lit skin's. One light colour for

@@ -46,7 +46,7 @@ def directional_shading(lum: np.ndarray, fit_mask: np.ndarray, ctx: TextureConte
     y = np.exp(log_y)
     # the grid: per candidate direction, ambient and L by least squares, scored by the median |log-ratio|
     candidates = sphere_directions(settings.light_candidates)
-    candidates = candidates[candidates[:, 2] >= settings.light_min_z]
+    candidates = candidates[(candidates[:, 2] >= settings.light_min_z) & (candidates[:, 1] >= settings.light_min_y)]
     grid_rows = slice(None, None, max(1, len(rows) // 4000))
     cos = np.maximum(n[grid_rows] @ candidates.T, 0.0)  # (n, K)
     yg = y[grid_rows, None]
@@ -73,7 +73,11 @@ def directional_shading(lum: np.ndarray, fit_mask: np.ndarray, ctx: TextureConte
     l0 = candidates[best]
     x = np.array([np.arccos(np.clip(l0[2], -1, 1)), np.arctan2(l0[1], l0[0]), np.log(ambient[best]), np.log(max(gain[best], 1e-6))])
     v = visible(l0)
-    x = least_squares(residual, x, args=(v.ravel()[rows],), loss="soft_l1", f_scale=0.1, max_nfev=100).x
+    start = x
+    x = least_squares(residual, start, args=(v.ravel()[rows],), loss="soft_l1", f_scale=0.1, max_nfev=100).x
+    if direction(x[:2])[1] < settings.light_min_y:  # refined to below the lowest light: the grid's direction kept
+        x = np.concatenate([start[:2], least_squares(lambda y, v: residual(np.concatenate([start[:2], y]), v), start[2:],
+                                                     args=(v.ravel()[rows],), loss="soft_l1", f_scale=0.1, max_nfev=100).x])
     light = direction(x[:2])
     v = visible(light)
     direct = np.exp(x[3]) * np.maximum(ctx.normal_camera @ light, 0.0)

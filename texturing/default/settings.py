@@ -53,10 +53,17 @@ class DefaultSettings:
     grazing_gain: float = 1.25
     # ---- the directional light model: directional_light.py
     #: Candidate light directions of the directional fit (a Fibonacci sphere; those below
-    #: :attr:`light_min_z` are left out: a light from behind the head shows the camera no skin).
+    #: :attr:`light_min_z` are left out: a light from behind the head shows the camera no skin; and
+    #: those below :attr:`light_min_y`).
     light_candidates: int = 400
     #: Smallest camera-space z of a candidate light direction.
     light_min_z: float = -0.3
+    #: Smallest camera-space y (up) of the light's direction: no light from more than 30° below the
+    #: horizon. Photographers do not light faces from below; on the sample photos and the scans'
+    #: renders (42 views) the fit found y ≥ −0.30, but on a face 21 px between the eyes (a real
+    #: clip's), where the skin's shading is a few pixels, it found (−0.05, −0.98, 0.17) and drew
+    #: that light's shadows into the albedo.
+    light_min_y: float = -0.5
     #: Texels the directional fit uses at most (evenly spaced over the reliably seen skin).
     light_fit_texels: int = 20000
     #: Shadow-map pixel size at the mesh, mm (:func:`facegeo.uv.light_visibility`).
