@@ -60,7 +60,7 @@ class DefaultSettings:
     light_min_z: float = -0.3
     #: Smallest camera-space y (up) of the light's direction: no light from more than 30° below the
     #: horizon. Photographers do not light faces from below; on the sample photos and the scans'
-    #: renders (42 views) the fit found y ≥ −0.30, but on a face 21 px between the eyes (a real
+    #: renders (38 faces) the fit found y ≥ −0.30, but on a face 21 px between the eyes (a real
     #: clip's), where the skin's shading is a few pixels, it found (−0.05, −0.98, 0.17) and drew
     #: that light's shadows into the albedo.
     light_min_y: float = -0.5
