@@ -440,9 +440,9 @@ def skin_mask(image: np.ndarray, landmarks: np.ndarray | None = None, *, regions
     else:  # a white collar beside darker skin, or where a small face's blurred pixels widen the colour
         # model: below the eyes and outside the face oval, as bright and less than half as saturated
         # is not skin (inside the oval, hard light's lit side is as bright and, near clipping, as pale)
-        saturation = np.hypot(chroma[..., 0], chroma[..., 1])
-        occluded |= ((lum > BRIGHT_FRACTION * skin_lum) & ~oval & (rows > eye_top)
-                     & (saturation < WHITE_SATURATION * float(np.hypot(*mean))))
+        pale = (lum > BRIGHT_FRACTION * skin_lum) & ~oval & (rows > eye_top)
+        pale[pale] = np.hypot(*chroma[pale].T) < WHITE_SATURATION * float(np.hypot(*mean))
+        occluded |= pale
     padding = padded_border(rgb)
     if (padding & near_face).any():  # a crop's padding that the face reaches: no photo there (its join
         # mixes in too: the halo)
