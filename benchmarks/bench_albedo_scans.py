@@ -69,6 +69,10 @@ least-squares scaled onto the truth's over the seen skin; chroma is not fitted):
   albedo when its input is the truth's own colours on the seen texels (the photo-pixel truth
   where the texel is on the scan, else the 3-D truth) with the same visibility: how much of the
   scan's detail the fill can carry when the seen skin is perfect;
+* **level**: the albedo's linear luminance over the truth's on the seen skin (1 / the exposure
+  scale above): 1 where the albedo's level is the scan's colour map's. Those maps are not
+  calibrated reflectance (James's is his scanner's photos, exposure and all), so it tells a bias
+  of the level (issue 49: the albedo's level anchored by the skin and the whites), not an error;
 * **off-skin**: share of skin texels whose albedo colour the real skin map never takes: Lab
   Mahalanobis distance > :data:`OFF_SKIN_SIGMAS` from a robust Gaussian (median, MAD-scaled
   covariance) of the truth's colours over the skin texels (glasses, background, hair, dark cast
@@ -431,7 +435,7 @@ def evaluate(scan: str, name: str, render: str, light: str, model, raster, skin_
         la = lab(scaled)
         de_seen = deltaE_ciede2000(la[seen_skin], lab_truth_seen[seen_skin])
         chroma_seen = np.linalg.norm(la[seen_skin][:, 1:] - lab_truth_seen[seen_skin][:, 1:], axis=1)
-        r = {"de_seen": float(np.median(de_seen)), "chroma_seen": float(np.median(chroma_seen))}
+        r = {"de_seen": float(np.median(de_seen)), "chroma_seen": float(np.median(chroma_seen)), "level": 1.0 / k}
         if method != "raw":
             de_filled = deltaE_ciede2000(la[filled_skin], lab_truth_3d[filled_skin])
             r["de_filled"] = float(np.median(de_filled)) if filled_skin.any() else float("nan")
@@ -557,15 +561,17 @@ def light_colour_table(rows: list[dict]) -> list[str]:
 def light_tables(rows: list[dict]) -> list[str]:
     """Per scan and light (its views' median): the seen skin's ΔE2000 of the methods and the new
     backend's worst ratio to the flat colour's; then the new backend's seen ΔE2000 per region."""
-    lines = ["", "Seen skin per light, ΔE2000 median over its views (0°, ±40°); new / flat: the worst view's ratio:", "",
-             "| scan | light | new | previous | flat | raw photo | new / flat, worst view |", "|---|---|---|---|---|---|---|"]
+    lines = ["", "Seen skin per light, ΔE2000 median over its views (0°, ±40°); new / flat: the worst view's ratio; new's "
+             "level: its seen skin's luminance over the scan's (median over the views; no exposure scale):", "",
+             "| scan | light | new | previous | flat | raw photo | new / flat, worst view | new's level |", "|---|---|---|---|---|---|---|---|"]
     groups = {}
     for row in rows:
         groups.setdefault((row["scan"], row["light"]), []).append(row)
     for (scan, light), subset in groups.items():
         cells = [fmt(statistics.median(r["methods"][m]["de_seen"] for r in subset)) for m in METHODS]
         worst = max(r["methods"]["new"]["de_seen"] / r["methods"]["flat"]["de_seen"] for r in subset)
-        lines.append(f"| {SCAN_LABELS[scan]} | {LIGHTS[light][0]}{mark(light)} | {' | '.join(cells)} | {fmt(worst)} |")
+        level = fmt(statistics.median(r["methods"]["new"]["level"] for r in subset))
+        lines.append(f"| {SCAN_LABELS[scan]} | {LIGHTS[light][0]}{mark(light)} | {' | '.join(cells)} | {fmt(worst)} | {level} |")
     lines += ["", "Seen texels per region (`facegeo.skin_mask.vertex_regions` > 0.5; M_vis > 0.5), the new backend's ΔE2000 "
               "median against the photo-pixel truth (the view's exposure scale), median over the light's views; mouth − "
               "cheeks: the worst view:", "",
