@@ -173,8 +173,8 @@ def test_greyscale_photo_keeps_only_the_face_oval(synthetic):
 def test_a_white_collar_below_a_dark_face_is_masked_where_the_colour_model_keeps_it(synthetic):
     """A dark face whose pixels' chroma is as spread as a small, compressed face's (the colour
     model then keeps a warm white): a white collar below the chin, outside the oval, ~9× as bright
-    as the skin and a fifth as saturated, is masked; the same brightness on the face's own lit
-    skin (its chroma kept) and the shaded cheeks stay skin."""
+    as the skin and a fifth as saturated, is masked; the face's own lit skin (2.2× as bright, its
+    chroma kept) and the shaded cheeks stay skin."""
     _, regions, _ = synthetic
     H = W = 256
     yy, xx = np.mgrid[0:H, 0:W].astype(np.float32)
