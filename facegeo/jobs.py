@@ -648,7 +648,7 @@ def track_into_folder(video: str | Path, output: str | Path, options: TrackOptio
             unwritable output, or another run writing into ``output``.
     """
     from facegeo.export.animation import head_angles
-    from facegeo.arkit import ARKIT_NAMES, ArkitTake, arkit_name, target_naming
+    from facegeo.arkit import ARKIT_NAMES, ArkitTake, target_naming
     from facegeo.export.live_link import live_link_csv_lines
     from facegeo.staged_output import StagedOutput, locked_output
     from facegeo.landmarks.eyelids import SHUT_FRACTION
@@ -677,7 +677,7 @@ def track_into_folder(video: str | Path, output: str | Path, options: TrackOptio
                            "chosen": "given" if options.neutral_s is not None else "the clip's most typical still stretch",
                            "distance_from_median_expression": None if track.rest is None else track.rest.distance,
                            "strongest_weight_there": None if track.rest is None else
-                           {"name": arkit_name(track.rest.strongest[0]) or track.rest.strongest[0], "weight": track.rest.strongest[1]},
+                           {"name": track.rest.strongest_name, "weight": track.rest.strongest[1]},
                            "rule": "each frame's landmarks and dense points measured from where the detector put the person's at rest in "
                                    "these frames (their offsets from the clip's identity with no expression, turning with the head), in "
                                    f"full within {NEUTRAL_FADE_DEG[0]:g} deg of the head's rotation there, none beyond "

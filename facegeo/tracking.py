@@ -237,10 +237,9 @@ def track_frames(frames: Iterable[Any], model: MorphableModel, detector: str = "
             notes.append(f"expressions measured from the face at rest at {found_rest.time_s:.2f} s (the clip's most typical still "
                          f"stretch; --neutral S to choose the time, --neutral none for the points as observed)")
         elif found_rest is not None and found_rest.distance <= REST_DISTANCE:
-            name, weight = found_rest.strongest
             notes.append(f"expressions measured from the points as observed: the clip's most typical still stretch (at "
-                         f"{found_rest.time_s:.2f} s) holds an expression ({arkit_name(name) or name} {weight:.2f}), not the face at "
-                         "rest; --neutral S gives a time at which the face is at rest")
+                         f"{found_rest.time_s:.2f} s) holds an expression ({found_rest.strongest_name} {found_rest.strongest[1]:.2f}), "
+                         "not the face at rest; --neutral S gives a time at which the face is at rest")
         else:
             notes.append("expressions measured from the points as observed: no stretch of the clip holds its typical face "
                          f"still{'' if found_rest is None else f' (the closest: {found_rest.distance:.2f} at {found_rest.time_s:.2f} s)'}; "
@@ -1078,7 +1077,13 @@ class RestStretch:
 
     time_s: float
     distance: float
-    strongest: tuple[str, float] = ("", 0.0)
+    strongest: tuple[str, float]
+
+    @property
+    def strongest_name(self) -> str:
+        """The strongest weight's ARKit name (the model's own where ARKit has none), as notes and
+        ``track.json`` give it."""
+        return arkit_name(self.strongest[0]) or self.strongest[0]
 
     @property
     def at_rest(self) -> bool:
