@@ -76,7 +76,7 @@ def directional_shading(lum: np.ndarray, fit_mask: np.ndarray, ctx: TextureConte
     start = x
     x = least_squares(residual, start, args=(v.ravel()[rows],), loss="soft_l1", f_scale=0.1, max_nfev=100).x
     if direction(x[:2])[1] < settings.light_min_y:  # refined to below the lowest light: the grid's direction kept
-        x = np.concatenate([start[:2], least_squares(lambda y, v: residual(np.concatenate([start[:2], y]), v), start[2:],
+        x = np.concatenate([start[:2], least_squares(lambda rest, v: residual(np.concatenate([start[:2], rest]), v), start[2:],
                                                      args=(v.ravel()[rows],), loss="soft_l1", f_scale=0.1, max_nfev=100).x])
     light = direction(x[:2])
     v = visible(light)
