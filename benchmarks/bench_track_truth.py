@@ -2,35 +2,50 @@
 rendered, tracked, and compared frame by frame; MediaPipe's Face Landmarker on the same frames
 as the reference.
 
-    python benchmarks/bench_track_truth.py [--photo PHOTO] [--mediapipe-python /tmp/mpenv/bin/python] \\
-        [--json OUT.json] [--write OUT.md] [--strip OUT.jpg] [--samples 8] [--threads 1] [--retrack]
+    python benchmarks/bench_track_truth.py [--take {main,holdout}] [--light NAME] \\
+        [--photo PHOTO] [--mediapipe-python /tmp/mpenv/bin/python] [--json OUT.json] \\
+        [--write OUT.md] [--strip OUT.jpg] [--samples 8] [--threads 1] [--retrack] [--render-only]
+
+Two takes (:data:`TAKES`, each a :class:`Take`; ``--take``, default ``main``):
+
+* ``main``: the astronaut (``assets/photos/astronaut.png``) under ``key-fill``, 710 frames at
+  30 fps (23.7 s): fast blinks, a wink of each eye, jaw open, smiles (left, right, both),
+  frowns, brows up and down, cheek puff, pucker, one at a time, head turns to ±35° of yaw,
+  ±15° of pitch, 10° of roll, and four still stretches of 40 frames (one at −35° of yaw);
+* ``holdout``: another face and skin (``~/.cache/facegeo/samples/obama.jpg``) under ``window``
+  (one soft source from the side; the cheeks' shading reader, :mod:`facegeo.cheek_shading`, was
+  tuned on this and the main take; under ``--light ring`` it was measured untouched),
+  360 frames (12 s): three blinks, no wink, cheek puffs, smiles (both), a pucker and jaw open,
+  several held while the head is turned (+20°, −30° of yaw) or pitched (10°); no still stretch
+  of :data:`STILL_MIN` frames (its face rests only for the first 20 frames).
+
+``--light`` renders either under another light of ``blender_render_scan.LIGHTS``, ``--photo``
+with another face. ``--render-only`` stops after step 4 (prints the frames folder and the mp4).
 
 The chain, each step's output cached under ``~/.cache/facegeo/take_truth/`` (``--cache``) in a
 folder named by a hash of that step's inputs, so a second run redoes only what changed:
 
-1. **asset**: ``facegeo reconstruct PHOTO --format glb`` (default the bundled
-   ``assets/photos/astronaut.png``): the ICT face with the photo's skin albedo in ICT's UV layout
-   (keyed by the photo's bytes);
-2. **truth**: a Live Link Face CSV (``facegeo.export.live_link.live_link_csv_text``), 710
-   frames at 30 fps (23.7 s) built from :data:`EXPRESSIONS`, :data:`BLINKS`, :data:`WINKS` and
-   :data:`HEAD_MOVES` (no randomness): fast blinks, a wink of each eye, jaw open, smiles
-   (left, right, both), frowns, brows up and down, cheek puff, pucker, head turns to ±35° of yaw,
-   ±15° of pitch, 10° of roll, and four still stretches of 40 frames (one at −35° of yaw);
+1. **asset**: ``facegeo reconstruct PHOTO --format glb`` (default the take's ``photo``): the ICT
+   face with the photo's skin albedo in ICT's UV layout (keyed by the photo's bytes);
+2. **truth**: a Live Link Face CSV (``facegeo.export.live_link.live_link_csv_text``) at 30 fps
+   built from the take's ``expressions``, ``blinks``, ``winks`` and ``head_moves``
+   (:func:`truth_take`, no randomness; keyed by the CSV's bytes, so each take has its own);
 3. **animate**: ``facegeo animate ASSET --arkit-csv truth.csv --fps 30 -o face.glb`` (keyed by
    the asset and the CSV);
 4. **render**: Blender headless (``benchmarks/blender_render_take.py``, Cycles on the CPU,
-   ``--samples`` a pixel, default 8, ``--threads`` threads, default 1: about 1.5 s a frame, 18
-   minutes in all on one core) at 640 × 480, focal :data:`FOCAL_PX` px, the camera straight in
-   front of the face (:func:`camera_mm`), the photographer's key + fill light (``key-fill`` of
-   ``blender_render_scan.LIGHTS``), every frame to ``frame_00000.png`` ...; Blender's own reading
-   of the file (shape-key values and head rotation per frame) is checked against the take (keyed
-   by the glb's bytes and the render settings, not the Blender script's source: delete the
-   ``render-*`` folder after editing it; an interrupted render resumes). The frames are also
-   written as ``take.mp4`` (OpenCV, ``mp4v``, 30 fps);
+   ``--samples`` a pixel, default 8, ``--threads`` threads, default 1: about 1.1-1.5 s a frame on
+   one core, 13-18 minutes for the main take, 7 for the holdout) at 640 × 480, focal
+   :data:`FOCAL_PX` px, the camera straight in front of the face (:func:`camera_mm`), the take's
+   light (``--light``: a key of ``blender_render_scan.LIGHTS``; ``key-fill`` the photographer's
+   key + fill), every frame to ``frame_00000.png`` ...; Blender's own reading of the file
+   (shape-key values and head rotation per frame) is checked against the take (keyed by the
+   glb's bytes and the render settings, the light among them, not the Blender script's source:
+   delete the ``render-*`` folder after editing it; an interrupted render resumes). The frames
+   are also written as ``take.mp4`` (OpenCV, ``mp4v``, 30 fps);
 5. **track**: ``facegeo track take.mp4 -o OUT`` (as a user runs it: the asset too), timed,
    ``facegeo track FRAMES_DIR -o OUT --no-asset`` on the lossless PNG frames, and the same with
-   ``--neutral`` at :data:`NEUTRAL_S` (the take's face is at rest there, as a Live Link Face user
-   calibrates on their neutral face before a take) (keyed by the input
+   ``--neutral`` at the take's ``neutral_s`` (the take's face is at rest there, as a Live Link
+   Face user calibrates on their neutral face before a take) (keyed by the input's bytes
    and a hash of facegeo's sources in ``facegeo/`` and ``export/``, so a change to the tracker
    tracks again; ``--retrack`` always does);
 6. **MediaPipe**: the Face Landmarker bundle ``face_landmarker.task`` (float16 v1), taken from the
@@ -48,7 +63,8 @@ folder named by a hash of that step's inputs, so a second run redoes only what c
    * the head's rotation: the angle between the true and the estimated rotation per frame
      (median, bar ≤ 2°), per axis (yaw, pitch, roll, Live Link Face's signs), the same with a
      constant offset in the model's axes (the mean rotation from the truth to the estimate) taken
-     out, and the correlations of yaw, pitch and roll;
+     out, the correlations of yaw, pitch and roll, and the estimated yaw at each of the take's
+     yaw holds;
    * blinks: each upward crossing of 0.5 of a true ``eyeBlink`` (both eyes' blinks and the
      winks' closing eye), the estimate's first frame above 0.5 near it, within one frame;
    * the winks: on the frames the true eye is shut (1.0) and the other open (0.0), the estimate's
@@ -58,6 +74,9 @@ folder named by a hash of that step's inputs, so a second run redoes only what c
      weight (bar ≤ 0.01: the largest of the 52 medians);
    * alignment: the lag (−3..3 frames) that best correlates the estimate with the truth;
    * speed: ``facegeo track``'s wall time and the frames per second it reports.
+
+   A take without blinks, winks or still stretches (the holdout has no wink and no still
+   stretch) gets "no ... in this take" in those tables, and empty lists in the JSON.
 
 ``--json`` writes every number, ``--write`` the Markdown tables, ``--strip`` a contact strip
 (rendered frames with the true, facegeo's and MediaPipe's main weights, and the curves over the
@@ -78,7 +97,7 @@ import subprocess
 import sys
 import tempfile
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
@@ -88,19 +107,15 @@ REPO_ROOT = Path(__file__).resolve().parents[1]
 BENCH = Path(__file__).resolve().parent
 CACHE = Path.home() / ".cache" / "facegeo" / "take_truth"
 PHOTO = REPO_ROOT / "assets" / "photos" / "astronaut.png"
+SAMPLES = Path.home() / ".cache" / "facegeo" / "samples"
 EXTRACTOR = REPO_ROOT / "assets" / "mediapipe" / "extract_mediapipe_models.py"
 
 FPS = 30.0
-N_FRAMES = 710
 WIDTH, HEIGHT = 640, 480
-#: Seconds into the take at which the face is at rest (its first second is: every weight 0, the
-#: head still), for the run calibrated on the neutral face (``facegeo track --neutral``).
-NEUTRAL_S = 0.5
 #: The render's focal length (px): a 49° horizontal field of view, a webcam's.
 FOCAL_PX = 700.0
 #: The camera's distance in front of the nose tip (mm): the face about 200 px wide.
 CAMERA_DISTANCE_MM = 450.0
-LIGHT = "key-fill"
 
 #: The bars of issue 48.
 MAE_BAR, R_BAR, ROTATION_BAR_DEG, ONSET_BAR, STILL_ANGLE_BAR, STILL_WEIGHT_BAR = 0.08, 0.9, 2.0, 1, 0.1, 0.01
@@ -126,34 +141,98 @@ class Pulse:
     peak: float
 
 
-#: Expressions, one at a time (24 frames each), then a mix of jaw and smile at the end.
-EXPRESSIONS = (
-    Pulse(("jawOpen",), 50, 6, 9, 6, 0.7),
-    Pulse(("mouthSmileLeft",), 84, 6, 9, 6, 0.8),
-    Pulse(("mouthSmileRight",), 108, 6, 9, 6, 0.8),
-    Pulse(("mouthSmileLeft", "mouthSmileRight"), 132, 6, 9, 6, 0.9),
-    Pulse(("mouthFrownLeft", "mouthFrownRight"), 208, 6, 9, 6, 0.8),
-    Pulse(("browInnerUp", "browOuterUpLeft", "browOuterUpRight"), 232, 6, 9, 6, 0.85),
-    Pulse(("browDownLeft", "browDownRight"), 256, 6, 9, 6, 0.8),
-    Pulse(("cheekPuff",), 280, 6, 9, 6, 0.9),
-    Pulse(("mouthPucker",), 304, 6, 9, 6, 0.9),
-    Pulse(("jawOpen",), 684, 6, 9, 6, 0.5),
-    Pulse(("mouthSmileLeft", "mouthSmileRight"), 684, 6, 9, 6, 0.6),
-)
-#: Both eyes blink: the frames where :data:`BLINK_PROFILE` starts (its 2nd value, 0.75, is the onset).
-BLINKS = (40, 72, 392, 672)
+#: Both eyes blink: a take's ``blinks`` are the frames where this profile starts (its 2nd value,
+#: 0.75, is the onset).
 BLINK_PROFILE = (0.3, 0.75, 1.0, 1.0, 0.7, 0.4, 0.15)
-#: One eye shut, the other open: the left, then the right.
-WINKS = (Pulse(("eyeBlinkLeft",), 156, 3, 15, 4, 1.0), Pulse(("eyeBlinkRight",), 182, 3, 15, 4, 1.0))
-#: Head moves: (axis 0 yaw, 1 pitch, 2 roll; Live Link Face's signs: + yaw towards the subject's
-#: right, + pitch down, + roll the top of the head towards the subject's left) as pulses in degrees.
-HEAD_MOVES = (
-    (0, Pulse((), 366, 20, 20, 20, 35.0)),   # a blink at 392, during the hold
-    (0, Pulse((), 430, 20, 40, 20, -35.0)),  # the hold is a still stretch at a turned pose
-    (1, Pulse((), 514, 15, 8, 15, 15.0)),
-    (1, Pulse((), 552, 15, 8, 15, -15.0)),
-    (2, Pulse((), 594, 15, 8, 15, 10.0)),
-)
+
+
+@dataclass(frozen=True)
+class Take:
+    """A ground-truth take's schedule (module docstring, step 2), at :data:`FPS`.
+
+    ``expressions`` and ``winks`` (one eye shut, the other open) are :class:`Pulse` s of ARKit
+    curves, added up (a weight above 1 is refused); ``blinks`` the frames where
+    :data:`BLINK_PROFILE` starts on both eyes (it replaces what is there); ``head_moves``
+    (axis 0 yaw, 1 pitch, 2 roll; Live Link Face's signs: + yaw towards the subject's right,
+    + pitch down, + roll the top of the head towards the subject's left) pulses in degrees;
+    ``light`` a key of ``blender_render_scan.LIGHTS``; ``neutral_s`` the seconds into the take
+    at which the face is at rest (every weight 0, the head still), for the run calibrated on the
+    neutral face (``facegeo track --neutral``); ``photo`` the face the asset is made from;
+    ``strip_frames`` the frames shown in the contact strip (none: 15 spread over the take)."""
+
+    name: str
+    n_frames: int
+    expressions: tuple[Pulse, ...]
+    blinks: tuple[int, ...]
+    winks: tuple[Pulse, ...]
+    head_moves: tuple[tuple[int, Pulse], ...]
+    light: str
+    neutral_s: float
+    photo: Path = PHOTO
+    strip_frames: tuple[int, ...] = ()
+
+
+TAKES = {
+    # 710 frames (23.7 s): expressions one at a time (24 frames each), then a mix of jaw and
+    # smile at the end; a wink of each eye; head turns to ±35° of yaw (a blink at 392 during the
+    # +35° hold; the −35° hold a still stretch at a turned pose), ±15° of pitch, 10° of roll.
+    "main": Take(
+        name="main",
+        n_frames=710,
+        expressions=(
+            Pulse(("jawOpen",), 50, 6, 9, 6, 0.7),
+            Pulse(("mouthSmileLeft",), 84, 6, 9, 6, 0.8),
+            Pulse(("mouthSmileRight",), 108, 6, 9, 6, 0.8),
+            Pulse(("mouthSmileLeft", "mouthSmileRight"), 132, 6, 9, 6, 0.9),
+            Pulse(("mouthFrownLeft", "mouthFrownRight"), 208, 6, 9, 6, 0.8),
+            Pulse(("browInnerUp", "browOuterUpLeft", "browOuterUpRight"), 232, 6, 9, 6, 0.85),
+            Pulse(("browDownLeft", "browDownRight"), 256, 6, 9, 6, 0.8),
+            Pulse(("cheekPuff",), 280, 6, 9, 6, 0.9),
+            Pulse(("mouthPucker",), 304, 6, 9, 6, 0.9),
+            Pulse(("jawOpen",), 684, 6, 9, 6, 0.5),
+            Pulse(("mouthSmileLeft", "mouthSmileRight"), 684, 6, 9, 6, 0.6),
+        ),
+        blinks=(40, 72, 392, 672),
+        winks=(Pulse(("eyeBlinkLeft",), 156, 3, 15, 4, 1.0), Pulse(("eyeBlinkRight",), 182, 3, 15, 4, 1.0)),
+        head_moves=(
+            (0, Pulse((), 366, 20, 20, 20, 35.0)),   # a blink at 392, during the hold
+            (0, Pulse((), 430, 20, 40, 20, -35.0)),  # the hold is a still stretch at a turned pose
+            (1, Pulse((), 514, 15, 8, 15, 15.0)),
+            (1, Pulse((), 552, 15, 8, 15, -15.0)),
+            (2, Pulse((), 594, 15, 8, 15, 10.0)),
+        ),
+        light="key-fill",
+        neutral_s=0.5,
+        strip_frames=(20, 60, 75, 94, 118, 142, 166, 192, 218, 242, 266, 290, 314, 400, 470),
+    ),
+    # 360 frames (12 s), another face and light, expressions held while the head is turned or
+    # pitched, no wink (the cheeks' shading reader was tuned on it under its own light; under
+    # --light ring it was measured untouched).
+    "holdout": Take(
+        name="holdout",
+        n_frames=360,
+        expressions=(
+            Pulse(("cheekPuff",), 45, 6, 9, 6, 0.6),
+            Pulse(("mouthSmileLeft", "mouthSmileRight"), 75, 6, 9, 6, 0.8),
+            Pulse(("cheekPuff",), 125, 6, 9, 6, 0.9),  # during the +20° yaw hold
+            Pulse(("mouthPucker",), 190, 6, 9, 6, 0.8),
+            Pulse(("mouthSmileLeft", "mouthSmileRight"), 235, 6, 9, 6, 0.6),  # during the −30° yaw hold
+            Pulse(("cheekPuff",), 300, 6, 9, 6, 0.8),  # during the pitch hold
+            Pulse(("jawOpen",), 330, 6, 9, 6, 0.5),
+        ),
+        blinks=(20, 160, 270),
+        winks=(),
+        head_moves=(
+            (0, Pulse((), 100, 15, 50, 15, 20.0)),
+            (0, Pulse((), 215, 15, 40, 15, -30.0)),
+            (1, Pulse((), 285, 10, 35, 10, 10.0)),
+        ),
+        light="window",
+        neutral_s=0.5,
+        photo=SAMPLES / "obama.jpg",
+        strip_frames=(10, 23, 55, 85, 110, 135, 163, 200, 230, 245, 273, 290, 310, 340, 355),
+    ),
+}
 #: The curves shown in the contact strip's plots.
 MAIN_CURVES = ("eyeBlinkLeft", "eyeBlinkRight", "jawOpen", "mouthSmileLeft", "mouthSmileRight", "browInnerUp", "cheekPuff",
                "mouthPucker")
@@ -175,23 +254,29 @@ def pulse_values(n: int, p: Pulse) -> np.ndarray:
     return out
 
 
-def truth_take() -> Any:
-    """The ground-truth :class:`facegeo.arkit.ArkitTake` (module docstring, step 2)."""
+def truth_take(schedule: Take) -> Any:
+    """The ground-truth :class:`facegeo.arkit.ArkitTake` of ``schedule`` (module docstring, step 2)."""
     from facegeo.arkit import ARKIT_NAMES, ArkitTake
 
-    weights = np.zeros((N_FRAMES, len(ARKIT_NAMES)))
-    for p in EXPRESSIONS + WINKS:
+    n = schedule.n_frames
+    for p in schedule.expressions + schedule.winks + tuple(p for _, p in schedule.head_moves):
+        if p.start + p.attack + p.hold + p.release > n:
+            raise ValueError(f"{schedule.name}: a pulse from frame {p.start} ends after the take's {n} frames")
+    if any(start + len(BLINK_PROFILE) > n for start in schedule.blinks):
+        raise ValueError(f"{schedule.name}: a blink ends after the take's {n} frames")
+    weights = np.zeros((n, len(ARKIT_NAMES)))
+    for p in schedule.expressions + schedule.winks:
         for name in p.curves:
-            weights[:, ARKIT_NAMES.index(name)] += pulse_values(N_FRAMES, p)
-    for start in BLINKS:
+            weights[:, ARKIT_NAMES.index(name)] += pulse_values(n, p)
+    for start in schedule.blinks:
         for name in ("eyeBlinkLeft", "eyeBlinkRight"):
             weights[start:start + len(BLINK_PROFILE), ARKIT_NAMES.index(name)] = BLINK_PROFILE
-    angles = np.zeros((N_FRAMES, 3))
-    for axis, p in HEAD_MOVES:
-        angles[:, axis] += np.radians(pulse_values(N_FRAMES, p))
+    angles = np.zeros((n, 3))
+    for axis, p in schedule.head_moves:
+        angles[:, axis] += np.radians(pulse_values(n, p))
     if weights.max() > 1.0:
         raise AssertionError("overlapping pulses exceed a weight of 1")
-    return ArkitTake("truth", FPS, np.arange(N_FRAMES) / FPS, weights.astype(np.float32), {"head": angles})
+    return ArkitTake("truth", FPS, np.arange(n) / FPS, weights.astype(np.float32), {"head": angles})
 
 
 # ----------------------------------------------------------------------------------------- cache
@@ -230,6 +315,14 @@ def facegeo_source_digest() -> str:
     return h.hexdigest()[:16]
 
 
+def _home(path: Path) -> str:
+    """``path`` with the home folder written ``~``."""
+    try:
+        return "~/" + str(path.relative_to(Path.home()))
+    except ValueError:
+        return str(path.relative_to(REPO_ROOT)) if path.is_relative_to(REPO_ROOT) else str(path)
+
+
 def _facegeo() -> str:
     exe = Path(sys.executable).with_name("facegeo")
     return str(exe) if exe.exists() else "facegeo"
@@ -260,11 +353,11 @@ def make_asset(photo: Path, cache: Path) -> Path:
     return folder
 
 
-def make_truth(cache: Path) -> tuple[Any, Path]:
-    """Step 2: the truth take and its CSV."""
+def make_truth(schedule: Take, cache: Path) -> tuple[Any, Path]:
+    """Step 2: the truth take of ``schedule`` and its CSV."""
     from facegeo.export.live_link import live_link_csv_text
 
-    take = truth_take()
+    take = truth_take(schedule)
     text = live_link_csv_text(take)
     path = cache / f"truth-{_digest(text.encode())}" / "truth.csv"
     if not path.exists():
@@ -295,13 +388,14 @@ def camera_mm(asset: Path) -> list[float]:
     return [0.0, (eyes_y + chin_y) / 2.0, nose_z + CAMERA_DISTANCE_MM]
 
 
-def render(glb: Path, asset: Path, cache: Path, samples: int, threads: int, blender: str) -> tuple[Path, dict]:
-    """Step 4: the rendered frames (a folder), Blender's probe (per-frame shape keys and head rotation)."""
-    settings = {"fps": FPS, "frames": [0, N_FRAMES - 1], "width": WIDTH, "height": HEIGHT, "focal_px": FOCAL_PX,
-                "camera_mm": camera_mm(asset), "light": LIGHT, "samples": samples}
+def render(schedule: Take, glb: Path, asset: Path, cache: Path, samples: int, threads: int, blender: str) -> tuple[Path, dict]:
+    """Step 4: the rendered frames (a folder), Blender's probe (per-frame shape keys and head
+    rotation), under ``schedule``'s light."""
+    settings = {"fps": FPS, "frames": [0, schedule.n_frames - 1], "width": WIDTH, "height": HEIGHT, "focal_px": FOCAL_PX,
+                "camera_mm": camera_mm(asset), "light": schedule.light, "samples": samples}
     folder = cache / f"render-{_digest(_file_digest(glb), settings)}"
     frames = folder / "frames"
-    if len(list(frames.glob("frame_*.png"))) < N_FRAMES or not (folder / "probe.json").exists():
+    if len(list(frames.glob("frame_*.png"))) < schedule.n_frames or not (folder / "probe.json").exists():
         folder.mkdir(parents=True, exist_ok=True)
         job = {**settings, "glb": str(glb), "out": str(frames), "probe": str(folder / "probe.json")}
         (folder / "job.json").write_text(json.dumps(job, indent=1))
@@ -483,8 +577,13 @@ def blink_events(take: Any) -> list[tuple[str, int]]:
     return sorted(out, key=lambda e: (e[1], e[0]))
 
 
-def evaluate(take: Any, est: Estimate) -> dict:
-    """Every metric of ``est`` against the truth ``take`` (module docstring, step 7)."""
+def yaw_holds(schedule: Take) -> tuple[float, ...]:
+    """The yaws (degrees) the schedule's head holds at (its yaw pulses' peaks), in order."""
+    return tuple(p.peak for axis, p in schedule.head_moves if axis == 0)
+
+
+def evaluate(take: Any, est: Estimate, schedule: Take) -> dict:
+    """Every metric of ``est`` against the truth ``take`` of ``schedule`` (module docstring, step 7)."""
     from facegeo.arkit import ARKIT_NAMES
     from facegeo.export.animation import head_angles, rotations
     from scipy.spatial.transform import Rotation
@@ -534,7 +633,8 @@ def evaluate(take: Any, est: Estimate) -> dict:
             "axis_median_abs_deg_offset_removed": dict(zip(("yaw", "pitch", "roll"), np.median(np.abs(diff_corrected), axis=0).tolist())),
             "yaw_r": _pearson(true_a[found, 0], est_a[found, 0]), "pitch_r": _pearson(true_a[found, 1], est_a[found, 1]),
             "roll_r": _pearson(true_a[found, 2], est_a[found, 2]),
-            "yaw_at_true_peaks_deg": {f"{t:+.0f}": float(np.median(est_a[np.abs(true_a[:, 0] - t) < 1e-6, 0])) for t in (35.0, -35.0)}}
+            "yaw_at_true_peaks_deg": {f"{t:+.0f}": (float(np.median(est_a[at, 0])) if at.any() else None)
+                                      for t in yaw_holds(schedule) for at in [np.abs(true_a[:, 0] - t) < 1e-6]}}
     head["pass"] = bool(head["median_deg"] <= ROTATION_BAR_DEG)
 
     blinks = []
@@ -547,7 +647,7 @@ def evaluate(take: Any, est: Estimate) -> dict:
                        "pass": onset is not None and abs(onset - t0) <= ONSET_BAR})
 
     winks = []
-    for p in WINKS:
+    for p in schedule.winks:
         shut = p.curves[0]
         other = "eyeBlinkRight" if shut == "eyeBlinkLeft" else "eyeBlinkLeft"
         frames = np.arange(p.start + p.attack, p.start + p.attack + p.hold)
@@ -584,11 +684,18 @@ def _ok(flag: bool) -> str:
     return "pass" if flag else "**fail**"
 
 
-def markdown(report: dict) -> str:
+def _degrees(value: float) -> str:
+    """``+35°``, ``−35°`` (a minus sign, not a hyphen)."""
+    return f"{value:+.0f}°".replace("-", "−")
+
+
+def markdown(report: dict, schedule: Take) -> str:
     """The tables (module docstring)."""
     res = report["results"]
     labels = list(res)
-    lines = [f"Truth: {N_FRAMES} frames at {FPS:g} fps; render {WIDTH} × {HEIGHT}, focal {FOCAL_PX:g} px, light {LIGHT}, "
+    n_frames = schedule.n_frames
+    lines = [f"Truth: the {schedule.name} take, {n_frames} frames at {FPS:g} fps; render {WIDTH} × {HEIGHT}, focal {FOCAL_PX:g} px, "
+             f"light {schedule.light}, "
              f"Cycles {report['render']['samples']} samples, {report['render'].get('median_s_per_frame') or 0:.2f} s a frame "
              f"({report['render']['threads']} thread(s)). Blender's reading of the animated glb against the take: largest weight "
              f"difference {report['probe']['max_weight_diff']:.2g}, largest head rotation difference "
@@ -618,11 +725,16 @@ def markdown(report: dict) -> str:
             ("abs. error, offset removed, yaw / pitch / roll °",
              lambda h: " / ".join(f"{v:.2f}" for v in h["axis_median_abs_deg_offset_removed"].values())),
             ("r yaw / pitch / roll", lambda h: f"{_f(h['yaw_r'], '.3f')} / {_f(h['pitch_r'], '.3f')} / {_f(h['roll_r'], '.3f')}"),
-            ("yaw at the true +35° / −35° holds", lambda h: " / ".join(f"{v:+.1f}" for v in h["yaw_at_true_peaks_deg"].values()))]
+            (f"yaw at the true {' / '.join(_degrees(t) for t in yaw_holds(schedule)) or 'no'} holds",
+             lambda h: " / ".join(_f(v, "+.1f") for v in h["yaw_at_true_peaks_deg"].values()) or "–")]
     for title, cell in rows:
         lines.append(f"| {title} | " + " | ".join(cell(res[k]["head"]) for k in labels) + " |")
-    lines += ["", "### Blinks (bar: onset within 1 frame of the truth's)", "",
-              "| eye | true onset | " + " | ".join(f"{k} onset (Δ), peak" for k in labels) + " |", "|---|---:|" + "---:|" * len(labels)]
+    lines += ["", "### Blinks (bar: onset within 1 frame of the truth's)", ""]
+    if not res[labels[0]]["blinks"]:
+        lines.append("No blink in this take.")
+    else:
+        lines += ["| eye | true onset | " + " | ".join(f"{k} onset (Δ), peak" for k in labels) + " |",
+                  "|---|---:|" + "---:|" * len(labels)]
     for j, b in enumerate(res[labels[0]]["blinks"]):
         cells = []
         for k in labels:
@@ -630,18 +742,25 @@ def markdown(report: dict) -> str:
             cells.append(("missed" if e["onset"] is None else f"{e['onset']} ({e['delta']:+d})") + f", {e['peak']:.2f}" +
                          ("" if e["pass"] else " ✗"))
         lines.append(f"| {b['curve']} | {b['true_onset']} | " + " | ".join(cells) + " |")
-    lines.append("| onsets within 1 frame | | " + " | ".join(f"{sum(e['pass'] for e in res[k]['blinks'])} of {len(res[k]['blinks'])}"
-                                                            for k in labels) + " |")
-    lines += ["", f"### Winks (bar: the shut eye ≥ {WINK_SHUT}, the open one ≤ {WINK_OPEN}, on every frame the true eye is shut)", "",
-              "| shut eye (frames) | " + " | ".join(f"{k}: shut / open median, frames ok" for k in labels) + " |",
-              "|---|" + "---:|" * len(labels)]
+    if res[labels[0]]["blinks"]:
+        lines.append("| onsets within 1 frame | | " + " | ".join(f"{sum(e['pass'] for e in res[k]['blinks'])} of {len(res[k]['blinks'])}"
+                                                                for k in labels) + " |")
+    lines += ["", f"### Winks (bar: the shut eye ≥ {WINK_SHUT}, the open one ≤ {WINK_OPEN}, on every frame the true eye is shut)", ""]
+    if not res[labels[0]]["winks"]:
+        lines.append("No wink in this take.")
+    else:
+        lines += ["| shut eye (frames) | " + " | ".join(f"{k}: shut / open median, frames ok" for k in labels) + " |",
+                  "|---|" + "---:|" * len(labels)]
     for j, wk in enumerate(res[labels[0]]["winks"]):
         cells = [f"{e['shut_median']:.2f} / {e['open_median']:.2f}, {100 * e['fraction_ok']:.0f} % ({_ok(e['pass'])})"
                  for e in (res[k]["winks"][j] for k in labels)]
         lines.append(f"| {wk['shut']} ({wk['frames'][0]}–{wk['frames'][1]}) | " + " | ".join(cells) + " |")
-    lines += ["", "### Jitter on the still stretches (bars: head ≤ 0.1° a frame, every weight ≤ 0.01 a frame; medians)", "",
-              "| frames | " + " | ".join(f"{k}: yaw / pitch / roll °, worst weight" for k in labels) + " |",
-              "|---|" + "---|" * len(labels)]
+    lines += ["", "### Jitter on the still stretches (bars: head ≤ 0.1° a frame, every weight ≤ 0.01 a frame; medians)", ""]
+    if not res[labels[0]]["jitter"]:
+        lines.append(f"No still stretch in this take (no run of {STILL_MIN} frames or more where nothing moves).")
+    else:
+        lines += ["| frames | " + " | ".join(f"{k}: yaw / pitch / roll °, worst weight" for k in labels) + " |",
+                  "|---|" + "---|" * len(labels)]
     for j, s in enumerate(res[labels[0]]["jitter"]):
         cells = []
         for k in labels:
@@ -661,13 +780,13 @@ def markdown(report: dict) -> str:
                      f"{t['load_after']:.1f} after")
     if "mediapipe" in report:
         m = report["mediapipe"]
-        lines.append(f"* MediaPipe {m['version']} (VIDEO mode, PNG frames): {m['seconds']:.1f} s for {N_FRAMES} frames "
-                     f"({N_FRAMES / m['seconds']:.1f} frames/s, decoding included)")
+        lines.append(f"* MediaPipe {m['version']} (VIDEO mode, PNG frames): {m['seconds']:.1f} s for {n_frames} frames "
+                     f"({n_frames / m['seconds']:.1f} frames/s, decoding included)")
     return "\n".join(lines) + "\n"
 
 
-def contact_strip(frames: Path, take: Any, estimates: list[Estimate], target: Path) -> None:
-    """Fifteen rendered frames with the main curves' true and estimated values as bars, and the
+def contact_strip(frames: Path, take: Any, estimates: list[Estimate], target: Path, schedule: Take) -> None:
+    """Fifteen rendered frames (``schedule.strip_frames``) with the main curves' true and estimated values as bars, and the
     main curves and the head's yaw over the clip (truth black, the estimates in colour)."""
     import cv2
     import matplotlib
@@ -678,7 +797,7 @@ def contact_strip(frames: Path, take: Any, estimates: list[Estimate], target: Pa
     from facegeo.arkit import ARKIT_NAMES
     from facegeo.export.animation import head_angles
 
-    picks = [20, 60, 75, 94, 118, 142, 166, 192, 218, 242, 266, 290, 314, 400, 470]
+    picks = list(schedule.strip_frames) or np.linspace(0, schedule.n_frames - 1, 17).round().astype(int)[1:-1].tolist()
     colours = ["tab:red", "tab:blue", "tab:purple", "tab:green"]
     fig = plt.figure(figsize=(28, 14), dpi=80)
     grid = fig.add_gridspec(2 + len(MAIN_CURVES) // 2 + 1, len(picks), height_ratios=[1.6, 1.4] + [1.0] * (len(MAIN_CURVES) // 2 + 1))
@@ -700,7 +819,7 @@ def contact_strip(frames: Path, take: Any, estimates: list[Estimate], target: Pa
         ax.invert_yaxis()
         if j == 0:
             ax.legend(fontsize=7, loc="lower right")
-    t = np.arange(N_FRAMES)
+    t = np.arange(schedule.n_frames)
     plots = [(name, take.weights[:, ARKIT_NAMES.index(name)], [e.weights[:, ARKIT_NAMES.index(name)] for e in estimates])
              for name in MAIN_CURVES]
     for axis, title in enumerate(("head yaw °", "head pitch °")):
@@ -718,9 +837,27 @@ def contact_strip(frames: Path, take: Any, estimates: list[Estimate], target: Pa
     plt.close(fig)
 
 
+def light_names() -> list[str]:
+    """The keys of ``blender_render_scan.LIGHTS``, read from that file's source (it imports ``bpy``,
+    so it cannot be imported here)."""
+    import ast
+
+    path = BENCH / "blender_render_scan.py"
+    for node in ast.parse(path.read_text(), str(path)).body:
+        if isinstance(node, ast.Assign) and any(getattr(t, "id", None) == "LIGHTS" for t in node.targets):
+            return [ast.literal_eval(key) for key in node.value.keys]
+    raise SystemExit(f"{path}: no LIGHTS")
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--photo", type=Path, default=PHOTO, help="the face the asset is made from (default: the bundled astronaut)")
+    parser.add_argument("--take", choices=list(TAKES), default="main", help="which ground-truth take (default main)")
+    parser.add_argument("--light", choices=light_names(),
+                        help="render under this light of blender_render_scan.LIGHTS instead of the take's "
+                             "(" + ", ".join(f"{t.name}: {t.light}" for t in TAKES.values()) + ")")
+    parser.add_argument("--photo", type=Path,
+                        help="the face the asset is made from instead of the take's (" +
+                             ", ".join(f"{t.name}: {_home(t.photo)}" for t in TAKES.values()) + ")")
     parser.add_argument("--cache", type=Path, default=CACHE, help=f"where each step's output is kept (default {CACHE})")
     parser.add_argument("--blender", default=shutil.which("blender") or "blender", help="Blender 3.4's executable")
     parser.add_argument("--samples", type=int, default=8, help="Cycles samples a pixel (default 8)")
@@ -731,17 +868,29 @@ def main() -> None:
     parser.add_argument("--json", type=Path, help="write every number here")
     parser.add_argument("--write", type=Path, help="write the Markdown tables here")
     parser.add_argument("--strip", type=Path, help="write the contact strip (JPEG) here")
+    parser.add_argument("--render-only", action="store_true",
+                        help="stop after the render and its mp4 (steps 1-4): print the frames folder and the mp4's path")
     args = parser.parse_args()
+    schedule = replace(TAKES[args.take], **({"light": args.light} if args.light else {}),
+                       **({"photo": args.photo} if args.photo else {}))
 
-    asset = make_asset(args.photo, args.cache)
-    take, csv = make_truth(args.cache)
+    asset = make_asset(schedule.photo, args.cache)
+    take, csv = make_truth(schedule, args.cache)
     glb = make_animated(asset, csv, args.cache)
-    frames, probe = render(glb, asset, args.cache, args.samples, args.threads, args.blender)
+    frames, probe = render(schedule, glb, asset, args.cache, args.samples, args.threads, args.blender)
     probe_check = check_probe(probe, take)
     mp4 = write_mp4(frames)
+    if args.render_only:
+        timing = json.loads((frames.parent / "timing.json").read_text()) if (frames.parent / "timing.json").exists() else {}
+        print(json.dumps({"take": schedule.name, "light": schedule.light, "photo": str(schedule.photo), "asset": str(asset),
+                          "truth_csv": str(csv), "glb": str(glb), "render": timing, "probe": probe_check}, indent=1))
+        print(f"frames: {frames}")
+        print(f"mp4: {mp4}")
+        return
+    neutral = f"{schedule.neutral_s:g}"
     runs = {"facegeo (mp4)": track(mp4, args.cache, "mp4", True, args.retrack),
             "facegeo (PNG)": track(frames, args.cache, "png", False, args.retrack),
-            f"facegeo (PNG, --neutral {NEUTRAL_S:g})": track(frames, args.cache, "png", False, args.retrack, ("--neutral", f"{NEUTRAL_S:g}"))}
+            f"facegeo (PNG, --neutral {neutral})": track(frames, args.cache, "png", False, args.retrack, ("--neutral", neutral))}
     estimates = [facegeo_estimate(label, Path(run["folder"]), run["record"]) for label, run in runs.items()]
     mediapipe = None
     if args.mediapipe_python:
@@ -749,9 +898,10 @@ def main() -> None:
         estimates.append(mediapipe_estimate(mediapipe))
 
     timing = json.loads((frames.parent / "timing.json").read_text()) if (frames.parent / "timing.json").exists() else {}
-    report = {"photo": str(args.photo), "asset": str(asset), "truth_csv": str(csv), "glb": str(glb), "frames": str(frames), "mp4": str(mp4),
+    report = {"take": schedule.name, "light": schedule.light, "photo": str(schedule.photo), "asset": str(asset),
+              "truth_csv": str(csv), "glb": str(glb), "frames": str(frames), "mp4": str(mp4),
               "render": {"samples": args.samples, "threads": args.threads, **timing}, "probe": probe_check,
-              "still_stretches": still_stretches(take), "speed": {}, "results": {e.label: evaluate(take, e) for e in estimates}}
+              "still_stretches": still_stretches(take), "speed": {}, "results": {e.label: evaluate(take, e, schedule) for e in estimates}}
     for label, run in runs.items():
         rec = run["record"]
         report["speed"][label] = {"wall_s": run["timing"]["wall_s"], "asset": run["asset"], "frames": rec["frames_tracked"],
@@ -761,14 +911,14 @@ def main() -> None:
                                   "notes": rec["notes"]}
     if mediapipe is not None:
         report["mediapipe"] = {"version": mediapipe["mediapipe"], "seconds": mediapipe["seconds"]}
-    text = markdown(report)
+    text = markdown(report, schedule)
     print(text)
     if args.json:
         args.json.write_text(json.dumps(report, indent=1, default=float))
     if args.write:
         args.write.write_text(text)
     if args.strip:
-        contact_strip(frames, take, estimates, args.strip)
+        contact_strip(frames, take, estimates, args.strip, schedule)
 
 
 if __name__ == "__main__":
