@@ -633,9 +633,10 @@ def track_into_folder(video: str | Path, output: str | Path, options: TrackOptio
       found, its landmark RMS (px, % of the inter-ocular distance; of the frame's own fit), pose,
       ICT weights (smoothed with ``options.smooth``, as in the take), whether it was a keyframe
       and, where the brows' flow was tried, how many brow points it carried
-      (:class:`facegeo.tracking.BrowFlow`); the smoothing, the neutral calibration (given by
-      ``options.neutral_s`` or found, ``options.find_rest``; None without one),
-      keyframes, timings and notes;
+      (:class:`facegeo.tracking.BrowFlow`), where the puff was read from the cheeks' shading, the
+      share of their shading error it explained (:mod:`facegeo.cheek_shading`); the smoothing,
+      the neutral calibration (given by ``options.neutral_s`` or found, ``options.find_rest``;
+      None without one), keyframes, timings and notes;
     * with ``options.asset``: the person's textured asset (``asset/``), ``face.glb`` and
       ``face.usdz`` animated by the take, and ``preview.png`` (:func:`_animated_asset`).
 
@@ -651,6 +652,7 @@ def track_into_folder(video: str | Path, output: str | Path, options: TrackOptio
     from facegeo.arkit import ARKIT_NAMES, ArkitTake, target_naming
     from facegeo.export.live_link import live_link_csv_lines
     from facegeo.staged_output import StagedOutput, locked_output
+    from facegeo.cheek_shading import PUFF_GAIN_RAMP
     from facegeo.landmarks.eyelids import SHUT_FRACTION
     from facegeo.landmarks.scheme import N_LANDMARKS
     from facegeo.tracking import (BROW_FLOW_RETURN_PX, BROW_FLOW_WEIGHT, NEUTRAL_FADE_DEG, POSE_WINDOW, SLOW_WEIGHT_WINDOW,
@@ -671,6 +673,7 @@ def track_into_folder(video: str | Path, output: str | Path, options: TrackOptio
             track.frames = smooth_track(track.frames, *model.expression_range, fast=lid_weights(model.expression_names))
         calibration = None
         flowed = [f.brow_flow for f in track.frames if f.brow_flow is not None]
+        gains = [f.puff_gain for f in track.frames if f.puff_gain is not None]
         if track.neutral is not None:
             size = np.linalg.norm(track.neutral.offsets, axis=1)
             calibration = {"time_s": track.neutral.time_s, "frames": track.neutral.frames,
@@ -688,6 +691,12 @@ def track_into_folder(video: str | Path, output: str | Path, options: TrackOptio
                                           "rule": "the brows' region points of the middle frame at rest carried into each frame the "
                                                   "offsets reach by pyramidal Lucas-Kanade optical flow (kept where the flow back returns "
                                                   f"within {BROW_FLOW_RETURN_PX:g} px)"} if track.brow_flow else None),
+                           "puff_shading": ({"frames": len(gains), "frames_with_puff": sum(g > PUFF_GAIN_RAMP[0] for g in gains),
+                                             "gain_ramp": list(PUFF_GAIN_RAMP),
+                                             "rule": "cheekPuff read from the cheeks' shading against the frame at rest (SH light and "
+                                                     "albedo fitted there, the exposure from skin a puff does not move), kept by the "
+                                                     "share of the shading error it explains, none below the ramp's first value, all "
+                                                     "from its second; in place of the landmark solve's"} if gains else None),
                            "offsets_mm": {"landmarks_median": float(np.median(size[:N_LANDMARKS])),
                                           "landmarks_max": float(size[:N_LANDMARKS].max()),
                                           "dense_median": float(np.median(size[N_LANDMARKS:])) if len(size) > N_LANDMARKS else None}}

@@ -30,8 +30,9 @@ descriptor (:func:`observe_frames`). Every frame's points are measured from the 
 rest (:func:`neutral_offsets`), at a given time, or, where none is given, at the clip's most
 typical still stretch (:func:`rest_stretch`) when it is typical enough to be the face at rest (the
 frames are then solved again); where the frames can be decoded again, the brows' region of the
-face at rest is then carried into each frame by optical flow (:class:`BrowFlow`). What is not done
-yet (issue 48): gaze (eye rotations).
+face at rest is then carried into each frame by optical flow (:class:`BrowFlow`) and the puff is
+read from the cheeks' shading against the face at rest (:mod:`facegeo.cheek_shading`) in place of
+the points' own. What is not done yet (issue 48): gaze (eye rotations).
 """
 
 from __future__ import annotations
@@ -48,6 +49,7 @@ import numpy as np
 
 from facegeo.arkit import arkit_name
 from facegeo.camera import Camera, euler_from_rotation, to_pixels
+from facegeo.cheek_shading import CheekShading, cheek_shading
 from facegeo.errors import InputError, NoFaceError
 from facegeo.fitting.dense_term import DEFAULT_DENSE
 from facegeo.fitting.landmark_fit import LandmarkSolution, initial_pose, solve_landmarks
@@ -65,7 +67,7 @@ from facegeo.observed_frames import ObservedFrame, ObservedFrames
 __all__ = ["TrackedFrame", "Track", "ClipIdentity", "track_frames", "observe_frames", "clip_identity",
            "follow_region", "spanning_frames", "lid_weights", "track_observed", "solve_frame", "smooth_track", "SolveStart",
            "turned_brow_weights", "TURNED_BROW_RAMP", "NeutralOffsets", "neutral_offsets", "NEUTRAL_POSE_STAGE", "NEUTRAL_WINDOW_S",
-           "NEUTRAL_FADE_DEG", "RestStretch", "rest_stretch", "REST_DISTANCE", "REST_STRONGEST", "REST_TURN_DEG", "BrowFlow", "brow_flow",
+           "NEUTRAL_FADE_DEG", "RestStretch", "rest_stretch", "REST_DISTANCE", "REST_STRONGEST", "REST_TURN_DEG", "BrowFlow", "face_at_rest",
            "BROW_FLOW_WEIGHT", "BROW_FLOW_RETURN_PX", "BROW_FLOW_WINDOW", "BROW_FLOW_LEVELS",
            "TRACK_STAGE", "KEYFRAMES", "FOLLOW_MARGIN", "POSE_WINDOW", "WEIGHT_WINDOW", "SLOW_WEIGHT_WINDOW",
            "IDENTITY_CHECK_EVERY", "HELD_FRAMES", "HELD_BYTES", "BROW_ALONG_NOISE", "IDENTITY_DETECTOR", "face_region_only"]
@@ -101,7 +103,9 @@ class TrackedFrame:
     ``followed_back``: the face was lost going forward and found by following the next frame's
     face back (:attr:`~facegeo.observed_frames.ObservedFrame.followed_back`); ``brow_flow``, how
     many brow points the optical flow from the face at rest carried into this frame
-    (:meth:`BrowFlow.carried`; None where it was not tried)."""
+    (:meth:`BrowFlow.carried`; None where it was not tried); ``puff_gain``, the share of the
+    cheeks' shading error that the puff read from it explained
+    (:meth:`~facegeo.cheek_shading.CheekShading.puff_reading`; None where it was not read)."""
 
     index: int
     time_s: float
@@ -115,6 +119,7 @@ class TrackedFrame:
     note: str | None = None
     followed_back: bool = False
     brow_flow: int | None = None
+    puff_gain: float | None = None
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready: pose as rotation, Euler angles (degrees) and translation (mm)."""
@@ -130,6 +135,8 @@ class TrackedFrame:
             out["followed_back"] = True
         if self.brow_flow is not None:
             out["brow_flow_points"] = self.brow_flow
+        if self.puff_gain is not None:
+            out["puff_shading_gain"] = self.puff_gain
         return out
 
 
@@ -221,10 +228,11 @@ def track_frames(frames: Iterable[Any], model: MorphableModel, detector: str = "
     start = time.perf_counter()
     shared = clip_identity(model, observed, size, focal, keyframes, source, frame_image)
     offsets = None if neutral_s is None else neutral_offsets(model, observed, shared, neutral_s, source)
-    flow = None if offsets is None or frames_again is None else brow_flow(model, observed, offsets, frames_again)
+    flow, shading = (None, None) if offsets is None or frames_again is None else face_at_rest(model, observed, shared, offsets,
+                                                                                             frames_again)
     timings["identity"] = time.perf_counter() - start
     start = time.perf_counter()
-    tracked = track_observed(model, observed, shared, offsets=offsets, flow=flow)
+    tracked = track_observed(model, observed, shared, offsets=offsets, flow=flow, shading=shading)
     timings["track"] = time.perf_counter() - start
     notes, found_rest = list(shared.notes), None
     if neutral_s is None and find_rest:
@@ -232,8 +240,8 @@ def track_frames(frames: Iterable[Any], model: MorphableModel, detector: str = "
         found_rest = rest_stretch(model, tracked)
         if found_rest is not None and found_rest.at_rest:
             offsets = neutral_offsets(model, observed, shared, found_rest.time_s, source)
-            flow = None if frames_again is None else brow_flow(model, observed, offsets, frames_again)
-            tracked = track_observed(model, observed, shared, offsets=offsets, flow=flow)
+            flow, shading = (None, None) if frames_again is None else face_at_rest(model, observed, shared, offsets, frames_again)
+            tracked = track_observed(model, observed, shared, offsets=offsets, flow=flow, shading=shading)
             notes.append(f"expressions measured from the face at rest at {found_rest.time_s:.2f} s (the clip's most typical still "
                          f"stretch; --neutral S to choose the time, --neutral none for the points as observed)")
         elif found_rest is not None and found_rest.distance <= REST_DISTANCE:
@@ -688,12 +696,15 @@ def _without_lids(model: MorphableModel, delta: np.ndarray) -> np.ndarray:
 
 def track_observed(model: MorphableModel, observed: Sequence[ObservedFrame], shared: ClipIdentity,
                    stage: LandmarkStage = TRACK_STAGE, parts: int = 2, offsets: NeutralOffsets | None = None,
-                   flow: BrowFlow | None = None) -> list[TrackedFrame]:
+                   flow: BrowFlow | None = None, shading: CheekShading | None = None) -> list[TrackedFrame]:
     """Every observed frame's pose and expression with the clip's identity fixed (module
     docstring, step 4), ``stage`` the per-frame solve (its ``n_id`` must be 0: the identity stays),
     the points measured from the person's at rest where ``offsets`` are given (:func:`solve_frame`),
     and with ``flow`` (which needs them) the brows' region of the face at rest carried into each
-    frame the offsets reach (:meth:`BrowFlow.carried`).
+    frame the offsets reach (:meth:`BrowFlow.carried`), and with ``shading`` too (which needs the
+    flow's frames) the puff read from the cheeks' shading in every frame at its solved pose
+    (:meth:`~facegeo.cheek_shading.CheekShading.puff_reading`), in place of the solve's own (the
+    next frame's solve starts from the solve's own).
 
     ``parts`` 2: a clip of at least 2 × :data:`MIN_PART_FRAMES` frames is solved in two halves at
     once, the second by a forked child (:mod:`facegeo.forked_call`, where it
@@ -705,9 +716,10 @@ def track_observed(model: MorphableModel, observed: Sequence[ObservedFrame], sha
         raise InputError("<argument>", "stage", "a stage that leaves the identity out (n_id 0)", repr(stage.n_id))
     split = len(observed) // 2 if parts >= 2 and len(observed) >= 2 * MIN_PART_FRAMES and can_fork() else len(observed)
     first, second = beside_child(
-        lambda: fork_call(_track_part, model, observed, shared, stage, split, len(observed), offsets, flow) if split < len(observed) else None,
-        lambda: _track_part(model, observed, shared, stage, 0, split, offsets, flow),
-        lambda lost: _track_part(model, observed, shared, stage, split, len(observed), offsets, flow))
+        lambda: fork_call(_track_part, model, observed, shared, stage, split, len(observed), offsets, flow, shading)
+        if split < len(observed) else None,
+        lambda: _track_part(model, observed, shared, stage, 0, split, offsets, flow, shading),
+        lambda lost: _track_part(model, observed, shared, stage, split, len(observed), offsets, flow, shading))
     return first + second
 
 
@@ -718,7 +730,8 @@ MIN_PART_FRAMES = 30
 
 
 def _track_part(model: MorphableModel, observed: Sequence[ObservedFrame], shared: ClipIdentity, stage: LandmarkStage, first: int,
-                end: int, offsets: NeutralOffsets | None = None, flow: BrowFlow | None = None) -> list[TrackedFrame]:
+                end: int, offsets: NeutralOffsets | None = None, flow: BrowFlow | None = None,
+                shading: CheekShading | None = None) -> list[TrackedFrame]:
     """:func:`track_observed` on ``observed[first:end]``, the first from solvePnP."""
     out: list[TrackedFrame] = []
     previous = None
@@ -741,15 +754,20 @@ def _track_part(model: MorphableModel, observed: Sequence[ObservedFrame], shared
             open_gaps = shared.open_lids * eyelids.model_lid_gaps(model, shared.alpha, _without_lids(model, start.delta), start.rotation,
                                                           start.translation, shared.camera)
             measured = eyelids.blinks(frame.lid_gaps, open_gaps, start.rotation)
-        if images is not None and obs.surface_points is not None:  # the brows' flow, where the offsets reach
-            image = images.at(frame.index) if offsets.share(start.rotation) > 0.0 else None
-            if image is not None:
-                obs, carried = flow.carried(obs, image)
+        image = None
+        if images is not None and (shading is not None or offsets.share(start.rotation) > 0.0):
+            image = images.at(frame.index)
+        if image is not None and obs.surface_points is not None and offsets.share(start.rotation) > 0.0:  # the brows' flow
+            obs, carried = flow.carried(obs, image)
         fit = solve_frame(model, obs, shared.camera, shared.alpha, shared.noise, start, stage, measured, offsets).fit
         previous = SolveStart(fit.rotation, fit.translation, shared.alpha, fit.delta)
-        out.append(TrackedFrame(frame.index, frame.time_s, True, fit.rotation, fit.translation, fit.delta,
+        delta, gain = fit.delta, None
+        reading = None if shading is None or image is None else shading.puff_reading(image, fit.rotation, fit.translation, fit.delta)
+        if reading is not None:  # the puff in this frame's cheeks, in place of the points' own
+            delta, gain = shading.with_puff(fit.delta, reading[0]).astype(fit.delta.dtype), reading[1]
+        out.append(TrackedFrame(frame.index, frame.time_s, True, fit.rotation, fit.translation, delta,
                                 float(fit.landmark_rms_px), float(fit.landmark_rms_percent_iod), k in shared.keyframes,
-                                followed_back=frame.followed_back, brow_flow=carried))
+                                followed_back=frame.followed_back, brow_flow=carried, puff_gain=gain))
     return out
 
 
@@ -1152,21 +1170,25 @@ class BrowFlow:
                                                                       surface.contour, surface.expressive)), int(good.sum())
 
 
-def brow_flow(model: MorphableModel, observed: Sequence[ObservedFrame], offsets: NeutralOffsets,
-              frames_again: Callable[[float], Iterable[Any]]) -> BrowFlow | None:
-    """The :class:`BrowFlow` of the face at rest: the middle one of the frames ``offsets`` were
-    measured on, decoded again by ``frames_again``; None where that frame has no dense points or
-    is not found again."""
+def face_at_rest(model: MorphableModel, observed: Sequence[ObservedFrame], shared: ClipIdentity, offsets: NeutralOffsets,
+                 frames_again: Callable[[float], Iterable[Any]]) -> tuple[BrowFlow | None, CheekShading | None]:
+    """What every frame reads against the face at rest, the middle one of the frames ``offsets``
+    were measured on, decoded again by ``frames_again``: the :class:`BrowFlow` (None where that
+    frame has no dense points or is not found again) and, with it, the cheeks' shading
+    (:func:`facegeo.cheek_shading.cheek_shading` at the frame's own solve; None where it cannot
+    be read)."""
     at_rest = {frame.index: frame for frame in observed if frame.observation is not None}
     frame = at_rest.get(offsets.frames[len(offsets.frames) // 2])
     if frame is None or frame.observation.surface_points is None:
-        return None
+        return None, None
     image = _FramesInOrder(lambda: frames_again(frame.time_s)).at(frame.index)
     if image is None:
-        return None
+        return None, None
     points = frame.observation.surface_points
     region = _brow_ring(model).in_region(points) & ~points.contour & np.isfinite(points.targets).all(axis=1)
-    return BrowFlow(cv2.cvtColor(image, cv2.COLOR_RGB2GRAY), points, np.flatnonzero(region), frames_again)
+    flow = BrowFlow(cv2.cvtColor(image, cv2.COLOR_RGB2GRAY), points, np.flatnonzero(region), frames_again)
+    fit = solve_frame(model, frame.observation, shared.camera, shared.alpha, shared.noise, offsets=offsets).fit
+    return flow, cheek_shading(model, shared.alpha, shared.camera, image, fit.rotation, fit.translation, fit.delta)
 
 
 class _FramesInOrder:
