@@ -83,21 +83,20 @@ PUFF_GAIN_RAMP = (0.04, 0.08)
 
 @dataclass(frozen=True)
 class CheekShading:
-    """The cheeks at rest, for :meth:`puff`. ``vertices`` (K,) int, the cheek vertices; ``local``
-    (K,) int, their rows in ``patch`` (P,) int, the vertices of every triangle that touches them,
-    and ``triangles`` (T, 3) int, those triangles in patch rows; ``identity`` (P, 3) float64, the
-    patch of the clip's identity (mm); ``exp_basis`` (n_exp, P, 3) float64, its expressions;
-    ``puff`` (n_exp,) float64, the expression vector of a full puff (1 at :data:`PUFF_NAMES`);
-    ``gamma`` (3, 9) float64, the light (linear RGB); ``albedo`` (K,) float64, each cheek
-    vertex's luminance over its shading at rest; ``camera`` the clip's. The exposure's reference,
-    skin that a puff does not move (:data:`REFERENCE_MM`): ``reference`` (R,) int, its vertices;
-    ``reference_shape`` (R, 3) float64, the identity there (mm); ``reference_basis`` (n_exp, R × 3)
-    float64, its expressions; ``reference_normals`` (R, 3) float64, its normals at rest in model
-    space; ``reference_albedo`` (R,) float64, as ``albedo``. ``eye_centre`` (3,) float64, the
-    midpoint of the outer eye corners (iBUG 36, 45) of the identity (mm), and ``eye_span_mm``
-    their distance: the face's size in the frame."""
+    """The cheeks at rest, for :meth:`puff_reading`. ``local`` (K,) int, the cheek vertices' rows
+    in ``patch`` (P,) int, the vertices of every triangle that touches them, and ``triangles``
+    (T, 3) int, those triangles in patch rows; ``identity`` (P, 3) float64, the patch of the clip's
+    identity (mm); ``exp_basis`` (n_exp, P × 3) float64, its expressions; ``puff`` (n_exp,)
+    float64, the expression vector of a full puff (1 at :data:`PUFF_NAMES`), and ``motion``
+    (P, 3) float64, the patch's motion by it (mm); ``gamma`` (3, 9) float64, the light (linear
+    RGB); ``albedo`` (K,) float64, each cheek vertex's luminance over its shading at rest;
+    ``camera`` the clip's. The exposure's reference, skin that a puff does not move
+    (:data:`REFERENCE_MM`): ``reference_shape`` (R, 3) float64, the identity there (mm);
+    ``reference_basis`` (n_exp, R × 3) float64, its expressions; ``reference_normals`` (R, 3)
+    float64, its normals at rest in model space; ``reference_albedo`` (R,) float64, as
+    ``albedo``. ``eye_centre`` (3,) float64, the midpoint of the outer eye corners (iBUG 36, 45)
+    of the identity (mm), and ``eye_span_mm`` their distance: the face's size in the frame."""
 
-    vertices: np.ndarray
     local: np.ndarray
     patch: np.ndarray
     triangles: np.ndarray
@@ -108,7 +107,6 @@ class CheekShading:
     gamma: np.ndarray
     albedo: np.ndarray
     camera: Camera
-    reference: np.ndarray
     reference_shape: np.ndarray
     reference_basis: np.ndarray
     reference_normals: np.ndarray
@@ -164,7 +162,6 @@ class CheekShading:
         gain = (e[0] - e[best]) / e[0] if e[0] > 0 else 0.0
         low, high = PUFF_GAIN_RAMP
         return float(np.clip(p, 0.0, 1.0) * np.clip((gain - low) / (high - low), 0.0, 1.0)), float(gain)
-
 
     def _exposure(self, image: np.ndarray, r: np.ndarray, t: np.ndarray, delta: np.ndarray) -> float | None:
         """The frame's exposure against the frame at rest: the median log ratio of the
@@ -231,7 +228,7 @@ def cheek_shading(model: MorphableModel, alpha: np.ndarray, camera: Camera, imag
     exp_basis = model.exp_basis[:, patch].astype(np.float64).reshape(model.n_exp, -1)
     n = len(cheeks)
     corners = identity[np.asarray(model.landmark_indices)[OUTER_EYE_CORNERS]]
-    return CheekShading(cheeks, np.searchsorted(patch, cheeks), patch, inverse.reshape(-1, 3), identity[patch], exp_basis, puff,
-                        (puff @ exp_basis).reshape(-1, 3), gamma, albedo[:n], camera, reference, identity[reference],
+    return CheekShading(np.searchsorted(patch, cheeks), patch, inverse.reshape(-1, 3), identity[patch], exp_basis, puff,
+                        (puff @ exp_basis).reshape(-1, 3), gamma, albedo[:n], camera, identity[reference],
                         model.exp_basis[:, reference].astype(np.float64).reshape(model.n_exp, -1), normals[reference] @ r,
                         albedo[n:], 0.5 * (corners[0] + corners[1]), float(np.linalg.norm(corners[0] - corners[1])))
