@@ -128,3 +128,10 @@ def test_the_tracker_reads_the_puff_from_the_shading(model, albedo):
     assert np.abs(read - np.asarray(puffs)[:, None]).max() < 0.1
     unread = track_frames(frames, model, keyframes=3, focal=CAMERA.focal, neutral_s=0.3)
     assert all(f.puff_gain is None for f in unread.frames)
+
+
+@pytest.mark.parametrize("value", [0, 255])
+def test_a_black_or_clipped_white_frame_reads_no_puff(at_rest, model, value):
+    image = np.full((CAMERA.height, CAMERA.width, 3), value, np.uint8)
+    puff, gain = at_rest.puff_reading(image, np.eye(3), TRANSLATION, np.zeros(model.n_exp))
+    assert puff == 0.0 and np.isfinite(gain)
