@@ -44,7 +44,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from facegeo.camera import Camera, to_pixels
-from facegeo.colour import srgb_to_linear
+from facegeo.colour import luminance, srgb_to_linear
 from facegeo.landmarks.scheme import OUTER_EYE_CORNERS
 from facegeo.lighting import sh_basis
 from facegeo.morphable_model import MorphableModel
@@ -148,8 +148,8 @@ class CheekShading:
         if ok.sum() < MIN_VERTICES:
             return None
         colour = sample_bilinear(image, to_pixels(points[:, ok], self.camera)).astype(np.float64)  # (S, N, 3)
-        observed = _luminance(srgb_to_linear(colour / 255.0))
-        shading = _luminance(sh_basis(normals[:, ok]) @ self.gamma.T)
+        observed = luminance(srgb_to_linear(colour / 255.0), np.float64)
+        shading = luminance(sh_basis(normals[:, ok]) @ self.gamma.T, np.float64)
         ratio = np.log(np.maximum(observed, 1e-4)) - np.log(np.maximum(self.albedo[ok] * shading, 1e-4)) - exposure
         weight = np.maximum(facing[:, ok], 0.0)
         e = np.sum(weight * np.minimum(ratio * ratio, RESIDUAL_CLIP ** 2), axis=1) / np.sum(weight, axis=1)
@@ -173,8 +173,8 @@ class CheekShading:
         ok = _facing(points, normals) > MIN_FACING
         if ok.sum() < MIN_VERTICES:
             return None
-        observed = _luminance(srgb_to_linear(sample_bilinear(image, to_pixels(points[ok], self.camera)) / 255.0).astype(np.float64))
-        shading = _luminance(sh_basis(normals[ok]) @ self.gamma.T)
+        observed = luminance(srgb_to_linear(sample_bilinear(image, to_pixels(points[ok], self.camera)) / 255.0), np.float64)
+        shading = luminance(sh_basis(normals[ok]) @ self.gamma.T, np.float64)
         return float(np.median(np.log(np.maximum(observed, 1e-4)) - np.log(np.maximum(self.reference_albedo[ok] * shading, 1e-4))))
 
 
@@ -182,10 +182,6 @@ def _facing(points: np.ndarray, normals: np.ndarray) -> np.ndarray:
     """(N,) the cosine between each normal and the direction to the camera (at the origin)."""
     to_camera = -points / np.linalg.norm(points, axis=1, keepdims=True)
     return np.einsum("nc,nc->n", normals, to_camera)
-
-
-def _luminance(rgb: np.ndarray) -> np.ndarray:
-    return rgb @ np.array([0.2126, 0.7152, 0.0722])
 
 
 def cheek_shading(model: MorphableModel, alpha: np.ndarray, camera: Camera, image: np.ndarray, rotation: np.ndarray,
@@ -222,7 +218,7 @@ def cheek_shading(model: MorphableModel, alpha: np.ndarray, camera: Camera, imag
     colour = srgb_to_linear(sample_bilinear(image, to_pixels(cam[lit], camera)) / 255.0).astype(np.float64)
     basis = sh_basis(normals[lit])
     gamma = np.stack([np.linalg.lstsq(basis, colour[:, c], rcond=None)[0] for c in range(3)])
-    albedo = _luminance(colour) / np.maximum(_luminance(basis @ gamma.T), 1e-4)
+    albedo = luminance(colour, np.float64) / np.maximum(luminance(basis @ gamma.T, np.float64), 1e-4)
     touching = np.isin(model.triangles, cheeks).any(axis=1)
     patch, inverse = np.unique(model.triangles[touching], return_inverse=True)
     exp_basis = model.exp_basis[:, patch].astype(np.float64).reshape(model.n_exp, -1)

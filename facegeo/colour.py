@@ -68,10 +68,10 @@ def linear_to_srgb_torch(x: "torch.Tensor", clip: bool = True) -> "torch.Tensor"
     return (12.92 * x).where(x <= 0.0031308, 1.055 * x.clamp_min(0.0031308) ** (1 / 2.4) - 0.055)
 
 
-def luminance(linear: np.ndarray) -> np.ndarray:
-    """Rec. 709 relative luminance of linear RGB (..., 3) -> (...)."""
-    rgb = np.asarray(linear, dtype=np.float32)
-    return (0.2126 * rgb[..., 0] + 0.7152 * rgb[..., 1] + 0.0722 * rgb[..., 2]).astype(np.float32)
+def luminance(linear: np.ndarray, dtype: type = np.float32) -> np.ndarray:
+    """Rec. 709 relative luminance of linear RGB (..., 3) -> (...), computed in ``dtype``."""
+    rgb = np.asarray(linear, dtype=dtype)
+    return (0.2126 * rgb[..., 0] + 0.7152 * rgb[..., 1] + 0.0722 * rgb[..., 2]).astype(dtype)
 
 
 def channel_max(rgb: np.ndarray) -> np.ndarray:
