@@ -51,7 +51,7 @@ from facegeo.morphable_model import MorphableModel
 from facegeo.normals import vertex_normals
 from facegeo.skin_mask import skin_vertex_mask, vertex_regions
 from facegeo.uv.texels import sample_bilinear
-from facegeo.visibility import vertex_visibility
+from facegeo.visibility import facing_cosine, vertex_visibility
 
 __all__ = ["CheekShading", "cheek_shading", "PUFF_NAMES", "PUFF_REGION_MM", "PUFF_MAX", "PUFF_STEPS", "RESIDUAL_CLIP", "REFERENCE_MM",
            "MIN_FACING", "MIN_VERTICES", "MIN_EYE_SPAN_PX", "PUFF_GAIN_RAMP"]
@@ -143,7 +143,7 @@ class CheekShading:
         cams = (shape[None] + steps[:, None, None] * self.motion[None]) @ r.T + t  # (S, P, 3)
         normals = vertex_normals(cams, self.triangles)[:, self.local]  # (S, K, 3)
         points = cams[:, self.local]
-        facing = _facing(points.reshape(-1, 3), normals.reshape(-1, 3)).reshape(len(steps), -1)
+        facing = facing_cosine(points.reshape(-1, 3), normals.reshape(-1, 3)).reshape(len(steps), -1)
         ok = facing[0] > MIN_FACING  # the vertices read: those facing the camera at no puff
         if ok.sum() < MIN_VERTICES:
             return None
@@ -170,18 +170,12 @@ class CheekShading:
         :data:`MIN_VERTICES` of it face the camera."""
         points = (self.reference_shape + (delta @ self.reference_basis).reshape(-1, 3)) @ r.T + t
         normals = self.reference_normals @ r.T
-        ok = _facing(points, normals) > MIN_FACING
+        ok = facing_cosine(points, normals) > MIN_FACING
         if ok.sum() < MIN_VERTICES:
             return None
         observed = luminance(srgb_to_linear(sample_bilinear(image, to_pixels(points[ok], self.camera)) / 255.0), np.float64)
         shading = luminance(sh_basis(normals[ok]) @ self.gamma.T, np.float64)
         return float(np.median(np.log(np.maximum(observed, 1e-4)) - np.log(np.maximum(self.reference_albedo[ok] * shading, 1e-4))))
-
-
-def _facing(points: np.ndarray, normals: np.ndarray) -> np.ndarray:
-    """(N,) the cosine between each normal and the direction to the camera (at the origin)."""
-    to_camera = -points / np.linalg.norm(points, axis=1, keepdims=True)
-    return np.einsum("nc,nc->n", normals, to_camera)
 
 
 def cheek_shading(model: MorphableModel, alpha: np.ndarray, camera: Camera, image: np.ndarray, rotation: np.ndarray,
@@ -209,7 +203,7 @@ def cheek_shading(model: MorphableModel, alpha: np.ndarray, camera: Camera, imag
     r, t = np.asarray(rotation, np.float64), np.asarray(translation, np.float64)
     cam = (identity + np.einsum("k,kvc->vc", np.asarray(delta, np.float64) * (puff == 0), model.exp_basis)) @ r.T + t
     normals = vertex_normals(cam, model.triangles)
-    seen = skin & vertex_visibility(cam, model.triangles, normals, camera) & (_facing(cam, normals) > MIN_FACING)
+    seen = skin & vertex_visibility(cam, model.triangles, normals, camera) & (facing_cosine(cam, normals) > MIN_FACING)
     cheeks = np.flatnonzero(seen & (moved > PUFF_REGION_MM))
     reference = np.flatnonzero(seen & (moved < REFERENCE_MM))
     if len(cheeks) < MIN_VERTICES or len(reference) < MIN_VERTICES:

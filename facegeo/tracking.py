@@ -754,10 +754,9 @@ def _track_part(model: MorphableModel, observed: Sequence[ObservedFrame], shared
             open_gaps = shared.open_lids * eyelids.model_lid_gaps(model, shared.alpha, _without_lids(model, start.delta), start.rotation,
                                                           start.translation, shared.camera)
             measured = eyelids.blinks(frame.lid_gaps, open_gaps, start.rotation)
-        image = None
-        if images is not None and (shading is not None or offsets.share(start.rotation) > 0.0):
-            image = images.at(frame.index)
-        if image is not None and obs.surface_points is not None and offsets.share(start.rotation) > 0.0:  # the brows' flow
+        near_rest = images is not None and offsets.share(start.rotation) > 0.0  # where the brows' flow is tried
+        image = images.at(frame.index) if images is not None and (shading is not None or near_rest) else None
+        if image is not None and near_rest and obs.surface_points is not None:
             obs, carried = flow.carried(obs, image)
         fit = solve_frame(model, obs, shared.camera, shared.alpha, shared.noise, start, stage, measured, offsets).fit
         previous = SolveStart(fit.rotation, fit.translation, shared.alpha, fit.delta)

@@ -12,7 +12,7 @@ import numpy as np
 
 from facegeo.camera import Camera, to_pixels
 
-__all__ = ["vertex_visibility"]
+__all__ = ["vertex_visibility", "facing_cosine"]
 
 def _splat_points(values: np.ndarray, tri: np.ndarray, used: np.ndarray) -> np.ndarray:
     """(N,) float64: the splatted samples of per-vertex ``values`` (V,) float64 on the triangles
@@ -79,6 +79,12 @@ def vertex_visibility(
     visible = np.zeros(len(v), dtype=bool)
     idx = np.flatnonzero(in_image)
     visible[idx] = depth[idx] <= zbuf[vr[idx] * w + vc[idx]] + depth_tolerance_mm
+    return visible & (facing_cosine(v, normals_cam) > min_facing)
+
+
+def facing_cosine(points_cam: np.ndarray, normals_cam: np.ndarray) -> np.ndarray:
+    """(N,) float64: the cosine between each unit normal (N, 3) and the direction from its point
+    (N, 3) mm, camera space, to the camera at the origin."""
+    v = np.asarray(points_cam, dtype=np.float64)
     to_camera = -v / np.linalg.norm(v, axis=1, keepdims=True).clip(1e-9)
-    facing = np.einsum("vc,vc->v", np.asarray(normals_cam, dtype=np.float64), to_camera) > min_facing
-    return visible & facing
+    return np.einsum("vc,vc->v", np.asarray(normals_cam, dtype=np.float64), to_camera)
