@@ -414,7 +414,9 @@ def evaluate(scan: str, name: str, render: str, light: str, model, raster, skin_
     rendered = np.median(chroma(t_inc[lit]) - chroma(truth_seen[lit]), axis=0) if lit.any() else np.full(2, np.nan)
     illuminant = new_backend.report["illuminant"]
     light_chroma = {"rendered": rendered.tolist(), "estimated": list(illuminant.get("light_chroma", [np.nan, np.nan])),
-                    "white_used": bool(illuminant.get("white_used", False)), "white_chroma": illuminant.get("white_chroma")}
+                    "white_used": bool(illuminant.get("white_used", False)), "white_chroma": illuminant.get("white_chroma"),
+                    "white_miss": illuminant.get("white_miss"), "white_tint": illuminant.get("white_tint"),
+                    "skin_chroma": illuminant.get("skin_chroma")}
     out = {"scan": scan, "view": name, "light": light, "light_chroma": light_chroma, "truth_through_fill_gradient": through_fill, "seen_texels": int(seen_skin.sum()), "filled_texels": int(filled_skin.sum()),
            "truth_seam": seam(g_truth), "blur_texels": blur, "fit_rms_px": fit.landmark_rms_px, "methods": {},
            "mirror_asymmetry": new_backend.report["inpaint"].get("mirror_asymmetry"),

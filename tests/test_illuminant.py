@@ -6,7 +6,8 @@ import pytest
 
 from facegeo.colour import is_greyscale, luminance
 from facegeo.texturing.illuminant import (AMBIENT_CHROMA_TOLERANCE, AMBIENT_SHARE_SPREAD, FIRM_FACTOR, NEUTRAL_TOLERANCE, PLANCKIAN,
-                                          SCLERA_CHROMA, SKIN_CHROMA, SKIN_LOCUS, WHITE_COOL_SHARE, WHITE_GATE, ambient_chroma_trend, chroma,
+                                          SCLERA_CHROMA, SKIN_CHROMA, SKIN_LOCUS, WHITE_COOL_SHARE, WHITE_GATE, WHITE_SKIN_TINT_GAP,
+                                          WHITE_TINT_GATE, ambient_chroma_trend, chroma,
                                           estimate_illuminant, firm_shrinkage, invent_chroma, remove_cast)
 
 
@@ -60,6 +61,23 @@ def test_a_neutral_sclera_beside_skin_yellower_than_the_locus_is_used():
     warm = SCLERA_CHROMA + predicted + (WHITE_GATE + 0.1) * PLANCKIAN
     _, report = estimate_illuminant(skin, warm)
     assert not report["white_used"] and report["white_miss"] == pytest.approx(WHITE_GATE + 0.1, abs=1e-9)
+
+
+def test_a_lid_in_the_shade_is_not_a_white_but_a_tinted_sclera_is():
+    """A shut eye's lid in a sky's shade: the skin's chroma moved along the Planckian locus towards
+    cool, so far that it passes the miss gate, but with the skin's own tint (magenta of any light):
+    not used. A sclera with lid skin mixed in, as tinted but well below the skin's tint, is."""
+    normal = np.array([-PLANCKIAN[1], PLANCKIAN[0]])
+    skin = np.array([0.68, -0.23])  # a ruddy light skin under a near-neutral light (tint ~0.4)
+    lid = skin - 0.45 * PLANCKIAN
+    light, report = estimate_illuminant(skin, lid)
+    assert report["white_miss"] <= WHITE_GATE  # the miss alone would have taken it
+    assert report["white_tint"] > WHITE_TINT_GATE and not report["white_used"]
+    np.testing.assert_allclose(light, estimate_illuminant(skin)[0])
+    skin_tint = float((skin - SCLERA_CHROMA) @ normal)
+    sclera = SCLERA_CHROMA + 0.2 * PLANCKIAN + (skin_tint - 2 * WHITE_SKIN_TINT_GAP) * normal
+    _, report = estimate_illuminant(skin, sclera)
+    assert report["white_tint"] > WHITE_TINT_GATE and report["white_used"]
 
 
 def test_remove_cast_divides_the_light_and_keeps_luminance():

@@ -15,7 +15,11 @@ Three pieces of evidence, each a Gaussian, are combined by least squares
   predicts: the part of the miss that makes it cooler along the Planckian locus counts
   :data:`WHITE_COOL_SHARE` of its length (a skin whose colour lies off the locus, yellower than
   the locus's skin, is otherwise taken for skin under a warm light and its neutral sclera for
-  lid skin);
+  lid skin). Nor is a reference used whose tint (its chroma's green–magenta part, across the
+  Planckian locus through a white) is both beyond :data:`WHITE_TINT_GATE`, more than a real
+  light has, and within :data:`WHITE_SKIN_TINT_GAP` of the skin's own: that is skin, a shut eye's
+  lid (two lights of two colours move a lid in shade along the locus, away from the lit skin,
+  where the miss takes it for a sclera; neither moves it across);
 * **the light itself**: real lights lie near the Planckian locus (warm–cool, the direction
   :data:`PLANCKIAN`, σ :data:`LIGHT_SIGMA`), with little green–magenta (σ :data:`TINT_SIGMA`).
 
@@ -45,6 +49,7 @@ from facegeo.colour import luminance
 
 __all__ = ["estimate_illuminant", "remove_cast", "invent_chroma", "chroma", "SKIN_CHROMA", "SKIN_LOCUS",
            "PLANCKIAN", "SCLERA_CHROMA", "LIPS_CHROMA", "SKIN_SIGMA", "SKIN_TONE_SIGMA", "WHITE_SIGMA", "WHITE_GATE", "WHITE_COOL_SHARE",
+           "WHITE_TINT_GATE", "WHITE_SKIN_TINT_GAP",
            "LIGHT_SIGMA", "TINT_SIGMA", "NEUTRAL_TOLERANCE", "FIRM_FACTOR", "firm_shrinkage", "ambient_chroma_trend",
            "AMBIENT_SHARE_SPREAD", "AMBIENT_CHROMA_TOLERANCE", "cast_gains"]
 
@@ -77,6 +82,17 @@ WHITE_GATE = 0.45
 #: than the skin locus, had neutral scleras at misses of 0.46-0.50 under the ring and sun + sky
 #: lights, rejected, and its albedo made bluish (82-86 % of the skin off the scan's colours).
 WHITE_COOL_SHARE = 0.4
+#: The tint (chroma less :data:`SCLERA_CHROMA`, across the Planckian locus: green–magenta) beyond
+#: which a white reference is not lit by a real light alone (lights lie within a few
+#: :data:`TINT_SIGMA` of the locus). The scans' scleras lie within 0.08 of it under every light of
+#: bench_albedo_scans; the sample photos' whites at up to 0.31 (lid skin mixed into small scleras).
+WHITE_TINT_GATE = 0.2
+#: A white reference tinted beyond :data:`WHITE_TINT_GATE` and within this of the skin's own tint
+#: is skin (a lid), not used. The sample photos' skins are 0.13-0.25 more magenta than their
+#: whites where those are tinted near or beyond the gate (Biden, Obama at the lectern, a Breaking
+#: Bad still); Lee Perry-Smith's shut lid in a sky's shade 0.02 (it had passed the miss gate and
+#: cast magenta over his albedo: bench_albedo_scans' sun + sky −40°).
+WHITE_SKIN_TINT_GAP = 0.1
 #: σ of the light's chroma along the Planckian locus (from the prior of a neutral light).
 LIGHT_SIGMA = 0.35
 #: σ of the light's chroma across it (green–magenta tints are rare).
@@ -127,8 +143,12 @@ def estimate_illuminant(skin: np.ndarray, white: np.ndarray | None = None) -> tu
         offset = white - SCLERA_CHROMA - x[:2]
         along = float(offset @ PLANCKIAN)
         miss = float(np.hypot(along if along > 0 else WHITE_COOL_SHARE * along, float(offset @ normal)))
+        tint = float((white - SCLERA_CHROMA) @ normal)
+        skin_tint = float((skin - SCLERA_CHROMA) @ normal)
         report["white_miss"] = miss
-        if miss <= WHITE_GATE:
+        report["white_tint"] = tint
+        lid = abs(tint) > WHITE_TINT_GATE and tint > skin_tint - WHITE_SKIN_TINT_GAP
+        if miss <= WHITE_GATE and not lid:
             rows += [np.r_[np.eye(2)[i], 0.0] / WHITE_SIGMA for i in range(2)]
             rhs += [(white - SCLERA_CHROMA)[i] / WHITE_SIGMA for i in range(2)]
             x, *_ = np.linalg.lstsq(np.asarray(rows), np.asarray(rhs), rcond=None)
