@@ -381,18 +381,19 @@ def evaluate(scan: str, name: str, render: str, light: str, model, raster, skin_
         a, b = np.nanmean(g[boundary]), np.nanmean(g[rest])
         return float(a / b) if np.isfinite(a) and np.isfinite(b) and b > 0 else float("nan")
 
+    ctx = build_context(model, fit, raster)
     if DUMP is not None:
         DUMP.mkdir(parents=True, exist_ok=True)
         import cv2
 
         tiles = [truth_seen, truth] + [albedos[m] * exposure(albedos[m][seen_skin], truth_seen[seen_skin]) for m in METHODS]
-        tiles = [np.where(skin[..., None], linear_to_srgb(np.clip(t, 0, 1)), 0.3) for t in tiles]
+        shown = skin | np.any([ctx.regions[region] > 0.5 for region in REGIONS], axis=0)  # the lips and eyes too
+        tiles = [np.where(shown[..., None], linear_to_srgb(np.clip(t, 0, 1)), 0.3) for t in tiles]
         cv2.imwrite(str(DUMP / f"{render}_{light}.png"), cv2.cvtColor((np.concatenate(tiles, 1)[::2, ::2] * 255).astype(np.uint8), cv2.COLOR_RGB2BGR))
     # what any fill from the seen skin can reach: the truth's own colours on the seen texels,
     # extended over the rest by the new backend's gradient-domain fill (its private solver and its
     # use of the mirror's tone, trusted by the truth's own symmetry, so that the ceiling is the
     # same method's)
-    ctx = build_context(model, fit, raster)
     reliable = DefaultBackend().reliability((seen & truth_ok).astype(np.float32), ctx)
     log_truth = np.log(np.maximum(truth, 1e-4))
     mean = (log_truth * reliable[..., None]).reshape(-1, 3).sum(0) / max(float(reliable.sum()), 1e-6)
@@ -449,7 +450,7 @@ def evaluate(scan: str, name: str, render: str, light: str, model, raster, skin_
             r["gradient_seen"] = float(np.nanmean(g[seen_skin]) / np.nanmean(g_truth[seen_skin]))
             r["gradient_filled"] = float(np.nanmean(g[filled_skin]) / np.nanmean(g_truth[filled_skin])) if filled_skin.any() else float("nan")
             r["seam"] = seam(g)
-        if method in ("new", "previous"):  # per region: its seen texels against the photo-pixel truth
+        if method in ("new", "previous", "raw"):  # per region: its seen texels against the photo-pixel truth
             r["regions_de_seen"] = {region: median_de(la, lab_truth_seen, (ctx.regions[region] > 0.5) & seen & truth_seen_ok)
                                     for region in REGIONS}
         out["methods"][method] = r
