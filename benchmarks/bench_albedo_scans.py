@@ -79,13 +79,15 @@ least-squares scaled onto the truth's over the seen skin; chroma is not fitted):
   shadows or blotches left in);
 * **the light's colour**: the rendered light's chroma as the seen skin shows it (the photo's
   (log R/G, log B/G) less the albedo pass's, median over the seen skin texels) against the new
-  backend's estimate of it, and whether it used a white reference. The scans' eyes are not white
+  backend's estimate of it, and whether it used a white reference (the JSON also gives the white's
+  miss and tint, :func:`facegeo.texturing.illuminant.estimate_illuminant`'s gates). The scans' eyes are not white
   (James's scanned scleras are yellow, Lee Perry-Smith has skin for eyes: RESULTS.md), so this
   separates an error of the light's estimate from one of the skin's own colour.
 
 Per region (:data:`REGIONS`: mouth (the lips), eyes, nose, cheeks, forehead; the layout's
 :func:`facegeo.skin_mask.vertex_regions` > 0.5): the seen texels' ΔE2000 median (photo-pixel
-truth, the view's exposure scale), of the new and the previous backend.
+truth, the view's exposure scale), of the new and the previous backend and of the raw photo (where
+the photo itself is far from the truth, the region lies in shadow or under a moustache).
 
 Exposure series (:func:`exposure_series`): the key + fill render at yaw 0° at −1, 0 and +1 EV
 (its linear RGB × 0.5, 1, 2, clipped and re-encoded to 8-bit sRGB), each reconstructed on its own
