@@ -140,17 +140,18 @@ def estimate_illuminant(skin: np.ndarray, white: np.ndarray | None = None) -> tu
     if white is not None and np.all(np.isfinite(white)):
         white = np.asarray(white, np.float64)
         report["white_chroma"] = white.tolist()
-        offset = white - SCLERA_CHROMA - x[:2]
+        white_light = white - SCLERA_CHROMA  # the light that the white alone says
+        offset = white_light - x[:2]
         along = float(offset @ PLANCKIAN)
         miss = float(np.hypot(along if along > 0 else WHITE_COOL_SHARE * along, float(offset @ normal)))
-        tint = float((white - SCLERA_CHROMA) @ normal)
+        tint = float(white_light @ normal)
         skin_tint = float((skin - SCLERA_CHROMA) @ normal)
         report["white_miss"] = miss
         report["white_tint"] = tint
         lid = abs(tint) > WHITE_TINT_GATE and tint > skin_tint - WHITE_SKIN_TINT_GAP
         if miss <= WHITE_GATE and not lid:
             rows += [np.r_[np.eye(2)[i], 0.0] / WHITE_SIGMA for i in range(2)]
-            rhs += [(white - SCLERA_CHROMA)[i] / WHITE_SIGMA for i in range(2)]
+            rhs += [white_light[i] / WHITE_SIGMA for i in range(2)]
             x, *_ = np.linalg.lstsq(np.asarray(rows), np.asarray(rhs), rcond=None)
             report["white_used"] = True
     norm = float(np.linalg.norm(x[:2]))
