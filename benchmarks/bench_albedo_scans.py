@@ -83,6 +83,15 @@ least-squares scaled onto the truth's over the seen skin; chroma is not fitted):
   miss and tint, :func:`facegeo.texturing.illuminant.estimate_illuminant`'s gates). The scans' eyes are not white
   (James's scanned scleras are yellow, Lee Perry-Smith has skin for eyes: RESULTS.md), so this
   separates an error of the light's estimate from one of the skin's own colour.
+* **the map's shading-like lightness** (:func:`map_field`, a diagnostic: it uses the truth): the
+  part of the 3-D truth's log-luminance over the skin that a light on the fitted mesh explains (9
+  spherical-harmonic terms of the normals, least squares; its share of the variance and its span
+  over the seen skin, p5–p95), and how the new backend's seen log-luminance error (the view's
+  exposure scale, median removed) follows it: correlation and regression slope β (−1: the albedo
+  lost all of it, taken for light; 0: kept it as the map has it). A de-lighting that takes the
+  albedo's low frequencies as constant cannot tell that lightness from the light's; the seen
+  ΔE2000 with β of it put back (the albedo × exp(−β · field)) says how much of the view's error
+  it is.
 
 Per region (:data:`REGIONS`: mouth (the lips), eyes, nose, cheeks, forehead; the layout's
 :func:`facegeo.skin_mask.vertex_regions` > 0.5): the seen texels' ΔE2000 median (photo-pixel
@@ -127,6 +136,7 @@ from scan_renders import ViewSpec, load_view, render_views  # noqa: E402
 import facegeo  # noqa: E402
 from facegeo.colour import linear_to_srgb, luminance, srgb_to_linear  # noqa: E402
 from facegeo.errors import NoFaceError  # noqa: E402
+from facegeo.lighting import sh_basis  # noqa: E402
 from facegeo.pipeline import reconstruct_with_fit  # noqa: E402
 from facegeo.skin_mask import SkinMask, skin_mask, skin_vertex_mask  # noqa: E402
 from facegeo.texturing.context import build_context, surface_operators  # noqa: E402
@@ -321,6 +331,19 @@ def gradient(lab_map: np.ndarray, region: np.ndarray) -> np.ndarray:
     return np.where(ok, np.sqrt(gx + gy), np.nan)
 
 
+def map_field(truth: np.ndarray, normal: np.ndarray, skin: np.ndarray) -> tuple[np.ndarray, float]:
+    """The 3-D truth's (S, S, 3) linear log-luminance over ``skin`` (S, S) bool as far as 9
+    spherical-harmonic terms of the fitted mesh's unit ``normal`` (S, S, 3) explain it (least
+    squares): (S, S) float64, zero mean over the skin, 0 elsewhere; and its share of the variance."""
+    log_y = np.log(np.maximum(luminance(truth[skin]), 1e-4)).astype(np.float64)
+    basis = np.asarray(sh_basis(normal[skin].astype(np.float32)), np.float64)[:, :9]
+    coefficients, *_ = np.linalg.lstsq(basis, log_y, rcond=None)
+    explained = basis @ coefficients
+    field = np.zeros(skin.shape)
+    field[skin] = explained - explained.mean()
+    return field, float(1.0 - np.var(log_y - explained) / max(float(np.var(log_y)), 1e-12))
+
+
 def evaluate(scan: str, name: str, render: str, light: str, model, raster, skin_texels, truth3d: Truth3D, previous) -> dict:
     view = view_for(scan, render)
     photo = photo_of(view, light)
@@ -341,7 +364,8 @@ def evaluate(scan: str, name: str, render: str, light: str, model, raster, skin_
     truth_seen.reshape(-1, 3)[idx[ok]] = srgb_to_linear(sample_bilinear(view.albedo.astype(np.float32) / 255.0, xy[ok]))
     truth_seen_ok.ravel()[idx[ok]] = True
     # 3-D truth everywhere: the fitted mesh aligned to the scan on the seen texels
-    position = geometry_maps(fit.vertices, model, raster, tangents=False).position
+    geometry = geometry_maps(fit.vertices, model, raster, tangents=False)
+    position = geometry.position
     px = np.clip(np.floor(xy[ok]).astype(int), 0, [view.camera.width - 1, view.camera.height - 1])
     target = view.points[px[:, 1], px[:, 0]]
     source = position.reshape(-1, 3)[idx[ok]]
@@ -420,7 +444,18 @@ def evaluate(scan: str, name: str, render: str, light: str, model, raster, skin_
                     "white_used": bool(illuminant.get("white_used", False)), "white_chroma": illuminant.get("white_chroma"),
                     "white_miss": illuminant.get("white_miss"), "white_tint": illuminant.get("white_tint"),
                     "skin_chroma": illuminant.get("skin_chroma")}
-    out = {"scan": scan, "view": name, "light": light, "light_chroma": light_chroma, "truth_through_fill_gradient": through_fill, "seen_texels": int(seen_skin.sum()), "filled_texels": int(filled_skin.sum()),
+    # the map's shading-like lightness, and how much of it the new backend's albedo lost
+    field, field_share = map_field(truth, geometry.normal, skin)
+    k_new = exposure(albedos["new"][seen_skin], truth_seen[seen_skin])
+    error = np.log(np.maximum(luminance(albedos["new"][seen_skin] * k_new), 1e-4)) - np.log(np.maximum(luminance(truth_seen[seen_skin]), 1e-4))
+    error, along = error - np.median(error), field[seen_skin]
+    beta = float((error * along).sum() / max(float((along * along).sum()), 1e-12))
+    put_back = albedos["new"] * np.exp(-beta * field)[..., None].astype(np.float32)
+    k_back = exposure(put_back[seen_skin], truth_seen[seen_skin])
+    map_lightness = {"share": field_share, "span": [float(np.percentile(along, 5)), float(np.percentile(along, 95))],
+                     "corr": float(np.corrcoef(error, along)[0, 1]), "beta": beta,
+                     "de_seen_put_back": float(np.median(deltaE_ciede2000(lab(put_back * k_back)[seen_skin], lab(truth_seen)[seen_skin])))}
+    out = {"scan": scan, "view": name, "light": light, "light_chroma": light_chroma, "map_lightness": map_lightness, "truth_through_fill_gradient": through_fill, "seen_texels": int(seen_skin.sum()), "filled_texels": int(filled_skin.sum()),
            "truth_seam": seam(g_truth), "blur_texels": blur, "fit_rms_px": fit.landmark_rms_px, "methods": {},
            "mirror_asymmetry": new_backend.report["inpaint"].get("mirror_asymmetry"),
            "mirror_tone": new_backend.report["inpaint"].get("mirror_tone"),
@@ -563,6 +598,23 @@ def light_colour_table(rows: list[dict]) -> list[str]:
     return lines
 
 
+def map_lightness_table(rows: list[dict]) -> list[str]:
+    """Per view: the map's shading-like lightness (:func:`map_field`) and what the new backend made of it."""
+    lines = ["", "The maps' shading-like lightness per view (a diagnostic on the truth): the share of the 3-D truth's skin "
+             "log-luminance variance that 9 spherical-harmonic terms of the fitted normals explain, its span over the seen skin "
+             "(p5, p95); the new backend's seen log-luminance error against it (correlation, slope β: −1 all of it taken for "
+             "light); the seen ΔE2000, and with β of it put back:", "",
+             "| scan | view | share | span | correlation | β | ΔE2000 seen | put back |", "|---|---|---|---|---|---|---|---|"]
+    for row in rows:
+        m = row.get("map_lightness")
+        if m is None:
+            continue
+        lines.append(f"| {SCAN_LABELS[row['scan']]} | {row['view']}{mark(row['light'])} | {fmt(m['share'])} | {m['span'][0]:+.2f}, "
+                     f"{m['span'][1]:+.2f} | {m['corr']:+.2f} | {m['beta']:+.2f} | {fmt(row['methods']['new']['de_seen'])} | "
+                     f"{fmt(m['de_seen_put_back'])} |")
+    return lines
+
+
 def light_tables(rows: list[dict]) -> list[str]:
     """Per scan and light (its views' median): the seen skin's ΔE2000 of the methods and the new
     backend's worst ratio to the flat colour's; then the new backend's seen ΔE2000 per region."""
@@ -645,7 +697,7 @@ def exposure_table(series: list[dict]) -> list[str]:
 
 def report(rows: list[dict], series: list[dict]) -> list[str]:
     """The markdown tables: the views, the lights and regions, the bars and the exposure series."""
-    return view_tables(rows) + light_colour_table(rows) + light_tables(rows) + bar_table(rows) + exposure_table(series)
+    return view_tables(rows) + light_colour_table(rows) + map_lightness_table(rows) + light_tables(rows) + bar_table(rows) + exposure_table(series)
 
 
 def time_stages(rounds: int, photo_name: str | None = None) -> list[str]:
