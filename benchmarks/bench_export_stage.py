@@ -19,6 +19,7 @@ file times any checkout: alternate the checkouts in one shell loop and compare t
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import pickle
 import sys
@@ -51,7 +52,12 @@ def time_stage(path: Path, repeats: int, workers: int | None) -> None:
     from facegeo.assets import asset_path
 
     photo, skin, asset, result = pickle.loads(path.read_bytes())
-    facegeo.pipeline.reconstruct_with_fit = lambda *args, **kwargs: (asset, result)
+    def reconstruct_with_fit(*args, geometry_ready=None, **kwargs):
+        if geometry_ready is not None:  # the export job begins on the geometry, as in the pipeline
+            geometry_ready(dataclasses.replace(asset, maps={}, constants={}, metadata={}))
+        return asset, result
+
+    facegeo.pipeline.reconstruct_with_fit = reconstruct_with_fit
     facegeo.skin_mask.skin_mask = lambda *args, **kwargs: skin
     if workers is not None:
         import facegeo.concurrency
