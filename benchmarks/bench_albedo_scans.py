@@ -444,6 +444,7 @@ def evaluate(scan: str, name: str, render: str, light: str, model, raster, skin_
                     "white_used": bool(illuminant.get("white_used", False)), "white_chroma": illuminant.get("white_chroma"),
                     "white_miss": illuminant.get("white_miss"), "white_tint": illuminant.get("white_tint"),
                     "skin_chroma": illuminant.get("skin_chroma")}
+    lab_truth_seen, lab_truth_3d = lab(truth_seen), lab(truth)
     # the map's shading-like lightness, and how much of it the new backend's albedo lost
     field, field_share = map_field(truth, geometry.normal, skin)
     k_new = exposure(albedos["new"][seen_skin], truth_seen[seen_skin])
@@ -454,15 +455,12 @@ def evaluate(scan: str, name: str, render: str, light: str, model, raster, skin_
     k_back = exposure(put_back[seen_skin], truth_seen[seen_skin])
     map_lightness = {"share": field_share, "span": [float(np.percentile(along, 5)), float(np.percentile(along, 95))],
                      "corr": float(np.corrcoef(error, along)[0, 1]), "beta": beta,
-                     "de_seen_put_back": float(np.median(deltaE_ciede2000(lab(put_back * k_back)[seen_skin], lab(truth_seen)[seen_skin])))}
+                     "de_seen_put_back": median_de(lab(put_back * k_back), lab_truth_seen, seen_skin)}
     out = {"scan": scan, "view": name, "light": light, "light_chroma": light_chroma, "map_lightness": map_lightness, "truth_through_fill_gradient": through_fill, "seen_texels": int(seen_skin.sum()), "filled_texels": int(filled_skin.sum()),
            "truth_seam": seam(g_truth), "blur_texels": blur, "fit_rms_px": fit.landmark_rms_px, "methods": {},
            "mirror_asymmetry": new_backend.report["inpaint"].get("mirror_asymmetry"),
            "mirror_tone": new_backend.report["inpaint"].get("mirror_tone"),
-           "truth_extended_de_filled": float(np.median(deltaE_ciede2000(lab(extended)[filled_skin], lab(truth)[filled_skin])))
-           if filled_skin.any() else float("nan")}
-    lab_truth_seen = lab(truth_seen)
-    lab_truth_3d = lab(truth)
+           "truth_extended_de_filled": median_de(lab(extended), lab_truth_3d, filled_skin)}
     skin_lab = lab_truth_3d[skin]
     centre = np.median(skin_lab, axis=0)
     deviation = skin_lab - centre
