@@ -9,7 +9,11 @@ import sys
 import threading
 from typing import NoReturn
 
-from facegeo.commands import build_parser, main
+from facegeo.concurrency import one_blas_thread_by_default
+
+one_blas_thread_by_default()  # before NumPy is imported
+
+from facegeo.commands import build_parser, main  # noqa: E402  (after the BLAS default)
 
 __all__ = ["main", "build_parser", "run"]
 

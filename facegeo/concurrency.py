@@ -31,7 +31,7 @@ from collections.abc import Callable, Iterator, Sequence
 from concurrent.futures import FIRST_EXCEPTION, Future, ThreadPoolExecutor, wait
 from typing import Any
 
-__all__ = ["run_concurrently", "native_threads", "numpy_blas_threads", "usable_threads", "EXPORT_WORKERS"]
+__all__ = ["run_concurrently", "native_threads", "numpy_blas_threads", "one_blas_thread_by_default", "usable_threads", "EXPORT_WORKERS"]
 
 #: Worker threads of the export stage (issue 29: two cores).
 EXPORT_WORKERS = 2
@@ -48,6 +48,18 @@ def usable_threads() -> int:
         return max(1, int(os.environ["OMP_NUM_THREADS"]))
     except (KeyError, ValueError):
         return max(1, len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1)
+
+
+def one_blas_thread_by_default() -> None:
+    """For a process that has not imported NumPy yet (the ``facegeo`` command, before anything):
+    OpenBLAS starts with one thread unless ``OPENBLAS_NUM_THREADS`` is set. Its worker threads
+    busy-wait about 0.1 s after each call, and are made again, spinning, in both processes at
+    every fork: on 2 cores they took ~0.9 s of the CPU of ``facegeo reconstruct`` on the bundled
+    photo (perf: ``blas_thread_server``) from the forked child and the other worker, while none of
+    the pipeline's BLAS calls (at most ~9 columns) ran faster on two threads: the texture stages
+    took the same time either way, and the fit's landmark solve is held at one already
+    (``LANDMARK_FIT_THREADS``). Measured in benchmarks/RESULTS.md ("the BLAS pools' spinning")."""
+    os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 
 _NUMPY_BLAS: Any = None  # threadpoolctl's controller of the BLAS libraries loaded with NumPy

@@ -158,3 +158,26 @@ def test_the_export_threads_import_nothing():
     done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300)
     assert done.returncode == 0, done.stderr[-3000:]
     assert done.stdout.strip().splitlines()[-1] == "[]"
+
+
+ONE_BLAS_THREAD = """
+import facegeo.cli  # noqa: F401  (sets the default before NumPy is imported)
+import numpy  # noqa: F401
+from threadpoolctl import threadpool_info
+print(sorted({pool["num_threads"] for pool in threadpool_info() if pool["internal_api"] == "openblas"}))
+"""
+
+
+@pytest.mark.parametrize("setting, expected", [(None, "[1]"), ("2", "[2]")])
+def test_the_command_starts_openblas_on_one_thread_unless_told(setting, expected):
+    # OpenBLAS's idle workers spin: on two cores they took ~0.9 s of a reconstruct's CPU from its
+    # forked child. A fresh interpreter: the pool's size is read when the library loads.
+    import subprocess
+    import sys
+
+    env = {key: value for key, value in os.environ.items() if key != "OPENBLAS_NUM_THREADS"}
+    if setting is not None:
+        env["OPENBLAS_NUM_THREADS"] = setting
+    done = subprocess.run([sys.executable, "-c", ONE_BLAS_THREAD], capture_output=True, text=True, timeout=120, env=env)
+    assert done.returncode == 0, done.stderr[-3000:]
+    assert done.stdout.strip() == expected
