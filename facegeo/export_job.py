@@ -10,10 +10,12 @@ geometry (:func:`facegeo.pipeline.reconstruct_with_fit`'s ``geometry_ready``) in
 (:func:`facegeo.forked_call.fork_call` with an inbox: the second core, without the GIL or pxr's
 import lock shared with the texture stages), which then waits for the maps, constants and
 metadata (:meth:`ExportJob.complete` sends them) and writes the rest: each map's PNG once for
-all outputs (:class:`facegeo.export.textures.TextureFiles`), the scenes and ``asset.json``, on
-:data:`facegeo.concurrency.EXPORT_WORKERS` threads, while the caller makes the preview. Where a
+all outputs (:class:`facegeo.export.textures.TextureFiles`), the scenes, ``asset.json`` and, where
+the plan asks for it, ``preview.png`` (its views rasterised in the first half:
+:class:`facegeo.texturing.preview.PreviewViews`), on :data:`facegeo.concurrency.EXPORT_WORKERS`
+threads, while the caller makes what it runs beside (the skin mask). Where a
 fork does not help or work (:func:`facegeo.forked_call.can_fork`, a batch worker) the same work
-runs in the caller, beside the preview, as one set of tasks on as many threads as the process may
+runs in the caller, beside the skin mask, as one set of tasks on as many threads as the process may
 keep busy (:func:`facegeo.concurrency.usable_threads`: one in a batch worker, whose neighbours
 use the other cores). The files are the same either way.
 
@@ -31,9 +33,14 @@ from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from facegeo.asset import Asset
 
-__all__ = ["ExportPlan", "ExportJob"]
+__all__ = ["ExportPlan", "PreviewPlan", "ExportJob", "PREVIEW_FILE"]
+
+#: The preview's file name in the plan's folder.
+PREVIEW_FILE = "preview.png"
 
 #: (name, (start, end)) of each piece of work, in :func:`time.perf_counter` seconds (one clock
 #: for the caller and the forked child: CLOCK_MONOTONIC).
@@ -52,6 +59,8 @@ class ExportPlan:
         bake_displacement: the scenes carry the displacement map (baked into the subdivided
             skin: then the skin's scene geometry waits for the maps).
         blendshapes: the scenes' blendshape naming (``arkit``, ``ict``) or None for static scenes.
+        preview: also write ``preview.png`` of this photo (:class:`PreviewPlan`), its views
+            rasterised in the first half; None: no preview.
     """
 
     folder: Path
@@ -60,6 +69,18 @@ class ExportPlan:
     level: int
     bake_displacement: bool
     blendshapes: str | None
+    preview: PreviewPlan | None = None
+
+
+@dataclass(frozen=True)
+class PreviewPlan:
+    """What ``preview.png`` shows beside the asset (:class:`facegeo.texturing.preview.PreviewViews`):
+    ``photo`` (H, W, 3) uint8 RGB, the fit's ``landmarks`` (68, 2) px that frame it, and the
+    ``maps`` the skin will have (its normal map decides the tangents made in the first half)."""
+
+    photo: np.ndarray
+    landmarks: np.ndarray
+    maps: frozenset[str]
 
 
 class _Prepared:
@@ -78,6 +99,13 @@ class _Prepared:
         self.geometries = None if plan.bake_displacement else scene_geometries(
             geometry.select(plan.parts), level=plan.level, blendshapes=plan.blendshapes)
         self.spans["geometry"] = (begin, time.perf_counter())
+        self.preview = None
+        if plan.preview is not None:
+            from facegeo.texturing.preview import PreviewViews
+
+            begin = time.perf_counter()
+            self.preview = PreviewViews(geometry, plan.preview.photo, plan.preview.landmarks, skin_maps=plan.preview.maps)
+            self.spans["preview views"] = (begin, time.perf_counter())
 
 
 def _import_writers(formats: tuple[str, ...]) -> None:
@@ -102,6 +130,11 @@ def _finish_tasks(asset: Asset, plan: ExportPlan, prepared: _Prepared, spans: Sp
     tasks = [_timed(f"scene {k}", write, spans) for k, write in enumerate(scenes)]
     tasks.insert(1, _timed("asset", lambda: write_asset_files(asset, plan.folder, texture_files=prepared.texture_files,
                                                               geometry_record=prepared.record), spans))
+    if prepared.preview is not None:  # last: its shading is the shortest task (RESULTS.md, "the preview in the export's child")
+        from facegeo.image_files import png_bytes
+
+        views = prepared.preview
+        tasks.append(_timed("preview", lambda: (plan.folder / PREVIEW_FILE).write_bytes(png_bytes(views.render(asset))), spans))
     return tasks
 
 

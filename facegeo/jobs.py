@@ -18,7 +18,7 @@ import json
 import math
 import time
 from collections.abc import Callable, Iterable, Iterator, Sequence
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -466,16 +466,17 @@ def reconstruct_into_folder(photo_path: str | Path, output: str | Path, options:
 
         _, (fitted, fit_seconds, skin) = beside_child(
             lambda: fork_call(_fitted_and_skin, photo, str(photo_path), options) if forking else None, meanwhile, fitted_here)
-        from facegeo.export_job import ExportJob
+        from facegeo.export_job import ExportJob, PreviewPlan
         from facegeo.image_files import png_bytes
+        from facegeo.landmarks.scheme import IBUG68
         from facegeo.pipeline import reconstruct_with_fit
         from facegeo.skin_mask import skin_mask_image
-        if options.preview:
-            from facegeo.texturing.preview import relit_preview
 
         with StagedOutput(output, replace=True) as stage:
             jobs: list[ExportJob] = []
             plan = _export_plan(options, stage.staging_dir)
+            if options.preview:  # its views are rasterised on the geometry, with the rest of the export's first half
+                plan = replace(plan, preview=PreviewPlan(photo.image, fitted.landmarks[IBUG68], frozenset(options.maps)))
             try:  # the export begins on the fit's geometry, in a child where forking helps, while the texture stages run here
                 asset, result = reconstruct_with_fit(
                     photo, model, backend=backend, size=options.size, upscale=options.upscale, maps=options.maps,
@@ -487,9 +488,6 @@ def reconstruct_into_folder(photo_path: str | Path, output: str | Path, options:
                     if options.preview:
                         progress("preview")
                 beside: list[tuple[str, Callable[[], Any]]] = []
-                if options.preview:
-                    preview = stage.path("preview.png")
-                    beside.append(("preview", lambda: preview.write_bytes(png_bytes(relit_preview(photo.image, asset, result)))))
                 if skin is not None:
                     mask = stage.path("skin_mask.png")
                     beside.append(("skin mask", lambda: mask.write_bytes(png_bytes(skin_mask_image(skin)))))
@@ -524,11 +522,12 @@ def _export_plan(options: ReconstructOptions, folder: Path) -> Any:
 
 def _completed_export(job: Any, asset: Any, beside: list[tuple[str, Callable[[], Any]]]) -> dict[str, float]:
     """Complete the :class:`facegeo.export_job.ExportJob` ``job`` with ``asset``, the ``beside``
-    tasks (the preview, the skin mask) made meanwhile here; returns the ``export`` time (from
-    the maps' hand-over to the last export file written) and the ``preview``'s own, when made."""
+    tasks (the skin mask; the preview where the job's plan has none) made meanwhile here; returns
+    the ``export`` time (from the maps' hand-over to the last export file written, the preview
+    aside) and the ``preview``'s own, when made (by the job or beside it)."""
     start = time.perf_counter()
     spans = job.complete(asset, beside)
-    own = {name for name, _ in beside}
+    own = {name for name, _ in beside} | {"preview"}
     timings = {"export": max(end for name, (_, end) in spans.items() if name not in own) - start}
     if "preview" in spans:
         timings["preview"] = spans["preview"][1] - spans["preview"][0]

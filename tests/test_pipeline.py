@@ -85,6 +85,22 @@ def test_preview_panels(small_asset):
     assert np.abs(preview[:, :2 * p].astype(float).mean() - photo.image.mean()) < 40
 
 
+def test_the_preview_in_two_halves_is_the_preview(small_asset):
+    # facegeo reconstruct rasterises the views on the geometry (no skin maps yet) and shades them
+    # once the maps exist: the same pixels as relit_preview, whichever skin maps it expected
+    import dataclasses
+
+    from facegeo.landmarks.scheme import IBUG68
+    from facegeo.texturing.preview import PreviewViews
+
+    photo, _, asset, fit = small_asset
+    whole = relit_preview(photo.image, asset, fit, panel=64)
+    geometry = dataclasses.replace(asset, maps={}, constants={}, metadata={})
+    for expected in (frozenset(asset.maps), frozenset()):  # right, and wrong (no normal map: other tangents)
+        views = PreviewViews(geometry, photo.image, fit.landmarks[IBUG68], panel=64, skin_maps=expected)
+        np.testing.assert_array_equal(views.render(asset), whole)
+
+
 def test_bad_arguments_raise():
     with pytest.raises(InputError, match="maps"):
         reconstruct(np.zeros((64, 64, 3), np.uint8), maps={"sheen"})
