@@ -31,8 +31,9 @@ def one_run(photo: Path, output: Path) -> tuple[dict[str, float], dict[str, floa
         marks["maps handed over (export's 2nd half starts)"] = time.perf_counter()
         spans = complete(self, asset, beside)
         marks["export child: imports done, 1st half starts"] = spans["geometry"][0]
+        labels = {"geometry": "export child: 1st half's geometry done", "preview views": "export child: preview views done (1st half)"}
         for name, (_, end) in spans.items():
-            marks[f"{'export child: 1st half done' if name == 'geometry' else name + ' written'}"] = end
+            marks[labels.get(name, f"{name} written")] = end
         return spans
 
     def started(self, *args, **kwargs):
@@ -62,7 +63,9 @@ def main() -> None:
     parser.add_argument("--runs", type=int, default=3, help="runs in this process (the first includes the imports)")
     args = parser.parse_args()
     import facegeo
+    from facegeo.concurrency import one_blas_thread_by_default
 
+    one_blas_thread_by_default()  # as the facegeo command does, before NumPy is imported
     print(f"facegeo from {Path(facegeo.__file__).parent}")
     with tempfile.TemporaryDirectory() as tmp:
         for run in range(args.runs):

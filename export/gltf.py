@@ -54,6 +54,7 @@ import os
 import shutil
 import subprocess
 import sys
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Iterable
 
@@ -66,12 +67,12 @@ from facegeo.errors import InputError
 from facegeo.export.animation import EYE_NAMES, HEAD_NAME, FaceRig, face_rig, rotations, target_weights
 from facegeo.export.facevarying import wedges
 from facegeo.export.morph_targets import NORMAL_TARGET_MIN, SurfaceTargets
-from facegeo.export.scene import SceneContents, scene_contents, scene_surfaces
-from facegeo.export.textures import DEFAULT_ROUGHNESS, TextureFiles
+from facegeo.export.scene import SceneContents, SceneGeometry, scene_contents, scene_surfaces
+from facegeo.export.textures import DEFAULT_ROUGHNESS, TextureFiles, material_inputs
 from facegeo.image_files import png_bytes, to_uint
 from facegeo.staged_output import atomic_write_bytes
 
-__all__ = ["write_glb", "glb_bytes", "validate_glb", "find_gltf_validator", "GltfValidatorMissing", "VALIDATOR_ENV_VAR",
+__all__ = ["write_glb", "glb_bytes", "surface_arrays", "prepare_surface_arrays", "validate_glb", "find_gltf_validator", "GltfValidatorMissing", "VALIDATOR_ENV_VAR",
            "WRITER_LIBRARIES"]
 
 #: The libraries :func:`write_glb` imports when it runs (kept out of ``import facegeo``); a caller
@@ -199,7 +200,7 @@ def glb_bytes(asset: Asset, *, level: int = 0, maps: Iterable[str] | None = None
     materials: dict[str, int] = {}
     for index, (name, contents) in enumerate(surfaces):
         material_name = rig.material_of(name) if rig is not None else name
-        attributes, indices, vert = _geometry(contents, accessor)
+        attributes, indices, arrays = _geometry(contents, accessor)
         if material_name not in materials:
             prefix = "" if index == 0 else f"{material_name}_"
             material = _material(material_name, contents, lambda map_name, png, p=prefix: texture(p + map_name, png), files)
@@ -210,7 +211,7 @@ def glb_bytes(asset: Asset, *, level: int = 0, maps: Iterable[str] | None = None
         primitive = gl.Primitive(attributes=attributes, indices=indices, material=materials[material_name], mode=4)
         mesh = gl.Mesh(name=name, primitives=[primitive])
         if contents.targets is not None:
-            primitive.targets = _morph_targets(contents.targets, vert, len(contents.mesh.vertices), sparse_accessors)
+            primitive.targets = _morph_targets(arrays, sparse_accessors)
             mesh.weights = [float(w) for w in contents.targets.weights.astype(np.float32)]
             mesh.extras = {"targetNames": list(contents.targets.names)}
         doc.meshes.append(mesh)
@@ -249,14 +250,13 @@ def _bounds(arrays: list[np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
     return low, high
 
 
-def _morph_targets(targets: SurfaceTargets, vert: np.ndarray, n_vertices: int, sparse_accessors: Any) -> list[Any]:
-    """One ``{"POSITION", "NORMAL"}`` target per name, sparse, on the written vertices (wedges):
+def _morph_items(targets: SurfaceTargets, vert: np.ndarray, n_vertices: int) -> list[tuple[np.ndarray, np.ndarray, int]]:
+    """Per target name, its ``POSITION`` then ``NORMAL`` sparse item ``(wedge indices, values,
+    componentType)`` on the written vertices (wedges ``vert`` (W,) of ``n_vertices``):
     displacements in metres as normalized shorts (1/32767 m ≈ 31 µm steps; a wedge is stored when
     its displacement does not round to zero) and normal changes as normalized bytes (1/127 steps),
     stored where the normal turns by more than :data:`NORMAL_TARGET_MIN` (elsewhere a renderer
     keeps the neutral normal)."""
-    import pygltflib as gl
-
     items = []
     lookup = np.full(n_vertices, -1, dtype=np.int64)
     for target in targets.targets:
@@ -270,7 +270,14 @@ def _morph_targets(targets: SurfaceTargets, vert: np.ndarray, n_vertices: int, s
         normal = np.rint(np.clip(target.normals[rows[turned]], -1.0, 1.0) * 127).astype(np.int8)
         keep = np.any(position != 0, axis=1)
         items += [(wedge[keep], position[keep], _SHORT), (wedge[turned], normal, _BYTE)]
-    accessors = sparse_accessors(len(vert), items)
+    return items
+
+
+def _morph_targets(arrays: _SurfaceArrays, sparse_accessors: Any) -> list[Any]:
+    """One ``{"POSITION", "NORMAL"}`` target per name (:func:`_morph_items`), sparse accessors."""
+    import pygltflib as gl
+
+    accessors = sparse_accessors(len(arrays.vert), arrays.morph_items)
     return [gl.Attributes(POSITION=p, NORMAL=n) for p, n in zip(accessors[0::2], accessors[1::2])]
 
 
@@ -314,34 +321,79 @@ def _animation(doc: Any, take: ArkitTake, surfaces: list[tuple[str, SceneContent
     doc.animations.append(animation)
 
 
-def _geometry(contents: SceneContents, accessor: Any) -> tuple[Any, int, np.ndarray]:
-    """The primitive's attributes and index accessor of one surface (wedges, tangents), and the
-    vertex of each written wedge (W,)."""
+@dataclass(frozen=True)
+class _SurfaceArrays:
+    """What one surface's glTF mesh holds that depends on its geometry alone (:func:`surface_arrays`):
+    the written vertices' (wedges') ``positions`` (W, 3) float32 m, ``normals`` (W, 3) float32,
+    ``texcoords`` (W, 2) float32 (None: untextured), ``tangents`` (W, 4) float32 (None: no normal
+    map), the triangles ``tris`` (F, 3) int into the wedges, ``vert`` (W,) their geometry vertices, and
+    the morph targets' sparse ``(indices, values, componentType)`` items (None without targets)."""
+
+    positions: np.ndarray
+    normals: np.ndarray
+    texcoords: np.ndarray | None
+    tangents: np.ndarray | None
+    tris: np.ndarray
+    vert: np.ndarray
+    morph_items: list[tuple[np.ndarray, np.ndarray, int]] | None
+
+
+def surface_arrays(contents: SceneContents | SceneGeometry, textured: bool, normal_mapped: bool) -> _SurfaceArrays:
+    """The glTF arrays of one surface's geometry (:class:`_SurfaceArrays`) with UVs where
+    ``textured`` and MikkTSpace tangents where ``normal_mapped``, made once per geometry and kept
+    with it (``contents.derived``): ``facegeo reconstruct`` makes them in the export's first half
+    (:func:`prepare_surface_arrays`), before the maps exist, and :func:`glb_bytes` finds them."""
+    key = ("glb", bool(textured), bool(normal_mapped))
+    made = contents.derived.get(key)
+    if made is None:
+        mesh = contents.mesh
+        vert, uvi, tris = wedges(mesh.triangles, mesh.uv_triangles if textured else None)
+        uv = mesh.uv[uvi] if textured else None
+        tangents = None
+        if normal_mapped:
+            vert, uv, tris, tangents = _with_tangents(mesh, contents.normals, vert, uv, tris)
+        texcoords = None if uv is None else np.stack([uv[:, 0], 1.0 - uv[:, 1]], axis=1).astype(np.float32)
+        targets = contents.targets
+        made = _SurfaceArrays((mesh.vertices[vert] * 0.001).astype(np.float32), contents.normals[vert].astype(np.float32),
+                              texcoords, tangents, tris, vert,
+                              None if targets is None else _morph_items(targets, vert, len(mesh.vertices)))
+        contents.derived[key] = made
+    return made
+
+
+def prepare_surface_arrays(geometries: list[SceneGeometry], parts: list[Asset], skin_maps: Iterable[str]) -> None:
+    """Make the glTF arrays (:func:`surface_arrays`) of the skin's and the parts' scene
+    ``geometries`` (:func:`facegeo.export.scene.scene_geometries`) before the maps exist: the
+    skin's as a skin with ``skin_maps`` would be written (textured unless it carries none but the
+    baked displacement; tangents with a normal map), each part's as its own maps and constants
+    say. A guess that the written materials contradict is made again by :func:`glb_bytes`."""
+    wanted = set(skin_maps) - {"displacement"}
+    surface_arrays(geometries[0], bool(wanted), "normal" in wanted)
+    for geometry, part in zip(geometries[1:], parts):
+        inputs = material_inputs(part, None)
+        surface_arrays(geometry, any(i.is_texture for i in inputs.values()), "normal" in inputs)
+
+
+def _geometry(contents: SceneContents, accessor: Any) -> tuple[Any, int, _SurfaceArrays]:
+    """The primitive's attributes and index accessor of one surface (wedges, tangents), and its
+    arrays (:func:`surface_arrays`)."""
     import pygltflib as gl
 
-    mesh = contents.mesh
-    inputs = contents.inputs
-    textured = contents.textured
-    vert, uvi, tris = wedges(mesh.triangles, mesh.uv_triangles if textured else None)
-    uv = mesh.uv[uvi] if textured else None
-    tangents = None
-    if "normal" in inputs:
-        vert, uv, tris, tangents = _with_tangents(mesh, contents.normals, vert, uv, tris)
-    positions_mm = mesh.vertices[vert]
-    normals = contents.normals[vert]
+    arrays = surface_arrays(contents, contents.textured, "normal" in contents.inputs)
     attributes = gl.Attributes(
-        POSITION=accessor((positions_mm * 0.001).astype(np.float32), "VEC3", _FLOAT, _ARRAY_BUFFER, bounds=True),
-        NORMAL=accessor(normals.astype(np.float32), "VEC3", _FLOAT, _ARRAY_BUFFER),
+        POSITION=accessor(arrays.positions, "VEC3", _FLOAT, _ARRAY_BUFFER, bounds=True),
+        NORMAL=accessor(arrays.normals, "VEC3", _FLOAT, _ARRAY_BUFFER),
     )
-    if textured:
-        attributes.TEXCOORD_0 = accessor(np.stack([uv[:, 0], 1.0 - uv[:, 1]], axis=1).astype(np.float32), "VEC2", _FLOAT, _ARRAY_BUFFER)
-    if tangents is not None:
-        attributes.TANGENT = accessor(tangents, "VEC4", _FLOAT, _ARRAY_BUFFER)
-    if len(vert) <= 65535:
+    if arrays.texcoords is not None:
+        attributes.TEXCOORD_0 = accessor(arrays.texcoords, "VEC2", _FLOAT, _ARRAY_BUFFER)
+    if arrays.tangents is not None:
+        attributes.TANGENT = accessor(arrays.tangents, "VEC4", _FLOAT, _ARRAY_BUFFER)
+    tris = arrays.tris
+    if len(arrays.vert) <= 65535:
         indices = accessor(tris.astype(np.uint16).ravel(), "SCALAR", _UNSIGNED_SHORT, _ELEMENT_ARRAY_BUFFER)
     else:
         indices = accessor(tris.astype(np.uint32).ravel(), "SCALAR", _UNSIGNED_INT, _ELEMENT_ARRAY_BUFFER)
-    return attributes, indices, vert
+    return attributes, indices, arrays
 
 
 def _material(name: str, contents: SceneContents, texture: Any, files: TextureFiles) -> Any:

@@ -14,8 +14,8 @@ weights to the fitted ones, so the file still shows the photo's expression.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-from typing import Iterable
+from dataclasses import dataclass, field
+from typing import Any, Iterable
 
 import numpy as np
 
@@ -39,7 +39,8 @@ DISPLACEMENT_MODES = ("bake", "texture")
 class SceneContents:
     """The mesh to write (float64 mm, face-varying UVs, (V, 3) unit normals) and the material
     inputs (``inputs`` never holds a baked displacement); ``targets``: the morph targets of the
-    mesh (then the neutral mesh), or None."""
+    mesh (then the neutral mesh), or None; ``derived``: what a writer made of this geometry alone,
+    by its own key (shared with the :class:`SceneGeometry` it came from)."""
 
     mesh: FaceVaryingMesh
     normals: np.ndarray
@@ -47,6 +48,7 @@ class SceneContents:
     level: int
     displacement: str
     targets: SurfaceTargets | None = None
+    derived: dict[Any, Any] = field(default_factory=dict, compare=False, repr=False)
 
     @property
     def textured(self) -> bool:
@@ -58,7 +60,9 @@ class SceneContents:
 class SceneGeometry:
     """What a surface's scene needs of its geometry alone, without its maps (nothing baked):
     ``mesh`` (float64 mm, subdivided to ``level``), ``normals`` (V, 3) unit, ``targets`` as in
-    :class:`SceneContents`; ``uv_interpolation`` and ``blendshapes`` as they were made with."""
+    :class:`SceneContents`; ``uv_interpolation`` and ``blendshapes`` as they were made with;
+    ``derived``: what a writer made of it before the maps existed
+    (:func:`facegeo.export.gltf.prepare_surface_arrays`), which the contents made from it share."""
 
     mesh: FaceVaryingMesh
     normals: np.ndarray
@@ -66,6 +70,7 @@ class SceneGeometry:
     level: int
     uv_interpolation: str
     blendshapes: str | None
+    derived: dict[Any, Any] = field(default_factory=dict, compare=False, repr=False)
 
 
 def _geometry(asset: Asset, level: int, uv_interpolation: str, blendshapes: str | None,
@@ -123,7 +128,7 @@ def scene_contents(asset: Asset, *, level: int = 0, displacement: str = "bake", 
                          f"level {geometry.level}, {geometry.uv_interpolation} UVs, blendshapes {geometry.blendshapes}"
                          + (", a displacement to bake" if bake is not None else ""))
     made = geometry or _geometry(asset, level, uv_interpolation, blendshapes, bake)
-    return SceneContents(made.mesh, made.normals, inputs, int(level), displacement, made.targets)
+    return SceneContents(made.mesh, made.normals, inputs, int(level), displacement, made.targets, made.derived)
 
 
 def scene_surfaces(asset: Asset, *, level: int = 0, displacement: str = "bake", maps: Iterable[str] | None = None,

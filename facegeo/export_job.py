@@ -59,6 +59,8 @@ class ExportPlan:
         bake_displacement: the scenes carry the displacement map (baked into the subdivided
             skin: then the skin's scene geometry waits for the maps).
         blendshapes: the scenes' blendshape naming (``arkit``, ``ict``) or None for static scenes.
+        maps: the maps the texture stages will make: what the first half expects the skin to
+            carry (a scene whose skin carries others makes what it needs then).
         preview: also write ``preview.png`` of this photo (:class:`PreviewPlan`), its views
             rasterised in the first half; None: no preview.
     """
@@ -69,18 +71,17 @@ class ExportPlan:
     level: int
     bake_displacement: bool
     blendshapes: str | None
+    maps: frozenset[str] = frozenset()
     preview: PreviewPlan | None = None
 
 
 @dataclass(frozen=True)
 class PreviewPlan:
     """What ``preview.png`` shows beside the asset (:class:`facegeo.texturing.preview.PreviewViews`):
-    ``photo`` (H, W, 3) uint8 RGB, the fit's ``landmarks`` (68, 2) px that frame it, and the
-    ``maps`` the skin will have (its normal map decides the tangents made in the first half)."""
+    ``photo`` (H, W, 3) uint8 RGB and the fit's ``landmarks`` (68, 2) px that frame it."""
 
     photo: np.ndarray
     landmarks: np.ndarray
-    maps: frozenset[str]
 
 
 class _Prepared:
@@ -96,15 +97,19 @@ class _Prepared:
         begin = time.perf_counter()
         self.texture_files = TextureFiles()  # each map's PNG made once for the asset folder and the scenes
         self.record = write_asset_geometry(geometry, plan.folder, texture_files=self.texture_files)
-        self.geometries = None if plan.bake_displacement else scene_geometries(
-            geometry.select(plan.parts), level=plan.level, blendshapes=plan.blendshapes)
+        selected = geometry.select(plan.parts)
+        self.geometries = None if plan.bake_displacement else scene_geometries(selected, level=plan.level, blendshapes=plan.blendshapes)
+        if self.geometries is not None and "glb" in plan.formats:  # its wedges, tangents and morph targets
+            from facegeo.export.gltf import prepare_surface_arrays
+
+            prepare_surface_arrays(self.geometries, selected.parts, plan.maps)
         self.spans["geometry"] = (begin, time.perf_counter())
         self.preview = None
         if plan.preview is not None:
             from facegeo.texturing.preview import PreviewViews
 
             begin = time.perf_counter()
-            self.preview = PreviewViews(geometry, plan.preview.photo, plan.preview.landmarks, skin_maps=plan.preview.maps)
+            self.preview = PreviewViews(geometry, plan.preview.photo, plan.preview.landmarks, skin_maps=plan.maps)
             self.spans["preview views"] = (begin, time.perf_counter())
 
 

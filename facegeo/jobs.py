@@ -476,7 +476,7 @@ def reconstruct_into_folder(photo_path: str | Path, output: str | Path, options:
             jobs: list[ExportJob] = []
             plan = _export_plan(options, stage.staging_dir)
             if options.preview:  # its views are rasterised on the geometry, with the rest of the export's first half
-                plan = replace(plan, preview=PreviewPlan(photo.image, fitted.landmarks[IBUG68], frozenset(options.maps)))
+                plan = replace(plan, preview=PreviewPlan(photo.image, fitted.landmarks[IBUG68]))
             try:  # the export begins on the fit's geometry, in a child where forking helps, while the texture stages run here
                 asset, result = reconstruct_with_fit(
                     photo, model, backend=backend, size=options.size, upscale=options.upscale, maps=options.maps,
@@ -517,7 +517,7 @@ def _export_plan(options: ReconstructOptions, folder: Path) -> Any:
 
     return ExportPlan(folder=folder, formats=tuple(options.formats), parts=options.parts, level=options.subdiv,
                       bake_displacement=options.subdiv > 0 and "displacement" in options.maps,
-                      blendshapes=options.blendshape_names if options.blendshapes else None)
+                      blendshapes=options.blendshape_names if options.blendshapes else None, maps=frozenset(options.maps))
 
 
 def _completed_export(job: Any, asset: Any, beside: list[tuple[str, Callable[[], Any]]]) -> dict[str, float]:

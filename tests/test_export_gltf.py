@@ -199,3 +199,23 @@ def test_degenerate_geometry_still_validates(tmp_path):
     for level in (0, 1):
         issues = validate_glb(tmp_path / f"d{level}.glb")["issues"]
         assert issues["numErrors"] == 0 and issues["numWarnings"] == 0, issues["messages"][:5]
+
+
+@pytest.mark.parametrize("guess", [("albedo", "normal", "roughness", "specular"), ("albedo",), ()])
+def test_arrays_made_before_the_maps_give_the_same_file(monkeypatch, guess):
+    # facegeo reconstruct makes the glTF arrays on the geometry while the texture stages run: the
+    # file is the same bytes whether the guess at the skin's maps was right (the arrays are then
+    # not made again) or wrong (they are made for the written material)
+    import dataclasses
+
+    import facegeo.export.gltf as gltf
+    from facegeo.export.scene import scene_geometries, scene_surfaces
+
+    asset = ict_asset({name: m for name, m in synthetic_maps().items() if name != "displacement"})  # nothing to bake
+    expected = gltf.glb_bytes(asset, level=1)
+    geometries = scene_geometries(dataclasses.replace(asset, maps={}, constants={}), level=1)
+    gltf.prepare_surface_arrays(geometries, [], guess)
+    right = set(guess) == set(asset.maps)
+    if right:
+        monkeypatch.setattr(gltf, "_with_tangents", lambda *args: pytest.fail("tangents made again"))
+    assert gltf.glb_bytes(asset, level=1, surfaces=scene_surfaces(asset, level=1, geometries=geometries)) == expected
