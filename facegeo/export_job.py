@@ -60,7 +60,8 @@ class ExportPlan:
             skin: then the skin's scene geometry waits for the maps).
         blendshapes: the scenes' blendshape naming (``arkit``, ``ict``) or None for static scenes.
         maps: the maps the texture stages will make: what the first half expects the skin to
-            carry (a scene whose skin carries others makes what it needs then).
+            carry (a scene whose skin carries others makes what it needs then); None: not known
+            (the glb's arrays then wait for the maps).
         preview: also write ``preview.png`` of this photo (:class:`PreviewPlan`), its views
             rasterised in the first half; None: no preview.
     """
@@ -71,7 +72,7 @@ class ExportPlan:
     level: int
     bake_displacement: bool
     blendshapes: str | None
-    maps: frozenset[str] = frozenset()
+    maps: frozenset[str] | None = None
     preview: PreviewPlan | None = None
 
 
@@ -99,7 +100,7 @@ class _Prepared:
         self.record = write_asset_geometry(geometry, plan.folder, texture_files=self.texture_files)
         selected = geometry.select(plan.parts)
         self.geometries = None if plan.bake_displacement else scene_geometries(selected, level=plan.level, blendshapes=plan.blendshapes)
-        if self.geometries is not None and "glb" in plan.formats:  # its wedges, tangents and morph targets
+        if self.geometries is not None and plan.maps is not None and "glb" in plan.formats:  # its wedges, tangents, morph targets
             from facegeo.export.gltf import prepare_surface_arrays
 
             prepare_surface_arrays(self.geometries, selected.parts, plan.maps)
