@@ -14,7 +14,7 @@ from facegeo.texturing.default import DEFAULT_SETTINGS, DefaultBackend, DefaultS
 from facegeo.texturing.default.clipping import restore_clipped
 from facegeo.texturing.default.highlights import white_share
 from facegeo.texturing.default.least_squares import nonnegative_least_squares
-from facegeo.texturing.default.noise import band_noise, gradient_noise, value_noise
+from facegeo.texturing.default.noise import band_noise, coloured_noise, gradient_noise, value_noise
 from facegeo.texturing.default.quilting import quilted_detail
 from facegeo.texturing.default.reliability import shading_confidence
 from facegeo.texturing.default.sheen import without_sun_sheen
@@ -1373,3 +1373,27 @@ def test_a_texel_whose_shading_is_in_doubt_keeps_its_own_chroma():
         expected = reliability[0, texel] * chroma(lips) + (1 - reliability[0, texel]) * chroma(filled)
         np.testing.assert_allclose(chroma(out[0, texel]), expected, atol=1e-5)
     np.testing.assert_array_equal(out[0, 2:], out_log[0, 2:])  # confidence 1, or unseen: unchanged
+
+
+def test_the_fills_detail_is_the_same_on_one_thread_and_on_two(monkeypatch):
+    # fill_detail quilts the seen skin's finest detail on one thread while it makes the noise's
+    # layers on another (they meet when the noise counts the quilted detail): the same numbers
+    import facegeo.texturing.default.fill as fill_module
+
+    size = 256
+    ctx = hemisphere_context(size)
+    ctx.mirror[...] = -1  # no mirror: the hidden side is quilted and given the noise
+    rng = np.random.default_rng(5)
+    _, x, _, log_l = _albedo_with_the_right_hidden(ctx, 0.05 * rng.normal(size=(size, size)).astype(np.float32))
+    log_rgb = np.repeat(log_l[..., None], 3, axis=-1) + np.array([0.1, 0.0, -0.1], np.float32)
+    seen = ctx.coverage & (x < 0.2)
+    inner = np.where(seen, 10.0, 0.0).astype(np.float32)
+    reliable = seen.astype(np.float32)
+    made, noises = {}, []
+    monkeypatch.setattr(fill_module, "coloured_noise", lambda *args: noises.append(args[0]) or coloured_noise(*args))
+    for threads in (1, 2):
+        monkeypatch.setattr(fill_module, "usable_threads", lambda: threads)
+        made[threads] = fill_module.fill_detail(log_rgb, seen, inner, reliable, ctx, DEFAULT_SETTINGS)
+    assert len(noises) == 2 and all(layers is not None for layers in noises)  # quilted, and the noise's layers made
+    for one, two in zip(made[1], made[2]):
+        np.testing.assert_array_equal(one, two)

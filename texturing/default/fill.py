@@ -50,8 +50,9 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
 from facegeo.colour import channel_sum, luminance
+from facegeo.concurrency import run_concurrently, usable_threads
 from facegeo.texturing.backend import TextureContext
-from facegeo.texturing.default.noise import band_noise, value_noise
+from facegeo.texturing.default.noise import NoiseLayers, coloured_noise, noise_layers, value_noise
 from facegeo.texturing.default.quilting import quilted_detail
 from facegeo.texturing.default.settings import DefaultSettings
 from facegeo.texturing.default.texels import mirror_index, skin_texels, smoothstep
@@ -197,14 +198,22 @@ def fill_detail(log_seen: np.ndarray, seen: np.ndarray, inner: np.ndarray, relia
     need = cover & (own[..., 0] < 1.0 - 1e-3) & (w_m < 1.0 - 1e-3)
     synthesised = None
     if need.any():  # pores and stubble only: quilted wrinkles and blotches made waves on a bald scalp
-        fine = np.where(seen[..., None], log_seen - masked_blur(log_seen, seen, max(1.0, size * settings.detail_sigma_fraction)), 0.0)
+        finest = max(1.0, size * settings.detail_sigma_fraction)
         source = seen & skin_texels(ctx) & (reliable > 0.99) & (inner > settings.detail_edge_mm)
-        synthesised = quilted_detail(fine, source, need, settings=settings)
-        if synthesised is not None:  # and the noise's octaves: the skin's grain and mottling
-            synthesised += band_noise(log_seen, source, need & ~seen, ctx.position, cover, euclidean_distance(~seen),
-                                      max(1.0, size * settings.detail_sigma_fraction), size * settings.mid_band_coarsest, ctx.median_texel_mm,
-                                      settings.mid_band_strength, whole_below=size * settings.grain_coarsest, present=synthesised,
-                                      settings=settings)
+
+        def quilted() -> np.ndarray | None:
+            fine = np.where(seen[..., None], log_seen - masked_blur(log_seen, seen, finest), 0.0)
+            return quilted_detail(fine, source, need, settings=settings)
+
+        def layers() -> NoiseLayers | None:  # and the noise's octaves: the skin's grain and mottling
+            return noise_layers(log_seen, source, need & ~seen, ctx.position, cover, euclidean_distance(~seen), finest,
+                                size * settings.mid_band_coarsest, ctx.median_texel_mm, settings.mid_band_strength,
+                                whole_below=size * settings.grain_coarsest, settings=settings)
+
+        # independent until the noise counts the quilted detail: on two threads where the process may use two
+        synthesised, noise = run_concurrently([quilted, layers], workers=usable_threads())
+        if synthesised is not None:
+            synthesised += coloured_noise(noise, synthesised, synthesised.shape)
     if synthesised is None:  # no whole block of reliable skin was seen: value noise with its contrast
         noise = np.zeros(cover.shape, np.float32)
         if need.any() and amp > 0:

@@ -11,6 +11,8 @@ block of skin was seen.
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import cv2
 import numpy as np
 
@@ -19,7 +21,7 @@ from facegeo.texturing.default.settings import DEFAULT_SETTINGS, DefaultSettings
 from facegeo.texturing.default.texels import smoothstep
 from facegeo.texturing.image_filters import area_mean, masked_blur
 
-__all__ = ["band_noise", "gradient_noise", "value_noise"]
+__all__ = ["band_noise", "noise_layers", "coloured_noise", "NoiseLayers", "gradient_noise", "value_noise"]
 
 #: Points per block of the lattice noises (their temporaries stay in the CPU cache).
 _NOISE_BLOCK = 16384
@@ -109,11 +111,49 @@ def band_noise(log_rgb: np.ndarray, source: np.ndarray, need: np.ndarray, positi
     wanted one (the nearest covariance where that leaves a negative part), so the noise adds what
     it lacks. 0 outside ``need`` and where ``source`` has fewer than 100 texels; deterministic for
     a given ``seed``. (By hand: no library synthesises noise with a given colour covariance per
-    octave on a surface.)"""
+    octave on a surface.) In two halves: :func:`noise_layers` (all but ``present``), then
+    :func:`coloured_noise`."""
+    layers = noise_layers(log_rgb, source, need, position_mm, cover, outside, finest, coarsest, texel_mm, strength, whole_below,
+                          seed, settings=settings)
+    return coloured_noise(layers, present, log_rgb.shape)
+
+
+@dataclass(frozen=True)
+class NoiseLayers:
+    """What :func:`band_noise` makes before the detail already on ``need`` is known
+    (:func:`noise_layers`): the grid (``factor`` coarser than the map, ``small`` its (width,
+    height)), ``need`` (S, S) bool and on the grid, the distance ``outside_small`` from the seen skin
+    in grid texels, the octaves' ``sigmas`` (grid texels), each octave's wanted colour covariance
+    ``target`` (count, 3, 3), the unit-variance noise ``layers`` (count of (h, w, 3) float32) and
+    their octaves' overlap ``leak`` (count, count)."""
+
+    factor: int
+    small: tuple[int, int]
+    need: np.ndarray
+    need_small: np.ndarray
+    outside_small: np.ndarray
+    sigmas: list[float]
+    target: np.ndarray
+    layers: list[np.ndarray]
+    leak: np.ndarray
+
+
+def _octaves(image: np.ndarray, weight: np.ndarray, sigmas: list[float]) -> list[np.ndarray]:
+    """``image``'s differences of Gaussians (masked by ``weight``) between consecutive ``sigmas``."""
+    blurred = [masked_blur(image, weight, s) for s in sigmas]
+    return [blurred[k] - blurred[k + 1] for k in range(len(sigmas) - 1)]
+
+
+def noise_layers(log_rgb: np.ndarray, source: np.ndarray, need: np.ndarray, position_mm: np.ndarray, cover: np.ndarray,
+                 outside: np.ndarray, finest: float, coarsest: float, texel_mm: float, strength: float = 1.0,
+                 whole_below: float = 0.0, seed: int = 0, *, settings: DefaultSettings = DEFAULT_SETTINGS) -> NoiseLayers | None:
+    """The first half of :func:`band_noise` (its arguments but ``present``): the octaves' wanted
+    covariances and the noise layers, which do not depend on the detail already present (the
+    fill makes them while it quilts that detail); None where it adds nothing (too little source
+    or nothing to fill)."""
     size = log_rgb.shape[0]
-    out = np.zeros(log_rgb.shape, np.float32)
     if source.sum() < 100 or not need.any():
-        return out
+        return None
     factor = 1
     while finest / (2 * factor) >= 2.0 and size // (2 * factor) >= 64:
         factor *= 2
@@ -125,31 +165,18 @@ def band_noise(log_rgb: np.ndarray, source: np.ndarray, need: np.ndarray, positi
     outside_small = cv2.resize(outside.astype(np.float32), small, interpolation=cv2.INTER_AREA) / factor
     solid = source_w > 0.99
     if solid.sum() < 100 or not need_small.any():
-        return out
+        return None
     sigmas = [finest / factor]
     while sigmas[-1] < coarsest / factor * (1 - 1e-6):
         sigmas.append(min(2.0 * sigmas[-1], coarsest / factor))
     count = len(sigmas) - 1
 
-    def octaves(image: np.ndarray, weight: np.ndarray) -> list[np.ndarray]:
-        """``image``'s differences of Gaussians (masked by ``weight``) between consecutive ``sigmas``."""
-        blurred = [masked_blur(image, weight, s) for s in sigmas]
-        return [blurred[k] - blurred[k + 1] for k in range(count)]
-
     wanted = np.empty((count, 3, 3))  # each octave's covariance over the source's places that are not busy
-    for k, band in enumerate(octaves(log_small, source_w)):
+    for k, band in enumerate(_octaves(log_small, source_w, sigmas)):
         local = masked_blur((band * band).sum(-1), solid, 2.0 * sigmas[k + 1])
         calm = solid & (local <= settings.quilt_energy_cap * np.median(local[solid]))
         wanted[k] = np.cov(band[calm].astype(np.float64).T)
     target = np.where(np.array(sigmas[:-1])[:, None, None] * factor < whole_below, 1.0, strength) * wanted
-    if present is not None:  # the detail already there counts towards each octave: the noise adds what it lacks
-        have, have_w = area_mean(present.astype(np.float32), need, small)
-        inside = have_w > 0.99
-        if inside.sum() >= 100:
-            for k, band in enumerate(octaves(have, have_w)):
-                target[k] -= np.cov(band[inside].astype(np.float64).T)
-            values, vectors = np.linalg.eigh(target)  # the nearest covariances (negative parts: more than the source's)
-            target = (vectors * np.clip(values, 0.0, None)[:, None, :]) @ vectors.transpose(0, 2, 1)
     # one independent noise layer per octave (3 channels each), unit variance over ``need``
     area = cover_w > 0.5
     layers = []
@@ -169,22 +196,42 @@ def band_noise(log_rgb: np.ndarray, source: np.ndarray, need: np.ndarray, positi
         layers.append(layer / np.maximum(layer[need_small].std(0), 1e-12))
     # the spectra overlap, so octave k measured on layer j holds a part V_kj of its variance
     firsts = np.stack([layer[..., 0] for layer in layers], axis=-1)  # one channel of each layer (all three alike)
-    measured = octaves(firsts, area)
+    measured = _octaves(firsts, area, sigmas)
     leak = np.array([[float(np.var(measured[k][..., j][need_small])) for j in range(count)] for k in range(count)])
+    return NoiseLayers(factor, small, need, need_small, outside_small, sigmas, target, layers, leak)
+
+
+def coloured_noise(layers: NoiseLayers | None, present: np.ndarray | None, shape: tuple[int, ...]) -> np.ndarray:
+    """The second half of :func:`band_noise`: its (S, S, 3) float32 noise of shape ``shape`` from
+    the ``layers`` of :func:`noise_layers` (None: zeros), ``present`` (S, S, 3) the detail already
+    on ``need`` (None: none)."""
+    out = np.zeros(shape, np.float32)
+    if layers is None:
+        return out
+    factor, small, need, sigmas = layers.factor, layers.small, layers.need, layers.sigmas
+    target = layers.target.copy()
+    if present is not None:  # the detail already there counts towards each octave: the noise adds what it lacks
+        have, have_w = area_mean(present.astype(np.float32), need, small)
+        inside = have_w > 0.99
+        if inside.sum() >= 100:
+            for k, band in enumerate(_octaves(have, have_w, sigmas)):
+                target[k] -= np.cov(band[inside].astype(np.float64).T)
+            values, vectors = np.linalg.eigh(target)  # the nearest covariances (negative parts: more than the source's)
+            target = (vectors * np.clip(values, 0.0, None)[:, None, :]) @ vectors.transpose(0, 2, 1)
     # layer j takes octave j's colour covariance at a power t_j with Σ_j V_kj t_j ≈ octave k's
     # variance (relative least squares, t ≥ 0: a steep spectrum cannot be met exactly)
     variance = np.trace(target, axis1=1, axis2=2)
     if variance.max() <= 1e-12:  # flat seen skin, or all its octaves already there: nothing to give
         return out
     weight = 1.0 / np.maximum(variance, 1e-3 * variance.max())
-    scale = nonnegative_least_squares(leak * weight[:, None], variance * weight)
+    scale = nonnegative_least_squares(layers.leak * weight[:, None], variance * weight)
     power = (scale / np.maximum(variance, 1e-12))[:, None, None] * target  # t_j × the octave's covariance of trace 1
-    total = np.zeros(log_small.shape, np.float32)
-    for j, (layer, p) in enumerate(zip(layers, power)):
+    total = np.zeros((*layers.outside_small.shape, 3), np.float32)
+    for j, (layer, p) in enumerate(zip(layers.layers, power)):
         values, vectors = np.linalg.eigh((p + p.T) / 2)
         root = (vectors * np.sqrt(np.clip(values, 0.0, None))).astype(np.float32)  # root @ root.T = p (singular for a greyscale photo)
-        ramp = smoothstep(outside_small / (2.0 * sigmas[j]))[..., None]  # near the seen skin the fill's base still holds the octave
+        ramp = smoothstep(layers.outside_small / (2.0 * sigmas[j]))[..., None]  # near the seen skin the fill's base still holds the octave
         total += ramp * (layer @ root.T)
     if factor > 1:
-        total = cv2.resize(total, (size, size), interpolation=cv2.INTER_LINEAR)
+        total = cv2.resize(total, (shape[1], shape[0]), interpolation=cv2.INTER_LINEAR)
     return np.where(need[..., None], total, 0.0).astype(np.float32)
