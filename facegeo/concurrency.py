@@ -59,18 +59,31 @@ def one_blas_thread_by_default() -> None:
     the pipeline's BLAS calls (at most ~9 columns) ran faster on two threads: the texture stages
     took the same time either way, and the fit's landmark solve is held at one already
     (``LANDMARK_FIT_THREADS``). Measured in benchmarks/RESULTS.md ("the BLAS pools' spinning")."""
-    os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+    global _BLAS_STARTED_ON_ONE
+    if "OPENBLAS_NUM_THREADS" not in os.environ and "numpy" not in sys.modules:
+        os.environ["OPENBLAS_NUM_THREADS"] = "1"
+        _BLAS_STARTED_ON_ONE = True
 
 
 _NUMPY_BLAS: Any = None  # threadpoolctl's controller of the BLAS libraries loaded with NumPy
+#: OpenBLAS was started on one thread here (:func:`one_blas_thread_by_default`).
+_BLAS_STARTED_ON_ONE = False
+#: The :func:`native_threads` holds above one thread under way (they raise the BLAS pools).
+_BLAS_RAISED = 0
+_BLAS_RAISED_LOCK = threading.Lock()
 
 
 def numpy_blas_threads(count: int) -> contextlib.AbstractContextManager[Any]:
     """A context that holds the BLAS pools NumPy loaded at ``count`` threads (restored on exit),
     for NumPy code called many times (a tracked video's per-frame solves): the libraries are found
     once a process (threadpoolctl scans the loaded libraries for each ``threadpool_limits``, about
-    a millisecond), so a BLAS loaded later (torch's) is not held; :func:`native_threads` holds them all."""
+    a millisecond), so a BLAS loaded later (torch's) is not held; :func:`native_threads` holds them all.
+    Where OpenBLAS was started on one thread (:func:`one_blas_thread_by_default`) and no
+    :func:`native_threads` raises it, a hold at one thread changes nothing and is not made: the
+    scan (~4.5 ms, and threadpoolctl's import) was 3 % of ``facegeo fit``."""
     global _NUMPY_BLAS
+    if count == 1 and _BLAS_STARTED_ON_ONE and _BLAS_RAISED == 0:
+        return contextlib.nullcontext()
     if _NUMPY_BLAS is None:
         import numpy  # noqa: F401  (its BLAS is loaded with it)
         from threadpoolctl import ThreadpoolController
@@ -86,16 +99,24 @@ def native_threads(count: int) -> Iterator[None]:
     import cv2
     from threadpoolctl import threadpool_limits
 
+    global _BLAS_RAISED
     torch = sys.modules.get("torch")
     torch_threads = torch.get_num_threads() if torch is not None else None
     cv2_threads = cv2.getNumThreads()
     cv2.setNumThreads(count)
     if torch is not None:
         torch.set_num_threads(count)
+    raised = count > 1
+    if raised:
+        with _BLAS_RAISED_LOCK:
+            _BLAS_RAISED += 1
     try:
         with threadpool_limits(limits=count, user_api="blas"):
             yield
     finally:
+        if raised:
+            with _BLAS_RAISED_LOCK:
+                _BLAS_RAISED -= 1
         if torch is not None:
             torch.set_num_threads(torch_threads)
         cv2.setNumThreads(cv2_threads)

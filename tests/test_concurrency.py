@@ -181,3 +181,34 @@ def test_the_command_starts_openblas_on_one_thread_unless_told(setting, expected
     done = subprocess.run([sys.executable, "-c", ONE_BLAS_THREAD], capture_output=True, text=True, timeout=120, env=env)
     assert done.returncode == 0, done.stderr[-3000:]
     assert done.stdout.strip() == expected
+
+
+HOLD_WITHOUT_SCAN = """
+import sys
+import facegeo.cli  # noqa: F401  (starts OpenBLAS on one thread)
+import numpy  # noqa: F401
+from facegeo.concurrency import native_threads, numpy_blas_threads
+with numpy_blas_threads(1):
+    pass
+print("threadpoolctl" in sys.modules)
+from threadpoolctl import threadpool_info
+def numpy_pool():
+    return [p["num_threads"] for p in threadpool_info() if "numpy" in p["filepath"]]
+with native_threads(2):  # raises the pools: a hold at one is made then
+    with numpy_blas_threads(1):
+        inside = numpy_pool()
+    print(numpy_pool(), inside)
+print(numpy_pool())
+"""
+
+
+def test_a_hold_at_one_blas_thread_is_skipped_where_openblas_started_on_one():
+    # the landmark fit holds NumPy's BLAS at one thread; in the facegeo command it starts on one,
+    # so the hold is not made (threadpoolctl's scan was 3 % of a fit) unless a wider hold raised it
+    import subprocess
+    import sys
+
+    env = {key: value for key, value in os.environ.items() if key != "OPENBLAS_NUM_THREADS"}
+    done = subprocess.run([sys.executable, "-c", HOLD_WITHOUT_SCAN], capture_output=True, text=True, timeout=120, env=env)
+    assert done.returncode == 0, done.stderr[-3000:]
+    assert done.stdout.split("\n")[:3] == ["False", "[2] [1]", "[1]"]
