@@ -524,13 +524,14 @@ def _completed_export(job: Any, asset: Any, beside: list[tuple[str, Callable[[],
     """Complete the :class:`facegeo.export_job.ExportJob` ``job`` with ``asset``, the ``beside``
     tasks (the skin mask; the preview where the job's plan has none) made meanwhile here; returns
     the ``export`` time (from the maps' hand-over to the last export file written, the preview
-    aside) and the ``preview``'s own, when made (by the job or beside it)."""
+    aside) and the ``preview``'s own, when made (by the job, its views in the first half
+    included, or beside it)."""
     start = time.perf_counter()
     spans = job.complete(asset, beside)
     own = {name for name, _ in beside} | {"preview"}
     timings = {"export": max(end for name, (_, end) in spans.items() if name not in own) - start}
-    if "preview" in spans:
-        timings["preview"] = spans["preview"][1] - spans["preview"][0]
+    if "preview" in spans:  # with its views, where the job made them on the geometry
+        timings["preview"] = sum(spans[name][1] - spans[name][0] for name in ("preview views", "preview") if name in spans)
     return timings
 
 
