@@ -211,9 +211,9 @@ def fill_detail(log_seen: np.ndarray, seen: np.ndarray, inner: np.ndarray, relia
                                 whole_below=size * settings.grain_coarsest, settings=settings)
 
         # independent until the noise counts the quilted detail: on two threads where the process may use two
-        synthesised, noise = run_concurrently([quilted, layers], workers=usable_threads())
+        synthesised, octave_layers = run_concurrently([quilted, layers], workers=usable_threads())
         if synthesised is not None:
-            synthesised += coloured_noise(noise, synthesised, synthesised.shape)
+            synthesised += coloured_noise(octave_layers, synthesised, synthesised.shape)
     if synthesised is None:  # no whole block of reliable skin was seen: value noise with its contrast
         noise = np.zeros(cover.shape, np.float32)
         if need.any() and amp > 0:

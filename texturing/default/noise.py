@@ -122,7 +122,7 @@ def band_noise(log_rgb: np.ndarray, source: np.ndarray, need: np.ndarray, positi
 class NoiseLayers:
     """What :func:`band_noise` makes before the detail already on ``need`` is known
     (:func:`noise_layers`): the grid (``factor`` coarser than the map, ``small`` its (width,
-    height)), ``need`` (S, S) bool and on the grid, the distance ``outside_small`` from the seen skin
+    height)), ``need`` (S, S) bool, the distance ``outside_small`` from the seen skin
     in grid texels, the octaves' ``sigmas`` (grid texels), each octave's wanted colour covariance
     ``target`` (count, 3, 3), the unit-variance noise ``layers`` (count of (h, w, 3) float32) and
     their octaves' overlap ``leak`` (count, count)."""
@@ -130,7 +130,6 @@ class NoiseLayers:
     factor: int
     small: tuple[int, int]
     need: np.ndarray
-    need_small: np.ndarray
     outside_small: np.ndarray
     sigmas: list[float]
     target: np.ndarray
@@ -198,7 +197,7 @@ def noise_layers(log_rgb: np.ndarray, source: np.ndarray, need: np.ndarray, posi
     firsts = np.stack([layer[..., 0] for layer in layers], axis=-1)  # one channel of each layer (all three alike)
     measured = _octaves(firsts, area, sigmas)
     leak = np.array([[float(np.var(measured[k][..., j][need_small])) for j in range(count)] for k in range(count)])
-    return NoiseLayers(factor, small, need, need_small, outside_small, sigmas, target, layers, leak)
+    return NoiseLayers(factor, small, need, outside_small, sigmas, target, layers, leak)
 
 
 def coloured_noise(layers: NoiseLayers | None, present: np.ndarray | None, shape: tuple[int, ...]) -> np.ndarray:
