@@ -350,7 +350,7 @@ def reconstruct_one_person_into_folder(photo_paths: list[str | Path], output: st
             (not supported here), a bad photo, no face, failed fit checks, an unwritable output,
             or another run writing into ``output``.
     """
-    from facegeo.export_job import ExportJob
+    from facegeo.export_job import PREVIEW_FILE, ExportJob
     from facegeo.forked_call import can_fork
     from facegeo.image_files import png_bytes
     from facegeo.pipeline import reconstruct_views
@@ -382,7 +382,7 @@ def reconstruct_one_person_into_folder(photo_paths: list[str | Path], output: st
                     progress("export")
                 beside = []
                 if options.preview:
-                    preview = stage.path("preview.png")
+                    preview = stage.path(PREVIEW_FILE)
                     beside.append(("preview", lambda: preview.write_bytes(png_bytes(relit_preview(photos[reference].image, asset,
                                                                                                   fits[reference])))))
                 timings.update(_completed_export(jobs[0], asset, beside))
