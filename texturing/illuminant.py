@@ -17,7 +17,7 @@ Three pieces of evidence, each a Gaussian, are combined by least squares
   the locus's skin, is otherwise taken for skin under a warm light and its neutral sclera for
   lid skin). Nor is a reference used whose tint (its chroma's green–magenta part, across the
   Planckian locus through a white) is both beyond :data:`WHITE_TINT_GATE`, more than a real
-  light has, and within :data:`WHITE_SKIN_TINT_GAP` of the skin's own: that is skin, a shut eye's
+  light has, and less than :data:`WHITE_SKIN_TINT_GAP` below the skin's own (or above it): that is skin, a shut eye's
   lid (two lights of two colours move a lid in shade along the locus, away from the lit skin,
   where the miss takes it for a sclera; neither moves it across);
 * **the light itself**: real lights lie near the Planckian locus (warm–cool, the direction
@@ -87,8 +87,8 @@ WHITE_COOL_SHARE = 0.4
 #: :data:`TINT_SIGMA` of the locus). The scans' scleras lie within 0.08 of it under every light of
 #: bench_albedo_scans; the sample photos' whites at up to 0.31 (lid skin mixed into small scleras).
 WHITE_TINT_GATE = 0.2
-#: A white reference tinted beyond :data:`WHITE_TINT_GATE` and within this of the skin's own tint
-#: is skin (a lid), not used. The sample photos' skins are 0.13-0.25 more magenta than their
+#: A white reference tinted beyond :data:`WHITE_TINT_GATE` whose tint is less than this below the
+#: skin's own (or above it) is skin (a lid), not used. The sample photos' skins are 0.13-0.25 more magenta than their
 #: whites where those are tinted near or beyond the gate (Biden, Obama at the lectern, a Breaking
 #: Bad still); Lee Perry-Smith's shut lid in a sky's shade 0.02 (it had passed the miss gate and
 #: cast magenta over his albedo: bench_albedo_scans' sun + sky −40°).
