@@ -75,7 +75,7 @@ class PendingCall:
 
     def __init__(self, pid: int, pipe: int, inbox: int | None = None):
         self._pid, self._pipe, self._inbox = pid, pipe, inbox
-        self._reaped = False  # the child's exit status collected: its pid may belong to another process now
+        self._reaped = False  # the child's exit collected, or left to a thread after its answer: its pid is not ours to signal
         self._sending: list[threading.Thread] = []
 
     def send(self, value: Any) -> None:
@@ -123,17 +123,19 @@ class PendingCall:
         with os.fdopen(self._pipe, "rb") as pipe:
             while chunk := pipe.read(1 << 20):
                 chunks.append(chunk)
+        if chunks:  # answered: its exit status says nothing more, and the exit (the kernel freeing
+            # its memory) took 15-35 ms after the answer of the reconstruct's export child: reaped on a thread
+            self._reaped = True
+            threading.Thread(target=_reap, args=(self._pid,), daemon=True, name="facegeo-reap").start()
+            kind, value = pickle.loads(b"".join(chunks))
+            if kind == "error":
+                raise value
+            return value
         _, status = os.waitpid(self._pid, 0)
         self._reaped = True
-        self._close_inbox()
-        if not chunks:
-            if os.WIFSIGNALED(status) and os.WTERMSIG(status) in (signal.SIGINT, signal.SIGTERM):
-                raise KeyboardInterrupt(f"the forked process ended {_ended(status)}")  # the user's interruption reached it
-            raise ChildLost(_ended(status))
-        kind, value = pickle.loads(b"".join(chunks))
-        if kind == "error":
-            raise value
-        return value
+        if os.WIFSIGNALED(status) and os.WTERMSIG(status) in (signal.SIGINT, signal.SIGTERM):
+            raise KeyboardInterrupt(f"the forked process ended {_ended(status)}")  # the user's interruption reached it
+        raise ChildLost(_ended(status))
 
     def abandon(self) -> None:
         """Stop the child (the parent failed first or was interrupted): nothing is collected. A
@@ -152,6 +154,14 @@ class PendingCall:
             os.close(self._pipe)
         except OSError:  # result() had closed it
             pass
+
+
+def _reap(pid: int) -> None:
+    """Collect the exit of the child ``pid``, which has answered (:meth:`PendingCall.result`)."""
+    try:
+        os.waitpid(pid, 0)
+    except ChildProcessError:  # collected already (a caller's own os.waitpid(-1, ...))
+        pass
 
 
 def _receiver(inbox: int) -> Callable[[], Any]:

@@ -191,6 +191,33 @@ def test_a_child_killed_without_an_answer_is_reported_as_lost():
     assert _python(LOST) == "by signal SIGKILL"
 
 
+REAPED = """
+import os, time
+from facegeo.forked_call import fork_call
+pending = fork_call(lambda: 5)
+answer = pending.result()  # the exit is collected on a thread, after the answer
+pending.abandon()  # answered: nothing to stop
+deadline = time.monotonic() + 30
+while time.monotonic() < deadline:
+    try:
+        os.kill(pending._pid, 0)  # a zombie still answers
+    except ProcessLookupError:
+        break
+    time.sleep(0.01)
+else:
+    raise SystemExit("the child was never reaped")
+try:
+    os.waitpid(-1, os.WNOHANG)
+    print(answer, "a child is left")
+except ChildProcessError:
+    print(answer, "no child is left")
+"""
+
+
+def test_a_child_that_answered_is_reaped_without_the_caller_waiting_for_its_exit():
+    assert _python(REAPED) == "5 no child is left"
+
+
 INTERRUPTED = """
 import os, signal
 from facegeo.forked_call import fork_call
