@@ -477,11 +477,16 @@ def reconstruct_into_folder(photo_path: str | Path, output: str | Path, options:
             plan = _export_plan(options, stage.staging_dir)
             if options.preview:  # its views are rasterised on the geometry, with the rest of the export's first half
                 plan = replace(plan, preview=PreviewPlan(photo.image, fitted.landmarks[IBUG68]))
+
+            def export_begun(geometry: Any) -> int:  # the cores it keeps busy meanwhile: the child's, whose first half runs now
+                jobs.append(ExportJob(geometry, plan, fork=forking))
+                return 1 if forking else 0
+
             try:  # the export begins on the fit's geometry, in a child where forking helps, while the texture stages run here
                 asset, result = reconstruct_with_fit(
                     photo, model, backend=backend, size=options.size, upscale=options.upscale, maps=options.maps,
                     detector=options.landmarks, skin=skin, progress=progress, fitted=(fitted, fit_seconds),
-                    geometry_ready=lambda geometry: jobs.append(ExportJob(geometry, plan, fork=forking)))
+                    geometry_ready=export_begun)
                 timings = dict(asset.metadata["timings_s"])  # asset.json's stage timings, and fit.json's after export
                 if progress is not None:
                     progress("export")

@@ -67,7 +67,7 @@ def reconstruct_with_fit(
     parts: bool = True,
     fitter: Fitter = fit,
     fitted: tuple[Fit, float] | None = None,
-    geometry_ready: Callable[[Asset], None] | None = None,
+    geometry_ready: Callable[[Asset], int | None] | None = None,
 ) -> tuple[Asset, Fit]:
     """Reconstruct a textured face from one photo.
 
@@ -98,9 +98,9 @@ def reconstruct_with_fit(
             :func:`facegeo.jobs.reconstruct_into_folder`) and the seconds it took, reported as the
             ``fit`` stage's time; ``fitter`` is then not called.
         geometry_ready: called before the unwrap and the texture stages, with the asset without
-            its maps,
-            constants and metadata (its geometry, parts and blendshapes: as in the asset
-            returned), e.g. to start writing the files that need no maps.
+            its maps, constants and metadata (its geometry, parts and blendshapes: as in the asset
+            returned), e.g. to start writing the files that need no maps; returns how many cores
+            the work it starts keeps busy meanwhile (None: none), which the unwrap leaves to it.
     Returns:
         ``(asset, fit)``: the asset in model space (upright, mm) with its maps, and the fit.
     """
@@ -131,8 +131,7 @@ def reconstruct_with_fit(
     t = _starting(progress, "parts")
     geometry, parts_report = _geometry(pixels, result, model, parts)
     timings["parts"] = time.perf_counter() - t
-    if geometry_ready is not None:
-        geometry_ready(geometry)
+    busy = (geometry_ready(geometry) or 0) if geometry_ready is not None else 0
 
     t = _starting(progress, "unwrap")
     if skin is None:
@@ -140,11 +139,13 @@ def reconstruct_with_fit(
     raster = rasterize_uv(model, size=size)
     camera_maps = geometry_maps(result.vertices, model, raster, tangents=False)  # shared by both
     # independent of each other: on two threads where the process may use two (one in a Dask
-    # worker: concurrency.usable_threads); their loops release the GIL
+    # worker: concurrency.usable_threads) and geometry_ready's work does not keep the second busy
+    # (the export's forked child begins now: beside it, the two threads took 0.51 s against 0.44 s
+    # on one, benchmarks/RESULTS.md); their loops release the GIL
     ctx, (t_inc, m_vis) = run_concurrently([
         lambda: build_context(model, result, raster, camera_maps, white_reference=skin.white_reference),
         lambda: unwrap(pixels, result, model, maps=camera_maps, occlusion=skin.occlusion),
-    ], workers=usable_threads())
+    ], workers=max(1, usable_threads() - busy))
     timings["unwrap"] = time.perf_counter() - t
 
     t = _starting(progress, "inpaint")

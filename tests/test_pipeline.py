@@ -152,6 +152,22 @@ def test_the_pipeline_fits_with_any_fitter(small_asset):
     np.testing.assert_allclose(asset.metadata["fit"]["alpha"], known.alpha)
 
 
+def test_the_unwrap_leaves_the_cores_that_geometry_readys_work_keeps_busy(monkeypatch, small_asset):
+    """``geometry_ready`` returns the cores its work keeps busy (the export's forked child): the
+    unwrap's two halves then run on that many threads fewer, with the same maps."""
+    import facegeo.pipeline as pipeline
+
+    photo, model, _, known = small_asset
+    counts = []
+    run = pipeline.run_concurrently
+    monkeypatch.setattr(pipeline, "usable_threads", lambda: 2)
+    monkeypatch.setattr(pipeline, "run_concurrently", lambda tasks, workers=2: counts.append(workers) or run(tasks, workers))
+    made = [reconstruct_with_fit(photo, model, fitter=lambda image, **_: known, size=64, maps={"albedo"}, parts=False,
+                                 geometry_ready=lambda geometry, busy=busy: busy)[0] for busy in (None, 1)]
+    assert counts == [2, 1]
+    np.testing.assert_array_equal(made[0].maps["albedo"], made[1].maps["albedo"])
+
+
 def test_a_second_backend_needs_only_the_protocol(small_asset):
     """What the pipeline reads of a backend is what TextureBackend declares: the four stages,
     ``name``, ``report`` (-> texture_report) and ``constants`` (-> the maps not computed)."""
