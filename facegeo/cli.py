@@ -22,7 +22,8 @@ def run() -> NoReturn:
     """The console command: :func:`main`, then the process ends with its exit status.
 
     Where nothing is left to finish (no thread alive but this one and daemons, which exit would
-    stop anyway; no child process; every output already committed by the command), it ends at once after flushing stdout and stderr instead
+    stop anyway; no child process, once the forked children that answered are reaped; every
+    output already committed by the command), it ends at once after flushing stdout and stderr instead
     of unloading the interpreter's modules one by one, which takes about half a second once
     torch is loaded; otherwise the usual ``sys.exit``.
     """
@@ -32,6 +33,9 @@ def run() -> NoReturn:
         sys.stderr.flush()
     except OSError:  # a closed pipe: nothing more can be said
         pass
+    forked = sys.modules.get("facegeo.forked_call")
+    if forked is not None:  # the children that answered, reaped while this process finished its files
+        forked.wait_for_exits()
     children = sys.modules.get("multiprocessing")
     others = [t for t in threading.enumerate() if t is not threading.current_thread() and not t.daemon]
     if not others and (children is None or not children.active_children()):

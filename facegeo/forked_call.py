@@ -47,7 +47,7 @@ from typing import Any, TypeVar
 
 from facegeo.errors import FacegeoError
 
-__all__ = ["can_fork", "fork_call", "beside_child", "beside_children", "PendingCall", "ChildLost"]
+__all__ = ["can_fork", "fork_call", "beside_child", "beside_children", "wait_for_exits", "PendingCall", "ChildLost"]
 
 Here = TypeVar("Here")
 Theirs = TypeVar("Theirs")
@@ -126,7 +126,9 @@ class PendingCall:
         if chunks:  # answered: its exit status says nothing more, and the exit (the kernel freeing
             # its memory) took 15-35 ms after the answer of the reconstruct's export child: reaped on a thread
             self._reaped = True
-            threading.Thread(target=_reap, args=(self._pid,), daemon=True, name="facegeo-reap").start()
+            reaper = threading.Thread(target=_reap, args=(self._pid,), daemon=True, name="facegeo-reap")
+            reaper.start()
+            _REAPERS.append(reaper)
             kind, value = pickle.loads(b"".join(chunks))
             if kind == "error":
                 raise value
@@ -154,6 +156,18 @@ class PendingCall:
             os.close(self._pipe)
         except OSError:  # result() had closed it
             pass
+
+
+#: The threads reaping children that answered (:meth:`PendingCall.result`).
+_REAPERS: list[threading.Thread] = []
+
+
+def wait_for_exits() -> None:
+    """Wait until every child that answered has been reaped: before this process ends, so that
+    none is left to the system (the ``facegeo`` command's quick exit, :func:`facegeo.cli.run`,
+    and its CPU counted with this process's children)."""
+    while _REAPERS:
+        _REAPERS.pop().join()
 
 
 def _reap(pid: int) -> None:
