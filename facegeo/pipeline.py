@@ -366,7 +366,9 @@ def reconstruct_views(
             than the threads the process may keep busy (:func:`_view_shares`,
             :func:`facegeo.forked_call.can_fork`, :func:`facegeo.concurrency.usable_threads`);
             the results are the same either way.
-        geometry_ready: as :func:`reconstruct_with_fit`'s, called before the photos are textured.
+        geometry_ready: as :func:`reconstruct_with_fit`'s, called before the photos are textured;
+            what it returns is not used here (the views' children are shared by
+            :func:`_view_shares` alone).
     Returns:
         ``(asset, reference, report)``: the asset in model space (upright, mm; ``metadata``
         records the photos, the reference, the fusion report and the stage timings), the
