@@ -259,6 +259,23 @@ def test_asset_folder_keeps_the_blendshapes(face, tmp_path):
     assert face_only.blendshapes.deltas.shape[1] == len(face_only.vertices)
 
 
+def test_the_blendshapes_file_made_once_is_written_again_only_for_the_same_shapes(face, tmp_path):
+    """The last blendshapes.npz is kept (a batch worker's photos share their model's shapes): the
+    same shapes give the same bytes, other deltas their own file, read back as they are."""
+    from dataclasses import replace
+
+    asset, *_ = face
+    first, again = (save_asset(asset, tmp_path / name) / "blendshapes.npz" for name in ("a", "b"))
+    assert first.read_bytes() == again.read_bytes()
+    deltas = asset.blendshapes.deltas.copy()
+    deltas[0] *= 2.0
+    changed = replace(asset, blendshapes=replace(asset.blendshapes, deltas=deltas))
+    other = save_asset(changed, tmp_path / "c")
+    assert (other / "blendshapes.npz").read_bytes() != first.read_bytes()
+    np.testing.assert_array_equal(load_asset(other).blendshapes.deltas, deltas)
+    np.testing.assert_array_equal(load_asset(save_asset(asset, tmp_path / "d")).blendshapes.deltas, asset.blendshapes.deltas)
+
+
 @pytest.mark.parametrize("damage", ["truncated", "corrupt member"])
 def test_a_damaged_blendshapes_file_is_named_in_one_error(face, tmp_path, damage):
     asset, *_ = face
