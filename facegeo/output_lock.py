@@ -126,19 +126,42 @@ def remove_created_parents(created: list[Path]) -> None:
             break
 
 
-def _owner_text(fd: int) -> str:
-    """'process 1234' (or 'process 1234 on host h') from a held lock file; the holder writes it
-    just after locking, so an empty file is read again for a moment."""
+#: flock's answers when another open file holds the lock.
+_BUSY = (errno.EWOULDBLOCK, errno.EAGAIN, errno.EACCES)
+
+
+def _lock_or_holder(fd: int) -> str | None:
+    """``flock`` ``fd`` (exclusive, not waiting): None when locked, else the text the holder wrote
+    (its process id and host; '' when it wrote none within a second).
+
+    A holder writes its record just after locking, so an empty file is tried again for a moment:
+    it is either a run about to write, or :func:`remove_stale_lock_file` in another run, which
+    holds the lock of a file it found (maybe one this run has just created) for microseconds and
+    writes nothing. Without the second try a batch item was refused now and then while another
+    item's run cleaned the same folder.
+
+    Raises:
+        OSError: ``flock`` failing otherwise (a file system that cannot lock).
+    """
     deadline = time.monotonic() + 1.0
-    text = ""
     while True:
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            return None
+        except OSError as exc:
+            if exc.errno not in _BUSY:
+                raise
         try:
             text = os.pread(fd, 256, 0).decode("utf-8", "replace").strip()
         except OSError:
             text = ""
         if text or time.monotonic() > deadline:
-            break
-        time.sleep(0.02)
+            return text
+        time.sleep(0.005)
+
+
+def _owner_text(text: str) -> str:
+    """'one running (process 1234)' (or '... on host h') from a holder's record."""
     fields = text.split(maxsplit=1)
     if not fields or not fields[0].isdigit():
         return "one running (process unknown)"
@@ -223,11 +246,11 @@ class OutputLock:
                 raise InputError(str(self.path), self.field, "a location where files can be created",
                                  f"{self.file.parent} is not writable ({exc.strerror or exc})") from None
             try:
-                fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-            except OSError as exc:
-                if exc.errno not in (errno.EWOULDBLOCK, errno.EAGAIN, errno.EACCES):
-                    return fd  # a file system without locks (ENOLCK, EINVAL, ...): the run goes on unguarded
-                self._busy_owner = _owner_text(fd)
+                holder = _lock_or_holder(fd)
+            except OSError:
+                return fd  # a file system without locks (ENOLCK, EINVAL, ...): the run goes on unguarded
+            if holder is not None:
+                self._busy_owner = _owner_text(holder)
                 os.close(fd)
                 return None
             if _same_file(fd, self.file):

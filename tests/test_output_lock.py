@@ -4,6 +4,7 @@ user's files, and a commit killed half way rolled back by the next run."""
 
 from __future__ import annotations
 
+import fcntl
 import json
 import os
 import signal
@@ -30,6 +31,18 @@ with StagedOutput(out, replace=True) as stage:
     flag.write_text("staged")
     while flag.exists():
         time.sleep(0.05)
+"""
+
+
+#: Removes the unheld lock files of FOLDER in a loop while STOP exists.
+CLEAN = """
+import pathlib, sys
+from facegeo.output_lock import LOCK_PREFIX, remove_stale_lock_file
+folder, stop = pathlib.Path(sys.argv[1]), pathlib.Path(sys.argv[2])
+while stop.exists():
+    for entry in folder.iterdir():
+        if entry.name.startswith(LOCK_PREFIX):
+            remove_stale_lock_file(entry)
 """
 
 
@@ -122,6 +135,68 @@ def test_the_lock_is_reentrant_in_a_thread_but_not_across_threads(tmp_path):
         assert lock_file(out).is_file()
     assert len(seen) == 1 and f"process {os.getpid()})" in seen[0]
     assert not lock_file(out).exists() and sorted(p.name for p in tmp_path.iterdir()) == ["out"]
+
+
+def _hold_without_record(file: Path) -> int:
+    """Lock ``file`` from another open file without writing a record, as a cleaning run's
+    remove_stale_lock_file does for a moment; the descriptor."""
+    fd = os.open(file, os.O_RDWR | os.O_CREAT, 0o666)
+    fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    return fd
+
+
+def test_a_cleaner_holding_a_fresh_lock_file_for_a_moment_does_not_refuse_the_run(tmp_path):
+    out = tmp_path / "out"
+    fd = _hold_without_record(lock_file(out))
+
+    def clean() -> None:  # what remove_stale_lock_file does once it holds an unheld file
+        time.sleep(0.15)
+        os.unlink(lock_file(out))
+        os.close(fd)
+
+    cleaner = threading.Thread(target=clean)
+    cleaner.start()
+    try:
+        with locked_output(out) as lock:  # waited for, then taken under the same name
+            assert lock.held and lock_file(out).read_text().split()[0] == str(os.getpid())
+    finally:
+        cleaner.join()
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_a_holder_that_never_writes_its_record_is_refused_after_a_second(tmp_path):
+    out = tmp_path / "out"
+    fd = _hold_without_record(lock_file(out))
+    try:
+        start = time.monotonic()
+        with pytest.raises(InputError, match=r"found one running \(process unknown\)"), OutputLock(out):
+            pass  # pragma: no cover - refused on entry
+        assert 0.9 < time.monotonic() - start < 5
+    finally:
+        os.close(fd)
+
+
+def test_cleaning_runs_never_refuse_a_run_into_the_same_folder(tmp_path):
+    """Two processes cleaning the folder in a loop (as batch items do on entry) while this one
+    takes and gives back an item's lock: a lock file it has just created may be locked and removed
+    by a cleaner, which must not be taken for another run (before the fix, ~1 refusal in 1,000)."""
+    folder = tmp_path / "out"
+    folder.mkdir()
+    stop = tmp_path / "stop"
+    stop.write_text("")
+    cleaners = [_start(CLEAN, folder, stop) for _ in range(2)]
+    try:
+        deadline = time.monotonic() + 3.0
+        tries = 0
+        while time.monotonic() < deadline:
+            with OutputLock(folder / "item"):
+                tries += 1
+        stop.unlink()
+        assert all(c.wait(60) == 0 for c in cleaners), [c.communicate()[1] for c in cleaners]
+    finally:
+        for c in cleaners:
+            _stop(c)
+    assert tries > 500 and list(folder.iterdir()) == []
 
 
 def test_a_refused_lock_leaves_no_parent_folders(tmp_path):
