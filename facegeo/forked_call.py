@@ -126,9 +126,7 @@ class PendingCall:
         if chunks:  # answered: its exit status says nothing more, and the exit (the kernel freeing
             # its memory) took 15-35 ms after the answer of the reconstruct's export child: reaped on a thread
             self._reaped = True
-            reaper = threading.Thread(target=_reap, args=(self._pid,), daemon=True, name="facegeo-reap")
-            reaper.start()
-            _REAPERS.append(reaper)
+            _Reaper(self._pid).start()
             kind, value = pickle.loads(b"".join(chunks))
             if kind == "error":
                 raise value
@@ -158,24 +156,29 @@ class PendingCall:
             pass
 
 
-#: The threads reaping children that answered (:meth:`PendingCall.result`).
-_REAPERS: list[threading.Thread] = []
+class _Reaper(threading.Thread):
+    """A daemon thread collecting the exit of the child ``pid``, which has answered
+    (:meth:`PendingCall.result`)."""
+
+    def __init__(self, pid: int):
+        super().__init__(daemon=True, name="facegeo-reap")
+        self.pid = pid
+
+    def run(self) -> None:
+        try:
+            os.waitpid(self.pid, 0)
+        except ChildProcessError:  # collected already (a caller's own os.waitpid(-1, ...))
+            pass
 
 
 def wait_for_exits() -> None:
     """Wait until every child that answered has been reaped: before this process ends, so that
     none is left to the system (the ``facegeo`` command's quick exit, :func:`facegeo.cli.run`,
-    and its CPU counted with this process's children)."""
-    while _REAPERS:
-        _REAPERS.pop().join()
-
-
-def _reap(pid: int) -> None:
-    """Collect the exit of the child ``pid``, which has answered (:meth:`PendingCall.result`)."""
-    try:
-        os.waitpid(pid, 0)
-    except ChildProcessError:  # collected already (a caller's own os.waitpid(-1, ...))
-        pass
+    and its CPU counted with this process's children). The reapers are the live threads of
+    their kind, so a long-lived process keeps none that has ended."""
+    for thread in threading.enumerate():
+        if isinstance(thread, _Reaper):
+            thread.join()
 
 
 def _receiver(inbox: int) -> Callable[[], Any]:
